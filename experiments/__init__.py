@@ -1,0 +1,1 @@
+"""Experiments: specs, sweep runner, tables, figures, reports, benchmarks (the CLIs)."""
