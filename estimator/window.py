@@ -1,0 +1,655 @@
+"""Configuration-constrained window fit of sensor positions (dissertation Eq. 3.7 / 3.9).
+
+Source: ``000_8f82f8df647bf685.txt`` (GPS dissertation), Section 3.1. For a window of ``s``
+samples of ``m`` sensors, find sensor positions ``p_i`` (metres, world frame) minimizing
+
+    Z = sum_{w in window} sum_i sum_a  w_{w,i,a} (o_{w,i,a} - p_{i,a})^2          (Eq. 3.9,
+                                                                         3.12-3.14)
+    s.t. a_ij - eps <= |p_i - p_j| <= a_ij + eps   for all i < j                (Eq. 3.6/3.7)
+
+where ``o`` are the observations (NaN = missing: the sample simply drops out of the sum,
+Section 3.4.1), ``w`` the weights (isotropic ``(s, m)`` or per axis ``(s, m, d)``, Huber gives
+the latter, Eq. 3.12) and ``a_ij`` the configuration's distances.
+
+The reduction every solver here uses (it is exact): for each sensor and axis,
+
+    sum_w w_{w,a} (o_{w,a} - p_a)^2 = W_a (p_a - obar_a)^2 + sum_w w_{w,a} (o_{w,a} - obar_a)^2
+
+with ``W_a = sum_w w_{w,a}`` and ``obar_a`` the weighted window mean. The last term does
+not depend on ``p``, so the window fit is a fit to ``m`` weighted means: its cost is
+independent of the window length ``s`` once the means are formed (:func:`window_means`).
+
+Solvers (all return the proper-handed configuration, never its mirror image):
+
+``"procrustes"``
+    Closed-form weighted rigid fit (rotation, det = +1, and translation; no scaling) of the
+    body-frame configuration to the per-sensor means, with per-sensor weight ``W_i``
+    (Kabsch/Umeyama without scale). Distances are exact, so every constraint holds for any
+    ``eps``; it ignores the slack the constraints allow. With per-axis weights the exact
+    problem has no closed form; procrustes uses the per-axis weighted means and the
+    isotropic per-sensor weight ``W_i = mean_a W_{i,a}`` (the weight of a sensor whose axis
+    weights are equal is unchanged; a sensor with one axis of zero weight gets weight 0,
+    because its mean is not a point). The reported objective is still the exact Eq. 3.12
+    value at the fitted positions, and slsqp/ccp solve the exact anisotropic problem.
+``"slsqp"``
+    scipy SLSQP on Eq. 3.9 with analytic gradient and constraint Jacobian, the objective
+    divided by the total weight and the variables centred on the window, started from the
+    procrustes fit (or ``x0``). Result checked (feasibility, objective not worse than
+    procrustes, handedness); on failure the procrustes fit is returned with a status saying
+    why.
+``"ccp"``
+    The same problem by the convex-concave procedure in cvxpy + Clarabel: upper bounds as
+    second-order cones, lower bounds linearized at the current iterate (a restriction, so
+    every iterate is feasible and the objective never increases). The cvxpy problem is built
+    once per ``(m, d)`` with Parameters (DPP) and reused.
+
+Sensors without data (dead, or missing for the whole window) stay in the problem with zero
+cost: the constraints place them, and procrustes places them by the rigid transform.
+"""
+
+from __future__ import annotations
+
+import math
+import warnings
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+
+from estimator.configuration import SensorConfig
+
+__all__ = [
+    "WindowFit",
+    "BatchFit",
+    "SOLVERS",
+    "STATUSES",
+    "window_means",
+    "procrustes_batch",
+    "fit_window",
+    "fit_stationary",
+]
+
+SOLVERS = ("procrustes", "slsqp", "ccp")
+
+#: Status vocabulary of :class:`WindowFit` / :class:`BatchFit`.
+STATUSES = {
+    "ok": "solver result accepted (feasible, objective not worse than procrustes, proper-handed)",
+    "insufficient_data": "fewer than 2 observed sensors (d=2) or fewer than 3 non-collinear "
+                         "ones (d=3): positions from x0 if given, else NaN",
+    "fallback_infeasible": "solver result violated a distance by more than eps + tolerance; "
+                           "procrustes fit returned",
+    "fallback_objective": "solver result worse than the procrustes start; procrustes returned",
+    "fallback_mirrored": "solver result was the mirror image of the configuration; "
+                         "procrustes returned",
+    "fallback_failed": "solver raised or returned no solution; procrustes returned",
+}
+
+_TWO_PI = 2.0 * math.pi
+
+
+def _wrap(a: np.ndarray) -> np.ndarray:
+    """Wrap angles to (-pi, pi]."""
+    out = np.mod(a + math.pi, _TWO_PI) - math.pi
+    return np.where(out <= -math.pi, out + _TWO_PI, out)
+
+
+# ----------------------------------------------------------------------------- results
+@dataclass(frozen=True)
+class WindowFit:
+    """Result of one window fit.
+
+    positions : (m, d) metres, world frame, every sensor (also those without data).
+    cg : (d,) centre of gravity from the CG members (Eq. 3.8).
+    yaw : heading of the body +x axis, rad, CCW from world +x, in (-pi, pi].
+    objective : Eq. 3.9 value Z (weighted squared residuals, m^2, not normalized) at
+        ``positions``; exact for per-axis weights too.
+    mirror_objective : Z of the best det = -1 rigid fit (how ambiguous the window was; if it
+        is below ``objective`` the data alone prefer the mirror image).
+    max_violation : max_ij | |p_i - p_j| - a_ij |, metres; the constraints hold iff it is
+        <= eps. Procrustes gives ~1e-15.
+    solver : the solver asked for. iterations : solver iterations (0 for procrustes).
+    status : one of :data:`STATUSES`.
+    """
+
+    positions: np.ndarray
+    cg: np.ndarray
+    yaw: float
+    objective: float
+    mirror_objective: float
+    max_violation: float
+    solver: str
+    iterations: int
+    status: str
+
+
+@dataclass(frozen=True)
+class BatchFit:
+    """Batched procrustes result for N windows.
+
+    positions (N, m, d), rotation (N, d, d) (world = rotation @ body + translation),
+    translation (N, d), cg (N, d), yaw (N,), status (N,) str ("ok" | "insufficient_data"),
+    objective (N,) and mirror_objective (N,): sum_i W_i |p_i - mean_i|^2 of the proper and
+    of the best mirrored (det = -1) rigid fit, i.e. Z without the within-window scatter term.
+    Windows with insufficient data have NaN in every numeric field.
+    """
+
+    positions: np.ndarray
+    rotation: np.ndarray
+    translation: np.ndarray
+    cg: np.ndarray
+    yaw: np.ndarray
+    status: np.ndarray
+    objective: np.ndarray
+    mirror_objective: np.ndarray
+
+
+# ----------------------------------------------------------------------------- validation
+def _check_obs(obs: Any, *, min_ndim: int = 3) -> tuple[np.ndarray, np.ndarray]:
+    """Return (obs as float array, present mask (..., s, m)). NaN marks missing samples."""
+    arr = np.asarray(obs, dtype=float)
+    if arr.ndim < min_ndim:
+        raise ValueError(f"obs: expected shape (..., s, m, d), got shape {arr.shape}")
+    if arr.shape[-1] not in (2, 3):
+        raise ValueError(f"obs: last axis must be d = 2 or 3 coordinates, got shape {arr.shape}")
+    nan = np.isnan(arr)
+    if np.isinf(arr).any():
+        raise ValueError("obs: contains infinite values (use NaN for missing samples)")
+    missing = nan.any(axis=-1)
+    if (missing != nan.all(axis=-1)).any():
+        idx = tuple(int(v) for v in np.argwhere(missing != nan.all(axis=-1))[0])
+        raise ValueError(
+            f"obs: sample {idx} has some coordinates NaN and others not; a missing "
+            f"observation must be NaN in every coordinate")
+    return arr, ~missing
+
+
+def _check_weights(weights: Any, obs_shape: tuple[int, ...]) -> np.ndarray:
+    w = np.asarray(weights, dtype=float)
+    if w.shape != obs_shape[:-1] and w.shape != obs_shape:
+        raise ValueError(
+            f"weights: expected shape {obs_shape[:-1]} (per sample and sensor) or {obs_shape} "
+            f"(per axis) to match obs, got {w.shape}")
+    if not np.isfinite(w).all():
+        raise ValueError("weights: contains NaN or infinite values (missing samples need a "
+                         "finite weight, e.g. 0)")
+    if (w < 0).any():
+        raise ValueError(f"weights: must be >= 0, found minimum {w.min()!r}")
+    return w
+
+
+def _axis_weights(obs: np.ndarray, present: np.ndarray, weights: Any | None) -> np.ndarray:
+    """Per-axis weights (..., s, m, d), zero at missing samples."""
+    if weights is None:
+        w = present.astype(float)
+        return np.broadcast_to(w[..., None], obs.shape)
+    w = _check_weights(weights, obs.shape)
+    if w.ndim == obs.ndim - 1:
+        w = w[..., None]
+    return np.where(present[..., None], w, 0.0) * np.ones(obs.shape[-1])
+
+
+def _moments(obs: np.ndarray, present: np.ndarray, weights: Any | None
+             ) -> tuple[np.ndarray, np.ndarray]:
+    """Per-axis weighted means (..., m, d) (NaN where the axis weight is 0) and axis weights."""
+    wa = _axis_weights(obs, present, weights)
+    o = np.where(present[..., None], obs, 0.0)
+    Wa = wa.sum(axis=-3)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        means = (wa * o).sum(axis=-3) / Wa
+    means = np.where(Wa > 0, means, np.nan)
+    return means, Wa
+
+
+def window_means(obs: Any, weights: Any | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """Weighted per-sensor window means: the sufficient statistics of Eq. 3.9.
+
+    obs : (..., s, m, d) metres, NaN = missing sample (drops out).
+    weights : None (all 1), (..., s, m) isotropic, or (..., s, m, d) per axis; finite, >= 0.
+    Returns ``means (..., m, d)`` (NaN where the sensor has zero weight) and
+    ``sensor_weight (..., m)`` = total weight per sensor (0 where no data). With per-axis
+    weights the means are per axis and ``sensor_weight`` is the mean of the axis weights
+    (0 if any axis has zero weight); see the module docstring for why.
+    """
+    arr, present = _check_obs(obs)
+    means, Wa = _moments(arr, present, weights)
+    full = (Wa > 0).all(axis=-1)
+    sw = np.where(full, Wa.mean(axis=-1), 0.0)
+    means = np.where(full[..., None], means, np.nan)
+    return means, sw
+
+
+# ----------------------------------------------------------------------------- procrustes
+def _body_collinear(Bc: np.ndarray, w: np.ndarray) -> np.ndarray:
+    """(N,) True where the weighted observed body points span fewer than 2 dimensions (d=3)."""
+    C = np.einsum("nm,nmi,nmj->nij", w, Bc, Bc)
+    ev = np.linalg.eigvalsh(C)  # ascending
+    return ev[:, -2] <= 1e-12 * np.maximum(ev[:, -1], 1e-300)
+
+
+def procrustes_batch(means: Any, sensor_weight: Any, config: SensorConfig) -> BatchFit:
+    """Closed-form weighted rigid fit of ``config`` to N windows' means in one numpy call.
+
+    Kabsch/Umeyama without scale: minimize ``sum_i W_i |R b_i + t - mean_i|^2`` over
+    rotations ``R`` (det = +1) and translations ``t``; by the reduction in the module
+    docstring this is Eq. 3.9 with every distance held exactly. d = 2 uses the closed form
+    ``theta = atan2(M10 - M01, M00 + M11)`` with ``M = sum_i W_i (y_i - ybar)(b_i - bbar)^T``;
+    d = 3 uses a batched SVD with the determinant correction.
+
+    means : (N, m, d) metres (NaN allowed where the weight is 0); sensor_weight : (N, m) >= 0.
+    Windows with fewer than 2 weighted sensors (d = 2), or fewer than 3 non-collinear ones
+    (d = 3), get status "insufficient_data" and NaN fields. Sensors with zero weight still
+    get positions from the rigid transform.
+    """
+    Y = np.asarray(means, dtype=float)
+    w = np.asarray(sensor_weight, dtype=float)
+    m, d = config.m, config.d
+    if Y.ndim != 3 or Y.shape[1:] != (m, d):
+        raise ValueError(f"means: expected shape (N, {m}, {d}) for config {config.name!r}, "
+                         f"got {Y.shape}")
+    if w.shape != Y.shape[:2]:
+        raise ValueError(f"sensor_weight: expected shape {Y.shape[:2]}, got {w.shape}")
+    if not np.isfinite(w).all() or (w < 0).any():
+        raise ValueError("sensor_weight: must be finite and >= 0")
+    valid = w > 0
+    if np.isinf(Y).any() or np.isnan(Y[valid]).any():
+        raise ValueError("means: must be finite wherever sensor_weight > 0")
+    N = Y.shape[0]
+    B = config.body_positions
+    Y0 = np.where(valid[..., None], Y, 0.0)
+    Wsum = w.sum(axis=1)
+    nobs = valid.sum(axis=1)
+    safe = np.where(Wsum > 0, Wsum, 1.0)
+    ybar = np.einsum("nm,nma->na", w, Y0) / safe[:, None]
+    bbar = (w @ B) / safe[:, None]
+    Yc = Y0 - ybar[:, None, :]
+    Bc = B[None, :, :] - bbar[:, None, :]
+    wYc = w[..., None] * Yc
+    M = np.einsum("nma,nmb->nab", wYc, Bc)
+    Sy = np.einsum("nma,nma->n", wYc, Yc)
+    Sb = np.einsum("nm,nma->n", w, Bc * Bc)
+    if d == 2:
+        ok = nobs >= 2
+        p_c = M[:, 0, 0] + M[:, 1, 1]
+        p_s = M[:, 1, 0] - M[:, 0, 1]
+        theta = np.arctan2(p_s, p_c)
+        c, s = np.cos(theta), np.sin(theta)
+        R = np.empty((N, 2, 2))
+        R[:, 0, 0] = c
+        R[:, 0, 1] = -s
+        R[:, 1, 0] = s
+        R[:, 1, 1] = c
+        best = np.hypot(p_c, p_s)
+        best_mirror = np.hypot(M[:, 0, 0] - M[:, 1, 1], M[:, 0, 1] + M[:, 1, 0])
+    else:
+        ok = nobs >= 3
+        if ok.any():
+            ok = ok & ~_body_collinear(Bc, w)
+        U, S, Vt = np.linalg.svd(M)
+        det = np.sign(np.linalg.det(U @ Vt))
+        det = np.where(det == 0, 1.0, det)
+        Dg = np.ones((N, 3))
+        Dg[:, 2] = det
+        R = np.einsum("nab,nb,nbc->nac", U, Dg, Vt)
+        best = S[:, 0] + S[:, 1] + det * S[:, 2]
+        best_mirror = S[:, 0] + S[:, 1] - det * S[:, 2]
+    obj = np.maximum(Sy + Sb - 2.0 * best, 0.0)
+    mobj = np.maximum(Sy + Sb - 2.0 * best_mirror, 0.0)
+    t = ybar - np.einsum("nab,nb->na", R, bbar)
+    pos = np.einsum("nab,mb->nma", R, B) + t[:, None, :]
+    yaw = _wrap(np.arctan2(R[:, 1, 0], R[:, 0, 0]))
+    bad = ~ok
+    if bad.any():
+        pos[bad] = np.nan
+        R[bad] = np.nan
+        t[bad] = np.nan
+        yaw[bad] = np.nan
+        obj[bad] = np.nan
+        mobj[bad] = np.nan
+    status = np.where(ok, "ok", "insufficient_data")
+    return BatchFit(positions=pos, rotation=R, translation=t, cg=config.cg_from_positions(pos),
+                    yaw=yaw, status=status, objective=obj, mirror_objective=mobj)
+
+
+def _mirror_fit_positions(means: np.ndarray, sw: np.ndarray, B: np.ndarray) -> np.ndarray:
+    """Positions of the best det = -1 rigid fit (weighted), one window: (m, d)."""
+    Bm = B.copy()
+    Bm[:, -1] = -Bm[:, -1]  # reflect the body; a proper fit of it is an improper fit of B
+    valid = sw > 0
+    Y0 = np.where(valid[:, None], means, 0.0)
+    W = sw.sum()
+    ybar = (sw @ Y0) / W
+    bbar = (sw @ Bm) / W
+    M = ((sw[:, None] * (Y0 - ybar)).T) @ (Bm - bbar)
+    U, _, Vt = np.linalg.svd(M)
+    D = np.ones(B.shape[1])
+    D[-1] = np.sign(np.linalg.det(U @ Vt)) or 1.0
+    R = (U * D) @ Vt
+    return Bm @ R.T + (ybar - R @ bbar)
+
+
+def _is_mirrored(positions: np.ndarray, B: np.ndarray) -> bool:
+    """True if the best orthogonal fit of the body ``B`` onto ``positions`` is improper."""
+    P = positions - positions.mean(axis=0)
+    Bc = B - B.mean(axis=0)
+    M = P.T @ Bc
+    if B.shape[1] == 2:
+        proper = math.hypot(M[0, 0] + M[1, 1], M[1, 0] - M[0, 1])
+        improper = math.hypot(M[0, 0] - M[1, 1], M[0, 1] + M[1, 0])
+        return improper > proper
+    U, S, Vt = np.linalg.svd(M)
+    return bool(np.linalg.det(U @ Vt) < 0 and S[-1] > 1e-12 * S[0])
+
+
+# ----------------------------------------------------------------------------- helpers
+def _pairs(m: int) -> tuple[np.ndarray, np.ndarray]:
+    return np.triu_indices(m, 1)
+
+
+def _max_violation(positions: np.ndarray, config: SensorConfig) -> float:
+    I, J = _pairs(config.m)
+    dist = np.linalg.norm(positions[I] - positions[J], axis=1)
+    return float(np.max(np.abs(dist - config.distances()[I, J])))
+
+
+def _objective(obs0: np.ndarray, wa: np.ndarray, positions: np.ndarray) -> float:
+    """Exact Eq. 3.9/3.12 value: sum w (o - p)^2 over present samples (obs0 has 0 there)."""
+    r = obs0 - positions[None]
+    return float((wa * r * r).sum())
+
+
+def _check_eps(eps: Any, config: SensorConfig) -> float:
+    try:
+        e = float(eps)
+    except (TypeError, ValueError):
+        raise ValueError(f"eps: must be a number in metres, got {eps!r}") from None
+    D = config.distances()
+    dmin = float(D[np.triu_indices(config.m, 1)].min())
+    if not (math.isfinite(e) and 0.0 < e < dmin / 2.0):
+        raise ValueError(
+            f"eps: must satisfy 0 < eps < min distance / 2 = {dmin / 2.0:.6g} m for config "
+            f"{config.name!r}, got {eps!r}")
+    return e
+
+
+def _check_x0(x0: Any, config: SensorConfig) -> np.ndarray | None:
+    if x0 is None:
+        return None
+    a = np.asarray(x0, dtype=float)
+    if a.shape != (config.m, config.d):
+        raise ValueError(f"x0: expected shape ({config.m}, {config.d}), got {a.shape}")
+    if not np.isfinite(a).all():
+        raise ValueError("x0: must be finite")
+    return a
+
+
+def _result(positions_c: np.ndarray, centre: np.ndarray, config: SensorConfig,
+            objective: float, mirror: float, solver: str, iterations: int, status: str,
+            yaw: float | None = None) -> WindowFit:
+    """Assemble a WindowFit from window-centred positions (distances and yaw are computed
+    before adding the centre back, so UTM-sized coordinates cost no precision)."""
+    if np.isfinite(positions_c).all():
+        if yaw is None:
+            yaw = _yaw_of(positions_c, config)
+        viol = _max_violation(positions_c, config)
+    else:
+        yaw, viol = float("nan"), float("nan")
+    positions = positions_c + centre
+    return WindowFit(positions=positions, cg=config.cg_from_positions(positions),
+                     yaw=float(yaw), objective=float(objective), mirror_objective=float(mirror),
+                     max_violation=viol, solver=solver, iterations=int(iterations),
+                     status=status)
+
+
+def _yaw_of(positions: np.ndarray, config: SensorConfig) -> float:
+    """Heading of the best proper rigid fit of the body onto ``positions`` (unweighted)."""
+    fit = procrustes_batch(positions[None], np.ones((1, config.m)), config)
+    return float(fit.yaw[0])
+
+
+# ----------------------------------------------------------------------------- public fit
+def fit_window(obs: Any, config: SensorConfig, weights: Any | None = None, eps: float = 0.01,
+               solver: str = "procrustes", x0: Any | None = None, *, maxiter: int = 100,
+               ) -> WindowFit:
+    """Fit the known configuration to one window of observations (Eq. 3.9; Eq. 3.7 when the
+    window is the whole stationary recording; Eq. 3.12-3.14 with weights).
+
+    obs : (s, m, d) metres, NaN = missing sample. weights : None, (s, m) or (s, m, d),
+    finite and >= 0. eps : constraint slack in metres, 0 < eps < min_ij a_ij / 2.
+    solver : "procrustes" | "slsqp" | "ccp" (module docstring). x0 : (m, d) start for
+    slsqp/ccp (default: the procrustes fit) and the positions returned when the window has
+    insufficient data. maxiter : iteration limit of slsqp / ccp.
+    Raises ValueError naming the field for malformed input; solver trouble is in ``status``.
+    """
+    if not isinstance(config, SensorConfig):
+        raise ValueError(f"config: expected a SensorConfig, got {type(config).__name__}")
+    arr, present = _check_obs(obs)
+    if arr.ndim != 3 or arr.shape[1:] != (config.m, config.d):
+        raise ValueError(
+            f"obs: expected shape (s, {config.m}, {config.d}) for config {config.name!r} "
+            f"(m={config.m}, d={config.d}), got {arr.shape}")
+    if solver not in SOLVERS:
+        raise ValueError(f"solver: unknown {solver!r}; choose one of {list(SOLVERS)}")
+    e = _check_eps(eps, config)
+    x0a = _check_x0(x0, config)
+    if not (isinstance(maxiter, (int, np.integer)) and maxiter >= 1):
+        raise ValueError(f"maxiter: must be a positive integer, got {maxiter!r}")
+
+    wa = _axis_weights(arr, present, weights)
+    # centre on the window (UTM coordinates are ~1e6 m): any fixed reference point works
+    centre = arr[present].mean(axis=0) if present.any() else np.zeros(config.d)
+    obs0 = np.where(present[..., None], arr - centre, 0.0)
+    Wa = wa.sum(axis=0)  # (m, d)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        means = np.where(Wa > 0, (wa * obs0).sum(axis=0) / Wa, np.nan)
+    full = (Wa > 0).all(axis=-1)
+    sw = np.where(full, Wa.mean(axis=-1), 0.0)
+    bf = procrustes_batch(np.where(full[:, None], means, np.nan)[None], sw[None], config)
+
+    if bf.status[0] != "ok":
+        if x0a is not None:
+            obj = _objective(obs0, wa, x0a - centre)
+            return _result(x0a - centre, centre, config, obj, float("nan"), solver, 0,
+                           "insufficient_data")
+        nanpos = np.full((config.m, config.d), np.nan)
+        return _result(nanpos, centre, config, float("nan"), float("nan"), solver, 0,
+                       "insufficient_data")
+
+    p_proc = bf.positions[0]
+    obj_proc = _objective(obs0, wa, p_proc)
+    if weights is None or np.ndim(weights) == 2:
+        # isotropic weights: Z = reduced objective + within-window scatter (module docstring)
+        scatter = float((wa * (obs0 - np.where(full[:, None], means, 0.0)) ** 2).sum())
+        mirror = float(bf.mirror_objective[0]) + scatter
+    else:
+        mirror = _objective(obs0, wa, _mirror_fit_positions(
+            np.where(full[:, None], means, 0.0), sw, config.body_positions))
+    if solver == "procrustes":
+        return _result(p_proc, centre, config, obj_proc, mirror, solver, 0, "ok",
+                       yaw=float(bf.yaw[0]))
+
+    start = p_proc if x0a is None else x0a - centre
+    yc = np.where(Wa > 0, means, 0.0)
+    try:
+        if solver == "slsqp":
+            p_sol, iters = _solve_slsqp(yc, Wa, config, e, start, maxiter)
+        else:
+            p_sol, iters = _solve_ccp(yc, Wa, config, e, start, maxiter)
+    except (ValueError, ArithmeticError, np.linalg.LinAlgError, RuntimeError):
+        p_sol, iters = None, 0
+    status = _accept(p_sol, obs0, wa, obj_proc, config, e)
+    if status != "ok":
+        return _result(p_proc, centre, config, obj_proc, mirror, solver, iters, status,
+                       yaw=float(bf.yaw[0]))
+    return _result(p_sol, centre, config, _objective(obs0, wa, p_sol), mirror, solver,
+                   iters, "ok")
+
+
+def fit_stationary(obs: Any, config: SensorConfig, **kw: Any) -> WindowFit:
+    """Whole-recording estimate of a stationary platform (Eq. 3.7): :func:`fit_window` with
+    the entire recording ``obs (n, m, d)`` as one window; keywords as for fit_window."""
+    return fit_window(obs, config, **kw)
+
+
+#: acceptance tolerances of slsqp / ccp results (metres, relative objective)
+FEAS_TOL = 1e-9
+OBJ_RTOL = 1e-9
+
+
+def _accept(p: np.ndarray | None, obs0: np.ndarray, wa: np.ndarray, obj_proc: float,
+            config: SensorConfig, eps: float) -> str:
+    if p is None or not np.isfinite(p).all():
+        return "fallback_failed"
+    if _max_violation(p, config) > eps + FEAS_TOL:
+        return "fallback_infeasible"
+    if _objective(obs0, wa, p) > obj_proc * (1.0 + OBJ_RTOL) + 1e-12:
+        return "fallback_objective"
+    if _is_mirrored(p, config.body_positions):
+        return "fallback_mirrored"
+    return "ok"
+
+
+# ----------------------------------------------------------------------------- slsqp
+def _pair_jacobian_builder(m: int, d: int):
+    I, J = _pairs(m)
+    P = I.size
+    rows = np.arange(P)
+    colsI = I[:, None] * d + np.arange(d)
+    colsJ = J[:, None] * d + np.arange(d)
+    return I, J, rows, colsI, colsJ, P
+
+
+def _solve_slsqp(yc: np.ndarray, Wa: np.ndarray, config: SensorConfig, eps: float,
+                 start: np.ndarray, maxiter: int) -> tuple[np.ndarray, int]:
+    """SLSQP on the reduced Eq. 3.9: f(z) = sum_ia Wn_ia (z_ia - yc_ia)^2 with Wn = Wa / sum Wa
+    (objective divided by the total weight), variables centred on the window, constraints
+    (a+eps)^2 - |z_i - z_j|^2 >= 0 and |z_i - z_j|^2 - (a-eps)^2 >= 0 (Eq. 3.6)."""
+    from scipy.optimize import minimize
+
+    m, d = config.m, config.d
+    I, J, rows, colsI, colsJ, P = _pair_jacobian_builder(m, d)
+    a = config.distances()[I, J]
+    hi2 = (a + eps) ** 2
+    lo2 = (a - eps) ** 2
+    Wn = Wa / Wa.sum()
+
+    def fun(x: np.ndarray) -> tuple[float, np.ndarray]:
+        r = x.reshape(m, d) - yc
+        g = Wn * r
+        return float((g * r).sum()), (2.0 * g).ravel()
+
+    def cons(x: np.ndarray) -> np.ndarray:
+        z = x.reshape(m, d)
+        diff = z[I] - z[J]
+        q = (diff * diff).sum(axis=1)
+        return np.concatenate([hi2 - q, q - lo2])
+
+    def cons_jac(x: np.ndarray) -> np.ndarray:
+        z = x.reshape(m, d)
+        diff = 2.0 * (z[I] - z[J])
+        Jq = np.zeros((P, m * d))
+        Jq[rows[:, None], colsI] = diff
+        Jq[rows[:, None], colsJ] = -diff
+        return np.concatenate([-Jq, Jq])
+
+    res = minimize(fun, start.ravel(), jac=True, method="SLSQP",
+                   constraints=[{"type": "ineq", "fun": cons, "jac": cons_jac}],
+                   options={"maxiter": int(maxiter), "ftol": 1e-12})
+    return res.x.reshape(m, d), int(res.nit)
+
+
+# ----------------------------------------------------------------------------- ccp
+#: (m, d) -> (problem, z, sqrt_w, sqrt_w_y, U, ub, lb); built once, reused (DPP)
+_CCP_CACHE: dict[tuple[int, int], tuple] = {}
+
+#: Clarabel tolerances: tighter than the defaults (1e-8) so accepted iterates satisfy the
+#: distance bounds to FEAS_TOL (1e-9 m) on metre-sized platforms
+CLARABEL_OPTIONS = {"tol_feas": 1e-10, "tol_gap_abs": 1e-10, "tol_gap_rel": 1e-10}
+
+#: metres by which the ccp subproblems tighten the eps band (guards solver round-off)
+CCP_MARGIN = 1e-8
+
+#: ccp stops when one iteration improves the normalized objective by less than this fraction
+CCP_RTOL = 1e-8
+
+
+def _ccp_problem(m: int, d: int) -> tuple:
+    key = (m, d)
+    if key not in _CCP_CACHE:
+        import cvxpy as cp
+
+        I, J = _pairs(m)
+        P = I.size
+        E = np.zeros((P, m))
+        E[np.arange(P), I] = 1.0
+        E[np.arange(P), J] = -1.0
+        z = cp.Variable((m, d))
+        sqrt_w = cp.Parameter((m, d), nonneg=True)
+        sqrt_w_y = cp.Parameter((m, d))
+        U = cp.Parameter((P, d))
+        ub = cp.Parameter(P, nonneg=True)
+        lb = cp.Parameter(P)
+        D = E @ z
+        objective = cp.sum_squares(cp.multiply(sqrt_w, z) - sqrt_w_y)
+        constraints = [cp.norm(D, 2, axis=1) <= ub,              # convex upper bound (SOC)
+                       cp.sum(cp.multiply(U, D), axis=1) >= lb]  # linearized lower bound
+        prob = cp.Problem(cp.Minimize(objective), constraints)
+        assert prob.is_dcp(dpp=True)
+        _CCP_CACHE[key] = (prob, z, sqrt_w, sqrt_w_y, U, ub, lb)
+    return _CCP_CACHE[key]
+
+
+def _solve_ccp(yc: np.ndarray, Wa: np.ndarray, config: SensorConfig, eps: float,
+               start: np.ndarray, maxiter: int) -> tuple[np.ndarray, int]:
+    """Convex-concave procedure for Eq. 3.9 (normalized by the total weight).
+
+    Each iteration solves, with u_ij the unit direction of p_i - p_j at the current iterate,
+        min sum Wn (z - yc)^2  s.t.  |z_i - z_j| <= a_ij + eps,  u_ij . (z_i - z_j) >= a_ij - eps.
+    Because u . v <= |v|, the linearized lower bound implies the true one: every iterate is
+    feasible for Eq. 3.9 and the objective is non-increasing. Stops when an iteration improves
+    the objective by less than CCP_RTOL (relative) or after ``maxiter`` iterations.
+    """
+    import cvxpy as cp
+
+    m, d = config.m, config.d
+    prob, z, sqrt_w, sqrt_w_y, U, ub, lb = _ccp_problem(m, d)
+    I, J = _pairs(m)
+    a = config.distances()[I, J]
+    Wn = Wa / Wa.sum()
+    sw = np.sqrt(Wn)
+    sqrt_w.value = sw
+    sqrt_w_y.value = sw * yc
+    # solve inside the band by CCP_MARGIN so solver round-off (~1e-9 m seen) cannot break Eq. 3.6
+    ub.value = a + eps - CCP_MARGIN
+    lb.value = a - eps + CCP_MARGIN
+
+    def f(x: np.ndarray) -> float:
+        r = x - yc
+        return float((Wn * r * r).sum())
+
+    cur = start.copy()
+    f_cur = math.inf  # the start may be infeasible (x0): the first iterate is always taken
+    it = 0
+    for it in range(1, maxiter + 1):
+        diff = cur[I] - cur[J]
+        nrm = np.linalg.norm(diff, axis=1)
+        # a degenerate start (coincident points) gets the body-frame direction
+        fallback_dir = config.body_positions[I] - config.body_positions[J]
+        diff = np.where(nrm[:, None] > 1e-12, diff, fallback_dir)
+        U.value = diff / np.linalg.norm(diff, axis=1)[:, None]
+        with warnings.catch_warnings():
+            # "solution may be inaccurate": the iterate is checked below and in _accept
+            warnings.simplefilter("ignore", UserWarning)
+            prob.solve(solver=cp.CLARABEL, **CLARABEL_OPTIONS)
+        if z.value is None or prob.status not in ("optimal", "optimal_inaccurate"):
+            if it == 1:
+                raise RuntimeError(f"ccp: subproblem status {prob.status}")
+            break
+        nxt = np.asarray(z.value)
+        f_nxt = f(nxt)
+        if it > 1 and (f_nxt > f_cur or _max_violation(nxt, config) > eps + FEAS_TOL):
+            break  # keep the last accepted iterate
+        improved = f_cur - f_nxt
+        cur, f_prev, f_cur = nxt, f_cur, f_nxt
+        if it > 1 and improved <= CCP_RTOL * f_prev:
+            break
+    return cur, it
