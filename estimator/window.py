@@ -59,14 +59,14 @@ import numpy as np
 from estimator.configuration import SensorConfig
 
 __all__ = [
-    "WindowFit",
-    "BatchFit",
     "SOLVERS",
     "STATUSES",
-    "window_means",
-    "procrustes_batch",
-    "fit_window",
+    "BatchFit",
+    "WindowFit",
     "fit_stationary",
+    "fit_window",
+    "procrustes_batch",
+    "window_means",
 ]
 
 SOLVERS = ("procrustes", "slsqp", "ccp")
@@ -421,7 +421,8 @@ def fit_window(obs: Any, config: SensorConfig, weights: Any | None = None, eps: 
     Raises ValueError naming the field for malformed input; solver trouble is in ``status``.
     """
     if not isinstance(config, SensorConfig):
-        raise ValueError(f"config: expected a SensorConfig, got {type(config).__name__}")
+        raise ValueError(  # noqa: TRY004 (the project's bad-input contract is ValueError)
+            f"config: expected a SensorConfig, got {type(config).__name__}")
     arr, present = _check_obs(obs)
     if arr.ndim != 3 or arr.shape[1:] != (config.m, config.d):
         raise ValueError(

@@ -1,0 +1,226 @@
+"""Observation weights for the window fit: Huber, deleted residuals, Huff, random.
+
+Source: GPS dissertation (``000_8f82f8df647bf685.txt``), Section 3.3: Huber weights
+(3.3.1, Eq. 3.11-3.12), standardized deleted residuals (3.3.2), the Huff weight function
+(3.3.3, Eq. 3.13) and the product Huff x Huber (Eq. 3.14); random weights are the control.
+
+Every function accepts leading batch dimensions: ``obs`` is ``(..., s, m, d)`` (d = 2 for
+GPS; Huff also takes d = 3), so stacked sliding windows ``(N, s, m, d)`` are weighted in one
+call. Statistics that the source computes "per sensor" (medians, MAD, the hat matrix) run over
+the ``s`` axis of each window, i.e. within the window the estimate uses. Missing
+observations (NaN) always get weight 0 (never NaN), and every result feeds
+:func:`estimator.window.fit_window` unchanged.
+"""
+
+from __future__ import annotations
+
+import math
+import warnings
+from typing import Any
+
+import numpy as np
+
+from estimator.configuration import SensorConfig
+
+__all__ = [
+    "HUBER_C",
+    "MAD_CONSISTENCY",
+    "deleted_residual_mask",
+    "huber_weights",
+    "huff_huber_weights",
+    "huff_weights",
+    "random_weights",
+]
+
+#: Huber tuning constant (Section 3.3.1, step 3): 95 % efficiency at the normal
+HUBER_C = 1.345
+#: MAD / 0.6745 estimates the standard deviation of normal data (Section 3.3.1, step 1)
+MAD_CONSISTENCY = 0.6745
+
+
+def _obs(obs: Any) -> tuple[np.ndarray, np.ndarray]:
+    arr = np.asarray(obs, dtype=float)
+    if arr.ndim < 3 or arr.shape[-1] not in (2, 3):
+        raise ValueError(f"obs: expected shape (..., s, m, d) with d = 2 or 3, got {arr.shape}")
+    if np.isinf(arr).any():
+        raise ValueError("obs: contains infinite values (use NaN for missing samples)")
+    return arr, np.isnan(arr)
+
+
+def _robust_residuals(arr: np.ndarray, nan: np.ndarray
+                      ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Per sensor and axis over the window axis (-3): residuals from the median (Eq. 3.11),
+    robust scale MAD/0.6745 (3.3.1 step 1) and the number of present samples n."""
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", RuntimeWarning)  # all-NaN sensors: handled below
+        med = np.nanmedian(arr, axis=-3, keepdims=True)
+        e = arr - med
+        mad = np.nanmedian(np.abs(e), axis=-3, keepdims=True) / MAD_CONSISTENCY
+    n = (~nan).sum(axis=-3, keepdims=True)
+    return e, mad, n
+
+
+def huber_weights(obs: Any, c: float = HUBER_C) -> np.ndarray:
+    """Huber weights per sample, sensor and axis (Section 3.3.1, Eq. 3.11-3.12).
+
+    obs : (..., s, m, d) metres, NaN = missing. Returns (..., s, m, d) in [0, 1].
+
+    Steps, per sensor and axis over the window: residual ``e = x - median(x)`` (Eq. 3.11);
+    scale ``MAD = median|e - median(e)| / 0.6745`` (median(e) = 0 here, so this is
+    ``median|e| / 0.6745``); ``u = e / MAD``; ``w = 1`` if ``|u| <= c`` else ``c / |u|``.
+    This is statsmodels' ``HuberT(t=c).weights(u)``. When MAD = 0 (more than half of the
+    samples equal the median) the limit MAD -> 0 is used: weight 1 at zero residual, 0
+    otherwise. Missing samples get 0.
+    """
+    c = float(c)
+    if not (math.isfinite(c) and c > 0):
+        raise ValueError(f"c: Huber constant must be a positive number, got {c!r}")
+    arr, nan = _obs(obs)
+    e, mad, _ = _robust_residuals(arr, nan)
+    ae = np.abs(e)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        w = np.where(ae <= c * mad, 1.0, c * mad / ae)
+    return np.where(nan, 0.0, w)
+
+
+def deleted_residual_mask(obs: Any, threshold: float | None = None, *,
+                          rule: str = "standardized") -> np.ndarray:
+    """Keep-mask from standardized deleted residuals (Section 3.3.2). True = keep.
+
+    obs : (..., s, m, d) metres, NaN = missing. Returns (..., s, m, d) bool, **True for
+    observations kept** (so the mask can be passed to ``fit_window`` as weights directly),
+    False for outliers and for missing samples.
+
+    Reading of the source, per sensor and axis over the window (n present samples):
+
+    * Steps 1-2: residual from the median, ``e = x - median(x)``.
+    * Step 3, hat matrix: the "predicted response" is a location (one parameter per sensor
+      and axis), i.e. the regression ``x_t = mu + error`` with design matrix a column of ones.
+      Its hat matrix is ``H = 1 1^T / n``, so ``h_tt = 1/n`` for every sample, and the deleted
+      residual is ``d = e / (1 - 1/n)``. (For the mean, ``d`` is exactly the residual from
+      the mean of the other n - 1 samples; the source swaps in the median, which has no hat
+      matrix, and we keep its leverage 1/n.) With n = 1, h = 1 and nothing can be judged:
+      the sample is kept.
+    * Step 4 says values ``<= 1.0`` are outliers. Read literally this removes every negative
+      residual and every residual below 1 m, i.e. the inliers: the inequality reads
+      inverted and the residual is not standardized (the section's title says
+      "standardized"). The literal rule is therefore not offered. Two readings are:
+
+      ``rule="standardized"`` (default): ``d* = d / (sigma / sqrt(1 - h)) = e / (sigma
+      sqrt(1 - 1/n))`` with the robust scale ``sigma = MAD / 0.6745`` (as in 3.3.1; robust,
+      so no leave-one-out refit of the scale is needed). Var(d) = sigma^2 / (1 - h) for
+      the location model, so d* is unit-variance for normal data. Flag ``|d*| > threshold``,
+      default 3.0 (the usual cut-off for studentized residuals). MAD = 0: any non-zero
+      residual is flagged.
+
+      ``rule="absolute"``: the text's number with the inequality turned around, in metres:
+      flag ``|d| > threshold``, default 1.0 m.
+    """
+    if rule not in ("standardized", "absolute"):
+        raise ValueError(f"rule: unknown {rule!r}; choose 'standardized' or 'absolute'")
+    if threshold is None:
+        threshold = 3.0 if rule == "standardized" else 1.0
+    thr = float(threshold)
+    if not (math.isfinite(thr) and thr > 0):
+        raise ValueError(f"threshold: must be a positive number, got {threshold!r}")
+    arr, nan = _obs(obs)
+    e, mad, n = _robust_residuals(arr, nan)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        one_minus_h = 1.0 - 1.0 / n
+        if rule == "absolute":
+            stat = np.abs(e) / one_minus_h
+        else:
+            stat = np.abs(e) / (mad * np.sqrt(one_minus_h))
+            stat = np.where(e == 0, 0.0, stat)  # 0/0 when MAD = 0 and e = 0: not an outlier
+    keep = np.where(n <= 1, True, stat <= thr)
+    return keep & ~nan
+
+
+def huff_weights(obs: Any, config: SensorConfig, threshold: float | None = None, *,
+                 min_error: float = 1e-3) -> np.ndarray:
+    """Huff weights per sample and sensor (Section 3.3.3, steps 1-9; used in Eq. 3.13).
+
+    obs : (..., s, m, d) metres (d = config.d), NaN = missing. threshold : metres or None.
+    min_error : floor on the relative error in metres (see below). Returns (..., s, m) >= 0.
+
+    Reading of the steps, at each time step t (each sample, independently):
+
+    1. A *relationship* of sensor i is another sensor j that also reported at t; the
+       relationships at t are the unordered pairs of reporting sensors (k reporting sensors
+       give k(k-1)/2 pairs, and each sensor has n_i = k - 1 relationships).
+    2-3. For each pair, ``e_ij = | |o_i - o_j| - a_ij |`` (observed vs. known distance).
+    4. Average error ``E_t`` = sum of e_ij over the pairs / number of pairs.
+    5. If ``threshold`` is given and ``E_t >= threshold``, every sensor at t gets weight 0.
+    6. Relative error of sensor i: ``r_i = sum_j e_ij / n_i`` over its relationships.
+    7. If ``threshold`` is given and ``r_i >= threshold``, sensor i gets weight 0 at t.
+    8-9. Otherwise ``w_i = (1 / r_i) * n_i / (m - 1)``, m = config.m (all sensors,
+       including dead ones: m - 1 is the most relationships a sensor can have). We read
+       "total number of relationships in time-step" as the sensor's own count n_i = k - 1
+       (the text divides it by the maximum *per sensor*, m - 1, so the factor is the
+       fraction of possible partners that reported, in [0, 1]); reading it as the number
+       of pairs k(k-1)/2 would give factors up to m/2, which the normalization rules out.
+
+    ``threshold=None`` skips steps 5 and 7 (the dissertation's "no threshold" runs, 4.8.1).
+    A sensor with no relationship (the only one reporting, or missing) gets weight 0: it
+    has no evidence of reliability and the step-8 factor n_i/(m-1) is 0 anyway.
+    Zero relative error would give an infinite weight; ``r_i`` is floored at ``min_error``
+    (default 1 mm, below the resolution of the GPS fixes this targets), so a sensor that
+    agrees with the configuration to better than 1 mm weighs as much as one at 1 mm. On
+    noise-free data all sensors then get equal weights and the fit stays exact.
+    """
+    if not isinstance(config, SensorConfig):
+        raise ValueError(  # noqa: TRY004 (the project's bad-input contract is ValueError)
+            f"config: expected a SensorConfig, got {type(config).__name__}")
+    arr, nan = _obs(obs)
+    if arr.shape[-2:] != (config.m, config.d):
+        raise ValueError(f"obs: expected shape (..., s, {config.m}, {config.d}) for config "
+                         f"{config.name!r}, got {arr.shape}")
+    if threshold is not None:
+        thr = float(threshold)
+        if not (math.isfinite(thr) and thr > 0):
+            raise ValueError(f"threshold: must be a positive number of metres or None, "
+                             f"got {threshold!r}")
+    mf = float(min_error)
+    if not (math.isfinite(mf) and mf > 0):
+        raise ValueError(f"min_error: must be a positive number of metres, got {min_error!r}")
+    m = config.m
+    present = ~nan.any(axis=-1)                                   # (..., s, m)
+    o = np.where(present[..., None], arr, 0.0)
+    diff = o[..., :, None, :] - o[..., None, :, :]                # (..., s, m, m, d)
+    dist = np.sqrt((diff * diff).sum(axis=-1))
+    rel = present[..., :, None] & present[..., None, :] & ~np.eye(m, dtype=bool)
+    err = np.where(rel, np.abs(dist - config.distances()), 0.0)   # steps 2-3
+    n_i = rel.sum(axis=-1)                                        # relationships per sensor
+    sum_i = err.sum(axis=-1)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        r = sum_i / n_i                                           # step 6
+        r = np.maximum(r, mf)
+        w = (1.0 / r) * n_i / (m - 1)                             # step 8
+    w = np.where(n_i > 0, w, 0.0)
+    if threshold is not None:
+        n_pairs = n_i.sum(axis=-1) / 2.0                          # (..., s)
+        with np.errstate(divide="ignore", invalid="ignore"):
+            avg = err.sum(axis=(-2, -1)) / 2.0 / n_pairs          # step 4
+        w = np.where((n_pairs > 0)[..., None] & (avg >= thr)[..., None], 0.0, w)  # step 5
+        w = np.where((n_i > 0) & (sum_i / np.maximum(n_i, 1) >= thr), 0.0, w)   # step 7
+    return w
+
+
+def huff_huber_weights(obs: Any, config: SensorConfig, threshold: float | None = None,
+                       c: float = HUBER_C, *, min_error: float = 1e-3) -> np.ndarray:
+    """Product of Huff and Huber weights, per axis (Eq. 3.14): (..., s, m, d)."""
+    return huff_weights(obs, config, threshold, min_error=min_error)[..., None] \
+        * huber_weights(obs, c)
+
+
+def random_weights(shape: tuple[int, ...] | int, rng: np.random.Generator) -> np.ndarray:
+    """Control weights, i.i.d. uniform on [0, 1) from the passed Generator (Section 3.3,
+    "random weight functions"; the distribution is not stated there, uniform is our choice).
+    Weights at missing observations are ignored by the fit, so no obs is needed here."""
+    if not isinstance(rng, np.random.Generator):
+        raise ValueError(  # noqa: TRY004 (the project's bad-input contract is ValueError)
+            f"rng: expected a numpy.random.Generator, got {type(rng).__name__}")
+    shp = (shape,) if isinstance(shape, (int, np.integer)) else tuple(shape)
+    if any((not isinstance(k, (int, np.integer))) or k < 0 for k in shp):
+        raise ValueError(f"shape: must be non-negative integers, got {shape!r}")
+    return rng.random(shp)
