@@ -22,7 +22,8 @@ Two behaviours (``mode``):
     same growing allowance of the previous rejected one) the gate re-locks on the newest one.
     A single spike right after a gap is still rejected (the allowance after a gap of g seconds
     is ``v g``, not "anything"), and a genuine step is followed after ``relock_after`` samples.
-    Filter 2 allows ``max_sep + noise_margin`` and re-locks the same way.
+    Filter 2 allows ``max_sep + noise_margin`` and stops holding after ``relock_after``
+    inconsistent pairs in a row.
 
 Initialisation (Appendix C only names ``FilterRawData1/2`` and a 40-sample lead-in,
 ``Num_Lead_Pts = 40``; the bodies are not printed): the reference value is the median of the
@@ -76,15 +77,18 @@ def _as_columns(name: str, x: np.ndarray, n: int | None = None) -> tuple[np.ndar
 
 
 def _lead_in_reference(r: np.ndarray, t: np.ndarray, lead_in: int):
-    """Median of the first ``lead_in`` finite samples per column and the time of the first."""
+    """Median of the first ``lead_in`` finite samples per column, and its reference time."""
     c = r.shape[1]
     ref = np.full(c, np.nan)
     t_ref = np.full(c, np.nan)
     for j in range(c):
         idx = np.flatnonzero(np.isfinite(r[:, j]))
         if idx.size:
-            ref[j] = np.median(r[idx[:lead_in], j])
-            t_ref[j] = t[idx[0]]
+            lead = idx[:lead_in]
+            ref[j] = np.median(r[lead, j])
+            # the median stands for the whole lead-in: treat it as accepted one lead-in span
+            # before the first sample, so the allowance covers motion during the lead-in
+            t_ref[j] = t[lead[0]] - (t[lead[-1]] - t[lead[0]])
     return ref, t_ref
 
 
@@ -177,8 +181,10 @@ def separation_gate(r_a: np.ndarray, r_b: np.ndarray, max_sep: float = 0.5, *,
     max_sep : m, transmitter separation (thesis: 0.5 m, tape-measured).
     mode : "robust" allows ``max_sep + noise_margin`` (two noisy ranges can legitimately
         differ by slightly more than the separation when the pair is radially aligned) and
-        re-locks after ``relock_after`` consecutive rejected pairs; "thesis" uses ``max_sep``
-        and never re-locks.
+        re-locks: from the ``relock_after``-th inconsistent pair in a row on, pairs pass
+        through unchanged (a persistent disagreement is not a spike, and holding would freeze
+        the range for ever) until a consistent pair restarts the count; "thesis" uses
+        ``max_sep`` and holds for as long as the disagreement lasts.
     return_mask : also return ``rejected`` (bool, same shape).
 
     A rejected pair is replaced by the previous accepted pair; before the first accepted pair
@@ -211,11 +217,10 @@ def separation_gate(r_a: np.ndarray, r_b: np.ndarray, max_sep: float = 0.5, *,
         accept = ok & (np.abs(a[i] - b[i]) <= allow)
         rej = ok & ~accept
         if not thesis:
-            count = np.where(rej, count + 1, 0)
-            relock = rej & (count >= relock_after)
-            accept |= relock
-            rej &= ~relock
-            count = np.where(relock, 0, count)
+            # a pair inconsistent for relock_after samples in a row is not a spike: stop
+            # holding and pass the raw pairs through until they agree again
+            count = np.where(rej, count + 1, np.where(ok, 0, count))
+            rej &= count < relock_after
         prev_a = np.where(accept, a[i], prev_a)
         prev_b = np.where(accept, b[i], prev_b)
         out_a[i] = np.where(rej, prev_a, a[i])

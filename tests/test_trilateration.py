@@ -1,0 +1,200 @@
+"""Trilateration (thesis 003, Appendix A): exact recovery, agreement, flags, validation."""
+
+import numpy as np
+import pytest
+from hypothesis import HealthCheck, given, settings
+from hypothesis import strategies as st
+
+from estimator import trilateration as T
+
+THREE = ("simple", "closed_form", "cayley_menger")
+MANY = ("linear_ls", "nonlinear_ls")
+
+# Exact ranges: every method is a closed form or converges quadratically, so the only error is
+# floating-point rounding amplified by the geometry's conditioning. 1e-9 relative to the
+# problem size (issue 7) leaves that rounding 4-6 orders of headroom for the well-conditioned
+# layouts drawn below (triangle angles and heights bounded away from zero).
+REL = 1e-9
+
+
+def _side_normal(r3):
+    n = np.cross(r3[1] - r3[0], r3[2] - r3[0])
+    return n if n[2] > 0 else -n
+
+
+def _well_conditioned(rec, tri_only=True):
+    r3 = rec[:3]
+    v1, v2 = r3[1] - r3[0], r3[2] - r3[0]
+    sin = np.linalg.norm(np.cross(v1, v2)) / (np.linalg.norm(v1) * np.linalg.norm(v2))
+    short = min(np.linalg.norm(v1), np.linalg.norm(v2), np.linalg.norm(r3[2] - r3[1]))
+    ok = sin > 0.2 and short > 0.2
+    if not tri_only:
+        A = rec[1:] - rec[0]
+        sv = np.linalg.svd(A, compute_uv=False)
+        ok = ok and sv[-1] / sv[0] > 0.1
+    return ok
+
+
+layouts = st.integers(0, 2**32 - 1)
+
+
+@settings(max_examples=40, deadline=None, suppress_health_check=[HealthCheck.filter_too_much])
+@given(seed=layouts)
+def test_three_receiver_methods_recover_exact_positions(seed):
+    rng = np.random.default_rng(seed)
+    rec = rng.uniform(-2, 2, size=(3, 3))
+    if not _well_conditioned(rec):
+        return
+    n = _side_normal(rec)
+    P = rng.uniform(-6, 6, size=(50, 3))
+    height = (P - rec[0]) @ n / np.linalg.norm(n)
+    P = P[np.abs(height) > 0.3]          # points on the plane are a double root
+    R = np.linalg.norm(P[:, None] - rec[None], axis=2)
+    side = np.where((P - rec[0]) @ n > 0, 1, -1)
+    scale = np.max(np.linalg.norm(P[:, None] - rec[None], axis=2))
+    for name in THREE:
+        f = T.METHODS[name]
+        for s in (1, -1):
+            m = side == s
+            if not m.any():
+                continue
+            out, info = f(rec, R[m], side=s, return_info=True)
+            assert out.shape == (m.sum(), 3)
+            np.testing.assert_allclose(out, P[m], rtol=0, atol=REL * scale, err_msg=name)
+            assert not info.no_intersection.any()
+            # single range set == the batched row
+            one = f(rec, R[m][0], side=s)
+            assert one.shape == (3,)
+            np.testing.assert_allclose(one, out[0], rtol=0, atol=1e-12 * scale)
+
+
+@settings(max_examples=40, deadline=None)
+@given(seed=layouts, k=st.integers(4, 8))
+def test_least_squares_recover_exact_positions(seed, k):
+    rng = np.random.default_rng(seed)
+    rec = rng.uniform(-2, 2, size=(k, 3))
+    if not _well_conditioned(rec, tri_only=False):
+        return
+    P = rng.uniform(-6, 6, size=(50, 3))
+    R = np.linalg.norm(P[:, None] - rec[None], axis=2)
+    scale = np.max(R)
+    for name in MANY:
+        out, info = T.METHODS[name](rec, R, return_info=True)
+        np.testing.assert_allclose(out, P, rtol=0, atol=REL * scale, err_msg=name)
+        np.testing.assert_allclose(T.METHODS[name](rec, R[3]), out[3], rtol=0,
+                                   atol=1e-12 * scale)
+    _, info = T.nonlinear_ls(rec, R, return_info=True)
+    assert info.converged.all()
+    assert (info.iterations >= 1).all() and (info.iterations <= T.NLS_MAX_ITER).all()
+
+
+def test_cfp_and_cmd_agree_on_noisy_ranges():
+    # Same point in exact arithmetic, noise or not (both solve the same three sphere
+    # equations); they differ only by rounding, which 1e-9 m covers at these 10 m scales.
+    rng = np.random.default_rng(3)
+    rec = np.array([[0.0, 0.0, 0.0], [1.3, 0.0, 0.0], [0.65, 1.13, 0.0]])
+    P = np.c_[rng.uniform(-8, 8, (2000, 2)), np.full(2000, 5.0)]
+    R = np.linalg.norm(P[:, None] - rec[None], axis=2) + rng.normal(0, 0.005, (2000, 3))
+    a, ia = T.closed_form(rec, R, return_info=True)
+    b, ib = T.cayley_menger(rec, R, return_info=True)
+    c = T.simple(rec, R)
+    np.testing.assert_allclose(a, b, rtol=0, atol=1e-9 * 10)
+    np.testing.assert_allclose(a, c, rtol=0, atol=1e-9 * 10)
+    np.testing.assert_array_equal(ia.no_intersection, ib.no_intersection)
+
+
+def test_no_intersection_returns_real_in_plane_point_and_flags():
+    rec = np.array([[0.0, 0.0, 0.0], [2.0, 0.0, 0.0], [0.0, 2.0, 0.0]])
+    # row 0: unit spheres around points 2 m apart: the radical line pierces the plane at
+    # (1, 1, 0), sqrt(2) m from every centre, so the spheres miss it; row 1 intersects.
+    R = np.array([[1.0, 1.0, 1.0], [0.5, 1.9, 1.9]])
+    for name in THREE:
+        out, info = T.METHODS[name](rec, R, return_info=True)
+        assert np.all(np.isfinite(out)) and out.dtype == float
+        assert info.no_intersection.tolist() == [True, False], name
+        np.testing.assert_allclose(out[0], [1.0, 1.0, 0.0], atol=1e-12)
+        # the returned point satisfies both sphere-difference equations (the radical line)
+        d = np.linalg.norm(out[0] - rec, axis=1) ** 2 - R[0] ** 2
+        assert d[1] - d[0] == pytest.approx(0.0, abs=1e-9)
+        assert d[2] - d[0] == pytest.approx(0.0, abs=1e-9)
+
+
+def test_missing_ranges_give_flagged_nan_rows():
+    rng = np.random.default_rng(0)
+    rec = rng.uniform(-2, 2, size=(6, 3))
+    R = np.linalg.norm(rng.uniform(-5, 5, (4, 3))[:, None] - rec[None], axis=2)
+    R[1, 2] = np.nan
+    for name, rr in [(m, rec[:3]) for m in THREE] + [(m, rec) for m in MANY]:
+        out, info = T.METHODS[name](rr, R[:, : rr.shape[0]], return_info=True)
+        assert info.missing.tolist() == [False, True, False, False], name
+        assert np.isnan(out[1]).all() and np.isfinite(out[[0, 2, 3]]).all()
+
+
+def test_side_picks_mirror_solutions():
+    rec = np.array([[0.0, 0.0, 0.0], [1.0, 0.0, 0.0], [0.0, 1.0, 0.0]])
+    P = np.array([0.3, 0.4, 2.0])
+    R = np.linalg.norm(P - rec, axis=1)
+    for name in THREE:
+        np.testing.assert_allclose(T.METHODS[name](rec, R, side=1), P, atol=1e-12)
+        np.testing.assert_allclose(T.METHODS[name](rec, R, side=-1), P * [1, 1, -1], atol=1e-12)
+        # the receivers' order (right-hand normal down) must not flip "above"
+        np.testing.assert_allclose(T.METHODS[name](rec[[0, 2, 1]], R[[0, 2, 1]], side=1), P,
+                                   atol=1e-12)
+
+
+def test_vertical_receiver_plane_closed_form():
+    rec = np.array([[0.0, 0.0, 0.0], [1.0, 0.0, 0.0], [0.0, 0.0, 1.0]])   # plane y = 0
+    P = np.array([[0.2, 3.0, 0.4], [0.7, -2.0, 0.1]])
+    R = np.linalg.norm(P[:, None] - rec[None], axis=2)
+    for name in THREE:
+        a = T.METHODS[name](rec, R, side=1)
+        b = T.METHODS[name](rec, R, side=-1)
+        got = np.where(np.isclose(a, P, atol=1e-9).all(axis=1)[:, None], a, b)
+        np.testing.assert_allclose(got, P, atol=1e-9, err_msg=name)
+
+
+def test_nonlinear_ls_reports_iterations_and_reduces_residual():
+    rng = np.random.default_rng(5)
+    rec = np.array([[0.325, 0.534, 0.022], [0.975, 0.534, 0.022], [0.65, 0.0, 0.022],
+                    [0.65, 1.126, 0.0], [0.0, 0.0, 0.0], [1.3, 0.0, 0.0]])
+    P = np.c_[rng.uniform(-3, 3, (200, 2)), np.full(200, 2.0)]
+    R = np.linalg.norm(P[:, None] - rec[None], axis=2) + rng.normal(0, 0.005, (200, 6))
+    lin = T.linear_ls(rec, R)
+    nl, info = T.nonlinear_ls(rec, R, return_info=True)
+    cost = lambda X: np.sum((np.linalg.norm(X[:, None] - rec[None], axis=2) - R) ** 2, axis=1)
+    assert np.all(cost(nl) <= cost(lin) + 1e-15)
+    assert info.iterations.dtype.kind == "i" and info.iterations.max() <= T.NLS_MAX_ITER
+    _, info1 = T.nonlinear_ls(rec, R, max_iter=1, return_info=True)
+    assert (info1.iterations == 1).all()
+
+
+@pytest.mark.parametrize("bad, field", [
+    (np.zeros((3, 2)), "receivers"),
+    (np.array([[0, 0, 0], [0, 0, 0], [1, 1, 0.0]]), "receivers"),     # coincident
+    (np.array([[0, 0, 0], [1, 1, 1], [2, 2, 2.0]]), "receivers"),     # collinear
+])
+def test_degenerate_geometry_raises(bad, field):
+    for name in THREE:
+        with pytest.raises(ValueError, match=field):
+            T.METHODS[name](bad, np.ones(3))
+
+
+def test_bad_inputs_raise_naming_field():
+    rec = np.array([[0.0, 0, 0], [1, 0, 0], [0, 1, 0], [0, 0, 1]])
+    with pytest.raises(ValueError, match="ranges"):
+        T.cayley_menger(rec[:3], np.ones(4))
+    with pytest.raises(ValueError, match="ranges"):
+        T.simple(rec[:3], np.array([1.0, -1.0, 1.0]))
+    with pytest.raises(ValueError, match="side"):
+        T.closed_form(rec[:3], np.ones(3), side=0)
+    with pytest.raises(ValueError, match="receivers"):
+        T.linear_ls(rec[:3], np.ones(3))
+    flat = np.array([[0.0, 0, 0], [1, 0, 0], [0, 1, 0], [1, 1, 0]])
+    with pytest.raises(ValueError, match="receivers"):
+        T.linear_ls(flat, np.ones(4))
+    with pytest.raises(ValueError, match="x0"):
+        T.nonlinear_ls(flat, np.ones((2, 4)), x0=np.zeros((3, 3)))
+    # coplanar receivers work for Gauss-Newton from a given start
+    P = np.array([0.4, 0.3, 2.0])
+    out = T.nonlinear_ls(flat, np.linalg.norm(P - flat, axis=1), x0=[0.5, 0.5, 1.0])
+    np.testing.assert_allclose(out, P, atol=1e-9)
