@@ -128,9 +128,9 @@ def test_separation_gate_relock_and_margin():
     _, _, rej_t = separation_gate(a, b, 0.5, mode="thesis", return_mask=True)
     assert rej_t.all()                      # nothing accepted yet: stays as is, flagged
     b2 = np.r_[np.full(20, 5.3), np.full(20, 6.5)]
-    oa, ob, rej = separation_gate(a, b2, 0.5, mode="robust", relock_after=4, return_mask=True)
+    _, _, rej = separation_gate(a, b2, 0.5, mode="robust", relock_after=4, return_mask=True)
     assert rej[20:23].all() and not rej[23:].any()
-    oa_t, ob_t = separation_gate(a, b2, 0.5, mode="thesis")
+    _, ob_t = separation_gate(a, b2, 0.5, mode="thesis")
     np.testing.assert_array_equal(ob_t[20:], 5.3)
 
 
