@@ -24,8 +24,9 @@ import math
 import os
 import uuid
 import warnings
+from collections.abc import Callable
 from pathlib import Path as FsPath
-from typing import Any, Callable
+from typing import Any
 
 import numpy as np
 

@@ -22,8 +22,8 @@ def make_truth(value: float = 1.0, n: int = 5) -> Truth:
 
 
 def base_key(**changes):
-    kw = dict(simulator="rover", model_xml="<mujoco/>", path=load_path("square20"),
-              params={"a": 1.0, "b": [1, 2]}, seed=0)
+    kw = {"simulator": "rover", "model_xml": "<mujoco/>", "path": load_path("square20"),
+              "params": {"a": 1.0, "b": [1, 2]}, "seed": 0}
     kw.update(changes)
     return truth_key(**kw)
 
@@ -78,7 +78,7 @@ def test_corrupt_file_is_recomputed_loudly(tmp_path):
 
 
 def _worker(args):
-    cache_dir, value = args
+    cache_dir, _value = args
     k = base_key()
 
     def compute():
