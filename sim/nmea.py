@@ -201,7 +201,8 @@ def parse_nmea(lines: Iterable[bytes | str], name: str = "receiver") -> LogFixes
     lat = np.array(lat_l, dtype=float)
     lon = np.array(lon_l, dtype=float)
     q = np.array(q_l, dtype=np.int64)
-    t, lat, lon, q = _merge_epochs(t, lat, lon, q, skipped)
+    types = [r["type"] for r in records]
+    t, lat, lon, q = _merge_epochs(t, lat, lon, q, types, skipped)
     return LogFixes(name=name, t_utc=t, lat=lat, lon=lon, quality=q, date_known=date_known,
                     skipped=skipped, meta={"talkers": talkers})
 
@@ -295,7 +296,7 @@ def _handle_sentence(sentence: str, skipped: dict, talkers: dict, records: list[
 
 
 def _merge_epochs(t: np.ndarray, lat: np.ndarray, lon: np.ndarray, q: np.ndarray,
-                  skipped: dict) -> tuple[np.ndarray, ...]:
+                  types: list[str], skipped: dict) -> tuple[np.ndarray, ...]:
     """Merge records of the same epoch (GGA + RMC), drop out-of-order ones (counted)."""
     if t.size == 0:
         return t, lat, lon, q
@@ -317,6 +318,8 @@ def _merge_epochs(t: np.ndarray, lat: np.ndarray, lon: np.ndarray, q: np.ndarray
         elif round(ti, 6) in seen_epochs:
             skipped["duplicate_epochs"] += 1
         else:
+            # a second GGA (or RMC) in the same epoch group is a repeat
+            skipped["duplicate_epochs"] += (j - i + 1) - len(set(types[i:j + 1]))
             seen_epochs.add(round(ti, 6))
             if valid.any():
                 first = i + int(np.argmax(valid))   # log order: GGA usually first; prefer GGA
@@ -470,7 +473,8 @@ def session_from_fixes(
     ``"independent"`` starts every log at t = 0 (recorded at different times: replay then
     treats them as simultaneous antennas, which keeps each receiver's own error character
     but not the common-mode part). ``"auto"`` picks "utc" when all dated logs share a time
-    interval at least half as long as the shortest log, else "independent".
+    interval at least half as long as the shortest log (undated logs, without RMC, align on
+    time of day with each other), else "independent".
     Origin ``"auto"``: common for "utc", per receiver for "independent".
     """
     if not logs:
@@ -498,9 +502,12 @@ def session_from_fixes(
     stops = np.array([lg.t_utc[lg.valid][-1] for lg in logs])
     overlap = float(stops.min() - starts.max())
     shortest = float((stops - starts).min())
-    all_dated = all(lg.date_known for lg in logs)
+    # undated logs (no RMC) count from day 0: they align on time of day with each other,
+    # never with dated logs
+    same_dating = len({lg.date_known for lg in logs}) == 1
     if alignment == "auto":
-        alignment = "utc" if (len(logs) == 1 or (all_dated and overlap >= 0.5 * shortest)) else "independent"
+        alignment = "utc" if (len(logs) == 1 or (same_dating and overlap >= 0.5 * shortest)) \
+            else "independent"
     if alignment not in ("utc", "independent"):
         raise ValueError(f"alignment: must be 'auto', 'utc' or 'independent', got {alignment!r}")
     if origin == "auto":
