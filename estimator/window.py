@@ -43,8 +43,10 @@ Solvers (all return the proper-handed configuration, never its mirror image):
     every iterate is feasible and the objective never increases). The cvxpy problem is built
     once per ``(m, d)`` with Parameters (DPP) and reused.
 
-Sensors without data (dead, or missing for the whole window) stay in the problem with zero
-cost: the constraints place them, and procrustes places them by the rigid transform.
+Sensors without data (dead, or missing for the whole window) stay in the problem (their
+distance constraints still bind the others) with zero data cost; procrustes places them by
+the rigid transform, slsqp/ccp hold them at their start by a vanishing proximal term
+(``PROX_WEIGHT``), because Eq. 3.9 leaves them free inside the eps band.
 """
 
 from __future__ import annotations
@@ -335,7 +337,7 @@ def _is_mirrored(positions: np.ndarray, B: np.ndarray) -> bool:
     if B.shape[1] == 2:
         proper = math.hypot(M[0, 0] + M[1, 1], M[1, 0] - M[0, 1])
         improper = math.hypot(M[0, 0] - M[1, 1], M[0, 1] + M[1, 0])
-        return improper > proper
+        return improper > proper * (1.0 + 1e-9) + 1e-12  # equal for collinear layouts
     U, S, Vt = np.linalg.svd(M)
     return bool(np.linalg.det(U @ Vt) < 0 and S[-1] > 1e-12 * S[0])
 
@@ -477,6 +479,8 @@ def fit_window(obs: Any, config: SensorConfig, weights: Any | None = None, eps: 
             p_sol, iters = _solve_ccp(yc, Wa, config, e, start, maxiter)
     except (ValueError, ArithmeticError, np.linalg.LinAlgError, RuntimeError):
         p_sol, iters = None, 0
+    if p_sol is not None and not full.all():
+        p_sol = _restore_unobserved(p_sol, start, ~full, config, e)
     status = _accept(p_sol, obs0, wa, obj_proc, config, e)
     if status != "ok":
         return _result(p_proc, centre, config, obj_proc, mirror, solver, iters, status,
@@ -489,6 +493,16 @@ def fit_stationary(obs: Any, config: SensorConfig, **kw: Any) -> WindowFit:
     """Whole-recording estimate of a stationary platform (Eq. 3.7): :func:`fit_window` with
     the entire recording ``obs (n, m, d)`` as one window; keywords as for fit_window."""
     return fit_window(obs, config, **kw)
+
+
+def _restore_unobserved(p: np.ndarray, start: np.ndarray, unobserved: np.ndarray,
+                        config: SensorConfig, eps: float) -> np.ndarray:
+    """Put sensors without data back at their start positions when that keeps every
+    distance inside the eps band. They carry no cost, so the objective is unchanged; this
+    removes the solver-tolerance wander of the free variables (module docstring)."""
+    q = p.copy()
+    q[unobserved] = start[unobserved]
+    return q if _max_violation(q, config) <= eps else p
 
 
 #: acceptance tolerances of slsqp / ccp results (metres, relative objective)
@@ -510,6 +524,28 @@ def _accept(p: np.ndarray | None, obs0: np.ndarray, wa: np.ndarray, obj_proc: fl
 
 
 # ----------------------------------------------------------------------------- slsqp
+#: normalized weight of the proximal term that holds sensors (axes) without data at their
+#: start position (relative to a total data weight of 1)
+PROX_WEIGHT = 1e-6
+
+
+def _solver_weights(yc: np.ndarray, Wa: np.ndarray, start: np.ndarray
+                    ) -> tuple[np.ndarray, np.ndarray]:
+    """Normalized weights and targets of the solvers' objective.
+
+    Data terms: ``Wa / sum(Wa)`` (the objective divided by the total weight) towards the
+    window means. Sensors (axes) without data have no cost in Eq. 3.9, so their positions
+    are free inside the eps band; a proximal term ``PROX_WEIGHT |z - start|^2`` pins them to
+    the start (the procrustes fit or x0) and makes the optimum unique. It is zero at the
+    start, so the data objective at the solution is still <= its value at the start.
+    """
+    Wn = Wa / Wa.sum()
+    none = Wa <= 0
+    Wn = np.where(none, PROX_WEIGHT, Wn)
+    target = np.where(none, start, yc)
+    return Wn, target
+
+
 def _pair_jacobian_builder(m: int, d: int):
     I, J = _pairs(m)
     P = I.size
@@ -531,10 +567,10 @@ def _solve_slsqp(yc: np.ndarray, Wa: np.ndarray, config: SensorConfig, eps: floa
     a = config.distances()[I, J]
     hi2 = (a + eps) ** 2
     lo2 = (a - eps) ** 2
-    Wn = Wa / Wa.sum()
+    Wn, target = _solver_weights(yc, Wa, start)
 
     def fun(x: np.ndarray) -> tuple[float, np.ndarray]:
-        r = x.reshape(m, d) - yc
+        r = x.reshape(m, d) - target
         g = Wn * r
         return float((g * r).sum()), (2.0 * g).ravel()
 
@@ -615,16 +651,16 @@ def _solve_ccp(yc: np.ndarray, Wa: np.ndarray, config: SensorConfig, eps: float,
     prob, z, sqrt_w, sqrt_w_y, U, ub, lb = _ccp_problem(m, d)
     I, J = _pairs(m)
     a = config.distances()[I, J]
-    Wn = Wa / Wa.sum()
+    Wn, target = _solver_weights(yc, Wa, start)
     sw = np.sqrt(Wn)
     sqrt_w.value = sw
-    sqrt_w_y.value = sw * yc
+    sqrt_w_y.value = sw * target
     # solve inside the band by CCP_MARGIN so solver round-off (~1e-9 m seen) cannot break Eq. 3.6
     ub.value = a + eps - CCP_MARGIN
     lb.value = a - eps + CCP_MARGIN
 
     def f(x: np.ndarray) -> float:
-        r = x - yc
+        r = x - target
         return float((Wn * r * r).sum())
 
     cur = start.copy()
