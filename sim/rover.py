@@ -1,0 +1,283 @@
+"""The wheeled GPS platform in MuJoCo: drive a path, log exact antenna positions (Truth).
+
+Replaces the dissertation's Simulink vehicle (000_8f82f8df647bf685.txt, Section 4.1.2), which
+provided the "perfect" trajectory of the eight antennas while the platform drove Path 1 and
+Path 2 (Section 4.9).
+
+Model: ``models/rover.xml``, a 64 kg differential-drive platform (1.5 x 1.0 m roof, wheels
+r = 0.2 m on velocity servos, track 1.1 m, frictionless casters), 1 ms ``implicitfast`` steps.
+The antennas are MuJoCo sites ``gps_<name>`` generated at load time from the
+:class:`~estimator.configuration.SensorConfig` with ``mujoco.MjSpec`` (:func:`build_rover_model`),
+so the layout has one source of truth: site = (x, y, mount_height_m) in the chassis frame for a
+2-D configuration, (x, y, mount_height_m + z) for a 3-D one. A model that already contains
+``gps_`` sites is refused.
+
+Reference point ("CG" in the Truth): the chassis body origin, on the ground plane directly
+below the roof centre. For ``rover_gps8`` that is the mean of antennas 2, 3, 6, 7 (Eq. 3.8)
+projected to the ground (z ~ 0; the contacts sink the wheels by about 0.03 mm). The chassis
+tilts by < 1e-4 rad on the soft contacts while it accelerates (measured on square20), so the
+roof centre, 0.6 m up, is up to 0.05 mm horizontally from the body origin. The drive axle
+passes under it, so it has no lateral slip and is the point the controller steers.
+
+Control: :mod:`sim.controllers` pure pursuit at ``control_rate_hz`` (default 50 Hz); between
+updates ``mj_step(model, data, nstep)`` advances the physics. Sample times come from an
+integer step counter (``t = step * timestep``; sample k at step ``round(k / (rate *
+timestep))``), and positions are logged after ``mj_kinematics`` (site positions read after
+``mj_step`` are one step old). The turning flag of sample k is True if any command issued in
+``[t_{k-1}, t_k)`` had ``|omega_cmd| > turning_threshold_radps`` (the controller's own
+"control information", Section 3.4.2.1).
+
+Randomness: none. The run is deterministic (same inputs -> bit-identical arrays, tested); the
+``seed`` is recorded and enters the cache key only, so seeded sweeps stay uniform.
+
+The run starts at rest on the path's start point facing the first segment (after a 0.2 s
+unlogged settle of the contacts) and ends at the first sample after the platform has reached
+the route's end point and stopped (speed < 1 mm/s).
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from pathlib import Path as FsPath
+from typing import Any
+
+import mujoco
+import numpy as np
+
+from estimator.configuration import MODELS_DIR, SensorConfig
+from sim.cache import cached, truth_key
+from sim.controllers import (
+    PurePursuitParams,
+    PurePursuitState,
+    diff_drive_wheel_speeds,
+    pure_pursuit_step,
+)
+from sim.paths import Path, load_path, path_errors
+from sim.truth import Truth
+
+__all__ = ["ROVER_XML", "SITE_PREFIX", "build_rover_model", "simulate_rover"]
+
+ROVER_XML = MODELS_DIR / "rover.xml"
+SITE_PREFIX = "gps_"
+_SETTLE_S = 0.2
+
+
+def build_rover_model(config: SensorConfig, xml_path: str | FsPath = ROVER_XML
+                      ) -> tuple[mujoco.MjModel, str]:
+    """Compile the rover with one site per sensor of ``config`` (generated with MjSpec).
+
+    Returns (model, xml) where ``xml`` is the full MJCF text of what was compiled (it enters
+    the cache key). Raises ValueError if the model has no body "chassis", already contains
+    sites named ``gps_*``, or the compiled sites do not reproduce the configuration.
+    """
+    spec = mujoco.MjSpec.from_file(str(xml_path))
+    chassis = spec.body("chassis")
+    if chassis is None:
+        raise ValueError(f"xml_path: {xml_path} has no body named 'chassis'")
+    existing = [s.name for s in spec.sites if s.name.startswith(SITE_PREFIX)]
+    if existing:
+        raise ValueError(f"xml_path: {xml_path} already defines antenna sites {existing}; "
+                         "sites are generated from the SensorConfig, remove them from the XML")
+    bp = config.body_positions
+    local = np.zeros((config.m, 3))
+    local[:, :2] = bp[:, :2]
+    local[:, 2] = config.mount_height_m + (bp[:, 2] if config.d == 3 else 0.0)
+    for name, pos in zip(config.names, local):
+        chassis.add_site(name=f"{SITE_PREFIX}{name}", pos=pos.tolist(), size=[0.04, 0, 0],
+                         rgba=[0.9, 0.2, 0.1, 1])
+    model = spec.compile()
+    ids = [mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_SITE, f"{SITE_PREFIX}{n}")
+           for n in config.names]
+    body = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_BODY, "chassis")
+    if min(ids) < 0 or np.any(model.site_bodyid[ids] != body) or not np.allclose(
+            model.site_pos[ids], local, rtol=0, atol=1e-12):
+        raise ValueError(f"config: compiled antenna sites do not match {config.name!r}")
+    return model, spec.to_xml()
+
+
+def _yaw_of_quat(w: float, x: float, y: float, z: float) -> float:
+    """Heading (rad, CCW from +x) of a (w, x, y, z) quaternion, in (-pi, pi]."""
+    yaw = math.atan2(2.0 * (w * z + x * y), 1.0 - 2.0 * (y * y + z * z))
+    return math.pi if yaw == -math.pi else yaw
+
+
+def simulate_rover(
+    path: Path | str,
+    config: SensorConfig | str = "rover_gps8",
+    *,
+    seed: int = 0,
+    sample_rate_hz: float | None = None,
+    cache_dir: str | FsPath | None | bool = None,
+    control_rate_hz: float = 50.0,
+    controller: dict[str, float] | None = None,
+    xml_path: str | FsPath = ROVER_XML,
+    max_duration_s: float | None = None,
+) -> Truth:
+    """Drive ``path`` with the rover carrying ``config``'s antennas; return the exact Truth.
+
+    Parameters
+    ----------
+    path : a :class:`~sim.paths.Path` or a name in models/paths/ (e.g. "square100", Path 1).
+    config : a SensorConfig or a name in models/configs/ (default "rover_gps8").
+    seed : recorded and part of the cache key; the simulation itself is deterministic.
+    sample_rate_hz : Truth sample rate; default ``path.sample_rate_hz`` (GPS: 1 Hz).
+    cache_dir : None = results/cache/truth, a directory, or False to disable caching.
+    control_rate_hz : controller rate; the control period must be a whole number of steps.
+    controller : overrides of :class:`~sim.controllers.PurePursuitParams` fields
+        (e.g. ``{"turning_threshold_radps": 0.2}``); the rest comes from the path.
+    xml_path : the MJCF model (default models/rover.xml); it must have a body "chassis",
+        hinge joints and velocity actuators named "wheel_left"/"wheel_right".
+    max_duration_s : give up (RuntimeError) if the route is not finished by then; default
+        ``2 * length / cruise + 120`` s.
+
+    Returns
+    -------
+    Truth with t (n,) s, sensor_positions (n, m, 3) m (dead sensors included: the antenna
+    exists even if its receiver never reports), cg (n, 3) body origin, yaw (n,) rad,
+    speed (n,) m/s, yaw_rate (n,) rad/s, turning (n,) bool, and meta (model, path, params,
+    seed, versions, hash, wall time, and ``path_errors``: :func:`sim.paths.path_errors` of
+    the reference point at the control rate, since 1 Hz samples 1.5 m apart miss the corners).
+    """
+    path = load_path(path)
+    if isinstance(config, str):
+        config = SensorConfig.load(config)
+    if not isinstance(config, SensorConfig):
+        raise ValueError(  # noqa: TRY004 - DESIGN.md: bad input raises ValueError
+            f"config: expected a SensorConfig or a name, got {type(config).__name__}")
+    if isinstance(seed, bool) or not isinstance(seed, (int, np.integer)):
+        raise ValueError(f"seed: must be an int, got {seed!r}")  # noqa: TRY004
+    rate = path.sample_rate_hz if sample_rate_hz is None else sample_rate_hz
+    if isinstance(rate, bool) or not isinstance(rate, (int, float)) or not (
+            math.isfinite(rate) and rate > 0):
+        raise ValueError(f"sample_rate_hz: must be a finite number > 0, got {rate!r}")
+    params = PurePursuitParams.from_path(path, **(controller or {}))
+    model, xml = build_rover_model(config, xml_path)
+    dt = float(model.opt.timestep)
+    steps_per_ctrl = 1.0 / (control_rate_hz * dt)
+    if not (control_rate_hz > 0 and abs(steps_per_ctrl - round(steps_per_ctrl)) < 1e-9
+            and round(steps_per_ctrl) >= 1):
+        raise ValueError(f"control_rate_hz: the control period must be a whole number of "
+                         f"{dt} s steps, got {control_rate_hz!r}")
+    if max_duration_s is None:
+        max_duration_s = 2.0 * path.length_m / params.cruise_speed_mps + 120.0
+    run_params: dict[str, Any] = {
+        "controller": params.__dict__.copy(), "control_rate_hz": float(control_rate_hz),
+        "sample_rate_hz": float(rate), "timestep_s": dt, "settle_s": _SETTLE_S,
+        "max_duration_s": float(max_duration_s),
+    }
+    key = truth_key(simulator="rover", model_xml=xml, path=path, params=run_params, seed=seed,
+                    config=config)
+
+    def compute() -> Truth:
+        return _run(model, config, path, params, round(steps_per_ctrl), float(rate),
+                    float(max_duration_s), meta={
+                        "simulator": "sim.rover.simulate_rover",
+                        "model": str(xml_path), "config": config.name, "path": path.to_dict(),
+                        "params": run_params, "seed": int(seed), "deterministic": True,
+                        "versions": key["versions"], "code_salt": key["code_salt"]})
+
+    if cache_dir is False:
+        return compute()
+    return cached(key, compute, None if cache_dir in (None, True) else cache_dir)
+
+
+def _run(model: mujoco.MjModel, config: SensorConfig, path: Path, params: PurePursuitParams,
+         steps_per_ctrl: int, rate: float, max_duration_s: float, meta: dict) -> Truth:
+    """The simulation loop (see the module docstring for the timing conventions)."""
+    wall0 = time.perf_counter()
+    data = mujoco.MjData(model)
+    dt = float(model.opt.timestep)
+    name2id = mujoco.mj_name2id
+    obj = mujoco.mjtObj
+    site_ids = np.array([name2id(model, obj.mjOBJ_SITE, f"{SITE_PREFIX}{n}") for n in config.names])
+    body = name2id(model, obj.mjOBJ_BODY, "chassis")
+    root = model.jnt_qposadr[name2id(model, obj.mjOBJ_JOINT, "root")]
+    root_v = model.jnt_dofadr[name2id(model, obj.mjOBJ_JOINT, "root")]
+    act_l = name2id(model, obj.mjOBJ_ACTUATOR, "wheel_left")
+    act_r = name2id(model, obj.mjOBJ_ACTUATOR, "wheel_right")
+    wheel_l = name2id(model, obj.mjOBJ_BODY, "wheel_left")
+    wheel_r = name2id(model, obj.mjOBJ_BODY, "wheel_right")
+    if min(act_l, act_r, wheel_l, wheel_r, root) < 0:
+        raise ValueError("xml_path: model needs joint 'root', bodies and actuators "
+                         "'wheel_left'/'wheel_right'")
+    # vehicle geometry read from the model by name: track = distance between the wheel
+    # bodies, radius = the wheel geom's size
+    track = float(np.linalg.norm(model.body_pos[wheel_l] - model.body_pos[wheel_r]))
+    radius = float(model.geom_size[name2id(model, obj.mjOBJ_GEOM, "wheel_left"), 0])
+
+    # initial pose: start point, facing the first segment
+    verts = [(float(a), float(b)) for a, b in path.polyline[:, :2]]
+    yaw0 = math.atan2(verts[1][1] - verts[0][1], verts[1][0] - verts[0][0])
+    data.qpos[root:root + 3] = [verts[0][0], verts[0][1], 0.0]
+    data.qpos[root + 3:root + 7] = [math.cos(yaw0 / 2), 0.0, 0.0, math.sin(yaw0 / 2)]
+    mujoco.mj_forward(model, data)
+    mujoco.mj_step(model, data, round(_SETTLE_S / dt))   # let the contacts settle
+
+    steps_per_sample = 1.0 / (rate * dt)
+    n_max = int(max_duration_s * rate) + 2
+    m = config.m
+    t_log = np.empty(n_max)
+    sp_log = np.empty((n_max, m, 3))
+    cg_log = np.empty((n_max, 3))
+    yaw_log = np.empty(n_max)
+    speed_log = np.empty(n_max)
+    yr_log = np.empty(n_max)
+    turn_log = np.zeros(n_max, dtype=bool)
+
+    state = PurePursuitState()
+    ctrl_dt = steps_per_ctrl * dt
+    qpos, qvel, ctrl = data.qpos, data.qvel, data.ctrl
+    step = 0          # integer step counter since the end of the settle (t = step * dt)
+    k = 0             # next sample index
+    next_sample = 0
+    next_ctrl = 0
+    turning_acc = False
+    trace: list[tuple[float, float]] = []   # reference point at every control update
+    max_steps = math.ceil(max_duration_s / dt)
+    while True:
+        if step == next_sample:
+            mujoco.mj_kinematics(model, data)      # positions of the current qpos
+            R = data.xmat[body]
+            w_world = R.reshape(3, 3) @ qvel[root_v + 3:root_v + 6]   # free joint: body-frame
+            t_log[k] = step * dt
+            sp_log[k] = data.site_xpos[site_ids]
+            cg_log[k] = data.xpos[body]
+            yaw_log[k] = _yaw_of_quat(*qpos[root + 3:root + 7])
+            speed_log[k] = math.hypot(qvel[root_v], qvel[root_v + 1])
+            yr_log[k] = w_world[2]
+            turn_log[k] = turning_acc
+            turning_acc = False
+            k += 1
+            if state.finished and speed_log[k - 1] < 1e-3:
+                break
+            if k >= n_max:
+                raise RuntimeError(f"rover did not finish path {path.name!r} within "
+                                   f"max_duration_s = {max_duration_s} s")
+            next_sample = round(k * steps_per_sample)
+        if step == next_ctrl:
+            x, y = float(qpos[root]), float(qpos[root + 1])
+            yaw = _yaw_of_quat(*qpos[root + 3:root + 7])
+            trace.append((x, y))
+            v, omega, turning = pure_pursuit_step(state, x, y, yaw, verts, params, ctrl_dt)
+            ctrl[act_l], ctrl[act_r] = diff_drive_wheel_speeds(v, omega, track, radius)
+            turning_acc = turning_acc or turning
+            next_ctrl += steps_per_ctrl
+        nxt = min(next_ctrl, next_sample)
+        if nxt > max_steps + steps_per_sample:
+            raise RuntimeError(f"rover did not finish path {path.name!r} within "
+                               f"max_duration_s = {max_duration_s} s")
+        mujoco.mj_step(model, data, nxt - step)
+        step = nxt
+    wall = time.perf_counter() - wall0
+    n = k
+    cg = cg_log[:n].copy()
+    trace.append((float(cg[-1, 0]), float(cg[-1, 1])))
+    errors = path_errors(np.array(trace), path)   # at the control rate: 1 Hz is too coarse
+    meta = {**meta, "sim_seconds": float(t_log[n - 1]), "wall_seconds": wall,
+            "sim_seconds_per_wall_second": float(t_log[n - 1]) / wall,
+            "path_errors": errors.as_dict()}
+    return Truth(t=t_log[:n].copy(), sensor_positions=sp_log[:n].copy(),
+                 sensor_names=config.names, cg=cg, yaw=yaw_log[:n].copy(),
+                 speed=speed_log[:n].copy(), yaw_rate=yr_log[:n].copy(),
+                 turning=turn_log[:n].copy(), meta=meta)

@@ -1,0 +1,226 @@
+"""sim.rover + sim.controllers: generated antenna sites, kinematics, determinism, tracking.
+
+Default tests drive the 20 m test square (about 56 s simulated, under 1 s wall each);
+the full Path 1 check is marked slow.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+
+import mujoco
+import numpy as np
+import pytest
+
+from estimator.configuration import SensorConfig
+from sim.controllers import (
+    PurePursuitParams,
+    diff_drive_wheel_speeds,
+    pure_pursuit_curvature,
+    rate_limit,
+    speed_limit,
+)
+from sim.paths import Path, load_path, path_errors, project_to_polyline
+from sim.rover import ROVER_XML, build_rover_model, simulate_rover
+
+CONFIG = SensorConfig.load("rover_gps8")
+
+
+@pytest.fixture(scope="module")
+def run10():
+    """square20 at 10 Hz truth (denser than GPS, for geometry checks), no cache."""
+    return simulate_rover("square20", CONFIG, sample_rate_hz=10.0, cache_dir=False)
+
+
+@pytest.fixture(scope="module")
+def run1():
+    """square20 at the path's own 1 Hz rate, no cache."""
+    return simulate_rover("square20", CONFIG, cache_dir=False)
+
+
+# ---------------------------------------------------------------- model generation
+def test_sites_are_generated_from_the_config():
+    model, xml = build_rover_model(CONFIG)
+    chassis = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_BODY, "chassis")
+    for name, p in zip(CONFIG.names, CONFIG.body_positions):
+        sid = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_SITE, f"gps_{name}")
+        assert sid >= 0 and model.site_bodyid[sid] == chassis
+        np.testing.assert_array_equal(model.site_pos[sid], [p[0], p[1], CONFIG.mount_height_m])
+    assert 'name="gps_1"' in xml
+    # explicit inertials: 60 kg chassis + 2 x 2 kg wheels, nothing added by geom density
+    np.testing.assert_allclose(model.body_mass.sum(), 64.0)
+
+
+def test_other_configs_work_and_3d_heights_add_to_mount_height():
+    cfg = SensorConfig(["front", "left", "right"], [[0.6, 0.0, 0.1], [-0.5, 0.4, 0.0],
+                                                    [-0.5, -0.4, 0.3]],
+                       mount_height_m=0.5, name="tri3d")
+    model, _ = build_rover_model(cfg)
+    sid = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_SITE, "gps_right")
+    np.testing.assert_allclose(model.site_pos[sid], [-0.5, -0.4, 0.8], atol=1e-15)
+    line = Path(name="line", waypoints=[[0.0, 0.0], [8.0, 0.0]], closed=False,
+                target_radius_m=1.0, cruise_speed_mps=1.5)
+    tr = simulate_rover(line, cfg, cache_dir=False)
+    assert tr.sensor_names == ("front", "left", "right") and tr.sensor_positions.shape[1] == 3
+    D = np.linalg.norm(tr.sensor_positions[:, :, None] - tr.sensor_positions[:, None], axis=-1)
+    # rigid body: 3-D distances are the configured ones (1 mm is the requirement; the sites
+    # are rigid on one body, so only rounding differs)
+    np.testing.assert_allclose(D, np.broadcast_to(cfg.distances(), D.shape), atol=1e-9)
+    np.testing.assert_allclose(tr.cg[-1, :2], [8.0, 0.0], atol=0.05)
+
+
+def test_model_with_handwritten_antenna_sites_is_refused(tmp_path):
+    xml = ROVER_XML.read_text().replace(
+        '<freejoint name="root"/>', '<freejoint name="root"/><site name="gps_1" pos="0 0 1"/>')
+    f = tmp_path / "rover_with_sites.xml"
+    f.write_text(xml)
+    with pytest.raises(ValueError, match="already defines antenna sites"):
+        build_rover_model(CONFIG, f)
+
+
+# ---------------------------------------------------------------- truth record
+def test_truth_shapes_times_and_dead_sensor(run1):
+    tr = run1
+    assert tr.sensor_positions.shape == (tr.n, 8, 3) and tr.sensor_names == CONFIG.names
+    np.testing.assert_array_equal(tr.t, np.arange(tr.n) * 1.0)   # integer step counter
+    assert np.all(np.isfinite(tr.sensor_positions))              # sensor 4 (dead) included
+    assert tr.meta["seed"] == 0 and tr.meta["deterministic"] and "mujoco" in tr.meta["versions"]
+
+
+def test_antennas_keep_configured_distances_and_define_the_cg(run10):
+    tr = run10
+    P = tr.sensor_positions
+    D = np.linalg.norm(P[:, :, None] - P[:, None], axis=-1)
+    # requirement: 1 mm; same height, rigid body -> the planar config distances to rounding
+    assert np.abs(D - CONFIG.distances()).max() < 1e-3
+    np.testing.assert_allclose(D, np.broadcast_to(CONFIG.distances(), D.shape), atol=1e-9)
+    # body origin = mean of sensors 2, 3, 6, 7 (Eq. 3.8) projected to the ground. The chassis
+    # tilts on the soft contacts when it accelerates (measured < 1e-4 rad), which moves the
+    # roof 0.6 m up by up to 0.6 * tilt; 2e-4 m allows a tilt of 3.3e-4 rad
+    np.testing.assert_allclose(CONFIG.cg_from_positions(P[..., :2]), tr.cg[:, :2], atol=2e-4)
+    # antennas at mount height above the origin (same tilt bound over the 0.9 m half-diagonal)
+    np.testing.assert_allclose(P[..., 2] - tr.cg[:, None, 2], CONFIG.mount_height_m, atol=3e-4)
+    assert np.abs(tr.cg[:, 2]).max() < 1e-3          # the wheels sink < 1 mm into the contacts
+
+
+def test_yaw_speed_and_yaw_rate_agree_with_positions(run10):
+    tr = run10
+    i2, i7 = CONFIG.index("2"), CONFIG.index("7")
+    d = tr.sensor_positions[:, i2, :2] - tr.sensor_positions[:, i7, :2]   # rear -> front
+    # yaw from the antennas: the chassis stays level to < 1e-6 rad on flat ground
+    err = np.angle(np.exp(1j * (np.arctan2(d[:, 1], d[:, 0]) - tr.yaw)))
+    assert np.abs(err).max() < 1e-5
+    assert np.all(tr.yaw > -np.pi) and np.all(tr.yaw <= np.pi)
+    # central differences (h = 0.1 s) against the logged rates. Where the commanded
+    # acceleration jumps by da, a central difference is off by up to da * h / 4: da <= 2 * 0.5
+    # m/s^2 gives 0.025 m/s, the turn-rate ramps (2 * 1 rad/s^2) give 0.05 rad/s. Elsewhere
+    # the rates are smooth, so the median error must be far smaller.
+    dt = np.diff(tr.t)
+    v_fd = np.linalg.norm(tr.cg[2:, :2] - tr.cg[:-2, :2], axis=1) / (dt[1:] + dt[:-1])
+    np.testing.assert_allclose(v_fd, tr.speed[1:-1], atol=0.025)
+    assert np.median(np.abs(v_fd - tr.speed[1:-1])) < 1e-3
+    w_fd = np.angle(np.exp(1j * (tr.yaw[2:] - tr.yaw[:-2]))) / (dt[1:] + dt[:-1])
+    np.testing.assert_allclose(w_fd, tr.yaw_rate[1:-1], atol=0.05)
+    assert np.median(np.abs(w_fd - tr.yaw_rate[1:-1])) < 1e-3
+
+
+def test_deterministic_bit_for_bit(run1):
+    again = simulate_rover("square20", CONFIG, cache_dir=False)
+    for k in ("t", "sensor_positions", "cg", "yaw", "speed", "yaw_rate", "turning"):
+        np.testing.assert_array_equal(getattr(again, k), getattr(run1, k), err_msg=k)
+
+
+# ---------------------------------------------------------------- tracking
+def test_tracking_straights_corners_and_closure(run10):
+    p = load_path("square20")
+    e = path_errors(run10.cg, p)
+    assert e.n_straight > 50
+    assert e.straight_max_m < 0.1                       # issue 3 requirement
+    # the turns start inside the 3 m target areas: the platform passes the corner point
+    # closer than the target radius but does not pivot on it
+    assert np.all(e.cut_in_m < p.target_radius_m) and np.all(e.cut_in_m > 0.3)
+    assert e.closure_m < 0.05                           # stops on the start point
+    meta = run10.meta["path_errors"]                    # control-rate version in the meta
+    assert meta["straight_max_m"] < 0.1 and len(meta["cut_in_m"]) == 3
+
+
+def test_turning_flag_marks_the_corners_only(run10):
+    tr, p = run10, load_path("square20")
+    _, _, _, s = project_to_polyline(tr.cg[:, :2], p.polyline)
+    corner_s = np.array([20.0, 40.0, 60.0])
+    to_corner = np.abs(s[:, None] - corner_s[None]).min(axis=1)
+    assert tr.turning.any() and to_corner[tr.turning].max() < 6.0
+    for c in corner_s:
+        assert tr.turning[np.abs(s - c) < 3.0].any()
+    # on the straights the heading corrections stay far below the 0.1 rad/s threshold
+    assert np.abs(tr.yaw_rate[to_corner > 8.0]).max() < 0.02
+
+
+# ---------------------------------------------------------------- cache and inputs
+def test_cache_round_trip_and_key(tmp_path, run1):
+    a = simulate_rover("square20", CONFIG, cache_dir=tmp_path)
+    files = list(tmp_path.glob("*.npz"))
+    assert len(files) == 1 and files[0].stem == a.meta["hash"]
+    b = simulate_rover("square20", CONFIG, cache_dir=tmp_path)
+    np.testing.assert_array_equal(b.sensor_positions, run1.sensor_positions)
+    assert b.meta["hash"] == a.meta["hash"]
+    simulate_rover("square20", CONFIG, cache_dir=tmp_path, seed=1)   # seed is in the key
+    assert len(list(tmp_path.glob("*.npz"))) == 2
+
+
+@pytest.mark.parametrize("kw, field", [
+    ({"sample_rate_hz": 0.0}, "sample_rate_hz"),
+    ({"control_rate_hz": 30.0}, "control_rate_hz"),
+    ({"controller": {"lookahead": 2.0}}, "lookahead"),
+    ({"controller": {"max_accel_mps2": -1.0}}, "max_accel_mps2"),
+    ({"seed": 1.5}, "seed"),
+])
+def test_bad_inputs_name_the_field(kw, field):
+    with pytest.raises(ValueError, match=field):
+        simulate_rover("square20", CONFIG, cache_dir=False, **kw)
+
+
+# ---------------------------------------------------------------- controller pieces
+def test_pure_pursuit_curvature_is_the_circle_through_the_goal():
+    # the circle tangent to the heading at the origin through goal g has curvature
+    # 2 y / (x^2 + y^2) (Coulter 1992); check rotation/translation invariance too
+    rng = np.random.default_rng(3)
+    for _ in range(20):
+        gx, gy = rng.uniform(-5, 5, 2)
+        k = pure_pursuit_curvature(0.0, 0.0, 0.0, gx, gy)
+        assert math.isclose(k, 2 * gy / (gx**2 + gy**2), rel_tol=1e-12)
+        th, tx, ty = rng.uniform(-np.pi, np.pi), *rng.uniform(-50, 50, 2)
+        c, s = math.cos(th), math.sin(th)
+        k2 = pure_pursuit_curvature(tx, ty, th, tx + c * gx - s * gy, ty + s * gx + c * gy)
+        assert math.isclose(k, k2, rel_tol=1e-9, abs_tol=1e-12)
+
+
+def test_limits_and_wheel_speeds():
+    p = PurePursuitParams()
+    assert speed_limit(0.0, p) == p.cruise_speed_mps
+    v = speed_limit(1.0, p)
+    assert v**2 * 1.0 <= p.max_lateral_accel_mps2 + 1e-12 and v <= p.max_turn_rate_radps
+    assert rate_limit(10.0, 0.0, 0.5, 0.02) == pytest.approx(0.01)
+    assert rate_limit(0.001, 0.0, 0.5, 0.02) == 0.001
+    wl, wr = diff_drive_wheel_speeds(1.0, 0.5, 1.1, 0.2)
+    # back to (v, omega) through the inverse map
+    assert (wl + wr) * 0.2 / 2 == pytest.approx(1.0)
+    assert (wr - wl) * 0.2 / 1.1 == pytest.approx(0.5)
+
+
+# ---------------------------------------------------------------- full path (slow)
+@pytest.mark.slow
+def test_path1_full_square_tracking_and_wall_time():
+    p = load_path("square100")
+    t0 = time.perf_counter()
+    tr = simulate_rover(p, CONFIG, cache_dir=False)
+    wall = time.perf_counter() - t0
+    e = path_errors(tr.cg, p)
+    meta = tr.meta["path_errors"]
+    print(f"square100: {tr.t[-1]:.0f} s simulated in {wall:.2f} s wall "
+          f"({tr.t[-1] / wall:.0f}x real time); control-rate errors {meta}")
+    assert meta["straight_max_m"] < 0.1 and e.straight_max_m < 0.1
+    assert meta["closure_m"] < 0.05
+    assert np.all(np.array(meta["cut_in_m"]) < p.target_radius_m)
+    assert wall < 10.0                                  # issue 3: 1 ms physics, < 10 s wall
