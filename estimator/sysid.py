@@ -4,9 +4,12 @@
 The thesis fits three low-order models, each with an integrator and an input delay ``Td``,
 to impulse responses in MATLAB's System Identification Toolbox:
 
-* ``"two_poles"``    G(s) = K e^{-Td s} / (s (1 + Tp1 s)(1 + Tp2 s))          thrust -> altitude (3.3.1)
-* ``"second_order"`` G(s) = K e^{-Td s} / (s (1 + 2 zeta Tw s + (Tw s)^2))   pitch -> position (3.3.2)
-* ``"one_pole"``     G(s) = K e^{-Td s} / (s (1 + Tp1 s))                     yaw rate -> heading (3.3.3)
+* ``"two_poles"``    G(s) = K e^{-Td s} / (s (1 + Tp1 s)(1 + Tp2 s))         thrust -> altitude
+  (3.3.1)
+* ``"second_order"`` G(s) = K e^{-Td s} / (s (1 + 2 zeta Tw s + (Tw s)^2))  pitch -> position
+  (3.3.2)
+* ``"one_pole"``     G(s) = K e^{-Td s} / (s (1 + Tp1 s))                    yaw rate -> heading
+  (3.3.3)
 
 Method (:func:`fit_transfer_function`)
 --------------------------------------
@@ -427,7 +430,8 @@ def fit_transfer_function(
         v = float(v)
         lo, hi = bnds[k]
         if not (np.isfinite(v) and lo <= v <= hi):
-            raise ValueError(f"fixed[{k!r}]: must be finite and within bounds {(lo, hi)}, got {v!r}")
+            raise ValueError(f"fixed[{k!r}]: must be finite and within bounds {(lo, hi)}, "
+                             f"got {v!r}")
         fixed[k] = v
     free_nl = [k for k in names if k != "K" and k not in fixed]
     k_free = "K" not in fixed
