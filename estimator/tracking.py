@@ -1,0 +1,474 @@
+"""Tracking a moving platform with the configuration-constrained window fit.
+
+Source: 000_8f82f8df647bf685.txt (GPS dissertation), Sections 3.1.2, 3.2, 3.4 and 4.12.
+
+``method="window"`` is the dissertation's tracker:
+
+- Sliding window of size s (Section 3.4.1, Eq. 3.9): the window of epochs
+  ``k-s+1 .. k``; the first estimate at epoch s (row index s-1), then one per epoch.
+- Weights computed on each window's data: ``"none"``, ``"random"`` (control), ``"huff"``
+  (3.3.3), ``"huber"`` (3.3.1, per axis), ``"huff_huber"`` (Eq. 3.14), from
+  :mod:`estimator.weights`, all windows stacked into one call.
+- Solvers from :mod:`estimator.window`: ``"procrustes"`` (closed form; all windows in one
+  batched call, cumulative sums when unweighted), ``"slsqp"``/``"ccp"`` (Eq. 3.9 with the eps
+  slack, one window at a time, cold-started from procrustes; ``warm_start=True`` passes the
+  previous window's fit as ``x0``, the dissertation's start, Section 3.1.2).
+- CG from the configured CG sensors (Eq. 3.8); heading both as the fitted rigid pose's
+  atan2 (``yaw``) and by the law-of-cosines construction of Section 3.2 (``yaw_loc``,
+  :func:`estimator.orientation.law_of_cosines_heading`, relative to the first estimate).
+- Lag correction (3.4.2, :mod:`estimator.lag`): ``lag_correction=True`` or ``"pose"`` as
+  written, ``"course"`` our variant.
+- Dynamic window (3.4.2.1): ``dynamic_window=w_small`` with ``turning`` either a (n,) bool
+  array (the simulator's controller flag: the dissertation's "control information") or
+  ``"detect"`` (a detector on the estimates alone, :mod:`estimator.turns`, so it runs on
+  real logs). Row k uses the small window when ``turning[k]`` is True, else ``window``.
+
+Beyond the dissertation (each selectable, each a row in tables):
+
+- ``method="motion_compensated"``: the pose at the newest epoch of each window under a
+  constant-velocity, constant-yaw-rate model (:mod:`estimator.motion`).
+- ``method="ekf"``: an EKF on the antennas with the configuration as measurement model and
+  outlier gating (:mod:`estimator.pose_filter`), initialised from the first ``window`` epochs.
+- ``method="naive"``: no configuration knowledge; CG = mean of the CG antennas' own window
+  means (Eq. 3.8 on raw means), no heading (NaN). What the configuration buys.
+
+Observations are planar ``(n, m, 2)``; a 3-D configuration is projected (``config.planar()``).
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+import pandas as pd
+
+from estimator import lag as _lag
+from estimator import turns as _turns
+from estimator import weights as _weights
+from estimator.configuration import SensorConfig
+from estimator.motion import motion_compensated_batch
+from estimator.orientation import law_of_cosines_heading
+from estimator.pose_filter import PoseFilterParams, run_pose_filter
+from estimator.window import SOLVERS, fit_window, procrustes_batch, window_means
+
+__all__ = [
+    "LAG_OPTIONS",
+    "METHODS",
+    "WEIGHTINGS",
+    "detect_turning",
+    "heading_pair",
+    "track",
+]
+
+METHODS = ("window", "motion_compensated", "ekf", "naive")
+WEIGHTINGS = ("none", "random", "huff", "huber", "huff_huber")
+LAG_OPTIONS = (False, True, "pose", "course")
+
+#: Windows stacked per weight/solver call: keeps memory ~ this many samples x m x 2 floats.
+_CHUNK_SAMPLES = 200_000
+
+#: Defaults of the turn detector used by ``turning="detect"`` (see :mod:`estimator.turns`).
+DETECTOR_DEFAULTS = {"window": 1, "source": "course", "span_s": 4.0, "rate_on": 0.15,
+                     "rate_off": 0.05, "min_speed": 0.1}
+
+
+# ----------------------------------------------------------------------------- validation
+def _check_inputs(t: Any, obs: Any, config: Any) -> tuple[np.ndarray, np.ndarray, SensorConfig]:
+    if not isinstance(config, SensorConfig):
+        raise ValueError(  # noqa: TRY004 (bad input is ValueError by contract)
+            f"config: expected a SensorConfig, got {type(config).__name__}")
+    cfg = config.planar()
+    tt = np.asarray(t, dtype=float)
+    if tt.ndim != 1 or tt.size == 0:
+        raise ValueError(f"t: expected a non-empty 1-D array of seconds, got shape {tt.shape}")
+    if not np.all(np.isfinite(tt)):
+        raise ValueError("t: contains NaN or infinite times")
+    if tt.size > 1 and np.any(np.diff(tt) <= 0):
+        k = int(np.argmax(np.diff(tt) <= 0))
+        raise ValueError(f"t: must be strictly increasing; t[{k}]={tt[k]!r} >= t[{k+1}]={tt[k+1]!r}")
+    o = np.asarray(obs, dtype=float)
+    if o.shape != (tt.size, cfg.m, 2):
+        raise ValueError(f"obs: expected shape ({tt.size}, {cfg.m}, 2) (epochs, sensors of "
+                         f"{cfg.name!r}, xy), got {o.shape}")
+    if np.isinf(o).any():
+        raise ValueError("obs: contains infinite values (use NaN for missing samples)")
+    nan = np.isnan(o)
+    if np.any(nan[..., 0] != nan[..., 1]):
+        k, i = np.argwhere(nan[..., 0] != nan[..., 1])[0]
+        raise ValueError(f"obs: epoch {k}, sensor {cfg.names[i]!r} has one coordinate NaN; "
+                         f"a missing observation must be NaN in both")
+    return tt, o, cfg
+
+
+def _check_int(v: Any, name: str, lo: int, hi: int) -> int:
+    if isinstance(v, bool) or not isinstance(v, (int, np.integer)) or not lo <= int(v) <= hi:
+        raise ValueError(f"{name}: must be an integer in [{lo}, {hi}], got {v!r}")
+    return int(v)
+
+
+def heading_pair(config: SensorConfig) -> tuple[int, int, float]:
+    """The platform side used for the law-of-cosines heading (Section 3.2).
+
+    Among alive sensors, the pair (rear i, front j) with the longest body-x extent, ties
+    broken by the smallest lateral offset (a side along the body axis). Returns
+    (i, j, body angle of the side i -> j in radians).
+    """
+    B = config.body_positions[:, :2]
+    alive = np.flatnonzero(config.alive_mask)
+    best = None
+    for a in alive:
+        for b in alive:
+            dx = B[b, 0] - B[a, 0]
+            if dx <= 0:
+                continue
+            key = (round(dx, 9), -round(abs(B[b, 1] - B[a, 1]), 9))
+            if best is None or key > best[0]:
+                best = (key, int(a), int(b))
+    if best is None:  # all alive sensors share body x: use the longest pair
+        a, b = alive[0], alive[-1]
+        best = (None, int(a), int(b))
+    _, i, j = best
+    d = B[j] - B[i]
+    return i, j, float(np.arctan2(d[1], d[0]))
+
+
+# ----------------------------------------------------------------------------- windows
+def _stack(obs: np.ndarray, ends: np.ndarray, w: int) -> np.ndarray:
+    """(len(ends), w, m, 2) windows ending at ``ends`` (inclusive)."""
+    idx = ends[:, None] - np.arange(w - 1, -1, -1)[None, :]
+    return obs[idx]
+
+
+def _window_weights(stack: np.ndarray, cfg: SensorConfig, weighting: str,
+                    rng: np.random.Generator | None, huff_threshold: float | None,
+                    huber_c: float) -> np.ndarray | None:
+    if weighting == "none":
+        return None
+    if weighting == "random":
+        return _weights.random_weights(stack.shape[:3], rng)
+    if weighting == "huff":
+        return _weights.huff_weights(stack, cfg, huff_threshold)
+    if weighting == "huber":
+        return _weights.huber_weights(stack, huber_c)
+    return _weights.huff_huber_weights(stack, cfg, huff_threshold, huber_c)
+
+
+def _chunks(ends: np.ndarray, w: int, m: int):
+    size = max(1, _CHUNK_SAMPLES // max(1, w * m))
+    for a in range(0, ends.size, size):
+        yield ends[a:a + size]
+
+
+def _cumsum_means(obs: np.ndarray, ends: np.ndarray, w: int
+                  ) -> tuple[np.ndarray, np.ndarray]:
+    """Unweighted window means (N, m, 2) and counts (N, m) by cumulative sums."""
+    present = ~np.isnan(obs[..., 0])
+    ref = np.nanmean(obs.reshape(-1, 2), axis=0) if present.any() else np.zeros(2)
+    o0 = np.where(present[..., None], obs - ref, 0.0)
+    n, m = present.shape
+    C = np.zeros((n + 1, m, 2))
+    np.cumsum(o0, axis=0, out=C[1:])
+    K = np.zeros((n + 1, m))
+    np.cumsum(present, axis=0, out=K[1:])
+    cnt = K[ends + 1] - K[ends + 1 - w]
+    with np.errstate(invalid="ignore", divide="ignore"):
+        means = (C[ends + 1] - C[ends + 1 - w]) / cnt[..., None] + ref
+    return np.where(cnt[..., None] > 0, means, np.nan), cnt
+
+
+def _fit_windows(obs, cfg, ends, w, *, weighting, rng, huff_threshold, huber_c, solver, eps,
+                 warm_start, fit_kw):
+    """Window fits for rows ending at ``ends`` with window size w.
+
+    Returns positions (N, m, 2), yaw (N,), status (N,) object.
+    """
+    N, m = ends.size, cfg.m
+    pos = np.full((N, m, 2), np.nan)
+    yaw = np.full(N, np.nan)
+    status = np.empty(N, dtype=object)
+    if solver == "procrustes" and weighting == "none":
+        means, cnt = _cumsum_means(obs, ends, w)
+        bf = procrustes_batch(means, cnt, cfg)
+        return bf.positions, bf.yaw, bf.status.astype(object)
+    a = 0
+    prev = None
+    for ch in _chunks(ends, w, m):
+        st = _stack(obs, ch, w)
+        wts = _window_weights(st, cfg, weighting, rng, huff_threshold, huber_c)
+        sl = slice(a, a + ch.size)
+        if solver == "procrustes":
+            means, sw = window_means(st, wts)
+            bf = procrustes_batch(means, sw, cfg)
+            pos[sl], yaw[sl], status[sl] = bf.positions, bf.yaw, bf.status
+        else:
+            for r in range(ch.size):
+                fit = fit_window(st[r], cfg, None if wts is None else wts[r], eps=eps,
+                                 solver=solver, x0=prev if warm_start else None, **fit_kw)
+                pos[a + r], yaw[a + r], status[a + r] = fit.positions, fit.yaw, fit.status
+                if fit.status != "insufficient_data":
+                    prev = fit.positions
+        a += ch.size
+    return pos, yaw, status
+
+
+def _motion_windows(t, obs, cfg, ends, w, *, weighting, rng, huff_threshold, huber_c,
+                    yaw_rate, omega_max):
+    N, m = ends.size, cfg.m
+    pos = np.full((N, m, 2), np.nan)
+    out = {k: np.full(N, np.nan) for k in ("yaw", "yaw_rate", "vx", "vy")}
+    status = np.empty(N, dtype=object)
+    a = 0
+    for ch in _chunks(ends, w, m):
+        st = _stack(obs, ch, w)
+        wts = _window_weights(st, cfg, weighting, rng, huff_threshold, huber_c)
+        idx = ch[:, None] - np.arange(w - 1, -1, -1)[None, :]
+        tau = t[idx] - t[ch][:, None]
+        fit = motion_compensated_batch(tau, st, cfg, wts, yaw_rate=yaw_rate,
+                                       omega_max=omega_max)
+        sl = slice(a, a + ch.size)
+        pos[sl] = fit.positions
+        out["yaw"][sl], out["yaw_rate"][sl] = fit.yaw, fit.yaw_rate
+        out["vx"][sl], out["vy"][sl] = fit.velocity[:, 0], fit.velocity[:, 1]
+        status[sl] = fit.status
+        a += ch.size
+    return pos, out, status
+
+
+def detect_turning(t: np.ndarray, obs: np.ndarray, config: SensorConfig,
+                   **options: Any) -> np.ndarray:
+    """Turning flags (n,) bool computed from the observations alone (no controller).
+
+    A plain procrustes track with window ``options["window"]`` (default 1) gives CG and yaw
+    per epoch; the heading is either the course of the CG over ``span_s`` seconds
+    (``source="course"``, default) or the fitted yaw (``source="pose"``); then
+    :func:`estimator.turns.detect_turns` with ``rate_on``/``rate_off`` (rad/s) and
+    ``span_s``. Defaults in :data:`DETECTOR_DEFAULTS`. Epochs before the first estimate are
+    not turning.
+    """
+    unknown = sorted(set(options) - set(DETECTOR_DEFAULTS))
+    if unknown:
+        raise ValueError(f"detector: unknown option(s) {unknown}; known: {sorted(DETECTOR_DEFAULTS)}")
+    opt = {**DETECTOR_DEFAULTS, **options}
+    tt, o, cfg = _check_inputs(t, obs, config)
+    w = _check_int(opt["window"], "detector.window", 1, tt.size)
+    if opt["source"] not in ("course", "pose"):
+        raise ValueError(f"detector.source: must be 'course' or 'pose', got {opt['source']!r}")
+    ends = np.arange(w - 1, tt.size)
+    means, cnt = _cumsum_means(o, ends, w)
+    bf = procrustes_batch(means, cnt, cfg)
+    tr = tt[ends]
+    if opt["source"] == "course":
+        heading = _turns.course_heading(tr, bf.cg, opt["span_s"], opt["min_speed"])
+    else:
+        heading = bf.yaw
+    flags = np.zeros(tt.size, dtype=bool)
+    flags[ends] = _turns.detect_turns(tr, heading, rate_on=opt["rate_on"],
+                                      rate_off=opt["rate_off"], span_s=opt["span_s"])
+    return flags
+
+
+# ----------------------------------------------------------------------------- track
+def track(t: Any, obs: Any, config: SensorConfig, window: int = 10, weighting: str = "none",
+          lag_correction: bool | str = False, dynamic_window: int | None = None,
+          turning: Any = None, solver: str = "procrustes",
+          rng: np.random.Generator | None = None, *, method: str = "window",
+          eps: float = 0.01, huff_threshold: float | None = None, huber_c: float = 1.345,
+          warm_start: bool = False, velocity_span: int | None = None,
+          detector: dict | None = None, yaw_rate: bool = True, omega_max: float = 1.0,
+          filter_params: PoseFilterParams | None = None, fit_options: dict | None = None,
+          ) -> pd.DataFrame:
+    """Track the platform over a recording; one row per estimate.
+
+    t : (n,) seconds, strictly increasing. obs : (n, m, 2) metres (world x east, y north),
+    NaN = missing. config : the sensor configuration (m sensors).
+    window : s >= 1; the first estimate is at epoch s (row index s-1), then one per epoch.
+    weighting : one of :data:`WEIGHTINGS`; ``rng`` (numpy Generator) is required for
+        ``"random"``. huff_threshold (m) and huber_c pass to :mod:`estimator.weights`.
+    lag_correction : False, True (= "pose", Section 3.4.2 as written) or "course"
+        (method "window" only). velocity_span : rows for the velocity estimate (default s).
+    dynamic_window : small window size (e.g. 1) used on turning epochs (Section 3.4.2.1);
+        requires ``turning``: a (n,) bool array or "detect" (options in ``detector``, see
+        :func:`detect_turning`).
+    solver : "procrustes" | "slsqp" | "ccp" (method "window" only); eps (m), warm_start and
+        fit_options (e.g. ``{"maxiter": 100}``) pass to :func:`estimator.window.fit_window`.
+    method : one of :data:`METHODS` (module docstring). yaw_rate, omega_max (rad/s): motion-
+        compensated model options. filter_params : :class:`PoseFilterParams` for "ekf".
+
+    Returns a DataFrame with columns ``t, cg_x, cg_y, yaw, yaw_loc, window, solver_status,
+    turning, lag_dx, lag_dy`` then ``x_<name>, y_<name>`` per sensor, plus ``speed,
+    yaw_rate`` for "motion_compensated" and "ekf" and ``n_used, n_gated`` for "ekf".
+    ``yaw`` is the fitted pose's heading (atan2, CCW from +x, (-pi, pi]); ``yaw_loc`` the
+    law-of-cosines heading (Section 3.2); ``lag_dx/lag_dy`` the applied lag shift (0 when
+    off, NaN where it could not be computed and the estimate is left uncorrected).
+    ``df.attrs["settings"]`` records the arguments.
+    """
+    tt, o, cfg = _check_inputs(t, obs, config)
+    n, m = o.shape[:2]
+    s = _check_int(window, "window", 1, n)
+    if method not in METHODS:
+        raise ValueError(f"method: unknown {method!r}; choose one of {list(METHODS)}")
+    if weighting not in WEIGHTINGS:
+        raise ValueError(f"weighting: unknown {weighting!r}; choose one of {list(WEIGHTINGS)}")
+    if weighting == "random" and not isinstance(rng, np.random.Generator):
+        raise ValueError(f"rng: weighting='random' needs a numpy.random.Generator, got {rng!r}")
+    if solver not in SOLVERS:
+        raise ValueError(f"solver: unknown {solver!r}; choose one of {list(SOLVERS)}")
+    if method != "window" and solver != "procrustes":
+        raise ValueError(f"solver: {solver!r} applies to method='window' only (got method={method!r})")
+    if lag_correction not in LAG_OPTIONS or (isinstance(lag_correction, (int, float))
+                                             and not isinstance(lag_correction, bool)):
+        raise ValueError(f"lag_correction: must be one of {LAG_OPTIONS}, got {lag_correction!r}")
+    lag_mode = {False: None, True: "pose"}.get(lag_correction, lag_correction)
+    if lag_mode is not None and method != "window":
+        raise ValueError(f"lag_correction: applies to method='window' only (got method={method!r})")
+    if method in ("ekf", "naive") and weighting != "none":
+        raise ValueError(f"weighting: method={method!r} takes no weights, got {weighting!r}")
+    if velocity_span is not None:
+        velocity_span = _check_int(velocity_span, "velocity_span", 1, n)
+    # turning / dynamic window
+    flags = np.zeros(n, dtype=bool)
+    if dynamic_window is not None:
+        if method == "ekf":
+            raise ValueError("dynamic_window: not applicable to method='ekf'")
+        small = _check_int(dynamic_window, "dynamic_window", 1, s)
+        if turning is None:
+            raise ValueError("turning: dynamic_window needs turning flags (a (n,) bool array) "
+                             "or turning='detect'")
+    elif turning is not None:
+        raise ValueError("turning: only used together with dynamic_window")
+    if isinstance(turning, str):
+        if turning != "detect":
+            raise ValueError(f"turning: must be a (n,) bool array or 'detect', got {turning!r}")
+        flags = detect_turning(tt, o, cfg, **(detector or {}))
+    elif turning is not None:
+        fl = np.asarray(turning)
+        if fl.shape != (n,) or fl.dtype != bool:
+            raise ValueError(f"turning: expected a bool array of shape ({n},), got {fl.dtype} {fl.shape}")
+        flags = fl.copy()
+    if detector is not None and not isinstance(turning, str):
+        raise ValueError("detector: only used with turning='detect'")
+
+    ends = np.arange(s - 1, n)
+    N = ends.size
+    wsize = np.full(N, s, dtype=int)
+    if dynamic_window is not None:
+        wsize[flags[ends]] = small
+    pos = np.full((N, m, 2), np.nan)
+    yaw = np.full(N, np.nan)
+    status = np.empty(N, dtype=object)
+    extra: dict[str, np.ndarray] = {}
+    common = {"weighting": weighting, "rng": rng, "huff_threshold": huff_threshold, "huber_c": huber_c}
+
+    if method == "window":
+        for w in np.unique(wsize):
+            sel = wsize == w
+            p, y, st = _fit_windows(o, cfg, ends[sel], int(w), solver=solver, eps=eps,
+                                    warm_start=warm_start, fit_kw=fit_options or {}, **common)
+            pos[sel], yaw[sel], status[sel] = p, y, st
+    elif method == "motion_compensated":
+        extra = {k: np.full(N, np.nan) for k in ("yaw_rate", "vx", "vy")}
+        for w in np.unique(wsize):
+            sel = wsize == w
+            p, out, st = _motion_windows(tt, o, cfg, ends[sel], int(w), yaw_rate=yaw_rate,
+                                         omega_max=omega_max, **common)
+            pos[sel], yaw[sel], status[sel] = p, out["yaw"], st
+            for k in extra:
+                extra[k][sel] = out[k]
+        extra = {"speed": np.hypot(extra["vx"], extra["vy"]), "yaw_rate": extra["yaw_rate"]}
+    elif method == "naive":
+        cgm = cfg.cg_mask
+        for w in np.unique(wsize):
+            sel = wsize == w
+            means, cnt = _cumsum_means(o, ends[sel], int(w))
+            pos[sel] = means
+            status[sel] = np.where((cnt[:, cgm] > 0).any(axis=1), "ok", "insufficient_data")
+    else:  # ekf
+        pos, yaw, status, extra = _run_ekf(tt, o, cfg, s, filter_params or PoseFilterParams())
+
+    # CG (Eq. 3.8)
+    if method == "naive":
+        cgp = pos[:, cfg.cg_mask]
+        cnt = np.isfinite(cgp[..., 0]).sum(axis=1)
+        with np.errstate(invalid="ignore", divide="ignore"):
+            cg = np.nansum(cgp, axis=1) / cnt[:, None]
+        cg = np.where(cnt[:, None] > 0, cg, np.nan)
+    else:
+        cg = cfg.cg_from_positions(pos)
+
+    # law-of-cosines heading of the fitted positions (Section 3.2)
+    if method == "naive":
+        yaw_loc = np.full(N, np.nan)
+    else:
+        i, j, ang = heading_pair(cfg)
+        yaw_loc = law_of_cosines_heading(pos[:, j] - pos[:, i], ang)
+
+    lag_dx = np.zeros(N)
+    lag_dy = np.zeros(N)
+    if lag_mode is not None:
+        shift = _lag_correct(tt, o, cfg, ends, wsize, pos, cg, yaw_loc, s, lag_mode,
+                             velocity_span or s, dynamic_window is not None, common, eps)
+        ok = np.all(np.isfinite(shift), axis=1)
+        pos = pos + np.where(ok[:, None], shift, 0.0)[:, None, :]
+        cg = cg + np.where(ok[:, None], shift, 0.0)
+        lag_dx = np.where(ok, shift[:, 0], np.nan)
+        lag_dy = np.where(ok, shift[:, 1], np.nan)
+
+    cols: dict[str, Any] = {
+        "t": tt[ends], "cg_x": cg[:, 0], "cg_y": cg[:, 1], "yaw": yaw, "yaw_loc": yaw_loc,
+        "window": wsize, "solver_status": status.astype(str), "turning": flags[ends],
+        "lag_dx": lag_dx, "lag_dy": lag_dy,
+    }
+    for k, name in enumerate(cfg.names):
+        cols[f"x_{name}"] = pos[:, k, 0]
+        cols[f"y_{name}"] = pos[:, k, 1]
+    cols.update(extra)
+    df = pd.DataFrame(cols)
+    df.attrs["settings"] = {
+        "method": method, "window": s, "weighting": weighting,
+        "lag_correction": lag_mode or False, "dynamic_window": dynamic_window,
+        "turning": "detect" if isinstance(turning, str) else ("flags" if turning is not None else None),
+        "solver": solver, "eps": eps, "huff_threshold": huff_threshold, "huber_c": huber_c,
+        "warm_start": warm_start, "config": cfg.name,
+    }
+    return df
+
+
+def _lag_correct(tt, o, cfg, ends, wsize, pos, cg, yaw_loc, s, mode, span, dynamic, common,
+                 eps):
+    """Section 3.4.2 shift for every row (see :mod:`estimator.lag`)."""
+    if dynamic:
+        # velocity from a uniform window-s series, so it is not polluted by the jump in lag
+        # between small- and large-window rows
+        # (procrustes, whatever the rows' solver: the series only feeds the velocity)
+        p, _, _ = _fit_windows(o, cfg, ends, s, solver="procrustes", eps=eps,
+                               warm_start=False, fit_kw={}, **common)
+        vel_cg = cfg.cg_from_positions(p)
+    else:
+        vel_cg = cg
+    vel = _lag.estimate_velocity(tt[ends], vel_cg, span)
+    first, fidx = _lag.first_observations(o, ends - wsize + 1, ends)
+    return _lag.lag_shift(tt, pos, first, fidx, tt[ends], vel, yaw_loc, wsize, mode)
+
+
+def _run_ekf(tt, o, cfg, s, params):
+    """EKF rows from epoch s-1 (see :mod:`estimator.pose_filter`)."""
+    k0 = s - 1
+    st = o[None, :s]
+    fit = motion_compensated_batch((tt[:s] - tt[k0])[None], st, cfg, yaw_rate=False)
+    if fit.status[0] != "ok":
+        raise ValueError(f"window: the first {s} epochs hold fewer than 2 sensors with data; "
+                         f"the EKF cannot be initialised (use a larger window)")
+    yaw0 = float(fit.yaw[0])
+    v0 = float(fit.velocity[0] @ np.array([np.cos(yaw0), np.sin(yaw0)]))
+    x0 = np.array([fit.cg[0, 0], fit.cg[0, 1], yaw0, v0, 0.0])
+    sp = params.sigma_meas
+    P0 = np.diag([sp**2, sp**2, 0.5**2, 1.0**2, 0.5**2])
+    offsets = cfg.body_positions - cfg.cg_body
+    res = run_pose_filter(tt, o, offsets, x0, P0, k0, params)
+    X = res.states[k0:]
+    c, sn = np.cos(X[:, 2]), np.sin(X[:, 2])
+    R = np.stack([np.stack([c, -sn], -1), np.stack([sn, c], -1)], -2)  # (N, 2, 2)
+    pos = X[:, None, :2] + np.einsum("nab,mb->nma", R, offsets)
+    extra = {"speed": X[:, 3], "yaw_rate": X[:, 4], "n_used": res.n_used[k0:],
+             "n_gated": res.n_gated[k0:]}
+    return pos, X[:, 2].copy(), res.status[k0:].astype(object), extra
