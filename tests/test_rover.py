@@ -224,3 +224,11 @@ def test_path1_full_square_tracking_and_wall_time():
     assert meta["closure_m"] < 0.05
     assert np.all(np.array(meta["cut_in_m"]) < p.target_radius_m)
     assert wall < 10.0                                  # issue 3: 1 ms physics, < 10 s wall
+
+
+# ---------------------------------------------------------------- figure (rover panel)
+def test_paths_figure_draws_a_rover_panel(tmp_path, run10):
+    from experiments.paths_figure import plot_paths
+
+    out = plot_paths([(run10, load_path("square20"), "rover square20", 0)], tmp_path / "p.png")
+    assert out.stat().st_size > 10_000 and out.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
