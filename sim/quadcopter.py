@@ -21,9 +21,9 @@ in between):
 
 Reference: the path's polyline with every corner replaced by a circular arc tangent to both
 legs at ``target_radius_m`` from the corner (the target areas of 000 Section 4.9, the same
-route semantics as the rover), flown at ``cruise_speed_mps`` with a trapezoidal speed profile
-(``max_accel_mps2``, default 0.5 m/s^2) from hover at the start to hover at the end. The
-``turning`` flag is the controller's own: True while the reference is on a corner arc.
+route semantics as the rover), flown at ``cruise_speed_mps`` with smooth (cosine, bounded
+jerk) speed ramps of peak acceleration ``max_accel_mps2`` (default 0.5 m/s^2) from hover at
+the start to hover at the end. The ``turning`` flag is the controller's own: True while the reference is on a corner arc.
 
 Truth sampling: uneven intervals drawn uniformly (in whole physics steps) from
 ``sample_interval_s = (min, max)`` with the passed Generator; default max = 1 /
@@ -54,16 +54,23 @@ channel). What each identified constant comes from in this simulator:
   XML), the other is the flight controller's throttle filter (0.41 s, chosen to match), the
   delay is the link delay 0.62 s (chosen) + 30 ms motor lag + 12 ms actuator delay, which a
   two-pole fit absorbs into Td (about 0.66 s in total);
-- yaw rate: the yaw-rate loop is closed (time constant about 0.1 s) behind a 1.75 s stick
-  filter (chosen), so the fitted pole is about 1.8-1.9 s and the delay is small, like the
-  thesis's;
+- yaw rate: the yaw-rate loop is closed (time constant 1 / k_rate_yaw = 0.05 s) behind a
+  1.80 s stick filter (chosen), so the fitted pole is the filter's (measured 1.80 s, thesis
+  1.84 s) and the fitted delay is about the loop's 0.05 s (thesis 0.0044 s);
 - pitch: the stick sets the tilt angle (attitude loop closed, position and velocity loops
   open); position then follows ``g / (s (s + drag_xy / m))`` behind the attitude loop and a
   0.33 s link delay (chosen near the thesis's 0.365 s). This plant has only real poles
-  (drag 2.9 s, attitude loop ~0.15 s), so a ``second_order`` fit finds zeta >= 1 and
-  Tw ~ sqrt(2.9 * 0.15) ~ 0.7 s: the thesis's underdamped zeta = 0.40, Tw = 5.44 s is *not*
-  reproduced. An underdamped response would need a closed velocity loop in the flight
-  controller, which the thesis does not document; we keep the physical open loop instead.
+  (drag 2.9 s, attitude loop ~0.05 s), so a ``second_order`` fit finds zeta > 1 (measured
+  noise-free: zeta 3.7, Tw 0.40 s, Td 0.40 s, i.e. 2 zeta Tw = 2.9 s = the drag pole): the
+  thesis's underdamped zeta = 0.40, Tw = 5.44 s is *not* reproduced. An underdamped
+  response would need a closed velocity loop in the flight controller, which the thesis
+  does not document; we keep the physical open loop instead.
+
+Measured noise-free fits (:mod:`estimator.sysid`, 0.05 s grid, default impulses): thrust
+Tp1 = Tp2 = 0.416 s, Td = 0.657 s, K = 4.116 m/s = m g / drag_z (thesis 0.409, 0.423,
+0.659 s); yaw rate Tp1 = 1.80 s, Td = 0.046 s, K = 0.995. The thesis's gains (1856.4,
+3425.9, 91.258) are in millimetres (degrees) per normalised stick unit and are not
+comparable with ours (SI per fraction of hover thrust, rad, rad/s).
 
 The chosen (non-physical) numbers are the stick-channel delays and filters; the physical
 ones (motor lag, actuator delay, drag, inertia) are justified in the XML. Measured fits are
@@ -80,6 +87,7 @@ from typing import NamedTuple
 
 import mujoco
 import numpy as np
+from scipy.ndimage import gaussian_filter1d
 
 from estimator.configuration import MODELS_DIR
 from sim.paths import Path, load_path
@@ -117,6 +125,8 @@ class Gains:
     kp_xy, kd_xy; vertical kp_z, kd_z), tilt limited to ``max_tilt_rad``. Attitude loop:
     ``omega_des = -k_att * e_R`` (yaw component ``k_att_yaw``). Rate loop:
     ``torque = I * k_rate * (omega_des - omega) + omega x I omega`` (yaw ``k_rate_yaw``).
+    ``yaw_ref_smoothing_s``: sigma (s) of the zero-lag Gaussian smoothing of the heading
+    reference in ``yaw_mode="along_path"``.
     """
 
     control_rate_hz: float = 250.0
@@ -127,8 +137,9 @@ class Gains:
     k_att: float = 8.0
     k_att_yaw: float = 3.0
     k_rate: float = 20.0
-    k_rate_yaw: float = 10.0
+    k_rate_yaw: float = 20.0
     max_tilt_rad: float = 0.5
+    yaw_ref_smoothing_s: float = 0.3
 
     def __post_init__(self) -> None:
         for k, v in asdict(self).items():
@@ -159,7 +170,7 @@ class StickChannel:
 STICK_CHANNELS: dict[str, StickChannel] = {
     "thrust": StickChannel(delay_s=0.62, tau_s=0.41),
     "pitch": StickChannel(delay_s=0.33, tau_s=0.0),
-    "yaw_rate": StickChannel(delay_s=0.0, tau_s=1.75),
+    "yaw_rate": StickChannel(delay_s=0.0, tau_s=1.80),
 }
 
 #: Default impulse per axis: (amplitude, pulse_s, units of u). Thrust: fraction of the hover
@@ -335,20 +346,25 @@ class _Controller:
 
 # -------------------------------------------------------------------------- reference
 def _speed_profile(t: np.ndarray, L: float, v: float, a: float) -> tuple[np.ndarray, ...]:
-    """Trapezoidal s(t), s'(t), s''(t) from rest to rest over length L (triangular if short)."""
-    ta = v / a
-    if a * ta * ta > L:  # never reaches cruise speed
-        ta = math.sqrt(L / a)
-        v = a * ta
-    tc = (L - a * ta * ta) / v
+    """Smooth rest-to-rest s(t), s'(t), s''(t) over length L (bounded jerk).
+
+    Speed ramps as ``v/2 (1 - cos(pi t / ta))`` with ``ta = pi v / (2 a)`` (peak acceleration
+    ``a``), cruises at ``v`` and ramps down symmetrically; a path too short for the cruise
+    speed peaks at ``sqrt(2 a L / pi)``. Returns (s, sd, sdd, T) with T the total time.
+    """
+    if v * (math.pi * v / (2 * a)) > L:  # both ramps (v * ta / 2 each) exceed L
+        v = math.sqrt(2 * a * L / math.pi)
+    ta = math.pi * v / (2 * a)
+    tc = (L - v * ta) / v
     T = 2 * ta + tc
     t = np.clip(t, 0.0, T)
-    s = np.where(t < ta, 0.5 * a * t**2,
-                 np.where(t < ta + tc, 0.5 * a * ta**2 + v * (t - ta),
-                          L - 0.5 * a * (T - t) ** 2))
-    sd = np.where(t < ta, a * t, np.where(t < ta + tc, v, a * (T - t)))
-    sdd = np.where(t < ta, a, np.where(t < ta + tc, 0.0, -a))
-    sdd = np.where(t >= T, 0.0, sdd)
+    w = math.pi / ta
+    td = T - t
+    up, down = t < ta, t > ta + tc
+    s = np.where(up, 0.5 * v * (t - np.sin(w * t) / w),
+                 np.where(down, L - 0.5 * v * (td - np.sin(w * td) / w), 0.5 * v * ta + v * (t - ta)))
+    sd = np.where(up, 0.5 * v * (1 - np.cos(w * t)), np.where(down, 0.5 * v * (1 - np.cos(w * td)), v))
+    sdd = np.where(up, 0.5 * v * w * np.sin(w * t), np.where(down, -0.5 * v * w * np.sin(w * td), 0.0))
     return s, sd, sdd, T
 
 
@@ -400,9 +416,9 @@ def reference_trajectory(path: Path | str, t: np.ndarray, *, accel_mps2: float |
     """Reference of a path flight at times ``t`` (s, from the start at rest).
 
     The polyline's corners are replaced by arcs tangent to both legs at ``target_radius_m``
-    from the corner (000 Section 4.9 target areas); speed follows a trapezoid with cruise
-    ``cruise_speed_mps`` and acceleration ``accel_mps2`` (default ``path.max_accel_mps2`` or
-    0.5 m/s^2). 2-D waypoints fly at ``path.altitude_m``.
+    from the corner (000 Section 4.9 target areas); speed cruises at
+    ``cruise_speed_mps`` and peak acceleration ``accel_mps2`` (default ``path.max_accel_mps2``
+    or 0.5 m/s^2), smooth (cosine) ramps. 2-D waypoints fly at ``path.altitude_m``.
 
     Returns a dict of arrays: ``p, v, a`` (n, 3) m, m/s, m/s^2; ``yaw`` (n,) tangent heading,
     unwrapped, rad; ``yaw_rate`` (n,) rad/s; ``turning`` (n,) bool (on a corner arc);
@@ -573,8 +589,13 @@ def _simulate(path, rng, interval, yaw_mode, yaw_rad, gains, hover_after_s, dura
         yaw_ref = np.full(n_ticks, yaw_rad)
         yaw_rate_ref = np.zeros(n_ticks)
     else:
-        yaw_ref = ref["yaw"]
-        yaw_rate_ref = ref["yaw_rate"]
+        # the tangent heading turns at v / R from the first instant of an arc; the yaw
+        # authority (reaction torque only) cannot follow a rate step, so the planned (known
+        # in advance) heading is smoothed without lag by a Gaussian of sigma
+        # gains.yaw_ref_smoothing_s; its peak yaw acceleration is about
+        # (v / R) / (sigma sqrt(2 pi)).
+        yaw_ref = gaussian_filter1d(ref["yaw"], gains.yaw_ref_smoothing_s / h, mode="nearest")
+        yaw_rate_ref = np.gradient(yaw_ref, h)
     plant.reset_hover(ref["p"][0], float(yaw_ref[0]))
     ctrl = _Controller(plant, gains)
     steps = _sample_steps(rng, total_steps, dt, interval)

@@ -1,0 +1,333 @@
+"""Quadcopter simulator (sim.quadcopter, models/quadcopter.xml): geometry, determinism,
+tracking, uneven sampling, reference feedforward, and the Section 3.3 impulse responses
+checked against closed forms and an independent transfer-function fit."""
+
+from __future__ import annotations
+
+import math
+import time
+
+import mujoco
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+from scipy.integrate import cumulative_trapezoid
+
+from sim.paths import Path, load_path, path_errors, project_to_polyline
+from sim.quadcopter import (
+    STICK_CHANNELS,
+    impulse_response,
+    load_model,
+    reference_trajectory,
+    simulate_quadcopter,
+)
+
+# A partial flight: start ramp, the first 6 m leg, the first corner and into the second leg
+# (the first corner's arc starts at about 12.5 s).
+PARTIAL_S = 16.0
+
+
+@pytest.fixture(scope="module")
+def partial():
+    t0 = time.perf_counter()
+    truth = simulate_quadcopter("quad_square6", seed=3, duration_s=PARTIAL_S)
+    wall = time.perf_counter() - t0
+    print(f"\npartial quad_square6: {truth.meta['simulated_s']:.1f} s simulated in {wall:.2f} s "
+          f"wall ({truth.meta['simulated_s'] / wall:.0f} sim-s per wall-s, loaded machine)")
+    return truth
+
+
+# ------------------------------------------------------------------------------ model
+def test_model_geometry_and_physics():
+    m = load_model()
+    d = mujoco.MjData(m)
+    mujoco.mj_forward(m, d)
+    body = m.body("quad").id
+    assert m.body_subtreemass[body] == pytest.approx(1.2)
+    front, rear = d.site_xpos[m.site("tx_front").id], d.site_xpos[m.site("tx_rear").id]
+    # thesis 003 Section 3.2.2: transmitters 0.5 m apart (1 mm requirement)
+    assert abs(np.linalg.norm(front - rear) - 0.5) < 1e-3
+    # front/rear on the body x axis, symmetric about the CG
+    assert np.allclose((front + rear) / 2, d.xipos[body], atol=1e-12)
+    fl, rr = d.site_xpos[m.site("rotor_fl").id], d.site_xpos[m.site("rotor_rr").id]
+    assert abs(np.linalg.norm(fl - rr) - 0.45) < 1e-3          # F450 diagonal
+    # drag applied from the custom numerics (per dof: world xyz, body rotations)
+    adr = m.jnt_dofadr[m.joint("root").id]
+    assert np.allclose(m.dof_damping[adr:adr + 6], [0.42, 0.42, 2.86, 0.002, 0.002, 0.002])
+    # the delay buffer must cover the actuator delay, or MuJoCo silently shortens it
+    assert np.all(m.actuator_history[:, 0] * m.opt.timestep >= m.actuator_delay)
+
+
+def test_hover_is_an_equilibrium():
+    # thrust impulse with zero amplitude: nothing may move (pre-filled delay buffers, motor
+    # states at hover thrust); tolerance 1e-9 m: only rounding
+    _t, u, y = impulse_response("thrust", amplitude=0.0, duration_s=2.0)
+    assert np.all(u == 0)
+    assert np.max(np.abs(y)) < 1e-9
+
+
+# ------------------------------------------------------------------------ flight truth
+def test_partial_square_truth(partial):
+    tr = partial
+    path = load_path("quad_square6")
+    assert tr.sensor_names == ("front", "rear")
+    assert tr.sensor_positions.shape == (tr.n, 2, 3)
+    front, rear = tr.sensor_positions[:, 0], tr.sensor_positions[:, 1]
+    sep = np.linalg.norm(front - rear, axis=1)
+    assert np.max(np.abs(sep - 0.5)) < 1e-3                     # rigid sites, 1 mm
+    assert np.allclose((front + rear) / 2, tr.cg, atol=1e-9)   # CG = transmitters' midpoint
+    # truth yaw = heading of the front-minus-rear vector (both are body x), 1e-9 rad
+    hd = np.arctan2(front[:, 1] - rear[:, 1], front[:, 0] - rear[:, 0])
+    assert np.max(np.abs(np.angle(np.exp(1j * (hd - tr.yaw))))) < 1e-9
+    assert np.all((tr.yaw > -math.pi) & (tr.yaw <= math.pi))
+    # altitude held within 0.1 m (issue 3)
+    alt_err = np.max(np.abs(tr.cg[:, 2] - path.altitude_m))
+    assert alt_err < 0.1
+    # tracking: report the straights and the first corner
+    e = path_errors(tr.cg, path)
+    print(f"partial: altitude max error {alt_err * 1e3:.2f} mm; straights max "
+          f"{e.straight_max_m * 1e3:.3f} mm, rms {e.straight_rms_m * 1e3:.4f} mm; "
+          f"first corner cut-in {e.cut_in_m[0]:.3f} m")
+    assert e.straight_max_m < 0.1
+    # the corner arc of radius r at a 90 deg corner passes r (sqrt 2 - 1) from the corner;
+    # the flown cut-in must be within 5 cm of that (tracking error at the corner)
+    r = path.target_radius_m
+    assert abs(e.cut_in_m[0] - r * (math.sqrt(2) - 1)) < 0.05
+    # the turning flag is set exactly while the reference is on an arc: first corner only
+    assert tr.turning.any() and not tr.turning[tr.t < 10].any()
+    on = tr.t[tr.turning]
+    arc_s = 0.5 * math.pi * r / path.cruise_speed_mps
+    assert on.max() - on.min() == pytest.approx(arc_s, abs=0.11)   # 0.1 s max sample gap
+    assert tr.meta["motor_saturation_fraction"] == 0.0
+
+
+def test_sample_intervals_uneven_and_bounded(partial):
+    dt = np.diff(partial.t)
+    lo, hi = partial.meta["params"]["sample_interval_s"]
+    assert (lo, hi) == pytest.approx((0.02, 0.1))   # default from sample_rate_hz = 10
+    assert partial.t[0] == 0.0
+    assert dt.min() >= lo - 1e-12 and dt.max() <= hi + 1e-12
+    assert dt.std() > 0.01 and np.unique(np.round(dt, 6)).size > 20   # really uneven
+    # times are whole physics steps (integer step counter, no drift)
+    k = partial.t / partial.meta["timestep_s"]
+    assert np.allclose(k, np.round(k), atol=1e-6)
+
+
+def test_custom_interval_and_rng():
+    rng = np.random.default_rng(42)
+    tr = simulate_quadcopter("quad_square6", rng=rng, sample_interval_s=(0.05, 0.07),
+                             duration_s=2.0)
+    dt = np.diff(tr.t)
+    assert dt.min() >= 0.05 - 1e-12 and dt.max() <= 0.07 + 1e-12
+    assert tr.meta["seed"] is None
+
+
+def test_deterministic():
+    a = simulate_quadcopter("quad_square6", seed=5, duration_s=4.0)
+    b = simulate_quadcopter("quad_square6", seed=5, duration_s=4.0)
+    c = simulate_quadcopter("quad_square6", seed=6, duration_s=4.0)
+    for name in ("t", "sensor_positions", "cg", "yaw", "speed", "yaw_rate", "turning"):
+        assert np.array_equal(getattr(a, name), getattr(b, name)), name
+    assert a.t.shape != c.t.shape or not np.array_equal(a.t, c.t)
+    # same dynamics: at common sample times the states agree to rounding
+    common, ia, ic = np.intersect1d(np.round(a.t, 9), np.round(c.t, 9), return_indices=True)
+    assert common.size > 0
+    assert np.allclose(a.cg[ia], c.cg[ic], atol=1e-12)
+
+
+def test_cache_roundtrip(tmp_path):
+    a = simulate_quadcopter("quad_square6", seed=1, duration_s=2.0, cache_dir=tmp_path)
+    files = list(tmp_path.glob("*.npz"))
+    assert len(files) == 1
+    b = simulate_quadcopter("quad_square6", seed=1, duration_s=2.0, cache_dir=tmp_path)
+    assert b.meta["hash"] == a.meta["hash"]
+    assert np.array_equal(a.sensor_positions, b.sensor_positions)
+    simulate_quadcopter("quad_square6", seed=2, duration_s=2.0, cache_dir=tmp_path)
+    assert len(list(tmp_path.glob("*.npz"))) == 2   # the seed is part of the key
+
+
+def test_along_path_heading():
+    # yaw follows the tangent through the first corner: before it 0, after it +pi/2
+    tr = simulate_quadcopter("quad_square6", yaw_mode="along_path", duration_s=PARTIAL_S + 2)
+    assert np.max(np.abs(tr.yaw[tr.t < 10])) < 0.01
+    assert abs(tr.yaw[-1] - math.pi / 2) < 0.02
+    assert np.max(np.abs(tr.cg[:, 2] - 2.5)) < 0.1
+    assert tr.meta["motor_saturation_fraction"] == 0.0
+
+
+@pytest.mark.parametrize("kw, field", [
+    ({"yaw_mode": "spin"}, "yaw_mode"),
+    ({"sample_interval_s": (0.1, 0.05)}, "sample_interval_s"),
+    ({"sample_interval_s": (0.0005, 0.0009)}, "sample_interval_s"),
+    ({"duration_s": -1.0}, "duration_s"),
+])
+def test_bad_input_names_field(kw, field):
+    with pytest.raises(ValueError, match=field):
+        simulate_quadcopter("quad_square6", **kw)
+
+
+def test_2d_path_needs_altitude():
+    p = Path(name="flat", waypoints=np.array([[0, 0], [4, 0], [4, 4]]), closed=True,
+             target_radius_m=0.5, cruise_speed_mps=0.5)
+    with pytest.raises(ValueError, match="altitude_m"):
+        simulate_quadcopter(p, duration_s=1.0)
+
+
+# -------------------------------------------------------------------------- reference
+@settings(max_examples=15, deadline=None)
+@given(w=st.floats(2.0, 10.0), h=st.floats(2.0, 10.0), frac=st.floats(0.05, 0.45),
+       v=st.floats(0.3, 1.0))
+def test_reference_feedforward_consistent(w, h, frac, v):
+    r = frac * min(w, h)
+    lat = max(2.0, 1.01 * v * v / r)
+    p = Path(name="rect", waypoints=np.array([[0, 0], [w, 0], [w, h], [0, h]]), closed=True,
+             target_radius_m=r, cruise_speed_mps=v, altitude_m=2.0, max_lateral_accel_mps2=lat)
+    T = float(reference_trajectory(p, np.zeros(1))["duration"])
+    dt = 2e-3
+    t = np.arange(0.0, T + 0.5, dt)
+    ref = reference_trajectory(p, t)
+    # the analytic velocity and acceleration integrate to the position and velocity
+    # (trapezoid rule, independent of the closed forms). Error bounds: the acceleration jumps
+    # by v^2/r at the 6 arc ends (3 corners), each costing at most dt * v^2 / r in the
+    # velocity integral and dt^2 * v^2 / r in the position integral; on smooth parts the
+    # trapezoid error is T dt^2 max|derivative| / 12 with jerk <= v^3 / r^2 + pi a v / ta.
+    jerk = v**3 / r**2 + 10.0
+    p_int = ref["p"][0] + cumulative_trapezoid(ref["v"], t, axis=0, initial=0)
+    v_int = ref["v"][0] + cumulative_trapezoid(ref["a"], t, axis=0, initial=0)
+    tol_v = 6 * dt * v * v / r + T * dt**2 * jerk / 12 + 1e-9
+    tol_p = 6 * dt**2 * v * v / r + T * dt**2 * (v * v / r + 1.0) / 12 + 1e-9
+    assert np.max(np.abs(v_int - ref["v"])) < tol_v
+    assert np.max(np.abs(p_int - ref["p"])) < tol_p
+    speed = np.linalg.norm(ref["v"], axis=1)
+    assert speed.max() <= v + 1e-12
+    # stays within the target areas' geometry: never farther from the polyline than the arc
+    # midpoint of a 90 deg corner, r (sqrt 2 - 1)
+    dist = project_to_polyline(ref["p"][:, :2], p.polyline)[0]
+    assert dist.max() <= r * (math.sqrt(2) - 1) + 1e-9
+    assert np.allclose(ref["p"][-1], [0, 0, 2.0], atol=1e-9)     # closes at the start
+    assert np.all(ref["p"][:, 2] == 2.0)
+
+
+def test_reference_rejects_too_fast_corner():
+    p = Path(name="tight", waypoints=np.array([[0, 0], [4, 0], [4, 4]]), closed=True,
+             target_radius_m=0.2, cruise_speed_mps=1.0, altitude_m=2.0,
+             max_lateral_accel_mps2=1.0)
+    with pytest.raises(ValueError, match="cruise_speed_mps"):
+        reference_trajectory(p, np.zeros(3))
+
+
+# ------------------------------------------------------------------- impulse responses
+def _pulse_integral(t, t1, t2, tau):
+    """Integral to time t of a unit pulse [t1, t2) through 1 / (1 + tau s); t >= t2."""
+    return (t2 - t1) - tau * (np.exp(-(t - t2) / tau) - np.exp(-(t - t1) / tau))
+
+
+@pytest.mark.parametrize("axis", ["thrust", "pitch", "yaw_rate"])
+def test_impulse_shapes_and_input(axis):
+    t, u, y = impulse_response(axis)
+    assert t.shape == u.shape == y.shape == (161,)
+    assert np.allclose(np.diff(t), 0.05)
+    amp = u.max()
+    pulse = {"thrust": 0.5, "pitch": 0.5, "yaw_rate": 1.0}[axis]
+    assert np.sum(u) * 0.05 == pytest.approx(amp * pulse)
+    assert np.all(u[t < 1.0] == 0)
+    # nothing moves before the pulse (rounding only)
+    assert np.max(np.abs(y[t < 1.0])) < 1e-9
+
+
+def test_thrust_loop_is_open():
+    # closed form: an impulse of thrust amp * m g for pulse s against vertical damping c_z
+    # leaves the altitude displaced by amp m g pulse / c_z (the integrator); the stick
+    # filter, motor lag and delays have unit DC gain and settle (slowest 0.42 s) long before
+    # 8 s, so 1e-3 relative covers the remaining exponential (e^-14)
+    m, cz, amp, pulse = 1.2, 2.86, 0.2, 0.5
+    t, _u, y = impulse_response("thrust")
+    expected = amp * m * 9.81 * pulse / cz
+    assert y[-1] == pytest.approx(expected, rel=1e-3)
+    assert np.ptp(y[t > 7.0]) < 1e-4      # it stays there: no altitude loop pulls it back
+    # the response is delayed by the stick channel: no motion before pulse + link delay
+    d = STICK_CHANNELS["thrust"].delay_s
+    assert np.max(np.abs(y[t < 1.0 + d])) < 1e-9
+
+
+def test_pitch_loop_is_open():
+    # x velocity obeys v' = g tan(theta) - (c_xy / m) v behind the stick delay: x(t) is the
+    # closed form _pulse_integral times g tan(theta) tau; the closed attitude loop adds a
+    # ~0.05 s lag that changes the unsettled term by < 1 %
+    m, cxy, amp = 1.2, 0.42, 0.05
+    tau = m / cxy
+    t, _u, y = impulse_response("pitch")
+    d = STICK_CHANNELS["pitch"].delay_s
+    expected = 9.81 * math.tan(amp) * tau * _pulse_integral(t[-1], 1.0 + d, 1.5 + d, tau)
+    assert y[-1] == pytest.approx(expected, rel=0.01)
+    assert np.all(np.diff(y[t > 2.5]) > 0)   # still drifting with the drag time constant
+
+
+def test_yaw_rate_loop_is_open():
+    amp, tau = 0.5, STICK_CHANNELS["yaw_rate"].tau_s
+    t, _u, y = impulse_response("yaw_rate")
+    expected = amp * _pulse_integral(t[-1], 1.0, 2.0, tau)
+    # the closed yaw-rate loop (time constant 1 / k_rate_yaw = 0.05 s) lags the filter:
+    # its effect on the unsettled term is ~ 0.05 / 1.8 of it, < 1 % of the total
+    assert y[-1] == pytest.approx(expected, rel=0.01)
+    assert y[-1] > 0.45                   # the heading does not return
+
+
+def test_impulse_bad_axis():
+    with pytest.raises(ValueError, match="axis"):
+        impulse_response("roll")
+    with pytest.raises(ValueError, match="sample_interval_s"):
+        impulse_response("thrust", sample_interval_s=0.0031)
+
+
+def test_identified_constants_against_thesis():
+    """Fit the thesis's forms with estimator.sysid (independent code) and compare.
+
+    Thesis 003 Section 3.3: thrust Tp1 = 0.409, Tp2 = 0.423, Td = 0.659 s; yaw Tp1 = 1.844 s.
+    The simulator's design puts them within 10 % (module docstring); pitch is documented
+    to come out overdamped (zeta > 1), unlike the thesis's 0.40.
+    """
+    sysid = pytest.importorskip("estimator.sysid")
+    t, u, y = impulse_response("thrust")
+    f = sysid.fit_transfer_function(t, u, y, "two_poles", n_starts=3)
+    tp = sorted([f.params["Tp1"], f.params["Tp2"]])
+    print(f"thrust fit: {f.params}, fit {f.nrmse:.2f} %")
+    # near-equal poles: only their sum and product are well determined; check those
+    assert sum(tp) == pytest.approx(0.409 + 0.423, rel=0.10)
+    assert tp[0] * tp[1] == pytest.approx(0.409 * 0.423, rel=0.15)
+    assert f.params["Td"] == pytest.approx(0.659, rel=0.10)
+    assert f.params["K"] == pytest.approx(1.2 * 9.81 / 2.86, rel=0.01)   # m g / c_z
+    t, u, y = impulse_response("yaw_rate")
+    f = sysid.fit_transfer_function(t, u, y, "one_pole", n_starts=3)
+    print(f"yaw fit: {f.params}, fit {f.nrmse:.2f} %")
+    assert f.params["Tp1"] == pytest.approx(1.844, rel=0.10)
+    assert f.params["Td"] < 0.1
+    assert f.params["K"] == pytest.approx(1.0, rel=0.02)                 # rate loop DC gain
+    t, u, y = impulse_response("pitch")
+    f = sysid.fit_transfer_function(t, u, y, "second_order", n_starts=3)
+    print(f"pitch fit: {f.params}, fit {f.nrmse:.2f} %")
+    assert f.params["zeta"] > 1.0
+
+
+# --------------------------------------------------------------------------- slow
+@pytest.mark.slow
+@pytest.mark.parametrize("yaw_mode", ["fixed", "along_path"])
+def test_full_square(yaw_mode):
+    path = load_path("quad_square6")
+    t0 = time.perf_counter()
+    tr = simulate_quadcopter(path, yaw_mode=yaw_mode)
+    wall = time.perf_counter() - t0
+    e = path_errors(tr.cg, path)
+    alt = np.max(np.abs(tr.cg[:, 2] - path.altitude_m))
+    print(f"\n{yaw_mode}: {tr.meta['simulated_s']:.1f} s simulated in {wall:.2f} s wall "
+          f"({tr.meta['simulated_s'] / wall:.0f}x), n = {tr.n}; altitude max {alt * 1e3:.2f} mm;"
+          f" straights max {e.straight_max_m * 1e3:.1f} mm rms {e.straight_rms_m * 1e3:.2f} mm;"
+          f" cut-in {np.round(e.cut_in_m, 3)}; closure {e.closure_m * 1e3:.1f} mm")
+    assert alt < 0.1
+    assert e.straight_max_m < 0.1
+    assert e.closure_m < 0.05
+    assert np.all(np.abs(e.cut_in_m - path.target_radius_m * (math.sqrt(2) - 1)) < 0.05)
+    sep = np.linalg.norm(tr.sensor_positions[:, 0] - tr.sensor_positions[:, 1], axis=1)
+    assert np.max(np.abs(sep - 0.5)) < 1e-3
+    assert tr.meta["motor_saturation_fraction"] == 0.0
