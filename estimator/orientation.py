@@ -33,12 +33,14 @@ _TWO_PI = 2.0 * np.pi
 def wrap_angle(a: np.ndarray | float) -> np.ndarray | float:
     """Wrap angles (radians) to (-pi, pi]. Any shape; a Python float in gives a float out.
 
-    NaN stays NaN.
+    Angles already in (-pi, pi] come back bit for bit; NaN stays NaN.
     """
     arr = np.asarray(a, dtype=float)
     w = np.pi - np.mod(np.pi - arr, _TWO_PI)  # np.mod -> [0, 2pi), so w in (-pi, pi]
     # np.mod can round up to exactly 2 pi for tiny negative arguments -> w = -pi
     w = np.where(w <= -np.pi, w + _TWO_PI, w)
+    # angles already in range are returned unchanged (the formula rounds them to ~1e-16)
+    w = np.where((arr > -np.pi) & (arr <= np.pi), arr, w)
     if np.ndim(a) == 0 and not isinstance(a, np.ndarray):
         return float(w)
     return w
