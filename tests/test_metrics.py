@@ -1,0 +1,108 @@
+"""Metrics (Eq. 4.1, 4.2, summaries, masks, alignment) against hand-computed values."""
+
+import math
+
+import numpy as np
+import pandas as pd
+import pytest
+
+from estimator.metrics import (
+    STATISTICS,
+    align_to_truth,
+    along_cross_errors,
+    cg_errors,
+    evaluate_track,
+    evaluation_masks,
+    heading_error,
+    summarize,
+)
+
+
+def test_cg_errors_hand_values():
+    est = np.array([[1.0, 2.0], [0.0, 0.0], [np.nan, np.nan]])
+    true = np.array([[4.0, 6.0], [-1.0, 1.0], [0.0, 0.0]])
+    e = cg_errors(est, true)
+    np.testing.assert_array_equal(e["x"][:2], [3.0, 1.0])
+    np.testing.assert_array_equal(e["y"][:2], [4.0, 1.0])
+    np.testing.assert_allclose(e["euclid"][:2], [5.0, math.sqrt(2)])
+    assert np.isnan(e["x"][2]) and np.isnan(e["euclid"][2])
+    with pytest.raises(ValueError, match="shapes differ"):
+        cg_errors(est, true[:2])
+    with pytest.raises(ValueError, match="est_xy"):
+        cg_errors(np.zeros(3), true)
+
+
+def test_heading_error_wraps():
+    # 3.1 vs -3.1: 0.083 rad apart across +/-pi, not 6.2
+    e = heading_error(np.array([3.1, 0.5, -math.pi]), np.array([-3.1, 0.2, math.pi]))
+    np.testing.assert_allclose(e, [2 * math.pi - 6.2, 0.3, 0.0], atol=1e-12)
+
+
+def test_along_cross_hand_values():
+    # travelling north (yaw pi/2): an estimate 2 m south and 1 m east lags 2 m, is 1 m right
+    a, c = along_cross_errors(np.array([[1.0, -2.0]]), np.zeros((1, 2)), np.array([math.pi / 2]))
+    assert a[0] == pytest.approx(-2.0) and c[0] == pytest.approx(-1.0)
+
+
+def test_summarize_hand_values():
+    e = np.array([1.0, 2.0, 3.0, 4.0, np.nan])
+    s = summarize(e)
+    assert s["n"] == 4 and s["n_nan"] == 1
+    assert s["mean"] == pytest.approx(2.5)
+    assert s["median"] == pytest.approx(2.5)
+    assert s["std"] == pytest.approx(math.sqrt(5.0 / 3.0))  # ddof = 1: sum sq dev 5 / 3
+    assert s["rmse"] == pytest.approx(math.sqrt(30.0 / 4.0))
+    assert s["p95"] == pytest.approx(3.85)  # linear interpolation at rank 0.95 * 3 = 2.85
+    assert s["max"] == 4.0
+    m = summarize(e, np.array([True, False, True, False, True]))
+    assert m["n"] == 2 and m["n_nan"] == 1 and m["mean"] == pytest.approx(2.0)
+    empty = summarize(np.array([np.nan]))
+    assert empty["n"] == 0 and all(math.isnan(empty[k]) for k in STATISTICS)
+    with pytest.raises(ValueError, match="mask"):
+        summarize(e, np.ones(5))
+
+
+def test_evaluation_masks_margin():
+    tr = np.zeros(10, bool)
+    tr[5] = True
+    t = np.arange(10.0)
+    m0 = evaluation_masks(tr)
+    assert m0["full"].all() and m0["no_turns"].sum() == 9 and not m0["no_turns"][5]
+    m1 = evaluation_masks(tr, t, margin_s=1.0)
+    np.testing.assert_array_equal(np.flatnonzero(~m1["no_turns"]), [4, 5, 6])
+    with pytest.raises(ValueError, match="t: required"):
+        evaluation_masks(tr, margin_s=1.0)
+    with pytest.raises(ValueError, match="turning"):
+        evaluation_masks(np.zeros(3))
+
+
+def test_align_to_truth():
+    tt = np.array([0.0, 0.5, 1.0, 2.0])
+    np.testing.assert_array_equal(align_to_truth(np.array([0.5, 2.0, 0.0]), tt), [1, 3, 0])
+    with pytest.raises(ValueError, match="1.5"):
+        align_to_truth(np.array([1.5]), tt)
+    with pytest.raises(ValueError, match="strictly increasing"):
+        align_to_truth(np.array([0.0]), np.array([1.0, 0.0]))
+
+
+def test_evaluate_track_hand_example():
+    # truth moves east at 1 m/s, yaw 0; the estimate lags 2 m and is 1 m north, yaw 0.1
+    tt = np.arange(6.0)
+    cg = np.c_[tt, np.zeros(6)]
+    yaw = np.zeros(6)
+    rows = np.arange(2, 6)
+    df = pd.DataFrame({"t": tt[rows], "cg_x": tt[rows] - 2.0, "cg_y": np.ones(4),
+                       "yaw": np.full(4, 0.1), "yaw_loc": np.full(4, -0.2)})
+    turning = np.zeros(6, bool)
+    turning[3] = True
+    ev = evaluate_track(df, tt, cg, yaw, turning).set_index(["mask", "quantity"])
+    assert ev.loc[("full", "x"), "mean"] == pytest.approx(2.0)
+    assert ev.loc[("full", "y"), "mean"] == pytest.approx(1.0)
+    assert ev.loc[("full", "euclid"), "max"] == pytest.approx(math.sqrt(5.0))
+    assert ev.loc[("full", "along"), "mean"] == pytest.approx(-2.0)  # lag is negative
+    assert ev.loc[("full", "along"), "max"] == pytest.approx(2.0)  # magnitude
+    assert ev.loc[("full", "yaw"), "mean"] == pytest.approx(0.1)
+    assert ev.loc[("full", "yaw_loc"), "mean"] == pytest.approx(0.2)
+    assert ev.loc[("no_turns", "x"), "n"] == 3
+    with pytest.raises(ValueError, match="cg_x"):
+        evaluate_track(df.drop(columns="cg_x"), tt, cg, yaw)
