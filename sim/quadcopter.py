@@ -737,6 +737,14 @@ def impulse_response(axis: str, *, duration_s: float = 8.0, pre_s: float = 1.0,
     if k_grid < 1 or abs(k_grid - grid_steps) > 1e-6:
         raise ValueError(f"sample_interval_s: {sample_interval_s} s is not a whole number of "
                          f"physics steps ({dt} s)")
+    # the returned u is the input held on the grid (zero-order hold), so the pulse edges must
+    # fall on grid points and on controller updates, or u would misstate what was applied
+    for name, edge in (("pre_s", pre_s), ("pre_s + pulse_s", pre_s + pulse_s)):
+        for period, what in ((sample_interval_s, "sample_interval_s"), (h, "control period")):
+            q = edge / period
+            if abs(q - round(q)) > 1e-6:
+                raise ValueError(f"{name}: {edge} s is not a whole multiple of the {what} "
+                                 f"({period:g} s); the pulse edges must be grid points")
     n = math.floor(duration_s / sample_interval_s + 1e-9) + 1
     total_steps = (n - 1) * k_grid
     n_ticks = math.ceil(total_steps / nctrl) + 1

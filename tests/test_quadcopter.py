@@ -284,6 +284,10 @@ def test_impulse_bad_axis():
         impulse_response("roll")
     with pytest.raises(ValueError, match="sample_interval_s"):
         impulse_response("thrust", sample_interval_s=0.0031)
+    with pytest.raises(ValueError, match="pre_s"):
+        impulse_response("thrust", pre_s=1.01)
+    with pytest.raises(ValueError, match="pulse_s"):
+        impulse_response("pitch", pulse_s=0.51)
 
 
 def test_identified_constants_against_thesis():
