@@ -22,6 +22,9 @@ Two behaviours (``mode``):
     same growing allowance of the previous rejected one) the gate re-locks on the newest one.
     A single spike right after a gap is still rejected (the allowance after a gap of g seconds
     is ``v g``, not "anything"), and a genuine step is followed after ``relock_after`` samples.
+    A sample consistent with the value accepted *before* the current reference is accepted
+    too (with the same allowance), so a spike small enough to slip through does not make the gate hold it and reject
+    the return to the true range.
     Filter 2 allows ``max_sep + noise_margin`` and stops holding after ``relock_after``
     inconsistent pairs in a row.
 
@@ -136,6 +139,7 @@ def velocity_gate(t: np.ndarray, r: np.ndarray, max_speed: float = 10.0, *,
     out = rr.copy()
     rejected = np.zeros((n, c), dtype=bool)
     ref, t_ref = _lead_in_reference(rr, tt, int(lead_in))
+    ref2 = ref.copy()                          # the accepted value before ref (robust mode)
     cand = np.full(c, np.nan)        # newest rejected value (re-lock candidate)
     t_cand = np.full(c, np.nan)
     count = np.zeros(c, dtype=int)
@@ -145,9 +149,13 @@ def velocity_gate(t: np.ndarray, r: np.ndarray, max_speed: float = 10.0, *,
         ok = np.isfinite(x)
         if thesis:
             allow = np.full(c, fixed)
+            accept = ok & (np.abs(x - ref) <= allow)
         else:
             allow = np.minimum(margin + vmax * (tt[i] - t_ref), cap)
-        accept = ok & (np.abs(x - ref) <= allow)
+            # also accept a return to the value accepted before the current reference (same
+            # allowance): a spike small enough to pass must not make the gate reject the
+            # return to the truth
+            accept = ok & ((np.abs(x - ref) <= allow) | (np.abs(x - ref2) <= allow))
         rej = ok & ~accept
         if not thesis and np.any(rej):
             allow_c = np.minimum(margin + vmax * (tt[i] - t_cand), cap)
@@ -158,6 +166,7 @@ def velocity_gate(t: np.ndarray, r: np.ndarray, max_speed: float = 10.0, *,
             relock = rej & (count >= relock_after)
             accept |= relock
             rej &= ~relock
+        ref2 = np.where(accept, ref, ref2)
         ref = np.where(accept, x, ref)
         t_ref = np.where(accept, tt[i], t_ref)
         count = np.where(accept, 0, count)

@@ -366,7 +366,8 @@ def _linear_solve(rec: np.ndarray, Apinv: np.ndarray, r: np.ndarray):
 
 def nonlinear_ls(receivers: np.ndarray, ranges: np.ndarray, *, side: int = 1,
                  x0: np.ndarray | None = None, tol: float = NLS_TOL_M,
-                 max_iter: int = NLS_MAX_ITER, return_info: bool = False):
+                 max_iter: int = NLS_MAX_ITER, reflect_start: bool = False,
+                 return_info: bool = False):
     """Gauss-Newton range least squares (Appendix A ``LeastSquare``, method ``'nls'``).
 
     Minimises ``sum_i (|p - p_i| - R_i)^2``; each step solves ``J'J dp = -J'f`` with
@@ -374,8 +375,14 @@ def nonlinear_ls(receivers: np.ndarray, ranges: np.ndarray, *, side: int = 1,
     (or ``x0``, ``(3,)`` or ``(N, 3)``, required when the receivers are coplanar); a row stops
     when its step norm is below ``tol`` metres (default 1e-9 m = the thesis's 1e-6 mm) or after
     ``max_iter`` iterations (default 15). ``info.iterations`` counts the Gauss-Newton steps
-    taken, ``info.converged`` whether the step test was met. ``side`` is validated only (the
-    start fixes the side).
+    taken, ``info.converged`` whether the step test was met.
+
+    Mirror solutions: for a nearly flat array the cost has two minima mirrored in the array's
+    plane and Gauss-Newton converges to the one nearer its start; the thesis's linear start
+    lands on the wrong side for some points (its z is poorly determined by 22 mm of receiver
+    height). ``reflect_start=True`` (not in the thesis) mirrors a start lying on the ``-side``
+    of the receivers' best-fit plane (normal with n_z > 0) to the ``side`` before iterating;
+    with the default False, ``side`` is only validated and the start decides.
 
     receivers (k, 3) m, ranges (k,) or (N, k) m -> (3,) or (N, 3) m.
     """
@@ -396,6 +403,13 @@ def nonlinear_ls(receivers: np.ndarray, ranges: np.ndarray, *, side: int = 1,
             else np.asarray(x0, dtype=float).copy()
         if p.shape != (n, 3):
             raise ValueError(f"x0: expected shape (3,) or ({n}, 3), got {np.shape(x0)}")
+    if reflect_start:
+        centre = rec.mean(axis=0)
+        normal = np.linalg.svd(rec - centre)[2][-1]
+        normal = normal if normal[2] > 0 or (normal[2] == 0 and normal[0] >= 0) else -normal
+        h = (p - centre) @ normal
+        wrong = side * h < 0
+        p[wrong] -= 2.0 * h[wrong, None] * normal
     iters = np.zeros(n, dtype=int)
     converged = np.zeros(n, dtype=bool)
     active = ~missing & np.all(np.isfinite(p), axis=1)

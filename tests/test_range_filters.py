@@ -30,7 +30,11 @@ def test_clean_data_untouched(mode):
 def test_injected_spikes_removed(mode):
     t, r = _track(seed=1)
     rng = np.random.default_rng(2)
-    spikes = rng.choice(np.arange(50, len(r)), 30, replace=False)
+    # isolated spikes (>= 7 samples apart) larger than the one-sample allowance of both gates
+    # (thesis: 10 m/s x 0.1 s = 1 m; robust: 0.05 m + 10 m/s x dt <= 1.05 m). Back-to-back
+    # spikes widen the robust allowance by design (it grows with the time since the last
+    # accepted sample), see test_gap_then_spike...
+    spikes = rng.choice(np.arange(50, len(r), 7), 30, replace=False)
     raw = r.copy()
     raw[spikes] += rng.uniform(1.2, 5.0, spikes.size) * rng.choice([-1, 1], spikes.size)
     out, rej = velocity_gate(t, raw, 10.0, mode=mode, return_mask=True)
@@ -157,3 +161,15 @@ def test_validation_names_fields():
         separation_gate(np.ones(5), np.ones(4))
     with pytest.raises(ValueError, match="max_sep"):
         separation_gate(np.ones(5), np.ones(5), 0.0)
+
+
+def test_robust_accepts_return_after_a_spike_that_slipped_through():
+    # a 0.9 m spike passes both gates at dt = 0.1 s; the return to the truth 0.03 s later is a
+    # 0.9 m change the robust allowance (0.05 + 10 * 0.03 = 0.35 m) would reject, but it is
+    # consistent with the value accepted before the spike, so it is accepted
+    t = np.r_[np.arange(51) * 0.1, 5.0 + 0.03 + np.arange(50) * 0.1]
+    r = np.full(t.size, 3.0)
+    r[50] = 3.9
+    out, rej = velocity_gate(t, r, 10.0, mode="robust", return_mask=True)
+    assert not rej.any()
+    np.testing.assert_array_equal(out, r)

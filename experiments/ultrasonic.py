@@ -1,0 +1,637 @@
+"""The ultrasonic quadcopter study of thesis 003 (``python -m experiments.ultrasonic``).
+
+Parts (each writes Markdown + CSV tables and PNG figures to ``--out``, default
+``results/ultrasonic/``):
+
+1. Monte Carlo trilateration error analysis (Appendix B): ``--n-mc`` random positions with
+   x, y ~ U[-8, 8] m on the plane z = ``--z-plane`` (5 m), the Appendix B receivers centred by
+   its T_RCM translation, range noise N(0, 5 mm) (Appendix B: randn * 15 mm / 3); linear and
+   nonlinear least squares on all six receivers, CFP and CMD on receivers 43, 44, 45. Per-method
+   mean-error and MSE maps on 1 m pixels (Appendix B's FindBIN: positions rounded to the nearest
+   bin centre, 17 x 17 pixels) and the thesis's totals (``MSE_Error_Total`` = mean over pixels
+   of the per-pixel MSE, per axis and overall).
+2. Flight pipeline on the simulated quadcopter (Sections 3.2.2-3.2.3, Appendix C): truth from
+   :func:`sim.quadcopter.simulate_quadcopter` on ``quad_square6`` (nose along the path),
+   ranges from :mod:`sim.ultrasonic` on the Appendix C layout (centred), then
+   raw -> Filter 1 -> Filter 2 -> CMD per transmitter (receivers 41, 42, 45 as Appendix C, or the
+   largest-area triple with ``--triple best``) -> PV Kalman per axis (Appendix C's sigmas,
+   40-sample lead-in dropped) -> average of the two transmitters -> heading (atan2 of front -
+   rear, unwrapped, PV Kalman with 1 deg/s^2, 1 deg as Appendix C). Position RMSE per axis and
+   heading RMSE at every stage, for the robust gates and the literal thesis gates.
+3. Transfer-function identification (Section 3.3) via
+   :func:`experiments.identification.run_identification`, when that module is installed.
+
+Figures are drawn from the saved tables (``mc_pixels.csv``, ``flight_series.csv``), so
+re-plotting never re-simulates. ``run(...)`` is the callable entry point; ``main`` parses
+arguments only.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import subprocess
+import sys
+import time
+from dataclasses import asdict, dataclass
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+
+from estimator import trilateration as tri
+from estimator.kalman import pv_kalman
+from estimator.orientation import angle_diff, heading_from_points, unwrap_angle, wrap_angle
+from estimator.range_filters import separation_gate, velocity_gate
+from sim.ultrasonic import UltrasonicNoiseModel, load_receivers, simulate_ranges, true_ranges
+
+REPO = Path(__file__).resolve().parents[1]
+DEFAULT_OUT = REPO / "results" / "ultrasonic"
+
+MC_METHODS = ("linear_ls", "nonlinear_ls", "nonlinear_ls_reflect", "closed_form",
+              "cayley_menger")
+MC_LABEL = {"linear_ls": "LS (6 Rx)", "nonlinear_ls": "NLS (6 Rx)",
+            "nonlinear_ls_reflect": "NLS (6 Rx), start reflected to z > 0 [not in thesis]",
+            "closed_form": "CFP (Rx 43, 44, 45)", "cayley_menger": "CMD (Rx 43, 44, 45)"}
+MC_TRIPLE = ("R43", "R44", "R45")           # Appendix B RCM_3
+FLIGHT_TRIPLE = ("R41", "R42", "R45")       # Appendix C RCM_3
+MM2 = 1e6                                   # m^2 -> mm^2
+
+
+@dataclass(frozen=True)
+class StudySpec:
+    """Everything that determines the study's numbers (written to ``spec.json``)."""
+
+    seed: int = 0
+    n_mc: int = 100_000
+    z_plane_m: float = 5.0                  # Appendix B Z_Plane_Value = 5000 mm
+    extent_m: float = 8.0                   # Appendix B Xmin..Xmax = -8000..8000 mm
+    bin_m: float = 1.0                      # Appendix B BIN_Size = 1000 mm
+    mc_sigma_m: float = 0.005               # Appendix B Sigma = 15 mm / 3
+    path: str = "quad_square6"
+    yaw_mode: str = "along_path"
+    flight_duration_s: float | None = None  # None = the whole path
+    noise_model: str = "ultrasonic"
+    triple: str = "appendix_c"              # or "best" (largest receiver triangle)
+    max_speed_mps: float = 10.0             # Filter 1: 1000 mm per <= 0.1 s sample
+    alt_max_speed_mps: float = 2.0          # Filter 1 sized to this flight (cruise 0.5 m/s)
+    tx_separation_m: float = 0.5            # Filter 2
+    lead_in: int = 40                       # Appendix C Num_Lead_Pts
+    kf_sigma_process: float = 0.003         # Appendix C Sigma_Process = 3 (mm)
+    kf_sigma_measurement: float = 0.002     # Appendix C Sigma_Measurement = 2 (mm)
+    # second Kalman setting sized from physics, not from the truth: the path's acceleration
+    # limit (quad_square6 max_lateral_accel_mps2 = 1) and the CMD scatter of a 3-receiver
+    # triple from the Monte Carlo (x, y RMSE about 45 mm at 5 m)
+    kf2_sigma_process: float = 1.0
+    kf2_sigma_measurement: float = 0.05
+    heading_sigma_process_deg: float = 1.0  # Appendix C heading filter
+    heading_sigma_measurement_deg: float = 1.0
+
+
+# =============================================================================================
+# Part 1: Monte Carlo (Appendix B)
+# =============================================================================================
+
+
+def run_monte_carlo(spec: StudySpec, rng: np.random.Generator) -> dict:
+    """Appendix B. Returns {"table": DataFrame, "pixels": DataFrame, "extra": dict}."""
+    names, rec = load_receivers("montecarlo")
+    idx3 = [names.index(n) for n in MC_TRIPLE]
+    n = spec.n_mc
+    P = np.empty((n, 3))
+    P[:, :2] = rng.uniform(-spec.extent_m, spec.extent_m, size=(n, 2))
+    P[:, 2] = spec.z_plane_m
+    R = true_ranges(P[:, None, :], rec)[:, 0, :] + rng.normal(0.0, spec.mc_sigma_m, (n, 6))
+    est, infos, secs = {}, {}, {}
+    for m in MC_METHODS:
+        kw = {}
+        if m == "nonlinear_ls_reflect":
+            f, kw = tri.nonlinear_ls, {"reflect_start": True}
+        else:
+            f = tri.METHODS[m]
+        rr, rw = (rec[idx3], R[:, idx3]) if m in ("closed_form", "cayley_menger") else (rec, R)
+        t0 = time.perf_counter()
+        est[m], infos[m] = f(rr, rw, side=1, return_info=True, **kw)
+        secs[m] = time.perf_counter() - t0
+
+    # Appendix B pixels: FindBIN rounds to the nearest BIN_Size -> centres -8..8 (17 x 17)
+    nb = round(2 * spec.extent_m / spec.bin_m) + 1
+    ix = np.clip(np.rint((P[:, 0] + spec.extent_m) / spec.bin_m).astype(int), 0, nb - 1)
+    iy = np.clip(np.rint((P[:, 1] + spec.extent_m) / spec.bin_m).astype(int), 0, nb - 1)
+    flat = ix * nb + iy
+    count = np.bincount(flat, minlength=nb * nb)
+    rows, pix = [], []
+    for m in MC_METHODS:
+        e = est[m] - P
+        sums = np.stack([np.bincount(flat, e[:, a], nb * nb) for a in range(3)], 1)
+        sq = np.stack([np.bincount(flat, e[:, a] ** 2, nb * nb) for a in range(3)], 1)
+        with np.errstate(invalid="ignore", divide="ignore"):
+            mean_e = sums / count[:, None]
+            mse = sq / count[:, None]
+        # thesis total: sum over pixels of the per-pixel MSE / Num_Pixels (all pixels filled)
+        total_axes = np.nanmean(mse, axis=0) * MM2
+        info = infos[m]
+        rows.append({
+            "method": MC_LABEL[m],
+            "mse_x_mm2": total_axes[0], "mse_y_mm2": total_axes[1], "mse_z_mm2": total_axes[2],
+            "mse_total_mm2": total_axes.sum(),
+            "rmse_3d_mm": np.sqrt(np.mean(np.sum(e ** 2, axis=1))) * 1e3,
+            "median_err_3d_mm": np.median(np.linalg.norm(e, axis=1)) * 1e3,
+            "mean_err_z_mm": np.mean(e[:, 2]) * 1e3,
+            "no_intersection_pct": 100.0 * np.mean(info.no_intersection),
+            "mirror_side_pct": 100.0 * np.mean(est[m][:, 2] < 0),
+            "mean_iterations": float(np.mean(info.iterations)),
+            "time_s": secs[m],
+        })
+        cx = -spec.extent_m + spec.bin_m * (np.arange(nb * nb) // nb)
+        cy = -spec.extent_m + spec.bin_m * (np.arange(nb * nb) % nb)
+        pix.append(pd.DataFrame({
+            "method": m, "x_m": cx, "y_m": cy, "n": count,
+            "mean_err_x_mm": mean_e[:, 0] * 1e3, "mean_err_y_mm": mean_e[:, 1] * 1e3,
+            "mean_err_z_mm": mean_e[:, 2] * 1e3,
+            "mse_x_mm2": mse[:, 0] * MM2, "mse_y_mm2": mse[:, 1] * MM2,
+            "mse_z_mm2": mse[:, 2] * MM2, "mse_mm2": mse.sum(axis=1) * MM2}))
+    table = pd.DataFrame(rows)
+    table["mse_normalized"] = table["mse_total_mm2"] / table["mse_total_mm2"].min()
+    extra = {
+        "cfp_vs_cmd_max_diff_m": float(np.max(np.abs(est["closed_form"] - est["cayley_menger"]))),
+        "receivers_m": rec.tolist(), "names": list(names),
+    }
+    return {"table": table, "pixels": pd.concat(pix, ignore_index=True), "extra": extra}
+
+
+# =============================================================================================
+# Part 2: flight pipeline (Sections 3.2.2-3.2.3, Appendix C)
+# =============================================================================================
+
+
+def best_triple(rec: np.ndarray) -> tuple[int, int, int]:
+    """The receiver triple with the largest triangle area (best geometry for points far above
+    a near-planar array: the in-plane position error scales with 1 / baseline)."""
+    from itertools import combinations
+
+    best, area = None, -1.0
+    for c in combinations(range(rec.shape[0]), 3):
+        a = np.linalg.norm(np.cross(rec[c[1]] - rec[c[0]], rec[c[2]] - rec[c[0]]))
+        if a > area:
+            best, area = c, a
+    return best
+
+
+def _cmd(rec3: np.ndarray, ranges: np.ndarray):
+    """CMD per transmitter: ranges (n, 2, 3) -> positions (n, 2, 3), no_intersection (n, 2)."""
+    n = ranges.shape[0]
+    pos, info = tri.cayley_menger(rec3, ranges.reshape(n * 2, 3), side=1, return_info=True)
+    return pos.reshape(n, 2, 3), info.no_intersection.reshape(n, 2)
+
+
+def _gates(t, ranges, spec: StudySpec, mode: str, max_speed: float):
+    """Filter 1 on every Tx/Rx channel, then Filter 2 per receiver. ranges (n, 2, k)."""
+    n, _, k = ranges.shape
+    f1, rej1 = velocity_gate(t, ranges.reshape(n, 2 * k), max_speed, mode=mode,
+                             lead_in=spec.lead_in, return_mask=True)
+    f1 = f1.reshape(n, 2, k)
+    a, b, rej2 = separation_gate(f1[:, 0, :], f1[:, 1, :], spec.tx_separation_m, mode=mode,
+                                 return_mask=True)
+    f2 = np.stack([a, b], axis=1)
+    return f1, f2, rej1.reshape(n, 2, k), rej2
+
+
+def _kalman_positions(t, pos, sp, sm):
+    out = np.empty_like(pos)
+    for j in range(pos.shape[1]):
+        for a in range(3):
+            out[:, j, a] = pv_kalman(t, pos[:, j, a], sp, sm)
+    return out
+
+
+def _heading(front, rear):
+    return heading_from_points(front[..., :2], rear[..., :2])
+
+
+def _score(stage, gate_mode, est, truth, yaw_est, yaw_true, flags=None):
+    """RMSE per axis (m) over finite rows, heading RMSE (deg, wrapped differences)."""
+    e = est - truth
+    ok = np.all(np.isfinite(e), axis=-1)
+    ee = e[ok]
+    dh = angle_diff(yaw_est, yaw_true)
+    okh = np.isfinite(dh)
+    row = {
+        "gates": gate_mode, "stage": stage,
+        "rmse_x_m": np.sqrt(np.mean(ee[:, 0] ** 2)), "rmse_y_m": np.sqrt(np.mean(ee[:, 1] ** 2)),
+        "rmse_z_m": np.sqrt(np.mean(ee[:, 2] ** 2)),
+        "rmse_3d_m": np.sqrt(np.mean(np.sum(ee ** 2, axis=1))),
+        "median_3d_m": np.median(np.linalg.norm(ee, axis=1)),
+        "max_3d_m": np.max(np.linalg.norm(ee, axis=1)),
+        "heading_rmse_deg": np.degrees(np.sqrt(np.mean(dh[okh] ** 2))),
+        "heading_max_deg": np.degrees(np.max(np.abs(dh[okh]))),
+        "missing_pct": 100.0 * (1 - ok.mean()),
+        "no_intersection_pct": np.nan if flags is None else 100.0 * np.mean(flags),
+    }
+    return row
+
+
+def run_flight(spec: StudySpec, rng: np.random.Generator) -> dict:
+    """Appendix C pipeline on the simulated flight. Returns {"table", "series", "extra"}."""
+    from sim.quadcopter import simulate_quadcopter
+
+    truth = simulate_quadcopter(spec.path, seed=spec.seed, yaw_mode=spec.yaw_mode,
+                                duration_s=spec.flight_duration_s)
+    t = truth.t
+    tx = truth.sensor_positions                      # (n, 2, 3): front, rear
+    if tuple(truth.sensor_names) != ("front", "rear"):
+        raise ValueError(f"truth.sensor_names: expected ('front', 'rear'), "
+                         f"got {truth.sensor_names}")
+    names, rec = load_receivers("flight")
+    if spec.triple == "appendix_c":
+        tri_idx = tuple(names.index(x) for x in FLIGHT_TRIPLE)
+    elif spec.triple == "best":
+        tri_idx = best_triple(rec)
+    else:
+        raise ValueError(f"triple: expected 'appendix_c' or 'best', got {spec.triple!r}")
+    rec3 = rec[list(tri_idx)]
+    model = UltrasonicNoiseModel.load(spec.noise_model)
+    raw, faults = simulate_ranges(t, tx, rec, model, rng, return_faults=True)
+    yaw_true = truth.yaw
+    mid_true = tx.mean(axis=1)
+    lead = slice(spec.lead_in, None)                 # Appendix C drops Num_Lead_Pts samples
+    tl = t[lead]
+    sp, sm = spec.kf_sigma_process, spec.kf_sigma_measurement
+    hsp = np.radians(spec.heading_sigma_process_deg)
+    hsm = np.radians(spec.heading_sigma_measurement_deg)
+
+    rows, series = [], {"t": t, "yaw_true": yaw_true}
+    for a, ax in enumerate("xyz"):
+        series[f"front_true_{ax}"] = tx[:, 0, a]
+        series[f"mid_true_{ax}"] = mid_true[:, a]
+    for j in range(rec.shape[0]):
+        series[f"range_true_front_{names[j]}"] = true_ranges(tx, rec)[:, 0, j]
+        series[f"range_raw_front_{names[j]}"] = raw[:, 0, j]
+    gate_configs = (("robust", spec.max_speed_mps), ("thesis", spec.max_speed_mps),
+                    ("robust", spec.alt_max_speed_mps))
+    for mode, vmax in gate_configs:
+        label = f"{mode}, {vmax:g} m/s"
+        f1, f2, rej1, rej2 = _gates(t, raw, spec, mode, vmax)
+        stages = {"raw": raw, "filter1": f1, "filter1+2": f2}
+        for stage, rr in stages.items():
+            pos, flag = _cmd(rec3, rr[:, :, list(tri_idx)])
+            yaw = _heading(pos[:, 0], pos[:, 1])
+            rows.append(_score(f"{stage} -> CMD", label, pos[lead], tx[lead], yaw[lead],
+                               yaw_true[lead], flag[lead]))
+            if stage == "filter1":
+                rows[-1]["rejected_pct"] = 100.0 * rej1.mean()
+            if stage == "filter1+2":
+                rows[-1]["rejected_pct"] = 100.0 * rej2.mean()
+            if mode == "robust" and stage == "filter1+2":
+                cmd_pos, cmd_yaw = pos, yaw
+        # PV Kalman per axis per transmitter after the lead-in (Appendix C)
+        pos_f2, _ = _cmd(rec3, f2[:, :, list(tri_idx)])
+        # heading: atan2 of the unfiltered CMD positions, unwrapped, PV Kalman (Appendix C),
+        # wrapped back; NaN (a missing transmitter) is a predict-only step
+        yaw_cmd = _heading(pos_f2[:, 0], pos_f2[:, 1])
+        yaw_filt = wrap_angle(pv_kalman(t, unwrap_angle(yaw_cmd), hsp, hsm))
+        for tag, (s_p, s_m) in (("Appendix C sigmas", (sp, sm)),
+                                ("physical sigmas", (spec.kf2_sigma_process,
+                                                     spec.kf2_sigma_measurement))):
+            kf = _kalman_positions(tl, pos_f2[lead], s_p, s_m)
+            yaw_kf_pos = _heading(kf[:, 0], kf[:, 1])
+            rows.append(_score(f"Kalman per Tx ({tag})", label, kf, tx[lead], yaw_kf_pos,
+                               yaw_true[lead]))
+            mid = kf.mean(axis=1)
+            rows.append(_score(f"mean of 2 Tx ({tag}) + filtered heading", label, mid,
+                               mid_true[lead], yaw_filt[lead], yaw_true[lead]))
+            if tag == "Appendix C sigmas":
+                kf_c, mid_c = kf, mid
+        kf, mid = kf_c, mid_c
+        if vmax != spec.max_speed_mps:
+            continue
+        for j in range(rec.shape[0]):
+            series[f"range_{mode}_front_{names[j]}"] = f2[:, 0, j]
+        if mode == "robust":
+            for a, ax in enumerate("xyz"):
+                series[f"front_cmd_{ax}"] = cmd_pos[:, 0, a]
+                series[f"front_kf_{ax}"] = np.r_[np.full(spec.lead_in, np.nan), kf[:, 0, a]]
+                series[f"mid_kf_{ax}"] = np.r_[np.full(spec.lead_in, np.nan), mid[:, a]]
+            series["yaw_cmd"] = cmd_yaw
+            series["yaw_filtered"] = yaw_filt
+    table = pd.DataFrame(rows)
+    extra = {
+        "n_samples": int(t.size), "duration_s": float(t[-1] - t[0]),
+        "dt_min_s": float(np.diff(t).min()), "dt_max_s": float(np.diff(t).max()),
+        "triple": [names[i] for i in tri_idx],
+        "fault_pct": {k: float(100.0 * np.mean(faults == c))
+                      for k, c in (("clean", 0), ("spike", 1), ("held", 2), ("dropout", 3))},
+        "noise_model": asdict(model),
+        "truth_meta_hash": truth.meta.get("hash"),
+    }
+    return {"table": table, "series": pd.DataFrame(series), "extra": extra}
+
+
+# =============================================================================================
+# figures (from the saved tables only)
+# =============================================================================================
+
+
+def plot_monte_carlo(pixels: pd.DataFrame, out: Path) -> list[Path]:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    from matplotlib.colors import LogNorm
+
+    files = []
+    methods = list(dict.fromkeys(pixels["method"]))
+    for col, title, fname, log in (
+            ("mse_mm2", "MSE per 1 m pixel (mm$^2$)", "mc_mse_maps.png", True),
+            ("mse_x_mm2", "x MSE per pixel (mm$^2$)", "mc_mse_x_maps.png", True),
+            ("mse_z_mm2", "z MSE per pixel (mm$^2$)", "mc_mse_z_maps.png", True),
+            ("mean_err_z_mm", "mean z error per pixel (mm)", "mc_mean_err_z_maps.png", False)):
+        fig, axes = plt.subplots(1, len(methods), figsize=(4.2 * len(methods), 4.0),
+                                 constrained_layout=True)
+        vals = pixels[col].to_numpy()
+        if log:
+            pos = vals[vals > 0]
+            norm = LogNorm(vmin=pos.min(), vmax=pos.max())
+        else:
+            lim = np.nanmax(np.abs(vals))
+            norm = matplotlib.colors.Normalize(vmin=-lim, vmax=lim)
+        for ax, m in zip(np.atleast_1d(axes), methods, strict=True):
+            d = pixels[pixels["method"] == m]
+            xs, ys = np.unique(d["x_m"]), np.unique(d["y_m"])
+            grid = d.pivot(index="y_m", columns="x_m", values=col).to_numpy()
+            step = xs[1] - xs[0] if xs.size > 1 else 1.0
+            im = ax.imshow(grid, origin="lower", norm=norm,
+                           cmap="viridis" if log else "RdBu_r",
+                           extent=(xs[0] - step / 2, xs[-1] + step / 2,
+                                   ys[0] - step / 2, ys[-1] + step / 2))
+            ax.set_title(MC_LABEL.get(m, m))
+            ax.set_xlabel("x (m)")
+            ax.set_ylabel("y (m)")
+        fig.colorbar(im, ax=axes, shrink=0.8, label=title)
+        fig.suptitle(f"Appendix B Monte Carlo: {title}")
+        p = out / fname
+        fig.savefig(p, dpi=110)
+        plt.close(fig)
+        files.append(p)
+    return files
+
+
+def plot_flight(series: pd.DataFrame, out: Path, receiver_names: list[str]) -> list[Path]:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    t = series["t"].to_numpy()
+    files = []
+    # Fig 3.8: raw vs filtered ranges, front transmitter, six receivers
+    fig, axes = plt.subplots(3, 2, figsize=(11, 8), sharex=True, constrained_layout=True)
+    for ax, nm in zip(axes.ravel(), receiver_names, strict=True):
+        ax.plot(t, series[f"range_raw_front_{nm}"], lw=0.6, color="0.6", label="raw")
+        ax.plot(t, series[f"range_thesis_front_{nm}"], lw=0.8, label="filtered (thesis gates)")
+        ax.plot(t, series[f"range_robust_front_{nm}"], lw=0.8, label="filtered (robust gates)")
+        ax.plot(t, series[f"range_true_front_{nm}"], "k--", lw=0.6, label="truth")
+        ax.set_title(f"front Tx - {nm}")
+        ax.set_ylabel("range (m)")
+    axes[0, 0].legend(fontsize=7)
+    for ax in axes[-1]:
+        ax.set_xlabel("time (s)")
+    fig.suptitle("Ranges before and after Filters 1 and 2 (cf. thesis Fig. 3.8)")
+    files.append(out / "flight_ranges.png")
+    fig.savefig(files[-1], dpi=110)
+    plt.close(fig)
+    # Figs 3.9-3.12: position before / after the Kalman filter
+    fig, axes = plt.subplots(3, 1, figsize=(10, 8), sharex=True, constrained_layout=True)
+    for ax, a in zip(axes, "xyz", strict=True):
+        ax.plot(t, series[f"front_cmd_{a}"], lw=0.6, color="0.55", label="CMD (after filters)")
+        ax.plot(t, series[f"front_kf_{a}"], lw=1.0, label="after Kalman filter")
+        ax.plot(t, series[f"front_true_{a}"], "k--", lw=0.7, label="truth")
+        ax.set_ylabel(f"{a} (m)")
+        lo, hi = np.nanpercentile(series[f"front_true_{a}"], [0, 100])
+        pad = max(0.5, 0.2 * (hi - lo))
+        ax.set_ylim(lo - pad, hi + pad)
+    axes[0].legend(fontsize=8)
+    axes[-1].set_xlabel("time (s)")
+    fig.suptitle("Front transmitter position before/after the PV Kalman filter "
+                 "(cf. Figs. 3.9-3.12)")
+    files.append(out / "flight_position.png")
+    fig.savefig(files[-1], dpi=110)
+    plt.close(fig)
+    # top view
+    fig, ax = plt.subplots(figsize=(6, 6), constrained_layout=True)
+    ax.plot(series["front_cmd_x"], series["front_cmd_y"], ".", ms=2, color="0.6",
+            label="CMD (after filters)")
+    ax.plot(series["mid_kf_x"], series["mid_kf_y"], lw=1.0, label="Kalman, mean of 2 Tx")
+    ax.plot(series["mid_true_x"], series["mid_true_y"], "k--", lw=0.8, label="truth")
+    ax.set_aspect("equal")
+    ax.set_xlim(-5, 5)
+    ax.set_ylim(-5, 5)
+    ax.set_xlabel("x (m)")
+    ax.set_ylabel("y (m)")
+    ax.legend(fontsize=8)
+    files.append(out / "flight_xy.png")
+    fig.savefig(files[-1], dpi=110)
+    plt.close(fig)
+    # heading
+    fig, ax = plt.subplots(figsize=(10, 4), constrained_layout=True)
+    ax.plot(t, np.degrees(series["yaw_cmd"]), ".", ms=2, color="0.6", label="atan2 of CMD Tx")
+    ax.plot(t, np.degrees(series["yaw_filtered"]), lw=1.0, label="PV Kalman (unwrapped)")
+    ax.plot(t, np.degrees(series["yaw_true"]), "k--", lw=0.8, label="truth")
+    ax.set_xlabel("time (s)")
+    ax.set_ylabel("heading (deg)")
+    ax.set_ylim(-200, 200)
+    ax.legend(fontsize=8)
+    fig.suptitle("Heading from the two transmitters (Appendix C)")
+    files.append(out / "flight_heading.png")
+    fig.savefig(files[-1], dpi=110)
+    plt.close(fig)
+    return files
+
+
+# =============================================================================================
+# driver
+# =============================================================================================
+
+
+def _git_version() -> str:
+    try:
+        return subprocess.run(["git", "-C", str(REPO), "describe", "--always", "--dirty"],
+                              check=False, capture_output=True, text=True,
+                              timeout=10).stdout.strip()
+    except (OSError, subprocess.SubprocessError):
+        return "unknown"
+
+
+def _md(df: pd.DataFrame, floatfmt: str = ".4g") -> str:
+    cols = list(df.columns)
+    lines = ["| " + " | ".join(cols) + " |", "|" + "|".join("---" for _ in cols) + "|"]
+    for _, r in df.iterrows():
+        cells = []
+        for c in cols:
+            v = r[c]
+            cells.append(format(v, floatfmt) if isinstance(v, (float, np.floating)) else str(v))
+        lines.append("| " + " | ".join(cells) + " |")
+    return "\n".join(lines)
+
+
+def _identification(out: Path, seed: int) -> tuple[pd.DataFrame | None, str]:
+    """Part 3: experiments.identification (helper-owned) writes its own identification.md/csv,
+    series and figures into ``out``; the table is returned for the README."""
+    try:
+        from experiments.identification import run_identification
+    except ImportError as exc:
+        return None, f"not run: experiments.identification is not available ({exc})"
+    return run_identification(out, seed=seed), "ok"
+
+
+IDENT_COLS = ("axis", "form", "parameter", "unit", "thesis", "thesis_unit", "clean", "noisy",
+              "noisy_ci_low", "noisy_ci_high", "noisy_identifiable", "noisy_fit_pct")
+
+
+def run(out_dir: str | Path = DEFAULT_OUT, spec: StudySpec | None = None, *,
+        identification: bool = True, figures: bool = True) -> dict:
+    """Run parts 1-3, write tables/figures/README to ``out_dir``; returns the DataFrames and
+    timings."""
+    spec = spec or StudySpec()
+    out = Path(out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    ss = np.random.SeedSequence(spec.seed)
+    rng_mc, rng_flight = (np.random.default_rng(s) for s in ss.spawn(2))
+    timings = {}
+
+    t0 = time.perf_counter()
+    mc = run_monte_carlo(spec, rng_mc)
+    timings["monte_carlo_s"] = time.perf_counter() - t0
+    mc["table"].to_csv(out / "mc_table.csv", index=False)
+    mc["pixels"].to_csv(out / "mc_pixels.csv", index=False)
+
+    t0 = time.perf_counter()
+    fl = run_flight(spec, rng_flight)
+    timings["flight_s"] = time.perf_counter() - t0
+    fl["table"].to_csv(out / "flight_stages.csv", index=False)
+    fl["series"].to_csv(out / "flight_series.csv", index=False)
+
+    ident, ident_status = (None, "not run (identification=False)")
+    if identification:
+        t0 = time.perf_counter()
+        ident, ident_status = _identification(out, spec.seed)
+        timings["identification_s"] = time.perf_counter() - t0
+
+    if figures:
+        t0 = time.perf_counter()
+        plot_monte_carlo(pd.read_csv(out / "mc_pixels.csv"), out)
+        plot_flight(pd.read_csv(out / "flight_series.csv"), out, mc["extra"]["names"])
+        timings["figures_s"] = time.perf_counter() - t0
+
+    info = {"spec": asdict(spec), "code_version": _git_version(), "timings_s": timings,
+            "monte_carlo": mc["extra"], "flight": fl["extra"],
+            "identification": ident_status, "python": sys.version.split()[0],
+            "numpy": np.__version__}
+    (out / "run_info.json").write_text(json.dumps(info, indent=2, default=float) + "\n")
+    _write_markdown(out, spec, mc, fl, ident, ident_status, timings)
+    return {"mc": mc["table"], "flight": fl["table"], "identification": ident,
+            "timings": timings, "info": info}
+
+
+def _write_markdown(out, spec, mc, fl, ident, ident_status, timings) -> None:
+    mct = mc["table"].drop(columns=["time_s"])
+    flt = fl["table"].copy()
+    (out / "mc_table.md").write_text(_md(mct) + "\n")
+    (out / "flight_stages.md").write_text(_md(flt) + "\n")
+    ex = fl["extra"]
+    best = mct.loc[mct["mse_total_mm2"].idxmin(), "method"]
+    lines = [
+        "# Ultrasonic quadcopter study (thesis 003)",
+        "",
+        ("Generated by `python -m experiments.ultrasonic` "
+        f"(code version `{_git_version()}`, seed {spec.seed}); every number below is "
+        "measured by that run. Timings are wall-clock on a shared, loaded 2-core machine."),
+        "",
+        (f"## 1. Monte Carlo trilateration (Appendix B), {spec.n_mc} points, z = "
+        f"{spec.z_plane_m} m, sigma = {spec.mc_sigma_m * 1e3:g} mm"),
+        "",
+        ("Totals as Appendix B computes them: mean over the 1 m pixels of the per-pixel MSE "
+        "(mm^2), per axis and summed. `mirror_side_pct`: estimates below the receivers' plane "
+        "(z < 0, the wrong mirror solution)."),
+        "",
+        _md(mct),
+        "",
+        (f"Lowest total MSE: **{best}**. CFP and CMD solve the same three sphere equations; "
+        f"their estimates differ by at most {mc['extra']['cfp_vs_cmd_max_diff_m']:.2e} m "
+        "(rounding)."),
+        "",
+        ("Thesis comparison: the thesis text available here prints no numeric MSE values for "
+        "the Monte Carlo (its Chapter 2 results are not in the extract); it states that the "
+        "CMD method was \"determined to be the most accurate and robust\" (Section 3.2.3, "
+        "Chapter 4). See the discussion below."),
+        "",
+        ("Figures: `mc_mse_maps.png`, `mc_mse_x_maps.png`, `mc_mse_z_maps.png`, "
+        "`mc_mean_err_z_maps.png`."),
+        "",
+        (f"## 2. Flight pipeline on the simulated quadcopter ({spec.path}, "
+        f"{ex['n_samples']} samples over {ex['duration_s']:.1f} s, intervals "
+        f"{ex['dt_min_s']:.3f}-{ex['dt_max_s']:.3f} s)"),
+        "",
+        f"Receivers {', '.join(ex['triple'])} (CMD), Appendix C flight layout centred under "
+        f"the square. Range faults in this run (% of samples): "
+        + ", ".join(f"{k} {v:.2f}" for k, v in ex["fault_pct"].items())
+        + f". Filter 1 {spec.max_speed_mps:g} m/s, Filter 2 {spec.tx_separation_m:g} m; Kalman "
+        f"sigma_process {spec.kf_sigma_process * 1e3:g} mm/s^2, sigma_measurement "
+        f"{spec.kf_sigma_measurement * 1e3:g} mm (Appendix C); heading filter "
+        f"{spec.heading_sigma_process_deg:g} deg/s^2, {spec.heading_sigma_measurement_deg:g} "
+        f"deg. The first {spec.lead_in} samples (Appendix C lead-in) are excluded from all "
+        "scores. Positions in metres, headings in degrees.",
+        "",
+        _md(flt),
+        "",
+        ("Figures: `flight_ranges.png` (Fig. 3.8), `flight_position.png` (Figs. 3.9-3.12), "
+        "`flight_xy.png`, `flight_heading.png`."),
+        "",
+        "## 3. Transfer-function identification (Section 3.3)",
+        "",
+    ]
+    if ident is not None:
+        cols = [c for c in IDENT_COLS if c in ident.columns]
+        lines += [("From `experiments.identification.run_identification` (full report in "
+                  "`identification.md`, figures `identification_<axis>.png`). The simulator's "
+                  "units differ from the thesis's (mm and normalised stick), so gains are not "
+                  "comparable in value; time constants and delays are."), "",
+                  _md(ident[cols]), ""]
+    else:
+        lines += [f"Part 3 {ident_status}.", ""]
+    lines += ["## Timings (s)", "",
+              ", ".join(f"{k} {v:.2f}" for k, v in timings.items()), ""]
+    notes = out / "DISCUSSION.md"
+    if notes.exists():
+        lines += [notes.read_text()]
+    (out / "README.md").write_text("\n".join(lines) + "\n")
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(prog="python -m experiments.ultrasonic", description=__doc__,
+                                 formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--out", default=str(DEFAULT_OUT))
+    ap.add_argument("--n-mc", type=int, default=StudySpec.n_mc)
+    ap.add_argument("--z-plane", type=float, default=StudySpec.z_plane_m,
+                    help="height (m) of the Monte Carlo slice (Appendix B: 5 m)")
+    ap.add_argument("--seed", type=int, default=0)
+    ap.add_argument("--triple", choices=("appendix_c", "best"), default="appendix_c")
+    ap.add_argument("--quick", action="store_true",
+                    help="smoke run: 5000 Monte Carlo points, 20 s of flight, no identification")
+    ap.add_argument("--no-identification", action="store_true")
+    args = ap.parse_args(argv)
+    if args.n_mc < 1:
+        ap.error(f"--n-mc: must be >= 1, got {args.n_mc}")
+    spec = StudySpec(seed=args.seed, n_mc=5000 if args.quick else args.n_mc,
+                     z_plane_m=args.z_plane, triple=args.triple,
+                     flight_duration_s=20.0 if args.quick else None)
+    res = run(args.out, spec, identification=not (args.quick or args.no_identification))
+    pd.set_option("display.width", 200)
+    print(res["mc"].to_string(index=False))
+    print(res["flight"].to_string(index=False))
+    print("timings:", {k: round(v, 2) for k, v in res["timings"].items()})
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
