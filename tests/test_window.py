@@ -23,6 +23,7 @@ from estimator.window import (
     fit_stationary,
     fit_window,
     procrustes_batch,
+    sliding_window_means,
     window_means,
 )
 
@@ -149,8 +150,9 @@ def test_solvers_improve_on_procrustes_and_agree():
         b = fit_window(obs, cfg, eps=0.1, solver="ccp")
         assert a.status == b.status == "ok"
         assert a.objective < proc.objective * (1 - 1e-4)
-        # both local optima from the same start; 1e-6 relative covers Clarabel's tolerances
-        assert b.objective == pytest.approx(a.objective, rel=1e-6)
+        # same local optimum from the same start; ccp stops at CCP_RTOL = 1e-6 relative
+        # improvement per iteration (linear convergence: measured gap <= 1.3e-6)
+        assert b.objective == pytest.approx(a.objective, rel=1e-5)
         np.testing.assert_allclose(a.positions, b.positions, atol=1e-3)
 
 
@@ -419,3 +421,30 @@ def test_bad_input_batch_functions():
         window_means(np.zeros((4, 2)))
     with pytest.raises(ValueError, match="config"):
         fit_window(good, "rover_gps8")
+
+
+@pytest.mark.parametrize("aniso", [False, True])
+def test_sliding_window_means_equal_stacked(aniso):
+    rng = np.random.default_rng(8)
+    n, s = 400, 25
+    obs = rng.normal(size=(n, 5, 2)) * 2.0 + np.array([5.0e5, 4.0e6]) \
+        + np.linspace(0, 300, n)[:, None, None]
+    obs[rng.random((n, 5)) < 0.2] = np.nan
+    obs[100:140, 2] = np.nan  # a sensor silent for longer than a window
+    w = rng.uniform(0, 3, size=obs.shape if aniso else obs.shape[:2])
+    means, sw = sliding_window_means(obs, s, w)
+    view = np.lib.stride_tricks.sliding_window_view
+    stacked_obs = np.moveaxis(view(obs, s, axis=0), -1, 1)
+    stacked_w = np.moveaxis(view(w, s, axis=0), -1, 1)
+    ref_means, ref_sw = window_means(stacked_obs, stacked_w)
+    assert means.shape == ref_means.shape == (n - s + 1, 5, 2)
+    np.testing.assert_array_equal(np.isnan(means), np.isnan(ref_means))
+    assert (sw[np.isnan(means[..., 0])] == 0).all() and (sw[~np.isnan(means[..., 0])] > 0).all()
+    # at UTM northings (4e6 m) one ulp is 4.7e-10 m and the direct weighted sum of the
+    # reference rounds by a few ulp; the cumulative sums add ~1e-16 x n x 300 m
+    np.testing.assert_allclose(means, ref_means, rtol=0, atol=1e-8)
+    np.testing.assert_allclose(sw, ref_sw, rtol=1e-12, atol=1e-12)
+    with pytest.raises(ValueError, match="window"):
+        sliding_window_means(obs, 0)
+    with pytest.raises(ValueError, match="window"):
+        sliding_window_means(obs, n + 1)

@@ -1,0 +1,171 @@
+"""Speed benchmarks: ``python -m experiments.bench [--only NAME] [--quick]``.
+
+Sections are registered in :data:`SECTIONS` (name -> function ``(quick: bool) -> list of
+row dicts``); each prints a Markdown table. ``--only`` runs one section, ``--quick`` uses
+fewer repetitions (for CI and smoke tests).
+
+Section ``solvers``: the window fit of Eq. 3.9 (dissertation 000_8f82f8df647bf685.txt) for
+m = 7 live antennas of ``rover_gps8`` (21 pairs, 42 constraints), eps = 0.01 m, window sizes
+s = 1, 5, 10, 100, on GPS-like stationary noise as in ../shared/notes/window-solvers.md:
+per antenna and axis a first-order Gauss-Markov error (time constant 60 s, 1 Hz, standard
+deviation drawn from 1-3 m) plus a constant 1 m (std) bias, and 5 % missing samples.
+Reported: median wall time per window of one ``fit_window`` call per solver, and of two
+batched paths over all windows at once: "batched" = ``window_means`` of the stacked windows
+(N, s, m, 2) + ``procrustes_batch``; "sliding" = ``sliding_window_means`` (cumulative sums,
+cost independent of s) + ``procrustes_batch``. Speed-up = slsqp time / time. Timings are single-threaded (OPENBLAS_NUM_THREADS=1).
+"""
+
+from __future__ import annotations
+
+import os
+
+os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
+os.environ.setdefault("OMP_NUM_THREADS", "1")
+
+import argparse
+import time
+from collections.abc import Callable
+
+import numpy as np
+
+from estimator.configuration import SensorConfig
+from estimator.window import (
+    fit_window,
+    procrustes_batch,
+    sliding_window_means,
+    window_means,
+)
+
+SECTIONS: dict[str, Callable[[bool], list[dict]]] = {}
+
+
+def section(name: str) -> Callable[[Callable[[bool], list[dict]]], Callable[[bool], list[dict]]]:
+    """Register a benchmark section under ``name``."""
+    def deco(fn: Callable[[bool], list[dict]]) -> Callable[[bool], list[dict]]:
+        SECTIONS[name] = fn
+        return fn
+    return deco
+
+
+# ----------------------------------------------------------------------------- helpers
+def live_config(name: str = "rover_gps8") -> SensorConfig:
+    """The configuration without its dead sensors (m = 7 for rover_gps8)."""
+    cfg = SensorConfig.load(name)
+    alive = cfg.alive_mask
+    names = [n for n, a in zip(cfg.names, alive) if a]
+    cg = [n for n in cfg.cg_members if n in names]
+    return SensorConfig(names, cfg.body_positions[alive], cg_members=cg or None,
+                        name=f"{cfg.name}_live", description=cfg.description)
+
+
+def gps_like_obs(cfg: SensorConfig, n: int, rng: np.random.Generator, *,
+                 tau_s: float = 60.0, dt_s: float = 1.0, sigma_range=(1.0, 3.0),
+                 bias_sigma: float = 1.0, missing: float = 0.05) -> np.ndarray:
+    """(n, m, 2) stationary observations at UTM-sized coordinates with Gauss-Markov noise."""
+    m = cfg.m
+    phi = np.exp(-dt_s / tau_s)
+    sigma = rng.uniform(*sigma_range, size=(m, 2))
+    drive = rng.normal(size=(n, m, 2)) * sigma * np.sqrt(1 - phi**2)
+    err = np.empty((n, m, 2))
+    err[0] = rng.normal(size=(m, 2)) * sigma
+    for k in range(1, n):
+        err[k] = phi * err[k - 1] + drive[k]
+    origin = np.array([500_000.0, 4_000_000.0])
+    obs = cfg.body_positions[None] + origin + err + rng.normal(size=(m, 2)) * bias_sigma
+    obs[rng.random((n, m)) < missing] = np.nan
+    return obs
+
+
+def _median_time(fn: Callable[[], object], reps: int) -> float:
+    ts = []
+    for _ in range(reps):
+        t0 = time.perf_counter()
+        fn()
+        ts.append(time.perf_counter() - t0)
+    return float(np.median(ts))
+
+
+def _fmt(seconds: float) -> str:
+    return f"{seconds * 1e6:.1f} us" if seconds < 1e-3 else f"{seconds * 1e3:.2f} ms"
+
+
+def print_table(rows: list[dict], columns: list[str]) -> None:
+    print("| " + " | ".join(columns) + " |")
+    print("|" + "|".join("---" for _ in columns) + "|")
+    for r in rows:
+        print("| " + " | ".join(str(r[c]) for c in columns) + " |")
+
+
+# ----------------------------------------------------------------------------- sections
+@section("solvers")
+def bench_solvers(quick: bool = False) -> list[dict]:
+    """Median time per window of each solver (single call) and of batched procrustes."""
+    cfg = live_config()
+    rng = np.random.default_rng(20130501)
+    eps = 0.01
+    n_windows = {"procrustes": 60, "slsqp": 40, "ccp": 15} if quick else \
+        {"procrustes": 400, "slsqp": 200, "ccp": 60}
+    n_batch = 300 if quick else 3000
+    rows = []
+    fit_window(np.zeros((1, cfg.m, 2)) + cfg.body_positions, cfg, solver="ccp")  # build cache
+    for s in (1, 5, 10, 100):
+        obs = gps_like_obs(cfg, n_batch + s - 1, rng)
+        windows = np.lib.stride_tricks.sliding_window_view(obs, s, axis=0)  # (N, m, 2, s)
+        windows = np.ascontiguousarray(np.moveaxis(windows, -1, 1))          # (N, s, m, 2)
+        row: dict = {"s": s}
+        times: dict[str, float] = {}
+        statuses: dict[str, int] = {}
+        for solver, k in n_windows.items():
+            idx = np.linspace(0, windows.shape[0] - 1, k).astype(int)
+            per = []
+            bad = 0
+            for i in idx:
+                t0 = time.perf_counter()
+                fit = fit_window(windows[i], cfg, eps=eps, solver=solver)
+                per.append(time.perf_counter() - t0)
+                bad += fit.status != "ok"
+            times[solver] = float(np.median(per))
+            statuses[solver] = bad
+
+        def batched(windows: np.ndarray = windows) -> None:
+            means, sw = window_means(windows)
+            procrustes_batch(means, sw, cfg)
+
+        def sliding(obs: np.ndarray = obs, s: int = s) -> None:
+            means, sw = sliding_window_means(obs, s)
+            procrustes_batch(means, sw, cfg)
+
+        reps = 3 if quick else 7
+        times["batched procrustes"] = _median_time(batched, reps) / windows.shape[0]
+        times["sliding procrustes"] = _median_time(sliding, reps) / windows.shape[0]
+        for name, t in times.items():
+            row[name] = _fmt(t)
+            row[f"{name} speed-up"] = f"{times['slsqp'] / t:.1f}x"
+        row["not ok (slsqp/ccp)"] = f"{statuses['slsqp']}/{statuses['ccp']}"
+        rows.append(row)
+    cols = ["s", "slsqp", "ccp", "procrustes", "batched procrustes", "sliding procrustes",
+            "ccp speed-up", "procrustes speed-up", "batched procrustes speed-up",
+            "sliding procrustes speed-up", "not ok (slsqp/ccp)"]
+    print(f"### Window solvers: m = {cfg.m}, eps = {eps} m, median time per window "
+          f"(speed-up = slsqp time / solver time; batched over {n_batch} windows; "
+          f"'not ok' = fallbacks among the timed windows)\n")
+    print_table(rows, cols)
+    print()
+    return rows
+
+
+# ----------------------------------------------------------------------------- CLI
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(prog="python -m experiments.bench", description=__doc__,
+                                     formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("--only", choices=sorted(SECTIONS), help="run one section")
+    parser.add_argument("--quick", action="store_true", help="fewer repetitions")
+    args = parser.parse_args(argv)
+    names = [args.only] if args.only else list(SECTIONS)
+    for name in names:
+        SECTIONS[name](args.quick)
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
