@@ -100,6 +100,11 @@ def test_partial_square_truth(partial):
     arc_s = 0.5 * math.pi * r / path.cruise_speed_mps
     assert on.max() - on.min() == pytest.approx(arc_s, abs=0.11)   # 0.1 s max sample gap
     assert tr.meta["motor_saturation_fraction"] == 0.0
+    # speed is the horizontal speed of the CG: compare with finite differences of the logged
+    # positions. On an uneven grid the central difference errs by about |a| |h1 - h2| / 2;
+    # with |a| <= 0.5 (ramps) + v^2/r = 0.5 (arc) m/s^2 and |h1 - h2| <= 0.08 s: 0.04 m/s
+    v = np.gradient(tr.cg[:, :2], tr.t, axis=0)
+    assert np.max(np.abs(np.hypot(v[:, 0], v[:, 1]) - tr.speed)[1:-1]) < 0.04
 
 
 def test_sample_intervals_uneven_and_bounded(partial):
@@ -157,6 +162,12 @@ def test_along_path_heading():
     tr = simulate_quadcopter("quad_square6", yaw_mode="along_path", duration_s=PARTIAL_S + 2)
     assert np.max(np.abs(tr.yaw[tr.t < 10])) < 0.01
     assert abs(tr.yaw[-1] - math.pi / 2) < 0.02
+    # yaw_rate (world z) vs finite differences of the logged yaw: the smoothed heading's
+    # peak yaw acceleration is (v/r) / (sigma sqrt(2 pi)) = 1.33 rad/s^2, times |h1 - h2| / 2
+    # <= 0.04 s: 0.06 rad/s
+    yr = np.gradient(np.unwrap(tr.yaw), tr.t)
+    assert np.max(np.abs(yr - tr.yaw_rate)[1:-1]) < 0.06
+    assert np.max(tr.yaw_rate) > 0.9          # it did turn at about v / r = 1 rad/s
     assert np.max(np.abs(tr.cg[:, 2] - 2.5)) < 0.1
     assert tr.meta["motor_saturation_fraction"] == 0.0
 
