@@ -19,11 +19,12 @@ to the simulated truth (Section 4.1.2). This module provides
 
 Error model (per axis, per receiver i, sample k; all components independent)::
 
-    e_i[k] = c[k] + s_i * r_i[k] + b_i + p_i[k] + o_i[k]
+    e_i[k] = c[k] + s_i * r_i[k] + w_i[k] + b_i + p_i[k] + o_i[k]
 
     c    common-mode first-order Gauss-Markov, std sigma_m * sqrt(common_fraction), tau common_tau_s
     r_i  per-receiver Gauss-Markov, std sigma_m * sqrt(1 - common_fraction), tau receiver_tau_s
     s_i  per-receiver scale, lognormal: exp(N(0, receiver_sigma_spread^2)) (median 1)
+    w_i  per-receiver white noise, N(0, white_sigma_m^2) (sample-to-sample jitter)
     b_i  per-receiver constant bias, N(0, bias_sigma_m^2)
     p_i  plateau level: redrawn N(0, step_sigma_m^2) at Poisson(step_rate_per_h) transitions,
          reached by a linear ramp of step_ramp_s seconds (stationary: its variance stays
@@ -40,9 +41,10 @@ import dataclasses
 import json
 import math
 import tomllib
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Literal, Sequence
+from typing import Literal
 
 import numpy as np
 from scipy.signal import lfilter
@@ -51,15 +53,15 @@ from estimator.configuration import MODELS_DIR, SensorConfig
 from sim.truth import Truth
 
 __all__ = [
-    "StationarySession",
-    "GpsNoiseModel",
-    "GpsModelError",
     "NOISE_DIR",
-    "synthesize_session",
+    "GpsModelError",
+    "GpsNoiseModel",
+    "StationarySession",
     "gauss_markov",
     "markov_dropouts",
-    "replay",
     "receiver_errors",
+    "replay",
+    "synthesize_session",
 ]
 
 NOISE_DIR = MODELS_DIR / "noise"
@@ -158,7 +160,7 @@ class StationarySession:
             raise ValueError("truth_positions: this session has no known truth (real recording)")
         return self.obs - self.truth_positions[None]
 
-    def slice(self, start_s: float | None = None, stop_s: float | None = None) -> "StationarySession":
+    def slice(self, start_s: float | None = None, stop_s: float | None = None) -> StationarySession:
         """Samples with ``start_s <= t < stop_s`` (seconds, either bound optional).
 
         Times are kept as recorded (not shifted to zero). ``meta["sliced_s"]`` records the
@@ -178,7 +180,7 @@ class StationarySession:
         return StationarySession(self.t[keep], self.obs[keep], self.names,
                                  self.truth_positions, meta)
 
-    def after_power_failure(self) -> "StationarySession":
+    def after_power_failure(self) -> StationarySession:
         """The part after the recorded power failure (the dissertation's usable data).
 
         Returns ``self`` when ``meta["power_failure_s"]`` is absent or None.
@@ -203,7 +205,7 @@ class StationarySession:
         return path
 
     @classmethod
-    def load(cls, path: str | Path) -> "StationarySession":
+    def load(cls, path: str | Path) -> StationarySession:
         """Read a file written by :meth:`save`."""
         with np.load(Path(path), allow_pickle=False) as z:
             tp = z["truth_positions"] if "truth_positions" in z.files else None
@@ -235,7 +237,7 @@ def _centre(obs: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     constant series has exactly zero deviation and UTM-sized coordinates lose no precision.
     Dead receivers get NaN means and all-NaN deviations.
     """
-    n, m, _ = obs.shape
+    m = obs.shape[1]
     present = ~np.isnan(obs[..., 0])
     first = np.argmax(present, axis=0)                      # (m,) first valid index (0 if none)
     ref = obs[first, np.arange(m)]                           # (m, 2)
@@ -256,6 +258,7 @@ _FIELD_DOCS = {
     "common_tau_s": "correlation time of the common-mode Gauss-Markov process, s",
     "receiver_tau_s": "correlation time of the per-receiver Gauss-Markov process, s",
     "receiver_sigma_spread": "log-std of the per-receiver scale on the per-receiver part, -",
+    "white_sigma_m": "per-axis std of per-receiver white noise, m",
     "bias_sigma_m": "per-axis std of each receiver's constant bias, m",
     "step_rate_per_h": "plateau transitions per receiver per hour",
     "step_sigma_m": "per-axis std of plateau levels, m",
@@ -285,6 +288,7 @@ class GpsNoiseModel:
     common_tau_s: float = 600.0
     receiver_tau_s: float = 120.0
     receiver_sigma_spread: float = 0.3
+    white_sigma_m: float = 0.05
     bias_sigma_m: float = 0.5
     step_rate_per_h: float = 4.0
     step_sigma_m: float = 0.5
@@ -310,7 +314,7 @@ class GpsNoiseModel:
                     or not math.isfinite(float(v)):
                 raise GpsModelError(f"{f.name}: must be a finite number, got {v!r}")
             object.__setattr__(self, f.name, float(v))
-        nonneg = ("sigma_m", "receiver_sigma_spread", "bias_sigma_m", "step_rate_per_h",
+        nonneg = ("sigma_m", "receiver_sigma_spread", "white_sigma_m", "bias_sigma_m", "step_rate_per_h",
                   "step_sigma_m", "step_ramp_s", "outlier_rate", "outlier_scale_m",
                   "missing_fraction", "power_failure_start_s", "power_failure_duration_s")
         for k in nonneg:
@@ -339,7 +343,7 @@ class GpsNoiseModel:
         """Per-axis std of the per-receiver component (before the receiver scale), m."""
         return self.sigma_m * math.sqrt(1.0 - self.common_fraction)
 
-    def with_overrides(self, **kw: object) -> "GpsNoiseModel":
+    def with_overrides(self, **kw: object) -> GpsNoiseModel:
         """A copy with fields replaced by name (validated); unknown names raise GpsModelError."""
         allowed = {f.name for f in dataclasses.fields(self)}
         unknown = sorted(set(kw) - allowed)
@@ -354,7 +358,7 @@ class GpsNoiseModel:
         return d
 
     @classmethod
-    def from_dict(cls, data: dict, *, source: str = "<dict>") -> "GpsNoiseModel":
+    def from_dict(cls, data: dict, *, source: str = "<dict>") -> GpsNoiseModel:
         """Build from the flat TOML key/value structure; unknown keys are rejected."""
         allowed = {f.name for f in dataclasses.fields(cls)}
         unknown = sorted(set(data) - allowed)
@@ -374,7 +378,7 @@ class GpsNoiseModel:
             raise GpsModelError(f"{source}: {exc}") from None
 
     @classmethod
-    def load(cls, name_or_path: str | Path = "gps_stationary") -> "GpsNoiseModel":
+    def load(cls, name_or_path: str | Path = "gps_stationary") -> GpsNoiseModel:
         """Load a TOML model: a path, or a name looked up in ``models/noise/``."""
         path = Path(name_or_path)
         if not path.suffix:
@@ -493,6 +497,7 @@ def receiver_errors(model: GpsNoiseModel, m: int, n: int, dt_s: float,
         if model.receiver_sigma_spread > 0 else np.ones(m)
     indep = gauss_markov(n, (m, 2), model.sigma_receiver_m * scale[:, None], model.receiver_tau_s,
                          dt_s, rng)
+    white = rng.normal(0.0, model.white_sigma_m, size=(n, m, 2)) if model.white_sigma_m > 0 else 0.0
     bias = rng.normal(0.0, model.bias_sigma_m, size=(m, 2)) if model.bias_sigma_m > 0 else np.zeros((m, 2))
     plateau, steps = _plateaus(n, m, dt_s, model.step_rate_per_h, model.step_sigma_m,
                                model.step_ramp_s, rng)
@@ -502,7 +507,7 @@ def receiver_errors(model: GpsNoiseModel, m: int, n: int, dt_s: float,
         hit = rng.random((n, m)) < model.outlier_rate
         n_out = int(hit.sum())
         out[hit] = model.outlier_scale_m * rng.standard_t(model.outlier_df, size=(n_out, 2))
-    err = common + indep + bias[None] + plateau + out
+    err = common + indep + white + bias[None] + plateau + out
     drawn = {"receiver_scale": scale.tolist(), "bias_m": bias.tolist(),
              "plateau_transitions": steps.tolist(), "outliers": n_out}
     return err, drawn
@@ -524,12 +529,13 @@ def synthesize_session(model: GpsNoiseModel, config: SensorConfig, duration_s: f
     if not (isinstance(rate_hz, (int, float)) and rate_hz > 0 and math.isfinite(rate_hz)):
         raise ValueError(f"rate_hz: must be a positive number, got {rate_hz!r}")
     if not isinstance(rng, np.random.Generator):
-        raise ValueError(f"rng: must be a numpy.random.Generator, got {type(rng).__name__}")
+        raise ValueError(  # noqa: TRY004 (project contract: bad input is ValueError)
+            f"rng: must be a numpy.random.Generator, got {type(rng).__name__}")
     for d in model.dead:
         if d not in config.names:
             raise ValueError(f"dead: receiver {d!r} of noise model {model.name!r} is not in "
                              f"configuration {config.name!r} (names {list(config.names)})")
-    n = int(round(duration_s * rate_hz))
+    n = round(duration_s * rate_hz)
     if n < 1:
         raise ValueError(f"duration_s * rate_hz: gives {n} samples; need at least 1")
     dt = 1.0 / rate_hz

@@ -49,10 +49,12 @@ from __future__ import annotations
 
 import math
 import re
+from collections.abc import Iterable, Sequence
 from dataclasses import dataclass, field
-from datetime import date, datetime, time as dtime, timezone
+from datetime import UTC, date, datetime
+from datetime import time as dtime
 from pathlib import Path
-from typing import Iterable, Literal, Sequence
+from typing import Literal
 
 import numpy as np
 import pynmea2
@@ -60,15 +62,15 @@ import pynmea2
 from sim.gps import StationarySession
 
 __all__ = [
+    "SKIP_CLASSES",
     "LogFixes",
+    "import_session",
     "parse_nmea",
+    "read_log",
     "read_nmea",
     "read_tumbleweed_csv",
-    "read_log",
     "session_from_fixes",
-    "import_session",
     "utm_epsg",
-    "SKIP_CLASSES",
 ]
 
 SKIP_CLASSES = (
@@ -152,7 +154,7 @@ def parse_nmea(lines: Iterable[bytes | str], name: str = "receiver") -> LogFixes
             text = raw
         text = text.rstrip("\r\n")
         # some captures store the line end as the literal characters "\r\n"
-        while text.endswith("\\r\\n") or text.endswith("\\n") or text.endswith("\\r"):
+        while text.endswith(("\\r\\n", "\\n", "\\r")):
             text = text[: text.rfind("\\")]
         if text.lstrip().startswith("#"):
             skipped["comment_lines"] += 1
@@ -172,7 +174,7 @@ def parse_nmea(lines: Iterable[bytes | str], name: str = "receiver") -> LogFixes
     # fixes the offset abs - c, which holds until the next RMC (records before the first
     # RMC take the first RMC's offset and are counted as no_date)
     date_known = any(r["date"] is not None for r in records)
-    base = datetime(1970, 1, 1, tzinfo=timezone.utc)
+    base = datetime(1970, 1, 1, tzinfo=UTC)
     cont = np.empty(len(records))
     rollovers = 0
     last_tod: float | None = None
@@ -185,13 +187,13 @@ def parse_nmea(lines: Iterable[bytes | str], name: str = "receiver") -> LogFixes
     if date_known:
         i0 = next(i for i, r in enumerate(records) if r["date"] is not None)
         d0 = records[i0]["date"]
-        offset = (datetime.combine(d0, dtime(0), tzinfo=timezone.utc) - base).total_seconds() \
+        offset = (datetime.combine(d0, dtime(0), tzinfo=UTC) - base).total_seconds() \
             + records[i0]["tod"] - cont[i0]
         skipped["no_date"] = sum(1 for r in records[:i0] if r["date"] is None)
     t_list, lat_l, lon_l, q_l = [], [], [], []
     for i, r in enumerate(records):
         if r["date"] is not None:
-            offset = (datetime.combine(r["date"], dtime(0), tzinfo=timezone.utc) - base).total_seconds() \
+            offset = (datetime.combine(r["date"], dtime(0), tzinfo=UTC) - base).total_seconds() \
                 + r["tod"] - cont[i]
         t_list.append(cont[i] + offset)
         lat_l.append(r["lat"])

@@ -25,7 +25,7 @@ from sim.truth import Truth
 CFG = SensorConfig.load("rover_gps8")
 
 # A model with every component switched off; tests switch on one component at a time.
-QUIET = GpsNoiseModel(sigma_m=0.0, common_fraction=0.0, receiver_sigma_spread=0.0,
+QUIET = GpsNoiseModel(sigma_m=0.0, common_fraction=0.0, receiver_sigma_spread=0.0, white_sigma_m=0.0,
                       bias_sigma_m=0.0, step_rate_per_h=0.0, step_sigma_m=0.0,
                       outlier_rate=0.0, missing_fraction=0.0, power_failure_duration_s=0.0)
 

@@ -88,7 +88,7 @@ def test_midnight_rollover_with_and_without_rmc():
     t = fx.t_utc
     assert np.array_equal(np.diff(t), [1.0, 1.0, 1.0])
     import datetime as dt
-    t0 = dt.datetime(2021, 12, 31, 23, 59, 58, tzinfo=dt.timezone.utc).timestamp()
+    t0 = dt.datetime(2021, 12, 31, 23, 59, 58, tzinfo=dt.UTC).timestamp()
     assert t[0] == t0
     # no RMC at all: times stay monotone across midnight, date unknown
     fx = parse_nmea([gga("235959.00"), gga("000000.00"), gga("000001.00")])
