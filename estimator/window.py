@@ -17,7 +17,8 @@ The reduction every solver here uses (it is exact): for each sensor and axis,
 
 with ``W_a = sum_w w_{w,a}`` and ``obar_a`` the weighted window mean. The last term does
 not depend on ``p``, so the window fit is a fit to ``m`` weighted means: its cost is
-independent of the window length ``s`` once the means are formed (:func:`window_means`).
+independent of the window length ``s`` once the means are formed (:func:`window_means`,
+or :func:`sliding_window_means` for every sliding window of a recording in O(n)).
 
 Solvers (all return the proper-handed configuration, never its mirror image):
 
@@ -41,7 +42,20 @@ Solvers (all return the proper-handed configuration, never its mirror image):
     The same problem by the convex-concave procedure in cvxpy + Clarabel: upper bounds as
     second-order cones, lower bounds linearized at the current iterate (a restriction, so
     every iterate is feasible and the objective never increases). The cvxpy problem is built
-    once per ``(m, d)`` with Parameters (DPP) and reused.
+    once per ``(m, d)`` with Parameters (DPP) and reused. Stops when an iteration improves
+    the objective by less than ``CCP_RTOL`` = 1e-6 (relative); the subproblems use a band
+    narrowed by ``CCP_MARGIN`` = 1e-8 m so solver round-off cannot leave the true band.
+
+Handedness: pairwise distances do not distinguish the configuration from its mirror image,
+and with metre-level noise on a metre-sized platform the mirror often fits the data better
+(../shared/notes/window-solvers.md). The iterative solvers therefore start from the
+proper-handed procrustes fit, and a result whose best orthogonal fit to the body frame has
+det = -1 is rejected ("fallback_mirrored"). ``mirror_objective`` reports the objective of
+the best det = -1 rigid fit so the ambiguity of each window is visible.
+
+Insufficient data: fewer than 2 sensors with data (d = 2), or fewer than 3 whose body
+positions are not collinear (d = 3), leave the rotation undetermined; the fit reports
+"insufficient_data" (positions from ``x0`` if given, else NaN) instead of guessing.
 
 Sensors without data (dead, or missing for the whole window) stay in the problem (their
 distance constraints still bind the others) with zero data cost; procrustes places them by

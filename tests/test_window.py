@@ -448,3 +448,13 @@ def test_sliding_window_means_equal_stacked(aniso):
         sliding_window_means(obs, 0)
     with pytest.raises(ValueError, match="window"):
         sliding_window_means(obs, n + 1)
+
+
+@pytest.mark.slow
+def test_bench_cli_quick(capsys):
+    from experiments.bench import SECTIONS, main
+
+    assert "solvers" in SECTIONS
+    assert main(["--only", "solvers", "--quick"]) == 0
+    out = capsys.readouterr().out
+    assert "| 100 |" in out and "sliding procrustes" in out
