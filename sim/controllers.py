@@ -30,6 +30,8 @@ from __future__ import annotations
 import math
 from dataclasses import asdict, dataclass
 
+import numpy as np
+
 from sim.paths import Path
 
 __all__ = [
@@ -39,6 +41,7 @@ __all__ = [
     "pure_pursuit_curvature",
     "pure_pursuit_step",
     "rate_limit",
+    "simulate_unicycle",
     "speed_limit",
 ]
 
@@ -181,3 +184,37 @@ def pure_pursuit_step(state: PurePursuitState, x: float, y: float, yaw: float,
     omega_target = max(-w_max, min(w_max, state.v_cmd * kappa))
     state.omega_cmd = rate_limit(omega_target, state.omega_cmd, p.max_yaw_accel_radps2, dt)
     return state.v_cmd, state.omega_cmd, abs(state.omega_cmd) > p.turning_threshold_radps
+
+
+def simulate_unicycle(path: Path, params: PurePursuitParams | None = None, *, dt: float = 0.02,
+                      max_steps: int = 10_000_000) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The same controller driving an ideal kinematic unicycle (no dynamics, no slip).
+
+    A reference for the MuJoCo platform: each command (v, omega) is held for ``dt`` and
+    integrated exactly (a circular arc). Starts at rest on ``path.start`` facing the first
+    segment, ends when the controller has finished and stopped.
+
+    Returns t (n,) s, xy (n, 2) m, yaw (n,) rad (unwrapped).
+    """
+    p = params if params is not None else PurePursuitParams.from_path(path)
+    verts = [(float(a), float(b)) for a, b in path.polyline[:, :2]]
+    x, y = verts[0]
+    yaw = math.atan2(verts[1][1] - y, verts[1][0] - x)
+    state = PurePursuitState()
+    out = [(0.0, x, y, yaw)]
+    for k in range(1, max_steps + 1):
+        v, w, _ = pure_pursuit_step(state, x, y, yaw, verts, p, dt)
+        if state.finished and v == 0.0:
+            break
+        if abs(w) > 1e-12:       # exact arc of radius v / w
+            x += v / w * (math.sin(yaw + w * dt) - math.sin(yaw))
+            y -= v / w * (math.cos(yaw + w * dt) - math.cos(yaw))
+        else:
+            x += v * dt * math.cos(yaw)
+            y += v * dt * math.sin(yaw)
+        yaw += w * dt
+        out.append((k * dt, x, y, yaw))
+    else:
+        raise RuntimeError(f"unicycle did not finish path {path.name!r} in {max_steps} steps")
+    a = np.array(out)
+    return a[:, 0], a[:, 1:3], a[:, 3]

@@ -6,6 +6,9 @@ Path 2 (Section 4.9).
 
 Model: ``models/rover.xml``, a 64 kg differential-drive platform (1.5 x 1.0 m roof, wheels
 r = 0.2 m on velocity servos, track 1.1 m, frictionless casters), 1 ms ``implicitfast`` steps.
+The wheels collide as spheres (one contact point each; see the XML for the measured reason),
+so the platform turns at the rate its wheel speeds imply and follows the same controller on
+an ideal unicycle (:func:`sim.controllers.simulate_unicycle`) to about 2 cm at the corners.
 The antennas are MuJoCo sites ``gps_<name>`` generated at load time from the
 :class:`~estimator.configuration.SensorConfig` with ``mujoco.MjSpec`` (:func:`build_rover_model`),
 so the layout has one source of truth: site = (x, y, mount_height_m) in the chassis frame for a
@@ -46,7 +49,7 @@ import mujoco
 import numpy as np
 
 from estimator.configuration import MODELS_DIR, SensorConfig
-from sim.cache import cached, truth_key
+from sim.cache import cached, key_hash, truth_key
 from sim.controllers import (
     PurePursuitParams,
     PurePursuitState,
@@ -175,7 +178,8 @@ def simulate_rover(
                         "simulator": "sim.rover.simulate_rover",
                         "model": str(xml_path), "config": config.name, "path": path.to_dict(),
                         "params": run_params, "seed": int(seed), "deterministic": True,
-                        "versions": key["versions"], "code_salt": key["code_salt"]})
+                        "versions": key["versions"], "code_salt": key["code_salt"],
+                        "hash": key_hash(key)})
 
     if cache_dir is False:
         return compute()

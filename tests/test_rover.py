@@ -19,6 +19,7 @@ from sim.controllers import (
     diff_drive_wheel_speeds,
     pure_pursuit_curvature,
     rate_limit,
+    simulate_unicycle,
     speed_limit,
 )
 from sim.paths import Path, load_path, path_errors, project_to_polyline
@@ -155,6 +156,20 @@ def test_turning_flag_marks_the_corners_only(run10):
         assert tr.turning[np.abs(s - c) < 3.0].any()
     # on the straights the heading corrections stay far below the 0.1 rad/s threshold
     assert np.abs(tr.yaw_rate[to_corner > 8.0]).max() < 0.02
+
+
+def test_mujoco_platform_matches_the_ideal_unicycle(run10):
+    # Independent reference: the same controller on an exact-arc kinematic unicycle. The
+    # MuJoCo wheels follow their commands with the servo time constant tau = m r^2 / (2 kv)
+    # = 64 * 0.2^2 / 80 = 32 ms, i.e. a lag of v tau ~ 5 cm along the track; corner metrics
+    # must agree to that, straight-line errors to 1 cm, and durations to 0.2 s.
+    p = load_path("square20")
+    t_u, xy_u, _ = simulate_unicycle(p)
+    ref, mj = path_errors(xy_u, p), run10.meta["path_errors"]
+    np.testing.assert_allclose(mj["cut_in_m"], ref.cut_in_m, atol=0.05)
+    np.testing.assert_allclose(mj["corner_max_m"], ref.corner_max_m, atol=0.05)
+    assert abs(mj["straight_max_m"] - ref.straight_max_m) < 0.01
+    assert abs(run10.t[-1] - t_u[-1]) < 0.2 + 0.1     # + one 10 Hz sample
 
 
 # ---------------------------------------------------------------- cache and inputs
