@@ -31,7 +31,10 @@ taken from the estimates themselves (never the truth):
 Velocity ("multiply the time remaining by the velocity"): the speed from the estimates, as
 the causal finite difference of the window CG over ``span`` estimates (default the window
 size: two windows that do not overlap, so their noise is independent); see
-:func:`estimate_velocity`.
+:func:`estimate_velocity`. Each window estimate is dated at the mean time of its window's
+epochs (a property of the window, not of the truth): with even sampling that changes
+nothing (consecutive windows are one dt apart either way), with uneven sampling dividing by
+the difference of the newest epochs' times would mis-scale the speed by the local spacing.
 
 Two variants, each a row in tables:
 
@@ -60,7 +63,7 @@ LAG_MODES = ("pose", "course")
 def estimate_velocity(t: np.ndarray, xy: np.ndarray, span: int) -> np.ndarray:
     """Causal velocity of a track: ``(xy[k] - xy[k - span']) / (t[k] - t[k - span'])``.
 
-    t : (N,) seconds, strictly increasing. xy : (N, 2) metres (NaN rows allowed: a NaN at
+    t : (N,) seconds (the estimates' dates), strictly increasing. xy : (N, 2) metres (NaN rows allowed: a NaN at
     either end gives NaN). span : >= 1 rows; near the start ``span' = min(span, k)``, so
     row 0 has no velocity (NaN).
     Returns (N, 2) m/s.

@@ -445,7 +445,11 @@ def _lag_correct(tt, o, cfg, ends, wsize, pos, cg, yaw_loc, s, mode, span, dynam
         vel_cg = cfg.cg_from_positions(p)
     else:
         vel_cg = cg
-    vel = _lag.estimate_velocity(tt[ends], vel_cg, span)
+    # each window estimate is dated at its window's mean epoch time (see estimator.lag)
+    w_vel = np.full(ends.size, s) if dynamic else wsize
+    ct = np.concatenate([[0.0], np.cumsum(tt - tt[0])])
+    t_mid = (ct[ends + 1] - ct[ends + 1 - w_vel]) / w_vel + tt[0]
+    vel = _lag.estimate_velocity(t_mid, vel_cg, span)
     first, fidx = _lag.first_observations(o, ends - wsize + 1, ends)
     return _lag.lag_shift(tt, pos, first, fidx, tt[ends], vel, yaw_loc, wsize, mode)
 
