@@ -74,6 +74,7 @@ from scipy import linalg, optimize, signal, stats
 __all__ = [
     "FORMS",
     "TransferFit",
+    "equivalent_lag",
     "fit_transfer_function",
     "simulate",
     "step_response",
@@ -102,6 +103,10 @@ class TransferFit:
     ``nrmse``: fit percent, ``100 (1 - ||y - y_hat|| / ||y - mean y||)``.
     ``status``: ``"ok"``, or ``"not_converged"`` when no start converged, or
     ``"at_bound"`` when the best estimate has a free parameter on a bound (``at_bound``).
+    ``covariance``: (p, p) parameter covariance over ``estimated`` (the free parameters in
+    form order, then ``"offset"`` when fitted); a pseudo-inverse when the Jacobian is rank
+    deficient (those parameters then have infinite ``intervals``). ``t_quantile``: the
+    Student-t factor of the intervals. ``correlated``: pairs with ``|rho| > 0.95``.
     """
 
     form: str
@@ -114,6 +119,9 @@ class TransferFit:
     stderr: dict[str, float]
     correlation: dict[tuple[str, str], float]
     correlated: tuple[tuple[str, str, float], ...]
+    covariance: np.ndarray
+    estimated: tuple[str, ...]
+    t_quantile: float
     fixed: tuple[str, ...]
     at_bound: tuple[str, ...]
     confidence: float
@@ -558,6 +566,7 @@ def fit_transfer_function(
             if np.isfinite(rho) and abs(rho) > _CORRELATED:
                 correlated.append((a, free[j], rho))
 
+    est_names = [*free, "offset"] if fit_offset else list(free)
     bound_tol = 1e-9
     at_bound = [k for j, k in enumerate(free)
                 if (np.isfinite(lo_vec[j])
@@ -577,6 +586,11 @@ def fit_transfer_function(
         correlation = {pair(a, b): v for (a, b), v in correlation.items()}
         correlated = [(*pair(a, b), v) for a, b, v in correlated]
         at_bound = [ren.get(k, k) for k in at_bound]
+        est_names = [ren.get(k, k) for k in est_names]
+    order = sorted(range(len(est_names)),
+                   key=lambda i: (names + ("offset",)).index(est_names[i]))
+    cov_out = cov[np.ix_(order, order)]
+    est_names = [est_names[i] for i in order]
     at_bound = tuple(sorted(at_bound, key=names.index))
     if best.status <= 0:
         status = "not_converged"
@@ -587,8 +601,34 @@ def fit_transfer_function(
     return TransferFit(
         form=form, params=params, nrmse=nrmse, intervals=intervals, identifiable=identifiable,
         status=status, offset=float(offset), stderr=stderr, correlation=correlation,
+        covariance=cov_out, estimated=tuple(est_names), t_quantile=tq,
         correlated=tuple(correlated), fixed=tuple(k for k in names if k in fixed),
         at_bound=at_bound, confidence=float(confidence), dt=dt,
         residual_std=float(np.sqrt(s2)), y_hat=yhat, n_starts=int(n_starts), nfev=int(nfev),
         elapsed_s=time.perf_counter() - t0, message=str(best.message),
     )
+
+
+def equivalent_lag(fit: TransferFit) -> tuple[float, tuple[float, float]]:
+    """Total lag of the fitted model and its confidence interval (same level as the fit).
+
+    For ``K e^{-Td s} / (s D(s))`` with ``D(0) = 1`` the step response approaches the ramp
+    ``K (t - L)`` with ``L = Td + D'(0)``: ``Td + Tp1 + Tp2``, ``Td + 2 zeta Tw`` or
+    ``Td + Tp1``. ``L`` stays well determined when its parts trade off (a small delay against
+    a small pole, two near-equal poles), so it is the fair quantity to compare across fits.
+    The interval uses the delta method on ``TransferFit.covariance`` (the pseudo-inverse:
+    the gradient of ``L`` is orthogonal to those unidentifiable directions).
+    """
+    p = fit.params
+    if fit.form == "two_poles":
+        lag = p["Td"] + p["Tp1"] + p["Tp2"]
+        grad = {"Td": 1.0, "Tp1": 1.0, "Tp2": 1.0}
+    elif fit.form == "second_order":
+        lag = p["Td"] + 2.0 * p["zeta"] * p["Tw"]
+        grad = {"Td": 1.0, "zeta": 2.0 * p["Tw"], "Tw": 2.0 * p["zeta"]}
+    else:
+        lag = p["Td"] + p["Tp1"]
+        grad = {"Td": 1.0, "Tp1": 1.0}
+    g = np.array([grad.get(k, 0.0) for k in fit.estimated])
+    hw = fit.t_quantile * float(np.sqrt(max(g @ fit.covariance @ g, 0.0)))
+    return float(lag), (float(lag - hw), float(lag + hw))

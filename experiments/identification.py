@@ -54,13 +54,20 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from estimator.sysid import FORMS, fit_transfer_function, simulate, step_response
+from estimator.sysid import (
+    FORMS,
+    equivalent_lag,
+    fit_transfer_function,
+    simulate,
+    step_response,
+)
 
 __all__ = ["AXIS_FORMS", "THESIS", "main", "plot_identification", "run_identification"]
 
 REPO = Path(__file__).resolve().parents[1]
 AXIS_FORMS = {"thrust": "two_poles", "pitch": "second_order", "yaw_rate": "one_pole"}
 TX_SEPARATION_M = 0.5  # thesis 003 Section 3.2.2, Figure 3.3
+REL_TOL = 0.25  # identifiability threshold, as fit_transfer_function's default
 
 #: The thesis's printed identified values (003_691aa933e2e3c7e2.txt, Section 3.3). K is in
 #: the thesis's units: output mm (altitude, position) or degrees (heading) per second per
@@ -91,7 +98,16 @@ _OUT_UNIT = {"thrust": "m", "pitch": "m", "yaw_rate": "rad"}
 _IN_UNIT = {"thrust": "hover-thrust fraction", "pitch": "rad tilt", "yaw_rate": "rad/s"}
 _K_UNIT = {"thrust": "m/s per hover-thrust fraction", "pitch": "m/s per rad",
            "yaw_rate": "(rad/s) per (rad/s)"}
-_PARAM_UNIT = {"Tp1": "s", "Tp2": "s", "Tw": "s", "zeta": "-", "Td": "s"}
+_PARAM_UNIT = {"Tp1": "s", "Tp2": "s", "Tw": "s", "zeta": "-", "Td": "s", "lag": "s"}
+
+
+def _lag(form: str, p: Mapping[str, float]) -> float:
+    """Total lag Td + D'(0) (see :func:`estimator.sysid.equivalent_lag`)."""
+    if form == "two_poles":
+        return p["Td"] + p["Tp1"] + p["Tp2"]
+    if form == "second_order":
+        return p["Td"] + 2.0 * p["zeta"] * p["Tw"]
+    return p["Td"] + p["Tp1"]
 
 #: (axis, kind) -> (t, u, y): "impulse" = the fitted experiment, "step" = validation.
 Responses = Mapping[tuple[str, str], tuple[np.ndarray, np.ndarray, np.ndarray]]
@@ -122,6 +138,77 @@ def simulator_responses(*, quick: bool = False) -> dict[tuple[str, str], tuple]:
             s = impulse_response(axis, pulse_s=float(r.t[-1]) - pre + 1.0)
             out[(axis, "step")] = (np.asarray(s.t), np.asarray(s.u), np.asarray(s.y))
     return out
+
+
+def simulator_constants() -> dict[str, dict[str, tuple[float, str]]]:
+    """The simulated chain's own constants that map onto the thesis's parameters.
+
+    Read from :mod:`sim.quadcopter` (stick channels, controller gains) and the compiled model
+    (mass, inertia, drag, motor lag, actuator delay). ``{axis: {param: (value, how)}}``;
+    parameters with no single counterpart in the chain are left out.
+
+    The total lag (ramp asymptote ``K (t - lag)``, see :func:`estimator.sysid.equivalent_lag`)
+    adds up along the chain: the open thrust path adds the motor lag and actuator delay; a
+    closed proportional loop adds only its own ``D'(0)`` (rate loop ``I / (k I + d)``,
+    attitude loop ``1 / k_att``), the motor lag and actuator delay inside it do not add (to
+    first order; their effect in the yaw loop is ``d (tau_m + tau_a) / (k I + d)`` ~ 2e-4 s).
+    """
+    from sim.quadcopter import STICK_CHANNELS, Gains, load_model
+
+    m = load_model()
+    body = m.body("quad")
+    mass, izz = float(body.mass[0]), float(body.inertia[2])
+    drag_xy = float(m.numeric("drag_xy").data[0])
+    drag_z = float(m.numeric("drag_z").data[0])
+    drag_rot = float(m.numeric("drag_rot").data[0])
+    motor = float(m.actuator_dynprm[0, 0])
+    act_delay = float(m.actuator_delay[0]) + float(m.opt.timestep)  # setting + one step
+    g = -float(m.opt.gravity[2])
+    gains = Gains()
+    th, pi, yw = STICK_CHANNELS["thrust"], STICK_CHANNELS["pitch"], STICK_CHANNELS["yaw_rate"]
+    tz, txy = mass / drag_z, mass / drag_xy
+    k_i = gains.k_rate_yaw * izz
+    rate_lag = (izz + drag_rot * (motor + act_delay)) / (k_i + drag_rot)
+    att_lag = 1.0 / gains.k_att
+    poles = sorted((th.tau_s, tz))
+    return {
+        "thrust": {
+            "K": (g * tz, "g m / drag_z"),
+            "Tp1": (poles[0], "smaller of stick filter and m / drag_z"),
+            "Tp2": (poles[1], "larger of stick filter and m / drag_z"),
+            "Td": (th.delay_s + motor + act_delay,
+                   (f"link {th.delay_s:g} s + motor lag {motor:g} s + actuator delay "
+                   f"{act_delay:g} s (open path; the lag folded into the delay)")),
+            "lag": (th.delay_s + motor + act_delay + th.tau_s + tz, "sum of the above"),
+        },
+        "pitch": {
+            "K": (g * txy, "g m / drag_xy (small tilt)"),
+            "lag": (pi.delay_s + att_lag + txy,
+                    (f"link {pi.delay_s:g} s + attitude loop 1 / k_att {att_lag:g} s + "
+                    f"m / drag_xy {txy:.4g} s")),
+        },
+        "yaw_rate": {
+            "K": (k_i / (k_i + drag_rot), "closed rate loop k I / (k I + drag_rot)"),
+            "Tp1": (yw.tau_s, "stick filter"),
+            "Td": (yw.delay_s + rate_lag,
+                   f"link {yw.delay_s:g} s + closed rate loop's lag {rate_lag:.4g} s"),
+            "lag": (yw.delay_s + yw.tau_s + rate_lag, "sum of the above"),
+        },
+    }
+
+
+def _pick(fit, lag_entry: dict | None, key: str, what: str, i: int) -> object:
+    """One cell of the table: a parameter's (or the total lag's) value, CI bound or flag."""
+    if fit is None:
+        return None if what == "identifiable" else float("nan")
+    if key == "lag":
+        v = lag_entry[what]
+        return v[i] if what == "ci" else v
+    if what == "value":
+        return fit.params[key]
+    if what == "ci":
+        return fit.intervals[key][i]
+    return fit.identifiable[key]
 
 
 def _noise_sigma(axis: str, noise_m: float) -> float:
@@ -170,8 +257,10 @@ def run_identification(
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     t_start = time.perf_counter()
+    constants = None
     if responses is None:
         data = simulator_responses(quick=quick)
+        constants = simulator_constants()
     elif callable(responses):
         data = dict(responses())
     else:
@@ -189,18 +278,21 @@ def run_identification(
         def rng_for(run: int, _ai: int = ai) -> np.random.Generator:
             return np.random.default_rng(np.random.SeedSequence([seed, _ai, run]))
 
-        clean = fit_transfer_function(t, u, y, form, n_starts=n_starts, rng=rng_for(0))
+        clean = fit_transfer_function(t, u, y, form, n_starts=n_starts, rng=rng_for(0),
+                                      rel_tol=REL_TOL)
         sigma = _noise_sigma(axis, noise_m)
         noisy = None
         mc: list = []
         if noise_m > 0:
             g = rng_for(1)
             y_noisy = y + sigma * g.standard_normal(y.size)
-            noisy = fit_transfer_function(t, u, y_noisy, form, n_starts=n_starts, rng=g)
+            noisy = fit_transfer_function(t, u, y_noisy, form, n_starts=n_starts, rng=g,
+                                          rel_tol=REL_TOL)
             for run in range(n_mc):
                 g = rng_for(2 + run)
                 mc.append(fit_transfer_function(t, u, y + sigma * g.standard_normal(y.size),
-                                                form, n_starts=n_starts, rng=g))
+                                                form, n_starts=n_starts, rng=g,
+                                                rel_tol=REL_TOL))
         else:
             y_noisy = None
 
@@ -227,24 +319,40 @@ def run_identification(
 
         summary[axis] = {"clean": clean, "noisy": noisy, "mc": mc, "sigma": sigma,
                          "step_pct": step_pct}
-        for k in FORMS[form]:
+        const = constants.get(axis, {}) if constants else {}
+        lag_th = _lag(form, th)
+        per_fit = {}
+        for name, f in (("clean", clean), ("noisy", noisy)):
+            if f is None:
+                continue
+            lag, (lo, hi) = equivalent_lag(f)
+            per_fit[name] = {"value": lag, "ci": (lo, hi),
+                             "identifiable": bool(hi - lo <= 2 * REL_TOL * max(lag, f.dt))}
+        mc_lag = [equivalent_lag(f)[0] for f in mc]
+        fits = {"clean": clean, "noisy": noisy}
+        for k in (*FORMS[form], "lag"):
+            cell = {(w, what, i): _pick(fits[w], per_fit.get(w), k, what, i)
+                    for w in fits for what in ("value", "ci", "identifiable") for i in (0, 1)}
+            mc_vals = mc_lag if k == "lag" else [f.params[k] for f in mc]
+            sim_v, sim_note = const.get(k, (float("nan"), ""))
             row = {
                 "axis": axis, "form": form, "parameter": k,
                 "unit": _K_UNIT[axis] if k == "K" else _PARAM_UNIT[k],
-                "thesis": th[k],
+                "thesis": lag_th if k == "lag" else th[k],
                 "thesis_unit": THESIS[axis]["K_unit"] if k == "K" else _PARAM_UNIT[k],
-                "clean": clean.params[k],
-                "clean_ci_low": clean.intervals[k][0], "clean_ci_high": clean.intervals[k][1],
-                "clean_identifiable": clean.identifiable[k],
-                "noisy": noisy.params[k] if noisy else float("nan"),
-                "noisy_ci_low": noisy.intervals[k][0] if noisy else float("nan"),
-                "noisy_ci_high": noisy.intervals[k][1] if noisy else float("nan"),
-                "noisy_identifiable": noisy.identifiable[k] if noisy else None,
-                "mc_mean": float(np.mean([f.params[k] for f in mc])) if mc else float("nan"),
-                "mc_std": float(np.std([f.params[k] for f in mc], ddof=1))
-                if len(mc) > 1 else float("nan"),
-                "mc_identifiable_frac": float(np.mean([f.identifiable[k] for f in mc]))
-                if mc else float("nan"),
+                "simulator": sim_v, "simulator_note": sim_note,
+                "clean": cell["clean", "value", 0],
+                "clean_ci_low": cell["clean", "ci", 0],
+                "clean_ci_high": cell["clean", "ci", 1],
+                "clean_identifiable": cell["clean", "identifiable", 0],
+                "noisy": cell["noisy", "value", 0],
+                "noisy_ci_low": cell["noisy", "ci", 0],
+                "noisy_ci_high": cell["noisy", "ci", 1],
+                "noisy_identifiable": cell["noisy", "identifiable", 0],
+                "mc_mean": float(np.mean(mc_vals)) if mc else float("nan"),
+                "mc_std": float(np.std(mc_vals, ddof=1)) if len(mc) > 1 else float("nan"),
+                "mc_identifiable_frac": float("nan") if not mc or k == "lag"
+                else float(np.mean([f.identifiable[k] for f in mc])),
                 "clean_fit_pct": clean.nrmse,
                 "noisy_fit_pct": noisy.nrmse if noisy else float("nan"),
                 "step_fit_pct": step_pct,
@@ -293,7 +401,12 @@ def _report(table: pd.DataFrame, summary: dict, meta: dict) -> str:
          "(its intervals reflect model mismatch, not noise); *noisy* = plus white noise "
          "(sigma in each section); MC = mean +- std over the Monte Carlo runs and the "
          "fraction flagged identifiable. The thesis prints no fit percentages in the text "
-         "and its K is per normalised stick unit in mm/s or deg/s, so K is not comparable."),
+         "and its K is per normalised stick unit in mm/s or deg/s, so K is not comparable. "
+         "*lag* = Td + Tp1 (+ Tp2) or Td + 2 zeta Tw: the step response's ramp asymptote "
+         "is K (t - lag), a combination that stays determined when its parts trade off "
+         "(interval by the delta method). *simulator constants* are the simulated chain's "
+         "own values (`simulator_constants()`: stick channel, drag, motor lag, actuator "
+         "delay); '-' where the chain has no single counterpart."),
          ""]
     for axis, form in AXIS_FORMS.items():
         s = summary[axis]
@@ -311,9 +424,10 @@ def _report(table: pd.DataFrame, summary: dict, meta: dict) -> str:
               + (f", noisy {n.elapsed_s:.3f} s" if n else "")
               + f". Status clean `{c.status}`" + (f", noisy `{n.status}`" if n else "") + ".",
               ""]
-        L += [("| parameter | thesis | simulator, clean fit [95 % CI] | noisy fit [95 % CI] "
-              "| identifiable (clean / noisy / MC frac) | MC mean +- std |"),
-              "|---|---|---|---|---|---|"]
+        L += [("| parameter | thesis | simulator constants | clean fit [95 % CI] "
+               "| noisy fit [95 % CI] | identifiable (clean / noisy / MC frac) "
+               "| MC mean +- std |"),
+              "|---|---|---|---|---|---|---|"]
         sub = table[table.axis == axis]
         for _, r in sub.iterrows():
             unit = r["unit"]
@@ -325,9 +439,20 @@ def _report(table: pd.DataFrame, summary: dict, meta: dict) -> str:
                      + ("-" if r["noisy_identifiable"] is None
                         else ("yes" if r["noisy_identifiable"] else "NO"))
                      + f" / {_fmt(r['mc_identifiable_frac'], 2)}")
-            L.append(f"| {r['parameter']} ({unit}) | {thesis} | {_fmt(r['clean'])} {ci_c} | "
+            simc = "-" if not math.isfinite(r["simulator"]) else (
+                f"{_fmt(r['simulator'])} ({r['simulator_note']})")
+            L.append(f"| {r['parameter']} ({unit}) | {thesis} | {simc} "
+                     f"| {_fmt(r['clean'])} {ci_c} | "
                      f"{_fmt(r['noisy'])} {ci_n} | {flags} | "
                      f"{_fmt(r['mc_mean'])} +- {_fmt(r['mc_std'], 2)} |")
+        if form == "second_order":
+            for name, f in (("clean", c), ("noisy", n)):
+                if f is not None and f.params["zeta"] >= 1.0:
+                    z, w = f.params["zeta"], f.params["Tw"]
+                    r_ = math.sqrt(z * z - 1.0)
+                    L += [(f"The {name} fit is overdamped (zeta >= 1): its quadratic factor "
+                          f"is two real poles, {w * (z + r_):.4g} s and {w * (z - r_):.4g} s.")]
+            L += [""]
         corr = [f"{a}/{b} rho={rho:+.3f}" for a, b, rho in (n.correlated if n else ())]
         L += [""]
         if corr:

@@ -55,19 +55,27 @@ def test_outputs_written(quick_run):
 
 def test_table_rows_and_thesis_values(quick_run):
     _, table = quick_run
-    assert len(table) == sum(len(FORMS[f]) for f in AXIS_FORMS.values())
+    assert len(table) == sum(len(FORMS[f]) + 1 for f in AXIS_FORMS.values())
     for axis, form in AXIS_FORMS.items():
         sub = table[table.axis == axis].set_index("parameter")
-        assert list(sub.index) == list(FORMS[form])
-        for k, v in THESIS[axis]["params"].items():
+        assert list(sub.index) == [*FORMS[form], "lag"]
+        th = THESIS[axis]["params"]
+        for k, v in th.items():
             assert sub.loc[k, "thesis"] == v
+        extra = 2 * th["zeta"] * th["Tw"] if form == "second_order" else (
+            th["Tp1"] + th.get("Tp2", 0.0))
+        assert sub.loc["lag", "thesis"] == pytest.approx(th["Td"] + extra, rel=1e-12)
+        # synthetic responses: no simulator constants
+        assert sub.simulator.isna().all()
 
 
 def test_clean_fit_recovers_synthetic_truth(quick_run):
     _, table = quick_run
     for axis in AXIS_FORMS:
         sub = table[table.axis == axis].set_index("parameter")
-        for k, v in TRUE[axis].items():
+        lag = TRUE[axis]["Td"] + (2 * TRUE[axis]["zeta"] * TRUE[axis]["Tw"] if axis == "pitch"
+                                  else TRUE[axis]["Tp1"] + TRUE[axis].get("Tp2", 0.0))
+        for k, v in {**TRUE[axis], "lag": lag}.items():
             # noise-free data of the exact model form: recovered to solver tolerance; 1e-4
             # leaves room for the multi-start optimum's stopping tolerance
             assert sub.loc[k, "clean"] == pytest.approx(v, rel=1e-4), (axis, k)

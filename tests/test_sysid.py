@@ -23,7 +23,13 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from estimator.sysid import FORMS, fit_transfer_function, simulate, step_response
+from estimator.sysid import (
+    FORMS,
+    equivalent_lag,
+    fit_transfer_function,
+    simulate,
+    step_response,
+)
 
 DT = 0.05  # the thesis resamples its flight logs to 0.05 s before identification (App. C)
 
@@ -293,3 +299,37 @@ def test_simulate_rejects_bad_params():
         simulate(t, u, "one_pole", {"K": 1.0, "Tp1": -0.5, "Td": 0.0})
     with pytest.raises(ValueError, match=r"^params"):
         simulate(t, u, "one_pole", {"K": 1.0, "Td": 0.0})
+
+
+def test_equivalent_lag_is_identified_when_parts_are_not():
+    """Near-equal poles and noise: Tp1, Tp2 flagged, but the total lag Td + Tp1 + Tp2
+    (the ramp asymptote's x-intercept) is tight and covers the truth."""
+    t = np.arange(0.0, 5.0 + 1e-9, DT)
+    u = pulse(t)
+    p = {"K": 1.8564, "Tp1": 0.40885, "Tp2": 0.42283, "Td": 0.6585}
+    y = simulate(t, u, "two_poles", p) + 0.01 * np.random.default_rng(4).standard_normal(t.size)
+    fit = fit_transfer_function(t, u, y, "two_poles", rng=np.random.default_rng(2))
+    lag, (lo, hi) = equivalent_lag(fit)
+    assert lag == pytest.approx(fit.params["Td"] + fit.params["Tp1"] + fit.params["Tp2"])
+    assert lo <= 0.6585 + 0.40885 + 0.42283 <= hi
+    assert hi - lo < 0.25 * (fit.intervals["Tp1"][1] - fit.intervals["Tp1"][0])
+    assert fit.estimated == ("K", "Tp1", "Tp2", "Td", "offset")
+    assert fit.covariance.shape == (5, 5)
+
+
+def test_covariance_matches_stderr_and_swap():
+    t = np.arange(0.0, 6.0 + 1e-9, DT)
+    u = pulse(t)
+    p = {"K": 1.0, "Tp1": 0.8, "Tp2": 0.2, "Td": 0.3}  # fitted order may swap the poles
+    y = simulate(t, u, "two_poles", p) + 0.005 * np.random.default_rng(9).standard_normal(t.size)
+    # bounds force the optimiser to put the slow pole in Tp1, so the result must be swapped
+    fit = fit_transfer_function(t, u, y, "two_poles", rng=np.random.default_rng(1),
+                                bounds={"Tp1": (0.5, 2.0), "Tp2": (0.05, 0.5)})
+    assert fit.params["Tp1"] == pytest.approx(0.2, rel=0.2)
+    assert fit.params["Tp2"] == pytest.approx(0.8, rel=0.2)
+    for i, k in enumerate(fit.estimated[:-1]):
+        assert np.sqrt(fit.covariance[i, i]) == pytest.approx(fit.stderr[k], rel=1e-12)
+        lo, hi = fit.intervals[k]
+        assert (hi - lo) / 2 == pytest.approx(fit.t_quantile * fit.stderr[k], rel=1e-12)
+    _, (lo, hi) = equivalent_lag(fit)
+    assert lo <= 1.3 <= hi
