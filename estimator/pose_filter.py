@@ -102,28 +102,30 @@ def ctrv_predict(x: np.ndarray, P: np.ndarray, dt: float, sigma_accel: float,
                  sigma_yaw_accel: float) -> tuple[np.ndarray, np.ndarray]:
     """CTRV prediction of state (5,) and covariance (5, 5) over dt seconds (EKF)."""
     px, py, yaw, v, om = x
+    # exact CTRV written with f1 = sin(q)/q, f2 = (1 - cos q)/q, q = omega dt, which are
+    # smooth through omega = 0 (no branch, so state and Jacobian always agree)
+    q = om * dt
+    f1 = float(np.sinc(q / np.pi))
+    f2 = float(np.sin(q / 2.0) * np.sinc(q / (2.0 * np.pi)))
+    if abs(q) > 1e-4:
+        g1 = (q * np.cos(q) - np.sin(q)) / q**2  # d f1 / d q
+        g2 = (q * np.sin(q) - (1.0 - np.cos(q))) / q**2  # d f2 / d q
+    else:  # series: f1 = 1 - q^2/6, f2 = q/2 - q^3/24
+        g1 = -q / 3.0
+        g2 = 0.5 - q * q / 8.0
+    c0, s0 = np.cos(yaw), np.sin(yaw)
+    ax = c0 * f1 - s0 * f2  # displacement direction / (v dt)
+    ay = s0 * f1 + c0 * f2
+    nx = px + v * dt * ax
+    ny = py + v * dt * ay
+    th = yaw + q
     F = np.eye(5)
-    th = yaw + om * dt
-    if abs(om) > 1e-6:
-        s0, c0, s1, c1 = np.sin(yaw), np.cos(yaw), np.sin(th), np.cos(th)
-        nx = px + v / om * (s1 - s0)
-        ny = py + v / om * (c0 - c1)
-        F[0, 2] = v / om * (c1 - c0)
-        F[0, 3] = (s1 - s0) / om
-        F[0, 4] = v * dt * c1 / om - v / om**2 * (s1 - s0)
-        F[1, 2] = v / om * (s1 - s0)
-        F[1, 3] = (c0 - c1) / om
-        F[1, 4] = v * dt * s1 / om - v / om**2 * (c0 - c1)
-    else:  # straight-line limit (second-order terms in omega for the Jacobian)
-        c0, s0 = np.cos(yaw), np.sin(yaw)
-        nx = px + v * c0 * dt
-        ny = py + v * s0 * dt
-        F[0, 2] = -v * s0 * dt
-        F[0, 3] = c0 * dt
-        F[0, 4] = -0.5 * v * s0 * dt * dt
-        F[1, 2] = v * c0 * dt
-        F[1, 3] = s0 * dt
-        F[1, 4] = 0.5 * v * c0 * dt * dt
+    F[0, 2] = -v * dt * ay
+    F[1, 2] = v * dt * ax
+    F[0, 3] = dt * ax
+    F[1, 3] = dt * ay
+    F[0, 4] = v * dt * dt * (c0 * g1 - s0 * g2)
+    F[1, 4] = v * dt * dt * (s0 * g1 + c0 * g2)
     F[2, 4] = dt
     xn = np.array([nx, ny, _wrap(th), v, om])
     h = 0.5 * dt * dt
