@@ -58,3 +58,13 @@ def test_same_seed_same_numbers(tmp_path):
 def test_cli_rejects_bad_args():
     with pytest.raises(SystemExit):
         study.main(["--n-mc", "0"])
+
+
+def test_best_triple_is_the_largest_triangle():
+    from sim.ultrasonic import load_receivers
+
+    names, rec = load_receivers("flight")
+    i, j, k = study.best_triple(rec)
+    area = 0.5 * np.linalg.norm(np.cross(rec[j] - rec[i], rec[k] - rec[i]))
+    assert {names[i], names[j], names[k]} == {"R43", "R44", "R45"}
+    assert area == pytest.approx(0.5 * 1.2954 * 1.08052, rel=1e-3)
