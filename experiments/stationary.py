@@ -445,7 +445,7 @@ def real_log_table(root: Path) -> pd.DataFrame:
     for f in files:
         fx = read_log(f)
         skips = {k: v for k, v in fx.skipped.items() if v and k != "other_sentences"}
-        row = {"log": str(f.relative_to(root)), "fixes": int(fx.valid.sum()), "epochs": math.nan,
+        row = {"log": str(f.relative_to(root)), "fixes": int(fx.valid.sum()), "epochs": pd.NA,
                "duration_s": math.nan, "missing": math.nan, "std_east_m": math.nan,
                "std_north_m": math.nan, "tau_east_s": math.nan, "tau_north_s": math.nan,
                "skipped": ", ".join(f"{k} {v}" for k, v in skips.items())}
@@ -460,7 +460,9 @@ def real_log_table(root: Path) -> pd.DataFrame:
                 phi = ar1_fit(x[:, a])[1]
                 row[f"tau_{ax}_s"] = float(-dt / math.log(phi)) if 0 < phi < 1 else math.nan
         rows.append(row)
-    return pd.DataFrame(rows)
+    tab = pd.DataFrame(rows)
+    tab["epochs"] = tab["epochs"].astype("Int64")
+    return tab
 
 
 # --------------------------------------------------------------------------- CLI

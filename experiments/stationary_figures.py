@@ -15,7 +15,7 @@ import numpy as np
 from estimator.configuration import SensorConfig
 from sim.gps import StationarySession
 
-DPI = 70
+DPI = 60
 
 
 def _grid(k: int, ncols: int = 4, size: tuple[float, float] = (3.2, 2.4)):
@@ -26,9 +26,9 @@ def _grid(k: int, ncols: int = 4, size: tuple[float, float] = (3.2, 2.4)):
     return fig, axes.ravel()
 
 
-def _save(fig, path: Path) -> None:
+def _save(fig, path: Path, dpi: int = DPI) -> None:
     fig.tight_layout()
-    fig.savefig(path, dpi=DPI)
+    fig.savefig(path, dpi=dpi)
     plt.close(fig)
 
 
@@ -58,7 +58,7 @@ def plot_all(out: Path, session: StationarySession, config: SensorConfig | None,
     fig, axs = _grid(len(alive), size=(2.8, 2.8))
     for ax, j in zip(axs, alive):
         x = session.obs[:, j]
-        ax.plot(x[:, 0], x[:, 1], ".", ms=1, alpha=0.4)
+        ax.plot(x[::2, 0], x[::2, 1], ".", ms=1, alpha=0.4, rasterized=True)
         if truth is not None:
             ax.plot(*truth[j], "kx", ms=8, mew=2)
         ax.set_aspect("equal", "datalim")
@@ -73,12 +73,12 @@ def plot_all(out: Path, session: StationarySession, config: SensorConfig | None,
         fig, axs = _grid(len(pairs), ncols=6, size=(2.6, 1.9))
         for ax, (a, b) in zip(axs, pairs):
             d = np.linalg.norm(session.obs[:, a] - session.obs[:, b], axis=-1)
-            ax.plot(t, d, lw=0.4)
+            ax.plot(t[::3], d[::3], lw=0.4)
             ax.axhline(D[a, b], color="red", lw=1)
             ax.set_title(f"{names[a]}-{names[b]} (a={D[a, b]:.2f} m)", fontsize=8)
             ax.tick_params(labelsize=6)
         fig.suptitle("Figs 4.4-4.6: distance between two sensors vs time (red: configured)")
-        _save(fig, out / "fig4_04_06_pairwise_distances.png")
+        _save(fig, out / "fig4_04_06_pairwise_distances.png", dpi=45)
 
     # Figs 4.7-4.8: normal probability plots
     from scipy import stats
@@ -123,7 +123,7 @@ def plot_all(out: Path, session: StationarySession, config: SensorConfig | None,
         fig, axs = _grid(len(est), ncols=4, size=(3.0, 3.0))
         for ax, e in zip(axs, est):
             for j in alive:
-                ax.plot(*session.obs[::5, j].T, ".", ms=0.5, alpha=0.15, color="grey")
+                ax.plot(*session.obs[::10, j].T, ".", ms=0.5, alpha=0.15, color="grey")
             _config_poly(ax, e.positions, alive, "C1", "estimate")
             if truth is not None:
                 _config_poly(ax, truth, alive, "k", "truth")
@@ -154,13 +154,13 @@ def plot_all(out: Path, session: StationarySession, config: SensorConfig | None,
                 ax = axs[r_, c_]
                 pos = windows[(sch, s)]
                 for j in alive:
-                    ax.plot(*pos[::3, j].T, ".", ms=0.6, alpha=0.3)
+                    ax.plot(*pos[::10, j].T, ".", ms=0.8, alpha=0.3)
                 if truth is not None:
                     ax.plot(*truth[alive].T, "kx", ms=5)
                 ax.set_aspect("equal", "datalim")
                 ax.set_title(f"{sch}, window {s}", fontsize=8)
         fig.suptitle("Figs 4.25-4.33: sliding-window estimates (x = truth)")
-        _save(fig, out / "fig4_25_33_windows.png")
+        _save(fig, out / "fig4_25_33_windows.png", dpi=45)
 
 
 def _config_poly(ax, pos: np.ndarray, alive: list[int], color: str, label: str) -> None:

@@ -21,7 +21,8 @@ Error model (per axis, per receiver i, sample k; all components independent)::
 
     e_i[k] = c[k] + s_i * r_i[k] + w_i[k] + b_i + p_i[k] + o_i[k]
 
-    c    common-mode first-order Gauss-Markov, std sigma_m * sqrt(common_fraction), tau common_tau_s
+    c    common-mode Gauss-Markov of order gm_order (1 = AR(1), 2 = smooth), std
+         sigma_m * sqrt(common_fraction), pole time constant common_tau_s
     r_i  per-receiver Gauss-Markov, std sigma_m * sqrt(1 - common_fraction), tau receiver_tau_s
     s_i  per-receiver scale, lognormal: exp(N(0, receiver_sigma_spread^2)) (median 1)
     w_i  per-receiver white noise, N(0, white_sigma_m^2) (sample-to-sample jitter)
@@ -258,6 +259,7 @@ _FIELD_DOCS = {
     "common_tau_s": "correlation time of the common-mode Gauss-Markov process, s",
     "receiver_tau_s": "correlation time of the per-receiver Gauss-Markov process, s",
     "receiver_sigma_spread": "log-std of the per-receiver scale on the per-receiver part, -",
+    "gm_order": "order of both Gauss-Markov processes: 1 (AR(1)) or 2 (smooth), -",
     "white_sigma_m": "per-axis std of per-receiver white noise, m",
     "bias_sigma_m": "per-axis std of each receiver's constant bias, m",
     "step_rate_per_h": "plateau transitions per receiver per hour",
@@ -288,7 +290,8 @@ class GpsNoiseModel:
     common_tau_s: float = 600.0
     receiver_tau_s: float = 120.0
     receiver_sigma_spread: float = 0.3
-    white_sigma_m: float = 0.05
+    gm_order: int = 2
+    white_sigma_m: float = 0.03
     bias_sigma_m: float = 0.5
     step_rate_per_h: float = 4.0
     step_sigma_m: float = 0.5
@@ -307,7 +310,7 @@ class GpsNoiseModel:
     def __post_init__(self) -> None:
         object.__setattr__(self, "dead", tuple(str(d) for d in self.dead))
         for f in dataclasses.fields(self):
-            if f.name in ("dead", "name", "description"):
+            if f.name in ("dead", "name", "description", "gm_order"):
                 continue
             v = getattr(self, f.name)
             if isinstance(v, bool) or not isinstance(v, (int, float, np.integer, np.floating)) \
@@ -329,6 +332,9 @@ class GpsNoiseModel:
             raise GpsModelError(f"outlier_rate: must be in [0, 1], got {self.outlier_rate!r}")
         if not 0.0 <= self.missing_fraction < 1.0:
             raise GpsModelError(f"missing_fraction: must be in [0, 1), got {self.missing_fraction!r}")
+        if isinstance(self.gm_order, bool) or self.gm_order not in (1, 2):
+            raise GpsModelError(f"gm_order: must be 1 or 2, got {self.gm_order!r}")
+        object.__setattr__(self, "gm_order", int(self.gm_order))
         if len(set(self.dead)) != len(self.dead):
             raise GpsModelError(f"dead: duplicate names in {list(self.dead)!r}")
 
@@ -397,22 +403,33 @@ class GpsNoiseModel:
 
 # --------------------------------------------------------------------------- generators
 def gauss_markov(n: int, shape: tuple[int, ...], sigma: float | np.ndarray, tau_s: float,
-                 dt_s: float, rng: np.random.Generator) -> np.ndarray:
-    """Stationary first-order Gauss-Markov (AR(1)) sequences, shape (n, *shape).
+                 dt_s: float, rng: np.random.Generator, order: int = 1) -> np.ndarray:
+    """Stationary Gauss-Markov sequences of order 1 or 2, shape (n, *shape), std ``sigma``.
 
-    x[k] = phi x[k-1] + sigma sqrt(1 - phi^2) w[k], phi = exp(-dt/tau), x[0] ~ N(0, sigma^2);
-    the discrete form of dx = -x/tau dt + sigma sqrt(2/tau) dW (the dissertation's Eq. 2.2
-    AR(1) with delta = 0). ``sigma`` broadcasts against ``shape``. Vectorized with
-    scipy.signal.lfilter along axis 0.
+    Order 1 (AR(1)): x[k] = phi x[k-1] + sigma sqrt(1 - phi^2) w[k], phi = exp(-dt/tau),
+    x[0] ~ N(0, sigma^2): the discrete form of dx = -x/tau dt + sigma sqrt(2/tau) dW, the
+    dissertation's Eq. 2.2 AR(1) with delta = 0. ACF rho(k) = phi^k.
+    Order 2 (critically damped, two equal poles at phi): the order-1 sequence filtered once
+    more by g / (1 - phi B), g = (1 - phi^2) / sqrt(1 + phi^2) so the variance stays sigma^2;
+    ACF rho(k) = phi^k (1 + k (1 - phi^2) / (1 + phi^2)); smooth (differentiable) paths, so
+    an AR(1) fit leaves autocorrelated residuals. Started stationary by a burn-in of
+    ceil(12 tau / dt) samples (phi^burn = e^-12).
+    ``sigma`` broadcasts against ``shape``. Vectorized with scipy.signal.lfilter on axis 0.
     """
     if n < 1:
         raise ValueError(f"n: must be >= 1, got {n!r}")
     if not tau_s > 0 or not dt_s > 0:
         raise ValueError(f"tau_s and dt_s: must be > 0, got tau_s={tau_s!r}, dt_s={dt_s!r}")
+    if order not in (1, 2):
+        raise ValueError(f"order: must be 1 or 2, got {order!r}")
     phi = math.exp(-dt_s / tau_s)
-    w = rng.standard_normal((n, *shape))
+    burn = 0 if order == 1 else math.ceil(12.0 * tau_s / dt_s)
+    w = rng.standard_normal((n + burn, *shape))
     w[1:] *= math.sqrt(max(1.0 - phi * phi, 0.0))
     x = lfilter([1.0], [1.0, -phi], w, axis=0)
+    if order == 2:
+        g = (1.0 - phi * phi) / math.sqrt(1.0 + phi * phi)
+        x = lfilter([g], [1.0, -phi], x, axis=0)[burn:]
     return x * np.asarray(sigma, dtype=float)
 
 
@@ -492,11 +509,12 @@ def receiver_errors(model: GpsNoiseModel, m: int, n: int, dt_s: float,
     Returns ``(errors, drawn)`` with ``drawn`` holding the per-receiver scales, biases and
     plateau transition counts and the outlier count (for reports and tests).
     """
-    common = gauss_markov(n, (1, 2), model.sigma_common_m, model.common_tau_s, dt_s, rng)
+    common = gauss_markov(n, (1, 2), model.sigma_common_m, model.common_tau_s, dt_s, rng,
+                          order=model.gm_order)
     scale = np.exp(rng.normal(0.0, model.receiver_sigma_spread, size=m)) \
         if model.receiver_sigma_spread > 0 else np.ones(m)
     indep = gauss_markov(n, (m, 2), model.sigma_receiver_m * scale[:, None], model.receiver_tau_s,
-                         dt_s, rng)
+                         dt_s, rng, order=model.gm_order)
     white = rng.normal(0.0, model.white_sigma_m, size=(n, m, 2)) if model.white_sigma_m > 0 else 0.0
     bias = rng.normal(0.0, model.bias_sigma_m, size=(m, 2)) if model.bias_sigma_m > 0 else np.zeros((m, 2))
     plateau, steps = _plateaus(n, m, dt_s, model.step_rate_per_h, model.step_sigma_m,

@@ -294,7 +294,7 @@ def _handle_sentence(sentence: str, skipped: dict, talkers: dict, records: list[
             return
         lat, lon = la, lo
     records.append({"tod": tod, "date": rec_date, "lat": lat, "lon": lon, "quality": quality,
-                    "type": stype})
+                    "type": head})
 
 
 def _merge_epochs(t: np.ndarray, lat: np.ndarray, lon: np.ndarray, q: np.ndarray,
@@ -320,7 +320,8 @@ def _merge_epochs(t: np.ndarray, lat: np.ndarray, lon: np.ndarray, q: np.ndarray
         elif round(ti, 6) in seen_epochs:
             skipped["duplicate_epochs"] += 1
         else:
-            # a second GGA (or RMC) in the same epoch group is a repeat
+            # a second GGA (or RMC) of the same talker in one epoch group is a repeat
+            # (GPGGA + GLGGA + GNGGA of one epoch, as SiRFstarV sends, are not)
             skipped["duplicate_epochs"] += (j - i + 1) - len(set(types[i:j + 1]))
             seen_epochs.add(round(ti, 6))
             if valid.any():

@@ -26,6 +26,7 @@ CFG = SensorConfig.load("rover_gps8")
 
 # A model with every component switched off; tests switch on one component at a time.
 QUIET = GpsNoiseModel(sigma_m=0.0, common_fraction=0.0, receiver_sigma_spread=0.0, white_sigma_m=0.0,
+                      gm_order=1,
                       bias_sigma_m=0.0, step_rate_per_h=0.0, step_sigma_m=0.0,
                       outlier_rate=0.0, missing_fraction=0.0, power_failure_duration_s=0.0)
 
@@ -95,6 +96,52 @@ def test_gauss_markov_recovers_sigma_and_tau():
     tau_hat = -1.0 / math.log(phi_hat)
     se_tau = tau**2 / phi * math.sqrt((1 - phi**2) / N_LONG / 16)
     assert abs(tau_hat - tau) < 4 * se_tau
+
+
+def _bartlett_var_r(rho: np.ndarray, h: int, n: int) -> float:
+    """Bartlett's large-sample variance of the lag-h sample autocorrelation, from the true
+    ACF rho[0..K] (zero beyond K); Box, Jenkins & Reinsel, Time Series Analysis, Eq. 2.1.13."""
+    K = len(rho) - 1
+
+    def at(k):
+        k = np.abs(k)
+        return np.where(k <= K, rho[np.minimum(k, K)], 0.0)
+
+    k = np.arange(-K, K + 1)
+    rh = rho[h]
+    terms = at(k + h) ** 2 + at(k - h) * at(k + h) + 2 * rh**2 * at(k) ** 2 - 4 * rh * at(k) * at(k + h)
+    return float(terms.sum() / n)
+
+
+def _acf2(k: np.ndarray | int, tau: float) -> np.ndarray:
+    """ACF of the order-2 (double pole) Gauss-Markov process at 1 Hz."""
+    phi = math.exp(-1.0 / tau)
+    return phi**k * (1 + k * (1 - phi**2) / (1 + phi**2))
+
+
+def test_second_order_gauss_markov_recovers_sigma_and_tau():
+    from scipy.optimize import brentq
+
+    sigma, tau = 1.3, 30.0
+    n, series = N_LONG, 16
+    x = gauss_markov(n, (series,), sigma, tau, 1.0, np.random.default_rng(11), order=2)
+    rho = _acf2(np.arange(0, int(40 * tau)), tau)
+    # variance: Var(s^2) ~ 2 sigma^4 / n * sum_k rho(k)^2 (Bartlett), pooled; 4 se
+    rel_var_se = math.sqrt(2.0 / n * (2 * (rho**2).sum() - 1) / series)
+    assert abs(math.sqrt(x.var(axis=0).mean()) / sigma - 1.0) < 4 * 0.5 * rel_var_se
+    # tau from the autocorrelation at lag L = tau (known zero mean: the generator's), solved
+    # from the closed-form ACF; se by Bartlett and the delta method; 4 se. (Lag 1 is a poor
+    # choice: tau ~ (1 - r1)^(-1/2) magnifies the O(1/n) bias of r1.)
+    L = int(tau)
+    rL = ((x[L:] * x[:-L]).sum(axis=0) / (x * x).sum(axis=0)).mean()
+    tau_hat = brentq(lambda tt: _acf2(L, tt) - rL, 1.0, 1000.0)
+    h = 1e-4
+    drho_dtau = (_acf2(L, tau + h) - _acf2(L, tau - h)) / (2 * h)
+    se_tau = math.sqrt(_bartlett_var_r(rho, L, n) / series) / abs(drho_dtau)
+    assert abs(tau_hat - tau) < 4 * se_tau
+    # smooth paths: steps far below the order-1 process with the same sigma and tau
+    x1 = gauss_markov(n, (series,), sigma, tau, 1.0, np.random.default_rng(12), order=1)
+    assert np.diff(x, axis=0).std() < 0.2 * np.diff(x1, axis=0).std()
 
 
 def test_session_recovers_common_and_receiver_split():
