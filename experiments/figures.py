@@ -1,0 +1,383 @@
+"""Figures of a sweep, drawn from its saved files only (re-plotting never re-simulates).
+
+``python -m experiments.figures results/thesis`` redraws every figure of a results folder
+from ``cells.parquet``, the table CSVs and the per-epoch files in ``epochs/``. The figures
+follow the GPS dissertation (000_8f82f8df647bf685.txt):
+
+- ``fig_weights_<path>.png``: box plots of |x| and |y| CG error per window and weighting
+  (none / random / Huff), Figs 4.114-4.117 (panel a all windows, panel b windows <= 10);
+- ``fig_4_118_orientation.png``: heading against time per window, Fig 4.118;
+- ``fig_4_119_orientation_box.png``: heading error per window, Fig 4.119;
+- ``fig_4_120_121_lag_correction.png``: none vs LC, full path and no turns, Figs 4.120/4.121;
+- ``fig_4_122_dynamic.png``: static vs dynamic window (Huff), Fig 4.122;
+- ``fig_4_123_lc_dyn.png``: none / LC / Dyn / LC + Dyn (Huff), Fig 4.123;
+- ``fig_beyond.png``: the dissertation's techniques beside the beyond-the-thesis trackers;
+- ``fig_overlay_<path>_w<window>.png``: truth, observations and estimates of sensor 1 and
+  the CG along the path, Figs 4.34-4.49 style;
+- ``fig_sensor1_lag_<path>.png``: sensor 1 x and y against time at windows 10 and 100 with a
+  magnified stretch, Figs 4.50-4.53 (the lag);
+- ``fig_tables.png``: Tables 4.1/4.2 as a chart, ours (mean and 95 % interval over seeds)
+  beside the published values.
+
+Box plots pool the per-epoch errors of the seeds whose per-epoch files the spec kept
+(the dissertation's box plots are one run); the seeds are named in each title.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+from pathlib import Path
+
+import matplotlib
+
+matplotlib.use("Agg")
+import matplotlib.pyplot as plt
+import numpy as np
+import pandas as pd
+
+__all__ = ["draw_all", "load_epochs", "main"]
+
+PATH_LABELS = {"square100": "Path 1", "square200": "Path 2"}
+WEIGHT_COLORS = {"none": "#1f77b4", "random": "#7f7f7f", "huff": "#d62728"}
+TECH_COLORS = {"none": "#1f77b4", "lc": "#ff7f0e", "dyn": "#2ca02c", "lc+dyn": "#9467bd",
+               "motion_compensated": "#8c564b", "ekf": "#e377c2", "naive": "#7f7f7f"}
+TECH_LABELS = {"none": "None", "lc": "LC", "dyn": "Dyn SW", "lc+dyn": "LC+Dyn",
+               "motion_compensated": "Motion-comp.", "ekf": "EKF", "naive": "Naive"}
+
+
+class _Epochs:
+    """Index of a results folder's per-epoch files, loaded lazily."""
+
+    def __init__(self, out: Path):
+        self.out = Path(out)
+        from experiments.tables import variants
+
+        cells = pd.read_parquet(self.out / "cells.parquet")
+        # several variants (e.g. two configurations): the figures show the first one
+        self.variant, cells = variants(cells)[0]
+        idx = cells[cells["has_epochs"]] if "has_epochs" in cells else cells.iloc[:0]
+        self.index = idx.drop_duplicates("key").reset_index(drop=True)
+        self._cache: dict[str, pd.DataFrame] = {}
+
+    def find(self, **where) -> pd.DataFrame:
+        mk = np.ones(len(self.index), dtype=bool)
+        for k, v in where.items():
+            col = self.index[k]
+            mk &= col.isin(v).to_numpy() if isinstance(v, (list, tuple)) else (col == v).to_numpy()
+        return self.index[mk]
+
+    def load(self, key: str) -> pd.DataFrame:
+        if key not in self._cache:
+            self._cache[key] = pd.read_parquet(self.out / "epochs" / f"{key}.parquet")
+        return self._cache[key]
+
+    def pooled(self, column: str, mask: str = "full", **where) -> tuple[np.ndarray, list[int]]:
+        """Concatenated |column| over the matching cells' epochs (all saved seeds)."""
+        rows = self.find(**where)
+        vals, seeds = [], []
+        for _, r in rows.iterrows():
+            ep = self.load(r["key"])
+            v = np.abs(ep[column].to_numpy(dtype=float))
+            if mask == "no_turns":
+                v = v[~ep["truth_turning"].to_numpy(dtype=bool)]
+            vals.append(v[np.isfinite(v)])
+            seeds.append(int(r["seed"]))
+        return (np.concatenate(vals) if vals else np.array([])), sorted(set(seeds))
+
+
+def load_epochs(out_dir: str | Path, key: str) -> pd.DataFrame:
+    """The per-epoch table of one cell (estimates, truth, errors, observations)."""
+    return pd.read_parquet(Path(out_dir) / "epochs" / f"{key}.parquet")
+
+
+def _seeds_txt(seeds: list[int]) -> str:
+    if not seeds:
+        return ""
+    return f"seed {seeds[0]}" if len(seeds) == 1 else f"seeds {seeds[0]}-{seeds[-1]} pooled"
+
+
+def _boxes(ax, groups: list[tuple[str, np.ndarray, str]], ylabel: str) -> None:
+    data = [g[1] if g[1].size else np.array([np.nan]) for g in groups]
+    bp = ax.boxplot(data, patch_artist=True, widths=0.6,
+                    flierprops={"marker": ".", "markersize": 2, "alpha": 0.4})
+    for patch, (_, _, color) in zip(bp["boxes"], groups):
+        patch.set_facecolor(color)
+        patch.set_alpha(0.55)
+    ax.set_xticks(range(1, len(groups) + 1), [g[0] for g in groups], fontsize=8)
+    ax.set_ylabel(ylabel)
+    ax.grid(axis="y", alpha=0.3)
+
+
+def _save(fig, path: Path, written: list[Path]) -> None:
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+    written.append(path)
+
+
+def _weighting_figs(E: _Epochs, out: Path, written: list[Path]) -> None:
+    for path in sorted(E.index["path"].unique()):
+        sub = E.find(path=path, technique="none")
+        weights = [w for w in ("none", "random", "huff") if w in set(sub["weighting"])]
+        windows = sorted(sub["window"].unique())
+        if not weights or not windows:
+            continue
+        small = [w for w in windows if w <= 10]
+        fig, axes = plt.subplots(2, 2 if small and len(small) < len(windows) else 1,
+                                 figsize=(13, 8), squeeze=False)
+        seeds_all: list[int] = []
+        for r, axis in enumerate(("x", "y")):
+            for c, wins in enumerate([windows, small][:axes.shape[1]]):
+                groups = []
+                for w in wins:
+                    for wt in weights:
+                        v, s = E.pooled(f"err_{axis}", path=path, technique="none", window=w,
+                                        weighting=wt)
+                        seeds_all += s
+                        groups.append((f"w={w}\n{wt}", v, WEIGHT_COLORS.get(wt, "C0")))
+                _boxes(axes[r, c], groups, f"|{axis}| CG error (m)")
+                axes[r, c].set_title(f"({'ab'[c]}) |{axis}|, windows "
+                                     f"{wins[0]}-{wins[-1]}: no / random / Huff weights",
+                                     fontsize=10)
+        fig.suptitle(f"{PATH_LABELS.get(path, path)} ({path}): CG error by window and weighting "
+                     f"(Figs 4.114-4.117), {_seeds_txt(sorted(set(seeds_all)))}")
+        _save(fig, out / f"fig_weights_{path}.png", written)
+
+
+def _path1(E: _Epochs) -> str | None:
+    ps = list(E.index["path"].unique())
+    return "square100" if "square100" in ps else (ps[0] if ps else None)
+
+
+def _pick(E: _Epochs, **where) -> pd.Series | None:
+    rows = E.find(**where)
+    if rows.empty:
+        return None
+    return rows.sort_values("seed").iloc[0]
+
+
+def _orientation_figs(E: _Epochs, out: Path, written: list[Path]) -> None:
+    path = _path1(E)
+    if path is None:
+        return
+    wt = "none" if not E.find(path=path, technique="none", weighting="none").empty else "huff"
+    windows = sorted(E.find(path=path, technique="none", weighting=wt)["window"].unique())
+    if not windows:
+        return
+    fig, axes = plt.subplots(len(windows), 1, figsize=(12, 2.4 * len(windows)), sharex=True,
+                             squeeze=False)
+    for ax, w in zip(axes[:, 0], windows):
+        r = _pick(E, path=path, technique="none", weighting=wt, window=w)
+        ep = E.load(r["key"])
+        ax.plot(ep["t"], np.degrees(ep["truth_yaw"]), color="k", lw=1.5)
+        ax.plot(ep["t"], np.degrees(ep["yaw"]), color="C3", lw=0.8, alpha=0.8)
+        ax.text(1.005, 0.75, "truth", color="k", transform=ax.transAxes, fontsize=9)
+        ax.text(1.005, 0.45, f"estimate\nw={w}", color="C3", transform=ax.transAxes, fontsize=9)
+        ax.set_ylabel("heading (deg)")
+        ax.set_ylim(-190, 190)
+        ax.set_yticks([-180, -90, 0, 90, 180])
+        ax.grid(alpha=0.3)
+        ax.set_title(f"window {w}", fontsize=9, loc="left")
+    axes[-1, 0].set_xlabel("time (s)")
+    fig.suptitle(f"{PATH_LABELS.get(path, path)}: orientation against time (Fig 4.118), "
+                 f"{wt} weights, seed {int(r['seed'])}")
+    _save(fig, out / "fig_4_118_orientation.png", written)
+
+    fig, ax = plt.subplots(figsize=(8, 4.5))
+    groups, seeds = [], []
+    for w in windows:
+        v, s = E.pooled("err_yaw", path=path, technique="none", weighting=wt, window=w)
+        seeds += s
+        groups.append((f"w={w}", np.degrees(v), "C0"))
+    _boxes(ax, groups, "|heading error| (deg)")
+    ax.set_title(f"{PATH_LABELS.get(path, path)}: orientation error per window (Fig 4.119), "
+                 f"{wt} weights, {_seeds_txt(sorted(set(seeds)))}", fontsize=10)
+    _save(fig, out / "fig_4_119_orientation_box.png", written)
+
+
+def _technique_fig(E: _Epochs, out: Path, written: list[Path], name: str, title: str,
+                   techs: list[str], masks: list[str]) -> None:
+    path = _path1(E)
+    if path is None:
+        return
+    wt = "huff" if not E.find(path=path, technique=techs[1:], weighting="huff").empty else "none"
+    present = [t for t in techs if not E.find(path=path, technique=t).empty]
+    if len(present) < 2:
+        return
+    windows = sorted(w for w in E.find(path=path, technique=present[1:])["window"].unique()
+                     if w > 1)
+    if not windows:
+        return
+    fig, axes = plt.subplots(2, len(masks), figsize=(6.5 * len(masks) + 1.5, 8), squeeze=False)
+    seeds: list[int] = []
+    for r, axis in enumerate(("x", "y")):
+        for c, mask in enumerate(masks):
+            groups = []
+            for w in windows:
+                for t in present:
+                    kw = {"weighting": [wt, "-"]}
+                    v, s = E.pooled(f"err_{axis}", mask=mask, path=path, technique=t, window=w,
+                                    **kw)
+                    seeds += s
+                    groups.append((f"w={w}\n{TECH_LABELS[t]}", v, TECH_COLORS[t]))
+            _boxes(axes[r, c], groups, f"|{axis}| CG error (m)")
+            axes[r, c].set_title(f"|{axis}|, {'full path' if mask == 'full' else 'no turns'}",
+                                 fontsize=10)
+    fig.suptitle(f"{PATH_LABELS.get(path, path)}: {title}, {wt} weights, "
+                 f"{_seeds_txt(sorted(set(seeds)))}")
+    _save(fig, out / name, written)
+
+
+def _overlay_figs(E: _Epochs, out: Path, written: list[Path]) -> None:
+    for path in sorted(E.index["path"].unique()):
+        wt = "none" if not E.find(path=path, technique="none", weighting="none").empty else "huff"
+        windows = sorted(E.find(path=path, technique="none", weighting=wt)["window"].unique())
+        for w in sorted({windows[0], windows[-1]}) if windows else []:
+            r = _pick(E, path=path, technique="none", weighting=wt, window=w)
+            ep = E.load(r["key"])
+            s1 = _sensor1(ep)
+            fig, ax = plt.subplots(figsize=(8.5, 8))
+            ax.plot(ep[f"obs_{s1}_x"], ep[f"obs_{s1}_y"], ".", color="#9467bd", ms=2, alpha=0.5,
+                    label=f"sensor {s1} observed")
+            ax.plot(ep[f"x_{s1}"], ep[f"y_{s1}"], color="C0", lw=0.9,
+                    label=f"sensor {s1} estimate")
+            ax.plot(ep["cg_x"], ep["cg_y"], color="C2", lw=0.9, label="CG estimate")
+            ax.plot(ep["truth_cg_x"], ep["truth_cg_y"], color="C3", lw=1.6, label="CG truth")
+            ax.set_aspect("equal")
+            ax.set_xlabel("x east (m)")
+            ax.set_ylabel("y north (m)")
+            ax.grid(alpha=0.3)
+            ax.legend(loc="center", frameon=True, fontsize=9)   # the square's empty middle
+            ax.set_title(f"{PATH_LABELS.get(path, path)}: truth, observations and estimates, "
+                         f"window {w}, {wt} weights, seed {int(r['seed'])} (Figs 4.34-4.49)",
+                         fontsize=10)
+            _save(fig, out / f"fig_overlay_{path}_w{w}.png", written)
+
+
+def _sensor1(ep: pd.DataFrame) -> str:
+    names = [c[2:] for c in ep.columns if c.startswith("x_")]
+    return "1" if "1" in names else names[0]
+
+
+def _sensor1_lag_figs(E: _Epochs, out: Path, written: list[Path]) -> None:
+    for path in sorted(E.index["path"].unique()):
+        wt = "none" if not E.find(path=path, technique="none", weighting="none").empty else "huff"
+        windows = sorted(E.find(path=path, technique="none", weighting=wt)["window"].unique())
+        wins = [w for w in (10, 100) if w in windows] or windows[-2:]
+        if not wins:
+            continue
+        fig, axes = plt.subplots(2, len(wins), figsize=(7 * len(wins), 7.5), squeeze=False)
+        for c, w in enumerate(wins):
+            r = _pick(E, path=path, technique="none", weighting=wt, window=w)
+            ep = E.load(r["key"])
+            s1 = _sensor1(ep)
+            for rr, axis in enumerate(("x", "y")):
+                ax = axes[rr, c]
+                t = ep["t"].to_numpy()
+                ax.plot(t, ep[f"obs_{s1}_{axis}"], ".", color="#9467bd", ms=2, alpha=0.5)
+                ax.plot(t, ep[f"truth_{s1}_{axis}"], color="C3", lw=1.5)
+                ax.plot(t, ep[f"{axis}_{s1}"], color="C0", lw=1.0)
+                ax.set_xlabel("time (s)")
+                ax.set_ylabel(f"sensor {s1} {axis} (m)")
+                ax.grid(alpha=0.3)
+                ax.set_title(f"window {w}: sensor {s1} {axis} vs time", fontsize=10)
+                # magnified stretch: the steepest 15 % of the run (a straight leg)
+                k = len(t)
+                if k > 20:
+                    span = max(10, k // 7)
+                    slope = np.abs(np.gradient(ep[f"truth_{s1}_{axis}"].to_numpy()))
+                    sm = np.convolve(slope, np.ones(span) / span, mode="valid")
+                    i0 = int(np.nanargmax(sm))
+                    sl = slice(i0, i0 + span)
+                    ins = ax.inset_axes([0.58, 0.06, 0.4, 0.38])
+                    ins.plot(t[sl], ep[f"obs_{s1}_{axis}"].to_numpy()[sl], ".", color="#9467bd",
+                             ms=2)
+                    ins.plot(t[sl], ep[f"truth_{s1}_{axis}"].to_numpy()[sl], color="C3", lw=1.5)
+                    ins.plot(t[sl], ep[f"{axis}_{s1}"].to_numpy()[sl], color="C0", lw=1.0)
+                    ins.set_title("magnified", fontsize=7)
+                    ins.tick_params(labelsize=6)
+                ax.text(0.01, 0.95, "truth", color="C3", transform=ax.transAxes, fontsize=9,
+                        va="top")
+                ax.text(0.01, 0.87, "estimate", color="C0", transform=ax.transAxes, fontsize=9,
+                        va="top")
+                ax.text(0.01, 0.79, "observed", color="#9467bd", transform=ax.transAxes,
+                        fontsize=9, va="top")
+        fig.suptitle(f"{PATH_LABELS.get(path, path)}: sensor {s1} against time, windows "
+                     f"{' and '.join(map(str, wins))}: the estimate trails the truth (lag, "
+                     f"Figs 4.50-4.53), {wt} weights, seed {int(r['seed'])}")
+        _save(fig, out / f"fig_sensor1_lag_{path}.png", written)
+
+
+def _tables_fig(out: Path, written: list[Path]) -> None:
+    files = [(ax, out / f"table_4_{n}.csv") for ax, n in (("x", 1), ("y", 2))]
+    if not all(f.exists() for _, f in files):
+        return
+    fig, axes = plt.subplots(1, 2, figsize=(14, 5.5))
+    for ax_plot, (axis, f) in zip(axes, files):
+        df = pd.read_csv(f)
+        df = df[df["window"] > 1]
+        labels = [f"w={w}\n{t}" for w, t in zip(df["window"], df["technique"])]
+        xs = np.arange(len(df))
+        yerr = np.vstack([df["mean"] - df["mean_lo"], df["mean_hi"] - df["mean"]])
+        yerr = np.where(np.isfinite(yerr), yerr, 0)
+        ax_plot.errorbar(xs, df["mean"], yerr=yerr, fmt="o", color="C0", capsize=3,
+                         label="ours: mean over seeds, 95 % CI")
+        ax_plot.plot(xs, df["mean_thesis"], "x", color="C3", ms=8, mew=2,
+                     label="dissertation (one run)")
+        ax_plot.set_xticks(xs, labels, rotation=90, fontsize=7)
+        ax_plot.set_yscale("log")
+        ax_plot.set_ylabel(f"mean |{axis}| CG error (m)")
+        ax_plot.grid(alpha=0.3, which="both")
+        ax_plot.set_title(f"Table 4.{1 if axis == 'x' else 2} (|{axis}|), "
+                          f"{df['weighting'].iloc[0]} weights", fontsize=10)
+        ax_plot.legend(fontsize=8, loc="upper left")
+    fig.suptitle("Tables 4.1/4.2 as a chart: ours (o, 95 % CI over seeds) vs published (x)")
+    _save(fig, out / "fig_tables.png", written)
+
+
+def draw_all(out_dir: str | Path) -> list[Path]:
+    """Draw every figure whose data the results folder holds; returns the files written."""
+    out = Path(out_dir)
+    written: list[Path] = []
+    E = _Epochs(out)
+    if not E.index.empty:
+        _weighting_figs(E, out, written)
+        _orientation_figs(E, out, written)
+        _technique_fig(E, out, written, "fig_4_120_121_lag_correction.png",
+                       "lag correction on the full path and without turns (Figs 4.120/4.121)",
+                       ["none", "lc"], ["full", "no_turns"])
+        _technique_fig(E, out, written, "fig_4_122_dynamic.png",
+                       "static vs dynamic window (Fig 4.122)", ["none", "dyn"], ["full"])
+        _technique_fig(E, out, written, "fig_4_123_lc_dyn.png",
+                       "lag correction combined with the dynamic window (Fig 4.123)",
+                       ["none", "lc", "dyn", "lc+dyn"], ["full"])
+        _technique_fig(E, out, written, "fig_beyond.png",
+                       "the dissertation's techniques and the beyond-the-thesis trackers",
+                       ["none", "lc+dyn", "motion_compensated", "ekf", "naive"], ["full"])
+        _overlay_figs(E, out, written)
+        _sensor1_lag_figs(E, out, written)
+    _tables_fig(out, written)
+    return written
+
+
+def main(argv: list[str] | None = None) -> int:
+    p = argparse.ArgumentParser(
+        prog="python -m experiments.figures",
+        description="Redraw the figures of a sweep results folder from its saved files "
+                    "(no simulation). Example: python -m experiments.figures results/thesis")
+    p.add_argument("results", help="results folder, e.g. results/thesis")
+    args = p.parse_args(argv)
+    out = Path(args.results)
+    if not (out / "cells.parquet").exists():
+        print(f"error: {out}/cells.parquet not found (run python -m experiments.sweep first)",
+              file=sys.stderr)
+        return 2
+    files = draw_all(out)
+    print(json.dumps([str(f) for f in files], indent=0))
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

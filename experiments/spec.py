@@ -1,0 +1,559 @@
+"""Declarative experiment specs: TOML files validated on load, expanded into a grid of cells.
+
+A spec names *what* to run (paths, sensor configurations, noise models, seeds, window sizes,
+weighting schemes, techniques, solvers, evaluation masks); :mod:`experiments.sweep` runs it.
+The axes are those of the GPS dissertation's moving-platform study
+(000_8f82f8df647bf685.txt, Sections 4.9-4.12): Path 1 / Path 2, sliding windows 1-100,
+no / random / Huff weights, lag correction (LC, Section 3.4.2), dynamic window (Dyn SW,
+Section 3.4.2.1) and their combination, scored on the full path and on the path without
+turns (Tables 4.1 and 4.2), plus the beyond-the-dissertation trackers.
+
+Format (every key validated; unknown keys and bad values raise :class:`SpecError` naming the
+field, e.g. ``grid[1].window[2]: must be a positive integer, got 0``)::
+
+    name = "thesis"                 # required; results go to results/<name>/
+    description = "..."             # optional
+    seed = 2013                     # spec seed: root of every random stream (default 0)
+    seeds = 10                      # number of seeds (0..n-1) or an explicit list [3, 7, 11]
+    masks = ["full", "no_turns"]    # evaluation masks (default both)
+    sim_seed = 0                    # seed handed to the simulator (default 0)
+    session_s = 4000                # length of each synthesized stationary session, s (4.1.1)
+
+    [defaults]                      # axis values used where a grid block does not set them
+    config = "rover_gps8"
+    noise = "gps_stationary"
+    solver = "procrustes"
+
+    [[grid]]                        # one block = the Cartesian product of its axes;
+    name = "weighting"              # the spec's cells are the union of all blocks
+    path = ["square100", "square200"]
+    window = [1, 5, 10, 100]
+    weighting = ["none", "random", "huff"]
+    technique = "none"
+
+    [epochs]                        # optional: keep per-epoch estimates for some cells
+    seeds = [0]                     # seed values (or "all")
+    where = { path = ["square100"] }   # optional filter on axis values
+
+Axes (scalar or list; the dict-valued ones take a table or a list of tables):
+
+- ``path``: name in ``models/paths/`` or a ``.toml`` file (relative to the spec file).
+- ``path_overrides``: table of path fields replacing the file's values (e.g. cruise speed).
+- ``config``: sensor configuration, name in ``models/configs/`` or a ``.toml`` file.
+- ``noise``: noise model name in ``models/noise/`` or a ``.toml`` file; ``"none"`` for
+  noise-free observations; ``"session:<file>"`` replays a saved stationary session.
+- ``noise_overrides``: table of noise-model fields (e.g. the common-mode split).
+- ``window`` (positive int), ``weighting`` (:data:`WEIGHTINGS`), ``technique``
+  (:data:`TECHNIQUES`), ``solver`` (:data:`SOLVERS`), ``dyn_window`` (small window of the
+  dynamic technique, default 1), ``turning`` ("controller" flag or estimate-based "detector").
+  Axes that do not apply to a technique are recorded as "-" (0 for ``dyn_window``): the
+  solver for motion_compensated / ekf / naive, the weighting for ekf / naive, and
+  dyn_window / turning for techniques without the dynamic window.
+
+Names resolve to files at load time, and each cell's identity includes a hash of the files'
+contents, so editing a configuration invalidates exactly the cells that used it.
+"""
+
+from __future__ import annotations
+
+import copy
+import hashlib
+import itertools
+import json
+import re
+import tomllib
+from collections.abc import Iterable
+from dataclasses import dataclass, field, replace
+from pathlib import Path
+from typing import Any
+
+__all__ = [
+    "AXES",
+    "MASKS",
+    "PRESETS_DIR",
+    "SOLVERS",
+    "TECHNIQUES",
+    "WEIGHTINGS",
+    "Cell",
+    "Spec",
+    "SpecError",
+    "available_presets",
+    "load_spec",
+]
+
+REPO = Path(__file__).resolve().parents[1]
+MODELS = REPO / "models"
+PRESETS_DIR = Path(__file__).resolve().parent / "presets"
+
+#: Weighting schemes (Section 3.3). "huff:<t>" is Huff with residual threshold t (4.8.2 uses 3.5).
+WEIGHTINGS = ("none", "random", "huff", "huff:3.5", "huber", "huff_huber")
+_HUFF_T = re.compile(r"^huff:(\d+(\.\d+)?)$")
+#: Techniques. Dissertation: none, lc (Section 3.4.2), dyn (3.4.2.1), lc+dyn (4.12.4).
+#: Beyond it (issue 5): motion-compensated window, constant-velocity EKF, naive CG average.
+TECHNIQUES = ("none", "lc", "dyn", "lc+dyn", "motion_compensated", "ekf", "naive")
+SOLVERS = ("procrustes", "slsqp", "ccp")
+MASKS = ("full", "no_turns")
+TURNING = ("controller", "detector")
+
+#: Techniques that do not use the window solver / take no weights / no dynamic window: the
+#: axis value is recorded as "-" (not applicable) so such cells are not duplicated.
+NO_SOLVER = ("motion_compensated", "ekf", "naive")
+NO_WEIGHTS = ("ekf", "naive")
+DYNAMIC = ("dyn", "lc+dyn")
+
+#: Every axis and its default when neither [defaults] nor a grid block sets it.
+AXES: dict[str, Any] = {
+    "path": None,             # required somewhere
+    "path_overrides": {},
+    "config": "rover_gps8",
+    "noise": "gps_stationary",
+    "noise_overrides": {},
+    "window": None,           # required somewhere
+    "weighting": "none",
+    "technique": "none",
+    "solver": "procrustes",
+    "dyn_window": 1,
+    "turning": "controller",
+}
+_DICT_AXES = ("path_overrides", "noise_overrides")
+_TOP = {"name", "description", "seed", "seeds", "masks", "sim_seed", "session_s", "defaults",
+        "grid", "epochs"}
+
+
+class SpecError(ValueError):
+    """A spec is invalid; the message names the file and the offending field."""
+
+
+# --------------------------------------------------------------------------- resources
+def _sha(path: Path) -> str:
+    return hashlib.sha256(path.read_bytes()).hexdigest()[:16]
+
+
+def _resolve(kind: str, value: str, base: Path, where: str) -> Path:
+    """Resolve a resource name to a file: ``models/<kind>/<name>.toml`` or a path."""
+    p = Path(value)
+    if p.suffix or "/" in value:
+        cand = p if p.is_absolute() else base / p
+        if not cand.is_file():
+            cand2 = REPO / p
+            if not p.is_absolute() and cand2.is_file():
+                return cand2.resolve()
+            raise SpecError(f"{where}: no such file {value!r} (looked in {base} and {REPO})")
+        return cand.resolve()
+    cand = MODELS / kind / f"{value}.toml"
+    if not cand.is_file():
+        known = sorted(q.stem for q in (MODELS / kind).glob("*.toml"))
+        raise SpecError(f"{where}: unknown {kind[:-1]} {value!r}; known: {known} "
+                        f"(add models/{kind}/{value}.toml or give a file path)")
+    return cand
+
+
+# --------------------------------------------------------------------------- cells
+@dataclass(frozen=True)
+class Cell:
+    """One point of the grid: a full set of axis values plus a seed.
+
+    ``key`` is a stable hash of everything that determines the cell's numbers (axis values,
+    seed, spec seed, simulator seed, and the contents of the files it names).
+    """
+
+    path: str
+    config: str
+    noise: str
+    window: int
+    weighting: str
+    technique: str
+    solver: str
+    seed: int
+    dyn_window: int = 0            # 0 = not applicable (technique without dynamic window)
+    turning: str = "-"
+    path_overrides: str = "{}"     # canonical JSON (hashable)
+    noise_overrides: str = "{}"
+    key: str = field(default="", compare=False)
+    files: tuple[tuple[str, str], ...] = field(default=(), compare=False, repr=False)
+
+    def params(self) -> dict[str, Any]:
+        """Axis values and seed as a flat dict (the cell's columns in cells.parquet)."""
+        return {"path": self.path, "config": self.config, "noise": self.noise,
+                "noise_overrides": self.noise_overrides, "path_overrides": self.path_overrides,
+                "window": self.window, "weighting": self.weighting, "technique": self.technique,
+                "solver": self.solver, "dyn_window": self.dyn_window, "turning": self.turning,
+                "seed": self.seed}
+
+    def file(self, kind: str) -> str | None:
+        """Resolved file for ``kind`` in {"path", "config", "noise"} (None for noise "none")."""
+        return dict(self.files).get(kind)
+
+    @property
+    def truth_key(self) -> tuple:
+        """Cells sharing this key share one simulated Truth."""
+        return (self.file("path"), self.path_overrides, self.file("config"))
+
+    @property
+    def noise_key(self) -> tuple:
+        """Cells sharing this key share one set of noisy observations."""
+        return (*self.truth_key, self.file("noise"), self.noise, self.noise_overrides, self.seed)
+
+
+def _canon(d: dict) -> str:
+    return json.dumps(d, sort_keys=True, separators=(",", ":"))
+
+
+# --------------------------------------------------------------------------- spec
+@dataclass(frozen=True)
+class Spec:
+    """A validated experiment spec (see the module docstring for the TOML format)."""
+
+    name: str
+    description: str
+    seed: int
+    seeds: tuple[int, ...]
+    masks: tuple[str, ...]
+    sim_seed: int
+    defaults: dict
+    grid: tuple[dict, ...]
+    epochs: dict | None
+    session_s: float = 4000.0
+    source: str = "<dict>"
+    base_dir: Path = REPO
+    raw: dict = field(default_factory=dict, repr=False)
+
+    # ---------------------------------------------------------------- construction
+    @classmethod
+    def from_dict(cls, data: dict, *, source: str = "<dict>", base_dir: Path | None = None
+                  ) -> Spec:
+        """Validate ``data`` (the TOML table) and build a Spec; errors name the field."""
+        base = Path(base_dir) if base_dir is not None else REPO
+        src = source
+        if not isinstance(data, dict):
+            raise SpecError(f"{src}: expected a table")
+        unknown = sorted(set(data) - _TOP)
+        if unknown:
+            raise SpecError(f"{src}: unknown key(s) {unknown}; allowed: {sorted(_TOP)}")
+        name = data.get("name")
+        if not isinstance(name, str) or not re.fullmatch(r"[A-Za-z0-9_.\-]+", name or ""):
+            raise SpecError(f"{src}: name: required, letters/digits/._- only, got {name!r}")
+        desc = data.get("description", "")
+        if not isinstance(desc, str):
+            raise SpecError(f"{src}: description: must be a string, got {desc!r}")
+        seed = data.get("seed", 0)
+        if not _is_int(seed) or seed < 0:
+            raise SpecError(f"{src}: seed: must be a non-negative integer, got {seed!r}")
+        sim_seed = data.get("sim_seed", 0)
+        if not _is_int(sim_seed) or sim_seed < 0:
+            raise SpecError(f"{src}: sim_seed: must be a non-negative integer, got {sim_seed!r}")
+        session_s = data.get("session_s", 4000.0)
+        if (not isinstance(session_s, (int, float)) or isinstance(session_s, bool)
+                or not 0 < session_s < float("inf")):
+            raise SpecError(f"{src}: session_s: must be a positive number of seconds, "
+                            f"got {session_s!r}")
+        seeds_raw = data.get("seeds", 1)
+        if _is_int(seeds_raw):
+            if seeds_raw < 1:
+                raise SpecError(f"{src}: seeds: count must be >= 1, got {seeds_raw!r}")
+            seeds = tuple(range(seeds_raw))
+        elif isinstance(seeds_raw, list) and seeds_raw:
+            for i, s in enumerate(seeds_raw):
+                if not _is_int(s) or s < 0:
+                    raise SpecError(f"{src}: seeds[{i}]: must be a non-negative integer, got {s!r}")
+            if len(set(seeds_raw)) != len(seeds_raw):
+                raise SpecError(f"{src}: seeds: duplicate values in {seeds_raw!r}")
+            seeds = tuple(int(s) for s in seeds_raw)
+        else:
+            raise SpecError(f"{src}: seeds: must be a count >= 1 or a non-empty list of "
+                            f"integers, got {seeds_raw!r}")
+        masks_raw = data.get("masks", list(MASKS))
+        masks = tuple(_as_list(masks_raw, f"{src}: masks"))
+        for i, mk in enumerate(masks):
+            if mk not in MASKS:
+                raise SpecError(f"{src}: masks[{i}]: unknown mask {mk!r}; allowed: {list(MASKS)}")
+        if len(set(masks)) != len(masks) or not masks:
+            raise SpecError(f"{src}: masks: must be non-empty without duplicates, got {masks!r}")
+
+        defaults = data.get("defaults", {})
+        if not isinstance(defaults, dict):
+            raise SpecError(f"{src}: defaults: must be a table")
+        defaults = {k: _check_axis(k, v, f"{src}: defaults.{k}", base, scalar=True)
+                    for k, v in defaults.items()}
+        grid_raw = data.get("grid")
+        if not isinstance(grid_raw, list) or not grid_raw:
+            raise SpecError(f"{src}: grid: at least one [[grid]] block is required")
+        grid = []
+        for gi, block in enumerate(grid_raw):
+            where = f"{src}: grid[{gi}]"
+            if not isinstance(block, dict):
+                raise SpecError(f"{where}: must be a table")
+            out: dict[str, Any] = {"name": block.get("name", f"grid{gi}")}
+            if not isinstance(out["name"], str):
+                raise SpecError(f"{where}.name: must be a string, got {out['name']!r}")
+            for k, v in block.items():
+                if k == "name":
+                    continue
+                vals = v if (isinstance(v, list)) else [v]
+                if not vals:
+                    raise SpecError(f"{where}.{k}: empty list")
+                out[k] = [_check_axis(k, x, f"{where}.{k}" + (f"[{i}]" if isinstance(v, list)
+                                                               else ""), base, scalar=True)
+                          for i, x in enumerate(vals)]
+            for req in ("path", "window"):
+                if req not in out and req not in defaults:
+                    raise SpecError(f"{where}.{req}: required (in the block or in [defaults])")
+            grid.append(out)
+        epochs = data.get("epochs")
+        if epochs is not None:
+            epochs = _check_epochs(epochs, f"{src}: epochs", base)
+        spec = cls(name=name, description=desc, seed=int(seed), seeds=seeds, masks=masks,
+                   sim_seed=int(sim_seed), defaults=defaults, grid=tuple(grid), epochs=epochs,
+                   session_s=float(session_s), source=src, base_dir=base, raw=data)
+        spec.expand()   # resolve every file now, so bad names fail at load time
+        return spec
+
+    # ---------------------------------------------------------------- grid
+    def expand(self) -> list[Cell]:
+        """All cells of the spec (union of the grid blocks, duplicates removed, stable order)."""
+        cells: dict[str, Cell] = {}
+        hashes: dict[tuple[str, str], str] = {}
+        checked: set = set()
+        for gi, block in enumerate(self.grid):
+            axes = {k: block.get(k, [self.defaults[k]] if k in self.defaults else [AXES[k]])
+                    for k in AXES}
+            names = list(axes)
+            for combo in itertools.product(*(axes[k] for k in names)):
+                v = dict(zip(names, combo))
+                tech = v["technique"]
+                if tech in NO_SOLVER:
+                    v["solver"] = "-"
+                if tech in NO_WEIGHTS:
+                    v["weighting"] = "-"
+                if tech not in DYNAMIC:
+                    v["dyn_window"], v["turning"] = 0, "-"
+                elif v["dyn_window"] > v["window"]:
+                    raise SpecError(f"{self.source}: grid[{gi}].dyn_window: {v['dyn_window']} "
+                                    f"exceeds window {v['window']} (the small window of the "
+                                    "dynamic technique must be <= the window)")
+                files = self._files(v, hashes, f"{self.source}: grid[{gi}]")
+                self._check_overrides(v, files, checked, f"{self.source}: grid[{gi}]")
+                for seed in self.seeds:
+                    cell = Cell(path=v["path"], config=v["config"], noise=v["noise"],
+                                window=int(v["window"]), weighting=v["weighting"],
+                                technique=v["technique"], solver=v["solver"], seed=int(seed),
+                                dyn_window=int(v["dyn_window"]), turning=v["turning"],
+                                path_overrides=_canon(v["path_overrides"]),
+                                noise_overrides=_canon(v["noise_overrides"]),
+                                files=tuple(sorted((k, p) for k, (p, _) in files.items())))
+                    ident = {"v": 1, "spec_seed": self.seed, "sim_seed": self.sim_seed,
+                             "session_s": self.session_s,
+                             **cell.params(),
+                             "files": {k: h for k, (_, h) in sorted(files.items())}}
+                    key = hashlib.sha256(_canon(ident).encode()).hexdigest()[:20]
+                    cells.setdefault(key, replace(cell, key=key))
+        return list(cells.values())
+
+    @staticmethod
+    def _check_overrides(v: dict, files: dict, checked: set, where: str) -> None:
+        """Apply path / noise overrides once per combination so bad fields fail at load."""
+        if v["path_overrides"]:
+            k = ("path", files["path"][0], _canon(v["path_overrides"]))
+            if k not in checked:
+                from sim.paths import Path as SimPath
+                from sim.paths import load_path
+
+                d = load_path(files["path"][0]).to_dict()
+                d.update(v["path_overrides"])
+                try:
+                    SimPath.from_dict(d, source="path_overrides")
+                except ValueError as exc:
+                    raise SpecError(f"{where}.path_overrides: {exc}") from None
+                checked.add(k)
+        if v["noise_overrides"]:
+            if "noise" not in files or v["noise"].startswith("session:"):
+                raise SpecError(f"{where}.noise_overrides: only applies to a noise model, "
+                                f"not to noise {v['noise']!r}")
+            k = ("noise", files["noise"][0], _canon(v["noise_overrides"]))
+            if k not in checked:
+                from sim.gps import GpsNoiseModel
+
+                try:
+                    GpsNoiseModel.load(files["noise"][0]).with_overrides(**v["noise_overrides"])
+                except (ValueError, TypeError) as exc:
+                    raise SpecError(f"{where}.noise_overrides: {exc}") from None
+                checked.add(k)
+
+    def _files(self, v: dict, hashes: dict, where: str) -> dict[str, tuple[str, str]]:
+        out: dict[str, tuple[str, str]] = {}
+        for kind, axis in (("paths", "path"), ("configs", "config"), ("noise", "noise")):
+            val = v[axis]
+            if axis == "noise" and val == "none":
+                continue
+            if axis == "noise" and val.startswith("session:"):
+                p = Path(val[len("session:"):])
+                p = p if p.is_absolute() else self.base_dir / p
+                if not p.is_file():
+                    raise SpecError(f"{where}.noise: session file {val!r} not found ({p})")
+                path = p.resolve()
+            else:
+                path = _resolve(kind, val, self.base_dir, f"{where}.{axis}")
+            k = (kind, str(path))
+            if k not in hashes:
+                hashes[k] = _sha(path)
+            out[axis] = (str(path), hashes[k])
+        return out
+
+    def epochs_wanted(self, cell: Cell) -> bool:
+        """Whether the spec asks for this cell's per-epoch estimates."""
+        if not self.epochs:
+            return False
+        seeds = self.epochs.get("seeds", "all")
+        if seeds != "all" and cell.seed not in seeds:
+            return False
+        params = cell.params()
+        for k, vals in self.epochs.get("where", {}).items():
+            pv = params[k]
+            if k in _DICT_AXES:
+                vals = [_canon(x) for x in vals]
+            if pv not in vals:
+                return False
+        return True
+
+    def with_solver(self, solver: str) -> Spec:
+        """The same spec with every cell's solver replaced (CLI ``--solver``).
+
+        The name gets a ``-<solver>`` suffix so the results land beside, not over, the
+        default-solver run.
+        """
+        if solver not in SOLVERS:
+            raise SpecError(f"solver: unknown solver {solver!r}; allowed: {list(SOLVERS)}")
+        grid = tuple({**b, "solver": [solver]} for b in self.grid)
+        raw = copy.deepcopy(self.raw)
+        raw["name"] = f"{self.name}-{solver}"
+        raw.setdefault("defaults", {})["solver"] = solver
+        for b in raw.get("grid", []):
+            b["solver"] = solver
+        return replace(self, name=raw["name"], grid=grid, raw=raw,
+                       defaults={**self.defaults, "solver": solver})
+
+    def with_seeds(self, seeds: Iterable[int]) -> Spec:
+        """The same spec with another seed list (CLI ``--seeds``)."""
+        seeds = tuple(int(s) for s in seeds)
+        if not seeds or any(s < 0 for s in seeds):
+            raise SpecError(f"seeds: must be non-negative integers, got {seeds!r}")
+        raw = {**copy.deepcopy(self.raw), "seeds": list(seeds)}
+        return replace(self, seeds=seeds, raw=raw)
+
+    def to_dict(self) -> dict:
+        """The validated spec as plain data (written to the results manifest)."""
+        return {"name": self.name, "description": self.description, "seed": self.seed,
+                "seeds": list(self.seeds), "masks": list(self.masks), "sim_seed": self.sim_seed,
+                "session_s": self.session_s,
+                "defaults": self.defaults, "grid": [dict(b) for b in self.grid],
+                "epochs": self.epochs, "source": self.source}
+
+
+# --------------------------------------------------------------------------- validation
+def _is_int(v: object) -> bool:
+    return isinstance(v, int) and not isinstance(v, bool)
+
+
+def _as_list(v: object, where: str) -> list:
+    if isinstance(v, str):
+        return [v]
+    if isinstance(v, list):
+        return v
+    raise SpecError(f"{where}: must be a string or a list of strings, got {v!r}")
+
+
+def _check_axis(axis: str, v: object, where: str, base: Path, *, scalar: bool) -> Any:
+    """Validate one value of an axis; returns the canonical value."""
+    if axis not in AXES:
+        raise SpecError(f"{where.rsplit('.', 1)[0]}: unknown key {axis!r}; allowed axes: "
+                        f"{sorted(AXES)} (plus 'name' in a grid block)")
+    if axis in _DICT_AXES:
+        if not isinstance(v, dict):
+            raise SpecError(f"{where}: must be a table of field = value, got {v!r}")
+        for k, x in v.items():
+            if not isinstance(x, (int, float, str, bool, list)):
+                raise SpecError(f"{where}.{k}: unsupported value {x!r}")
+        if axis == "path_overrides":
+            bad = sorted(set(v) & {"name", "waypoints"})
+            if bad:
+                raise SpecError(f"{where}: {bad} cannot be overridden (add a path file instead)")
+        return dict(v)
+    if axis in ("window", "dyn_window"):
+        if not _is_int(v) or v < 1:
+            raise SpecError(f"{where}: must be a positive integer, got {v!r}")
+        return int(v)
+    if not isinstance(v, str) or not v:
+        raise SpecError(f"{where}: must be a non-empty string, got {v!r}")
+    if axis == "weighting":
+        m = _HUFF_T.match(v)
+        if v not in WEIGHTINGS and not (m and float(m.group(1)) > 0):
+            raise SpecError(f"{where}: unknown weighting {v!r}; allowed: {list(WEIGHTINGS)} "
+                            "or 'huff:<threshold>'")
+    elif axis == "technique":
+        if v not in TECHNIQUES:
+            raise SpecError(f"{where}: unknown technique {v!r}; allowed: {list(TECHNIQUES)}")
+    elif axis == "solver":
+        if v not in SOLVERS:
+            raise SpecError(f"{where}: unknown solver {v!r}; allowed: {list(SOLVERS)}")
+    elif axis == "turning":
+        if v not in TURNING:
+            raise SpecError(f"{where}: unknown turning source {v!r}; allowed: {list(TURNING)}")
+    elif axis == "path":
+        _resolve("paths", v, base, where)
+    elif axis == "config":
+        _resolve("configs", v, base, where)
+    elif axis == "noise" and v != "none" and not v.startswith("session:"):
+        _resolve("noise", v, base, where)
+    return v
+
+
+def _check_epochs(e: object, where: str, base: Path) -> dict:
+    if not isinstance(e, dict):
+        raise SpecError(f"{where}: must be a table")
+    unknown = sorted(set(e) - {"seeds", "where"})
+    if unknown:
+        raise SpecError(f"{where}: unknown key(s) {unknown}; allowed: ['seeds', 'where']")
+    out: dict[str, Any] = {}
+    seeds = e.get("seeds", "all")
+    if seeds != "all":
+        if not isinstance(seeds, list) or not all(_is_int(s) and s >= 0 for s in seeds):
+            raise SpecError(f"{where}.seeds: must be \"all\" or a list of seed values, "
+                            f"got {seeds!r}")
+    out["seeds"] = seeds
+    w = e.get("where", {})
+    if not isinstance(w, dict):
+        raise SpecError(f"{where}.where: must be a table of axis = [values]")
+    out["where"] = {}
+    for k, vals in w.items():
+        if k != "seed" and k not in AXES:
+            raise SpecError(f"{where}.where: unknown axis {k!r}; allowed: {sorted(AXES)}")
+        vals = vals if isinstance(vals, list) else [vals]
+        out["where"][k] = [_check_axis(k, x, f"{where}.where.{k}[{i}]", base, scalar=True)
+                           for i, x in enumerate(vals)]
+    return out
+
+
+# --------------------------------------------------------------------------- loading
+def available_presets() -> list[str]:
+    """Names of the shipped presets in ``experiments/presets/``."""
+    return sorted(p.stem for p in PRESETS_DIR.glob("*.toml"))
+
+
+def load_spec(path_or_name: str | Path) -> Spec:
+    """Load a spec from a TOML file, or a preset by name (``experiments/presets/<name>.toml``).
+
+    Raises :class:`SpecError` naming the file and field for any invalid content.
+    """
+    p = Path(path_or_name)
+    if not p.suffix and "/" not in str(path_or_name):
+        p = PRESETS_DIR / f"{path_or_name}.toml"
+        if not p.is_file():
+            raise SpecError(f"preset {str(path_or_name)!r}: not found; available: "
+                            f"{available_presets()}")
+    if not p.is_file():
+        raise SpecError(f"spec {str(path_or_name)!r}: no such file")
+    try:
+        data = tomllib.loads(p.read_text())
+    except tomllib.TOMLDecodeError as exc:
+        raise SpecError(f"{p}: not valid TOML: {exc}") from None
+    return Spec.from_dict(data, source=str(p), base_dir=p.resolve().parent)

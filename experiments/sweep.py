@@ -1,0 +1,724 @@
+"""The main job: run an experiment spec as a reproducible, parallel, resumable sweep.
+
+``python -m experiments.sweep`` regenerates the GPS dissertation's moving-platform
+performance results (000_8f82f8df647bf685.txt, Sections 4.10-4.12, Tables 4.1 and 4.2) from
+the ``thesis`` preset; any spec (see :mod:`experiments.spec`) runs the same way.
+
+Pipeline per cell (one point of the grid, one seed):
+
+1. truth: each distinct (path, configuration) is simulated ONCE, up front, in the parent
+   (through the on-disk truth cache, :mod:`sim.cache`), then handed to the workers;
+2. noise: a stationary GPS session is synthesized for the cell's seed and replayed onto the
+   truth (Section 4.1.2); cells that share (truth, noise model, seed) share the observations
+   (common random numbers, so techniques are compared on identical data);
+3. estimate: :func:`estimator.tracking.track` with the cell's window, weighting, technique
+   and solver;
+4. score: Eq. 4.1 / 4.2 errors per evaluation mask (full path, no turns), summarised.
+
+Randomness: every stream is a ``numpy.random.Generator`` seeded from
+``SeedSequence([spec.seed, cell.seed, stream])``; the same spec and seed give bit-identical
+numbers in any order, on any number of workers.
+
+Persistence: each finished cell is written atomically as ``cells/<key>.json`` (temp file +
+``os.replace``; per-epoch estimates, when asked for, go to ``epochs/<key>.parquet`` first),
+so a run killed at any moment (SIGKILL included) loses no finished cell and never duplicates
+one; rerunning skips finished cells, ``--force`` recomputes. ``cells.parquet`` is assembled
+from the cell files at the end. Errors inside a cell are recorded (``errors/<key>.json``,
+with the cell's parameters and traceback) and reported; they do not stop the sweep and are
+retried on the next run.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import os
+import subprocess
+import sys
+import time
+import traceback
+import uuid
+from collections import OrderedDict
+from collections.abc import Callable, Iterable, Iterator
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pandas as pd
+
+from experiments.spec import REPO, Cell, Spec, SpecError, available_presets, load_spec
+
+__all__ = [
+    "Results",
+    "cell_rng",
+    "code_version",
+    "evaluate_cell",
+    "main",
+    "run",
+    "simulate_truth",
+]
+
+RESULTS_DIR = REPO / "results"
+#: Random streams derived per (spec seed, cell seed).
+STREAM_NOISE, STREAM_ESTIMATOR = 0, 1
+
+#: A cell function: (cell, truth, context) -> CellOutput. Pluggable for tests.
+CellFn = Callable[[Cell, Any, "CellContext"], "CellOutput"]
+
+
+# --------------------------------------------------------------------------- records
+@dataclass
+class CellContext:
+    """What a cell function gets besides its cell and truth."""
+
+    spec_seed: int
+    masks: tuple[str, ...]
+    session_s: float
+    want_epochs: bool
+    memo: OrderedDict[tuple, Any]
+
+
+@dataclass
+class CellOutput:
+    """Result of one cell: one summary row per mask, optional per-epoch table, extras."""
+
+    rows: list[dict]
+    epochs: pd.DataFrame | None = None
+    timings: dict = field(default_factory=dict)
+    status_counts: dict = field(default_factory=dict)
+
+
+@dataclass
+class Results:
+    """What :func:`run` returns (and writes to ``out_dir``)."""
+
+    spec: Spec
+    out_dir: Path
+    cells: pd.DataFrame               # one row per cell x mask
+    errors: list[dict]                # one dict per failed cell: params, error, traceback
+    n_cells: int
+    n_computed: int
+    n_resumed: int
+    wall_s: float
+    timings: dict = field(default_factory=dict)
+
+    @property
+    def n_failed(self) -> int:
+        return len(self.errors)
+
+    def summary(self) -> str:
+        """One-line summary of the run."""
+        rate = self.n_computed / self.timings.get("cells_s", self.wall_s) if self.n_computed else 0
+        return (f"{self.spec.name}: {self.n_cells} cells ({self.n_computed} computed, "
+                f"{self.n_resumed} resumed, {self.n_failed} failed) in {self.wall_s:.1f} s "
+                f"[simulation {self.timings.get('simulate_s', 0):.1f} s, cells "
+                f"{self.timings.get('cells_s', 0):.1f} s = {rate:.0f} cells/s, outputs "
+                f"{self.timings.get('outputs_s', 0):.1f} s] -> {self.out_dir}")
+
+
+# --------------------------------------------------------------------------- randomness
+def cell_rng(spec_seed: int, seed: int, stream: int) -> np.random.Generator:
+    """Generator for one random stream of one seed: SeedSequence([spec_seed, seed, stream])."""
+    return np.random.Generator(np.random.PCG64(np.random.SeedSequence([spec_seed, seed, stream])))
+
+
+# --------------------------------------------------------------------------- truth
+def _load_path(path_file: str, overrides_json: str):
+    from sim.paths import Path as SimPath
+    from sim.paths import load_path
+
+    p = load_path(path_file)
+    ov = json.loads(overrides_json)
+    if ov:
+        d = p.to_dict()
+        d.update(ov)
+        p = SimPath.from_dict(d, source=f"{path_file} + overrides {ov}")
+    return p
+
+
+def simulate_truth(path_file: str, path_overrides: str, config_file: str, sim_seed: int,
+                   cache_dir: str | None = None):
+    """Simulate (or load from the truth cache) the rover on a path with a configuration.
+
+    cache_dir : truth cache folder (default results/cache/truth, see :mod:`sim.cache`).
+    """
+    from estimator.configuration import SensorConfig
+    from sim.rover import simulate_rover
+
+    return simulate_rover(_load_path(path_file, path_overrides), SensorConfig.load(config_file),
+                          seed=sim_seed, cache_dir=cache_dir)
+
+
+# --------------------------------------------------------------------------- cells
+_TECHNIQUE_KW = {
+    "none": {},
+    "lc": {"lag_correction": True},
+    "dyn": {"dynamic": True},
+    "lc+dyn": {"lag_correction": True, "dynamic": True},
+    "motion_compensated": {"method": "motion_compensated"},
+    "ekf": {"method": "ekf"},
+    "naive": {"method": "naive"},
+}
+
+
+def _observations(cell: Cell, truth, config, ctx: CellContext) -> np.ndarray:
+    """Noisy observations (n, m, 2) for the cell's noise key, memoised per worker."""
+    key = (ctx.spec_seed, *cell.noise_key)
+    if key in ctx.memo:
+        ctx.memo.move_to_end(key)
+        return ctx.memo[key]
+    if cell.noise == "none":
+        obs = truth.sensor_positions[:, :, :2].copy()
+        obs[:, ~config.alive_mask] = np.nan
+    else:
+        from sim.gps import GpsNoiseModel, StationarySession, replay, synthesize_session
+
+        rng = cell_rng(ctx.spec_seed, cell.seed, STREAM_NOISE)
+        if cell.noise.startswith("session:"):
+            session = StationarySession.load(cell.file("noise")).after_power_failure()
+        else:
+            # A long stationary session (the dissertation's ~4000 s recording, Section 4.1.1),
+            # cut after its power failure as the dissertation did; the moving run replays a
+            # random stretch of it, so each receiver's error is relative to its mean over the
+            # whole session (Section 4.1.2), not over the (shorter) run.
+            model = GpsNoiseModel.load(cell.file("noise"))
+            ov = json.loads(cell.noise_overrides)
+            if ov:
+                model = model.with_overrides(**ov)
+            dt = float(np.median(np.diff(truth.t))) if truth.n > 1 else 1.0
+            lost = model.power_failure_start_s + model.power_failure_duration_s \
+                if model.power_failure_duration_s > 0 else 0.0
+            duration = max(ctx.session_s, truth.n * dt) + lost
+            session = synthesize_session(model, config, duration, rng,
+                                         rate_hz=1.0 / dt).after_power_failure()
+        if session.n < truth.n:
+            raise ValueError(f"noise: session of {session.n} samples is shorter than the run "
+                             f"({truth.n} samples); use a longer session")
+        start = int(rng.integers(0, session.n - truth.n + 1))
+        obs = replay(truth, session, start=start, mode="error")
+    obs.setflags(write=False)
+    ctx.memo[key] = obs
+    while len(ctx.memo) > 4:
+        ctx.memo.popitem(last=False)
+    return obs
+
+
+def _tukey_outlier_fraction(e: np.ndarray) -> float:
+    """Fraction of values above the upper box-plot whisker, Q3 + 1.5 IQR (Figs 4.114-4.123)."""
+    if e.size < 4:
+        return float("nan")
+    q1, q3 = np.percentile(e, [25, 75])
+    return float(np.mean(e > q3 + 1.5 * (q3 - q1)))
+
+
+def score_track(df: pd.DataFrame, truth, obs: np.ndarray, config, masks: Iterable[str]
+                ) -> tuple[list[dict], pd.DataFrame]:
+    """Eq. 4.1/4.2 errors of a track against the truth, summarised per evaluation mask.
+
+    Returns one dict per mask with, for each error series (``ex`` = |x| CG error, ``ey`` = |y|,
+    ``eu`` = Euclidean, ``eh`` = heading, rad), the statistics mean, median, std (ddof 1),
+    rmse, p95, max and the box-plot outlier fraction; plus the signed along-track error
+    (mean, median; negative = the estimate trails the truth, the lag of Section 3.4.2), the
+    epoch-to-epoch jitter (RMS change of the error vector between consecutive epochs, the
+    "variation from one estimate to the next" of Section 4.10), the raw observations' own
+    per-axis error for comparison, and counts. Also returns the per-epoch error table.
+    """
+    from estimator.metrics import (
+        STATISTICS,
+        along_cross_errors,
+        cg_errors,
+        evaluation_masks,
+        heading_error,
+        summarize,
+    )
+    from estimator.orientation import wrap_angle
+
+    t = df["t"].to_numpy(dtype=float)
+    idx = np.searchsorted(truth.t, t)
+    idx = np.clip(idx, 0, truth.n - 1)
+    if not np.allclose(truth.t[idx], t, rtol=0, atol=1e-6):
+        raise ValueError("track: output times do not match the truth's sample times")
+    est = df[["cg_x", "cg_y"]].to_numpy(dtype=float)
+    tru = truth.cg[idx, :2]
+    errs = cg_errors(est, tru)
+    eh = heading_error(df["yaw"].to_numpy(dtype=float), truth.yaw[idx])
+    course = truth.yaw[idx]
+    along, cross = along_cross_errors(est, tru, course)
+    d = est - tru
+    jump = np.full(len(t), np.nan)
+    if len(t) > 1:
+        jump[1:] = np.hypot(*(np.diff(d, axis=0).T))
+    ob = obs[idx] - truth.sensor_positions[idx, :, :2]            # (k, m, 2)
+    obs_ex = np.nanmean(np.abs(ob[..., 0]), axis=1) if ob.size else np.array([])
+    obs_ey = np.nanmean(np.abs(ob[..., 1]), axis=1) if ob.size else np.array([])
+    mk_all = evaluation_masks(truth.turning[idx].astype(bool))
+    series = {"ex": errs["x"], "ey": errs["y"], "eu": errs["euclid"], "eh": eh}
+    rows = []
+    for mname in masks:
+        mk = mk_all[mname]
+        row: dict[str, Any] = {"mask": mname, "n_epochs": int(mk.sum())}
+        for sname, e in series.items():
+            s = summarize(e, mk)
+            for k in STATISTICS:
+                row[f"{sname}_{k}"] = s[k]
+            fin = e[mk]
+            fin = fin[np.isfinite(fin)]
+            row[f"{sname}_outliers"] = _tukey_outlier_fraction(fin)
+            if sname == "ex":
+                row["n_valid"], row["n_nan"] = s["n"], s["n_nan"]
+        a = along[mk]
+        a = a[np.isfinite(a)]
+        row["along_mean"] = float(a.mean()) if a.size else float("nan")
+        row["along_median"] = float(np.median(a)) if a.size else float("nan")
+        jm = jump[mk & np.r_[False, mk[:-1]]] if len(mk) else jump[:0]
+        jm = jm[np.isfinite(jm)]
+        row["jitter_rms"] = float(np.sqrt(np.mean(jm ** 2))) if jm.size else float("nan")
+        with np.errstate(all="ignore"):
+            row["obs_ex_mean"] = float(np.nanmean(obs_ex[mk])) if mk.any() else float("nan")
+            row["obs_ey_mean"] = float(np.nanmean(obs_ey[mk])) if mk.any() else float("nan")
+        rows.append(row)
+    ep = pd.DataFrame({"truth_cg_x": tru[:, 0], "truth_cg_y": tru[:, 1],
+                       "truth_yaw": truth.yaw[idx],
+                       "truth_turning": truth.turning[idx].astype(bool),
+                       "err_x": d[:, 0], "err_y": d[:, 1],
+                       "err_yaw": wrap_angle(df["yaw"].to_numpy(float) - truth.yaw[idx]),
+                       "along": along, "cross": cross})
+    for j, nm in enumerate(truth.sensor_names):
+        ep[f"truth_{nm}_x"] = truth.sensor_positions[idx, j, 0]
+        ep[f"truth_{nm}_y"] = truth.sensor_positions[idx, j, 1]
+        ep[f"obs_{nm}_x"] = obs[idx, j, 0]
+        ep[f"obs_{nm}_y"] = obs[idx, j, 1]
+    return rows, ep
+
+
+def evaluate_cell(cell: Cell, truth, ctx: CellContext) -> CellOutput:
+    """The real cell function: observations -> track -> scores (see the module docstring)."""
+    from estimator.configuration import SensorConfig
+    from estimator.tracking import track
+
+    t0 = time.perf_counter()
+    config = SensorConfig.load(cell.file("config")).planar()
+    obs = _observations(cell, truth, config, ctx)
+    t1 = time.perf_counter()
+    kw = dict(_TECHNIQUE_KW[cell.technique])
+    turning = None
+    if kw.pop("dynamic", False):
+        kw["dynamic_window"] = cell.dyn_window
+        turning = truth.turning.astype(bool) if cell.turning == "controller" else "detect"
+    weighting, extra = cell.weighting, {}
+    if weighting == "-":
+        weighting = "none"
+    elif weighting.startswith("huff:"):
+        weighting, extra = "huff", {"huff_threshold": float(weighting[5:])}
+    df = track(truth.t, obs, config, window=cell.window, weighting=weighting, turning=turning,
+               solver="procrustes" if cell.solver == "-" else cell.solver, **extra,
+               rng=cell_rng(ctx.spec_seed, cell.seed, STREAM_ESTIMATOR), **kw)
+    t2 = time.perf_counter()
+    rows, ep = score_track(df, truth, obs, config, ctx.masks)
+    t3 = time.perf_counter()
+    counts = {str(k): int(v) for k, v in df["solver_status"].value_counts().items()} \
+        if "solver_status" in df else {}
+    epochs = None
+    if ctx.want_epochs:
+        epochs = pd.concat([df.reset_index(drop=True), ep], axis=1)
+    return CellOutput(rows=rows, epochs=epochs, status_counts=counts,
+                      timings={"t_noise_s": t1 - t0, "t_track_s": t2 - t1, "t_score_s": t3 - t2})
+
+
+# --------------------------------------------------------------------------- workers
+_WORKER_MEMO: OrderedDict[tuple, Any] = OrderedDict()
+
+
+def _run_batch(cells: list[Cell], truth, spec_seed: int, masks: tuple[str, ...],
+               session_s: float, want: list[bool], cell_fn: CellFn | None) -> list[dict]:
+    """Run a batch of cells (same truth) in one worker; never raises for a cell's error."""
+    fn = cell_fn or evaluate_cell
+    out = []
+    for cell, w in zip(cells, want):
+        ctx = CellContext(spec_seed=spec_seed, masks=masks, session_s=session_s,
+                          want_epochs=w, memo=_WORKER_MEMO)
+        t0 = time.perf_counter()
+        try:
+            res = fn(cell, truth, ctx)
+            res.timings["t_cell_s"] = time.perf_counter() - t0
+            out.append({"key": cell.key, "ok": True, "rows": res.rows, "epochs": res.epochs,
+                        "timings": res.timings, "status_counts": res.status_counts})
+        except Exception as exc:  # noqa: BLE001 - a cell's failure is data, not a crash
+            out.append({"key": cell.key, "ok": False,
+                        "error": f"{type(exc).__name__}: {exc}",
+                        "traceback": traceback.format_exc(limit=20)})
+    return out
+
+
+# --------------------------------------------------------------------------- store
+class CellStore:
+    """One JSON file per finished cell (atomic), one parquet per cell's per-epoch table."""
+
+    def __init__(self, out: Path):
+        self.out = Path(out)
+        self.cells_dir = self.out / "cells"
+        self.epochs_dir = self.out / "epochs"
+        self.errors_dir = self.out / "errors"
+        for d in (self.cells_dir, self.epochs_dir, self.errors_dir):
+            d.mkdir(parents=True, exist_ok=True)
+
+    def _atomic(self, final: Path, write: Callable[[Path], None]) -> None:
+        tmp = final.with_name(f".{final.name}.{os.getpid()}.{uuid.uuid4().hex[:8]}.tmp")
+        try:
+            write(tmp)
+            os.replace(tmp, final)
+        finally:
+            if tmp.exists():
+                tmp.unlink()
+
+    def done(self) -> set[str]:
+        return {p.stem for p in self.cells_dir.glob("*.json")}
+
+    def clear(self, keys: Iterable[str]) -> None:
+        for k in keys:
+            for p in (self.cells_dir / f"{k}.json", self.epochs_dir / f"{k}.parquet",
+                      self.errors_dir / f"{k}.json"):
+                if p.exists():
+                    p.unlink()
+
+    def write(self, cell: Cell, res: dict) -> None:
+        if not res["ok"]:
+            rec = {"key": cell.key, "params": cell.params(), "error": res["error"],
+                   "traceback": res["traceback"]}
+            self._atomic(self.errors_dir / f"{cell.key}.json",
+                         lambda p: p.write_text(json.dumps(rec, indent=1)))
+            return
+        if res.get("epochs") is not None:
+            ep = res["epochs"]
+            self._atomic(self.epochs_dir / f"{cell.key}.parquet",
+                         lambda p: ep.to_parquet(p, index=False))
+        rec = {"key": cell.key, "params": cell.params(), "rows": res["rows"],
+               "timings": res["timings"], "status_counts": res["status_counts"],
+               "epochs": res.get("epochs") is not None}
+        self._atomic(self.cells_dir / f"{cell.key}.json",
+                     lambda p: p.write_text(json.dumps(rec, allow_nan=True)))
+        err = self.errors_dir / f"{cell.key}.json"
+        if err.exists():
+            err.unlink()
+
+    def read_cells(self, keys: Iterable[str]) -> pd.DataFrame:
+        recs = []
+        for k in keys:
+            p = self.cells_dir / f"{k}.json"
+            if not p.exists():
+                continue
+            r = json.loads(p.read_text())
+            n_ok = int(r["status_counts"].get("ok", 0))
+            n_all = int(sum(r["status_counts"].values()))
+            for row in r["rows"]:
+                recs.append({"key": k, **r["params"], **row, **r["timings"],
+                             "status_counts": json.dumps(r["status_counts"], sort_keys=True),
+                             "n_status_ok": n_ok, "n_status_other": n_all - n_ok,
+                             "has_epochs": bool(r.get("epochs"))})
+        return pd.DataFrame.from_records(recs)
+
+    def read_errors(self, keys: Iterable[str]) -> list[dict]:
+        out = []
+        for k in keys:
+            p = self.errors_dir / f"{k}.json"
+            if p.exists():
+                out.append(json.loads(p.read_text()))
+        return out
+
+
+# --------------------------------------------------------------------------- versions
+def code_version() -> dict:
+    """Git describe/commit of the checkout (if any) and the installed package version."""
+    info: dict[str, Any] = {}
+    try:
+        from importlib.metadata import version
+
+        info["package"] = version("configpose")
+    except Exception:  # noqa: BLE001 - not installed: leave it out
+        info["package"] = None
+    for key, cmd in (("git_describe", ["git", "describe", "--always", "--dirty", "--tags"]),
+                     ("git_commit", ["git", "rev-parse", "HEAD"])):
+        try:
+            info[key] = subprocess.run(cmd, cwd=REPO, capture_output=True, text=True, check=False,
+                                       timeout=10).stdout.strip() or None
+        except Exception:  # noqa: BLE001 - no git: leave it out
+            info[key] = None
+    import platform
+
+    info["python"] = platform.python_version()
+    info["numpy"] = np.__version__
+    try:
+        import mujoco
+
+        info["mujoco"] = mujoco.__version__
+    except Exception:  # noqa: BLE001
+        info["mujoco"] = None
+    return info
+
+
+def _write_json(path: Path, obj: Any) -> None:
+    tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
+    tmp.write_text(json.dumps(obj, indent=1, default=str))
+    os.replace(tmp, path)
+
+
+# --------------------------------------------------------------------------- scheduling
+def _batches(todo: list[Cell], jobs: int) -> list[list[Cell]]:
+    """Group cells by noise key (they share observations), chunked for load balance."""
+    groups: OrderedDict[tuple, list[Cell]] = OrderedDict()
+    for c in todo:
+        groups.setdefault(c.noise_key, []).append(c)
+    target = max(1, math.ceil(len(todo) / max(1, jobs * 4)))
+    out = []
+    for cells in groups.values():
+        n_chunks = max(1, round(len(cells) / target))
+        size = math.ceil(len(cells) / n_chunks)
+        out.extend(cells[i:i + size] for i in range(0, len(cells), size))
+    return out
+
+
+def _iter_loky(batches, truths, spec, wants, jobs, cell_fn) -> Iterator[tuple[list, list]]:
+    from joblib import Parallel, delayed
+
+    par = Parallel(n_jobs=jobs, backend="loky", return_as="generator_unordered")
+    tasks = (delayed(_run_batch)(b, truths[b[0].truth_key], spec.seed, spec.masks,
+                                   spec.session_s, w, cell_fn)
+             for b, w in zip(batches, wants))
+    # results arrive in completion order; each carries its cells' keys
+    yield from par(tasks)
+
+
+def _iter_dask(batches, truths, spec, wants, jobs, cell_fn, scheduler):
+    from distributed import Client, LocalCluster, as_completed
+
+    cluster = None
+    if scheduler:
+        client = Client(scheduler)
+    else:
+        cluster = LocalCluster(n_workers=jobs, threads_per_worker=1, processes=True,
+                               dashboard_address=None)
+        client = Client(cluster)
+    try:
+        tfut = {k: client.scatter(v, broadcast=False) for k, v in truths.items()}
+        futs = [client.submit(_run_batch, b, tfut[b[0].truth_key], spec.seed, spec.masks,
+                              spec.session_s, w, cell_fn, pure=False) for b, w in zip(batches, wants)]
+        for fut in as_completed(futs):
+            yield fut.result()
+            fut.release()
+    finally:
+        client.close()
+        if cluster is not None:
+            cluster.close()
+
+
+def _simulate_all(cells: list[Cell], spec: Spec, jobs: int, truth_fn, cache_dir) -> dict:
+    keys = list(OrderedDict.fromkeys(c.truth_key for c in cells))
+    fn = truth_fn or simulate_truth
+    args = [(pf, po, cf, spec.sim_seed, cache_dir) for (pf, po, cf) in keys]
+    if jobs > 1 and len(keys) > 1:
+        from joblib import Parallel, delayed
+
+        truths = Parallel(n_jobs=min(jobs, len(keys)), backend="loky")(
+            delayed(fn)(*a) for a in args)
+    else:
+        truths = [fn(*a) for a in args]
+    return dict(zip(keys, truths))
+
+
+# --------------------------------------------------------------------------- run
+def run(spec: Spec | str | Path, *, out: str | Path | None = None, jobs: int | None = None,
+        backend: str = "loky", scheduler: str | None = None, force: bool = False,
+        progress: bool = True, outputs: bool = True, figures: bool = True,
+        cache_dir: str | Path | None = None, cell_fn: CellFn | None = None,
+        truth_fn: Callable | None = None) -> Results:
+    """Run a spec; returns :class:`Results` and writes ``out`` (default results/<spec name>/).
+
+    spec : a :class:`Spec`, a spec file, or a preset name.
+    jobs : worker processes (default: all cores); 1 runs in this process.
+    backend : "loky" (joblib processes) or "dask" (``scheduler`` = address of a running
+        Dask scheduler; without one, a LocalCluster of ``jobs`` workers is started).
+    force : recompute cells that are already finished.
+    outputs / figures : write tables, REPORT.md (and figures) after the cells.
+    cache_dir : truth cache folder (default results/cache/truth).
+    cell_fn, truth_fn : replace :func:`evaluate_cell` / :func:`simulate_truth` (tests).
+    """
+    t_start = time.perf_counter()
+    if not isinstance(spec, Spec):
+        spec = load_spec(spec)
+    if backend not in ("loky", "dask"):
+        raise ValueError(f"backend: must be 'loky' or 'dask', got {backend!r}")
+    if scheduler and backend != "dask":
+        raise ValueError("scheduler: only meaningful with backend='dask'")
+    jobs = int(jobs) if jobs else (os.cpu_count() or 1)
+    if jobs < 1:
+        raise ValueError(f"jobs: must be >= 1, got {jobs!r}")
+    for var in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS"):
+        os.environ.setdefault(var, "1")
+    out_dir = Path(out) if out is not None else RESULTS_DIR / spec.name
+    out_dir.mkdir(parents=True, exist_ok=True)
+    store = CellStore(out_dir)
+    cells = spec.expand()
+    by_key = {c.key: c for c in cells}
+    if force:
+        store.clear(by_key)
+    done = store.done() & set(by_key)
+    todo = [c for c in cells if c.key not in done]
+
+    manifest = {"spec": spec.to_dict(), "spec_raw": spec.raw, "spec_base_dir": str(spec.base_dir),
+                "spec_seed": spec.seed, "seeds": list(spec.seeds),
+                "code": code_version(), "started_utc": time.strftime("%Y-%m-%dT%H:%M:%SZ",
+                                                                      time.gmtime()),
+                "backend": backend, "jobs": jobs, "n_cells": len(cells), "status": "running"}
+    _write_json(out_dir / "manifest.json", manifest)
+    if spec.source != "<dict>" and Path(spec.source).is_file():
+        (out_dir / "spec.toml").write_text(Path(spec.source).read_text())
+
+    t_sim0 = time.perf_counter()
+    truths = _simulate_all(todo, spec, jobs, truth_fn,
+                           str(cache_dir) if cache_dir else None) if todo else {}
+    t_sim = time.perf_counter() - t_sim0
+
+    t_cells0 = time.perf_counter()
+    n_done_now = 0
+    if todo:
+        batches = _batches(todo, jobs)
+        wants = [[spec.epochs_wanted(c) for c in b] for b in batches]
+        from tqdm import tqdm
+
+        bar = tqdm(total=len(todo), unit="cell", desc=spec.name, disable=not progress,
+                   smoothing=0.1, dynamic_ncols=True)
+        if jobs == 1 and backend == "loky":
+            it = (_run_batch(b, truths[b[0].truth_key], spec.seed, spec.masks,
+                                   spec.session_s, w, cell_fn)
+                  for b, w in zip(batches, wants))
+        elif backend == "loky":
+            it = _iter_loky(batches, truths, spec, wants, jobs, cell_fn)
+        else:
+            it = _iter_dask(batches, truths, spec, wants, jobs, cell_fn, scheduler)
+        try:
+            for results in it:
+                for res in results:
+                    store.write(by_key[res["key"]], res)
+                    n_done_now += 1
+                bar.update(len(results))
+        finally:
+            bar.close()
+    t_cells = time.perf_counter() - t_cells0
+
+    t_out0 = time.perf_counter()
+    keys = [c.key for c in cells]
+    table = store.read_cells(keys)
+    errors = store.read_errors(keys)
+    _write_table(table, out_dir / "cells.parquet")
+    _write_json(out_dir / "errors.json", errors)
+    res = Results(spec=spec, out_dir=out_dir, cells=table, errors=errors, n_cells=len(cells),
+                  n_computed=n_done_now - len(errors), n_resumed=len(done), wall_s=0.0)
+    if outputs and not table.empty:
+        from experiments import report, tables
+
+        tables.write_tables(table, out_dir)
+        report.write_report(table, out_dir, spec=spec)
+        if figures:
+            from experiments import figures as figs
+
+            figs.draw_all(out_dir)
+    t_out = time.perf_counter() - t_out0
+    res.wall_s = time.perf_counter() - t_start
+    res.timings = {"simulate_s": t_sim, "cells_s": t_cells, "outputs_s": t_out,
+                   "wall_s": res.wall_s}
+    manifest.update({"status": "complete" if not errors else "complete_with_errors",
+                     "finished_utc": time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime()),
+                     "n_computed": res.n_computed, "n_resumed": res.n_resumed,
+                     "n_failed": res.n_failed, "timings_s": res.timings,
+                     "cpu_count": os.cpu_count()})
+    _write_json(out_dir / "manifest.json", manifest)
+    return res
+
+
+def _write_table(df: pd.DataFrame, path: Path) -> None:
+    tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
+    df.to_parquet(tmp, index=False)
+    os.replace(tmp, path)
+
+
+# --------------------------------------------------------------------------- CLI
+_EPILOG = """examples:
+  python -m experiments.sweep                      # the default preset (thesis), all cores
+  python -m experiments.sweep --preset quick       # one path, 2 seeds, a few seconds
+  python -m experiments.sweep my_spec.toml --out /tmp/run --jobs 2
+  python -m experiments.sweep --preset thesis --solver slsqp   # faithful solver -> results/thesis-slsqp/
+  python -m experiments.sweep --preset thesis --backend dask --scheduler tcp://10.0.0.5:8786
+  python -m experiments.figures results/thesis     # re-plot from saved files, no simulation
+
+A rerun of the same spec resumes: finished cells are skipped (--force recomputes).
+presets: {presets}
+"""
+
+DEFAULT_PRESET = "thesis"
+
+
+def build_parser() -> argparse.ArgumentParser:
+    p = argparse.ArgumentParser(
+        prog="python -m experiments.sweep",
+        description="Run an experiment spec (TOML) as a parallel, resumable sweep and write "
+                    "cells.parquet, tables.md/CSV, REPORT.md and figures to results/<name>/.",
+        epilog=_EPILOG.format(presets=", ".join(available_presets())),
+        formatter_class=argparse.RawDescriptionHelpFormatter)
+    p.add_argument("spec", nargs="?", help="spec TOML file (default: --preset thesis)")
+    p.add_argument("--preset", metavar="NAME",
+                   help=f"run a shipped preset from experiments/presets/ (default {DEFAULT_PRESET!r}); "
+                        "e.g. --preset quick")
+    p.add_argument("--out", metavar="DIR", help="results folder (default results/<spec name>/), "
+                   "e.g. --out /tmp/thesis")
+    p.add_argument("--jobs", type=int, metavar="N",
+                   help=f"worker processes (default all cores = {os.cpu_count()}); 1 = in-process")
+    p.add_argument("--backend", choices=("loky", "dask"), default="loky",
+                   help="loky: joblib processes on this machine (default); dask: a Dask cluster")
+    p.add_argument("--scheduler", metavar="ADDRESS",
+                   help="Dask scheduler address for --backend dask, e.g. tcp://127.0.0.1:8786 "
+                        "(default: start a LocalCluster of --jobs workers)")
+    p.add_argument("--force", action="store_true", help="recompute finished cells")
+    p.add_argument("--solver", choices=("procrustes", "slsqp", "ccp"),
+                   help="override every cell's solver; results go to results/<name>-<solver>/, "
+                        "e.g. --solver slsqp")
+    p.add_argument("--seeds", type=int, metavar="N",
+                   help="override the number of seeds (seeds 0..N-1), e.g. --seeds 3")
+    p.add_argument("--cache-dir", metavar="DIR",
+                   help="simulated-truth cache (default results/cache/truth), e.g. "
+                        "--cache-dir /tmp/empty to time a cold run")
+    p.add_argument("--no-figures", action="store_true", help="skip the PNG figures")
+    p.add_argument("--quiet", action="store_true", help="no progress bar")
+    return p
+
+
+def main(argv: list[str] | None = None) -> int:
+    """CLI entry point; returns the exit code (0 ok, 1 some cells failed, 2 bad spec)."""
+    args = build_parser().parse_args(argv)
+    if args.spec and args.preset:
+        print("error: give a spec file or --preset, not both", file=sys.stderr)
+        return 2
+    try:
+        spec = load_spec(args.spec or args.preset or DEFAULT_PRESET)
+        if args.solver:
+            spec = spec.with_solver(args.solver)
+        if args.seeds:
+            spec = spec.with_seeds(range(args.seeds))
+    except SpecError as exc:
+        print(f"error: {exc}", file=sys.stderr)
+        return 2
+    res = run(spec, out=args.out, jobs=args.jobs, backend=args.backend,
+              scheduler=args.scheduler, force=args.force, progress=not args.quiet,
+              figures=not args.no_figures, cache_dir=args.cache_dir)
+    for e in res.errors[:10]:
+        print(f"FAILED cell {e['key']} {json.dumps(e['params'])}: {e['error']}", file=sys.stderr)
+    if len(res.errors) > 10:
+        print(f"... and {len(res.errors) - 10} more failed cells, see {res.out_dir}/errors.json",
+              file=sys.stderr)
+    print(res.summary())
+    return 1 if res.errors else 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

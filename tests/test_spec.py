@@ -1,0 +1,177 @@
+"""Experiment specs: validation errors name the field, grid expansion, cell identity."""
+
+import shutil
+import textwrap
+from pathlib import Path
+
+import pytest
+
+from experiments.spec import NO_SOLVER, NO_WEIGHTS, Spec, SpecError, available_presets, load_spec
+
+REPO = Path(__file__).resolve().parents[1]
+
+BASE = {
+    "name": "t",
+    "seeds": 2,
+    "defaults": {"noise": "none"},
+    "grid": [{"path": "square20", "window": [1, 5], "weighting": ["none", "huff"]}],
+}
+
+
+def _spec(**changes):
+    d = {**BASE, **changes}
+    return Spec.from_dict(d, source="spec")
+
+
+def _grid(**block):
+    return _spec(grid=[{"path": "square20", "window": [1, 5], **block}])
+
+
+def test_presets_load_and_have_the_thesis_axes():
+    assert {"thesis", "quick", "example_gps4"} <= set(available_presets())
+    thesis = load_spec("thesis")
+    cells = thesis.expand()
+    assert len(thesis.seeds) >= 10
+    assert {c.path for c in cells} == {"square100", "square200"}
+    assert {c.window for c in cells} == {1, 5, 10, 100}
+    assert {"none", "random", "huff"} <= {c.weighting for c in cells}
+    assert {"none", "lc", "dyn", "lc+dyn", "motion_compensated", "ekf", "naive"} == \
+        {c.technique for c in cells}
+    assert thesis.masks == ("full", "no_turns")
+    quick = load_spec("quick")
+    assert len(quick.seeds) == 2 and {c.path for c in quick.expand()} == {"square100"}
+
+
+@pytest.mark.parametrize("changes, field", [
+    ({"bogus": 1}, "bogus"),
+    ({"seeds": 0}, "seeds"),
+    ({"seeds": [1, 1]}, "seeds"),
+    ({"seeds": [1, -2]}, "seeds[1]"),
+    ({"seed": -1}, "seed"),
+    ({"masks": ["full", "corners"]}, "masks[1]"),
+    ({"session_s": 0}, "session_s"),
+    ({"name": "bad name"}, "name"),
+    ({"grid": []}, "grid"),
+    ({"defaults": {"windw": 3}}, "windw"),
+    ({"epochs": {"seeds": [0], "colour": 1}}, "colour"),
+    ({"epochs": {"where": {"technique": ["lcc"]}}}, "epochs.where.technique[0]"),
+])
+def test_top_level_errors_name_the_field(changes, field):
+    with pytest.raises(SpecError, match=field.replace("[", r"\[").replace("]", r"\]")):
+        _spec(**changes)
+
+
+@pytest.mark.parametrize("block, field", [
+    ({"windw": [1]}, r"grid\[0\]: unknown key 'windw'"),
+    ({"noise": "gps_stationary", "noise_overrides": {"common_fractio": 0.2}},
+     r"grid\[0\].noise_overrides: .*common_fractio"),
+    ({"noise": "gps_stationary", "noise_overrides": {"common_fraction": 2.0}},
+     r"grid\[0\].noise_overrides: .*common_fraction"),
+    ({"path_overrides": {"cruise_speed_mps": -1}}, r"grid\[0\].path_overrides: .*cruise_speed"),
+    ({"window": [1, 0]}, r"grid\[0\].window\[1\]: must be a positive integer, got 0"),
+    ({"window": [1, 2.5]}, r"grid\[0\].window\[1\]"),
+    ({"weighting": "huf"}, r"grid\[0\].weighting: unknown weighting 'huf'"),
+    ({"weighting": "huff:-1"}, r"grid\[0\].weighting"),
+    ({"technique": ["none", "kalman"]}, r"grid\[0\].technique\[1\]: unknown technique"),
+    ({"solver": "ipopt"}, r"grid\[0\].solver: unknown solver"),
+    ({"path": "square999"}, r"grid\[0\].path: unknown path 'square999'"),
+    ({"config": "rover_gps99"}, r"grid\[0\].config: unknown config 'rover_gps99'"),
+    ({"noise": "gps_nope"}, r"grid\[0\].noise: unknown nois"),
+    ({"noise_overrides": 3}, r"grid\[0\].noise_overrides: must be a table"),
+    ({"path_overrides": {"waypoints": []}}, r"grid\[0\].path_overrides"),
+    ({"technique": "dyn", "dyn_window": 10}, r"dyn_window: 10 exceeds window"),
+    ({"turning": "psychic"}, r"grid\[0\].turning"),
+])
+def test_grid_errors_name_the_field(block, field):
+    with pytest.raises(SpecError, match=field):
+        _grid(**block)
+
+
+def test_missing_required_axis_is_named():
+    with pytest.raises(SpecError, match=r"grid\[0\].window: required"):
+        _spec(grid=[{"path": "square20"}])
+
+
+def test_load_spec_reports_file_and_toml_errors(tmp_path):
+    with pytest.raises(SpecError, match="preset 'nope'"):
+        load_spec("nope")
+    bad = tmp_path / "bad.toml"
+    bad.write_text("name = \n")
+    with pytest.raises(SpecError, match="not valid TOML"):
+        load_spec(bad)
+    bad.write_text(textwrap.dedent("""
+        name = "x"
+        [[grid]]
+        path = "square20"
+        window = -1
+    """))
+    with pytest.raises(SpecError, match=r"bad.toml: grid\[0\].window"):
+        load_spec(bad)
+
+
+def test_grid_expansion_is_the_union_of_blocks_without_duplicates():
+    spec = _spec(grid=[
+        {"path": "square20", "window": [1, 5], "weighting": ["none", "huff"]},
+        {"path": "square20", "window": [5], "weighting": "huff",
+         "technique": ["none", "lc", "dyn"]},        # (5, huff, none) repeats block 0
+    ])
+    cells = spec.expand()
+    assert len(cells) == (2 * 2 + 2) * 2
+    assert len({c.key for c in cells}) == len(cells)
+    assert {(c.window, c.weighting, c.technique) for c in cells} == {
+        (1, "none", "none"), (1, "huff", "none"), (5, "none", "none"), (5, "huff", "none"),
+        (5, "huff", "lc"), (5, "huff", "dyn")}
+    dyn = [c for c in cells if c.technique == "dyn"]
+    assert all(c.dyn_window == 1 and c.turning == "controller" for c in dyn)
+    assert all(c.dyn_window == 0 and c.turning == "-" for c in cells if c.technique != "dyn")
+
+
+def test_not_applicable_axes_are_marked_and_deduplicated():
+    spec = _grid(weighting=["none", "huff"], technique=["ekf", "naive", "motion_compensated"],
+                 solver=["procrustes", "slsqp"])
+    cells = spec.expand()
+    for c in cells:
+        if c.technique in NO_SOLVER:
+            assert c.solver == "-"
+        if c.technique in NO_WEIGHTS:
+            assert c.weighting == "-"
+    # ekf/naive: 2 windows x 2 seeds each; motion_compensated: x 2 weightings
+    assert len(cells) == 2 * 2 * 2 + 2 * 2 * 2
+
+
+def test_cell_keys_are_stable_and_follow_file_contents(tmp_path):
+    a = [c.key for c in _spec().expand()]
+    b = [c.key for c in _spec().expand()]
+    assert a == b
+    assert len(set(a)) == len(a)
+    # a copy of a configuration under another file gives the same key only if identical
+    cfg = tmp_path / "mycfg.toml"
+    shutil.copy(REPO / "models/configs/rover_gps8.toml", cfg)
+    s1 = Spec.from_dict({**BASE, "defaults": {"noise": "none", "config": "mycfg.toml"}},
+                        source="spec", base_dir=tmp_path)
+    k1 = {c.key for c in s1.expand()}
+    cfg.write_text(cfg.read_text().replace("position_m = [0.75, 0.5]", "position_m = [0.8, 0.5]"))
+    s2 = Spec.from_dict({**BASE, "defaults": {"noise": "none", "config": "mycfg.toml"}},
+                        source="spec", base_dir=tmp_path)
+    assert k1.isdisjoint({c.key for c in s2.expand()})
+    # another spec seed changes every key
+    assert set(a).isdisjoint({c.key for c in _spec(seed=5).expand()})
+
+
+def test_with_solver_and_with_seeds():
+    spec = _grid(technique=["none", "ekf"])
+    s2 = spec.with_solver("slsqp")
+    assert s2.name == "t-slsqp" and s2.raw["name"] == "t-slsqp"
+    assert {c.solver for c in s2.expand() if c.technique == "none"} == {"slsqp"}
+    assert {c.solver for c in s2.expand() if c.technique == "ekf"} == {"-"}
+    with pytest.raises(SpecError, match="solver"):
+        spec.with_solver("gurobi")
+    s3 = spec.with_seeds(range(3))
+    assert s3.seeds == (0, 1, 2) and len(s3.expand()) == 3 * len(spec.expand()) // 2
+
+
+def test_epochs_selection():
+    spec = _spec(epochs={"seeds": [1], "where": {"window": [5]}})
+    want = {(c.seed, c.window) for c in spec.expand() if spec.epochs_wanted(c)}
+    assert want == {(1, 5)}
+    assert not any(_spec().epochs_wanted(c) for c in _spec().expand())

