@@ -352,8 +352,8 @@ def plot_monte_carlo(pixels: pd.DataFrame, out: Path) -> list[Path]:
             ("mse_x_mm2", "x MSE per pixel (mm$^2$)", "mc_mse_x_maps.png", True),
             ("mse_z_mm2", "z MSE per pixel (mm$^2$)", "mc_mse_z_maps.png", True),
             ("mean_err_z_mm", "mean z error per pixel (mm)", "mc_mean_err_z_maps.png", False)):
-        fig, axes = plt.subplots(1, len(methods), figsize=(4.2 * len(methods), 4.0),
-                                 constrained_layout=True)
+        fig, axes = plt.subplots(1, len(methods), figsize=(4.0 * len(methods), 4.8),
+                                 layout="constrained")
         vals = pixels[col].to_numpy()
         if log:
             pos = vals[vals > 0]
