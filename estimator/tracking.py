@@ -159,18 +159,27 @@ def _chunks(ends: np.ndarray, w: int, m: int):
         yield ends[a:a + size]
 
 
-def _cumsum_means(obs: np.ndarray, ends: np.ndarray, w: int
-                  ) -> tuple[np.ndarray, np.ndarray]:
-    """Unweighted window means (N, m, 2) and counts (N, m) by cumulative sums."""
+def _cumsum_means(obs: np.ndarray, ends: np.ndarray, w: int,
+                  weights: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """Window means (N, m, 2) and total weights (N, m) by cumulative sums: O(n).
+
+    weights : None (counts) or per-sample (n, m) >= 0, used when a weight depends on its
+    own sample only (Huff weights, Section 3.3.3), so every window shares it.
+    """
     present = ~np.isnan(obs[..., 0])
     ref = np.nanmean(obs.reshape(-1, 2), axis=0) if present.any() else np.zeros(2)
-    o0 = np.where(present[..., None], obs - ref, 0.0)
+    wt = present.astype(float) if weights is None else np.where(present, weights, 0.0)
+    o0 = np.where(present[..., None], obs - ref, 0.0) * wt[..., None]
     n, m = present.shape
     C = np.zeros((n + 1, m, 2))
     np.cumsum(o0, axis=0, out=C[1:])
     K = np.zeros((n + 1, m))
-    np.cumsum(present, axis=0, out=K[1:])
+    np.cumsum(wt, axis=0, out=K[1:])
     cnt = K[ends + 1] - K[ends + 1 - w]
+    if weights is not None:
+        # cancellation in K[b] - K[a] leaves ~1e-16 * K_total where the true sum is 0
+        tiny = 1e-12 * np.maximum(K[-1], 1.0)[None, :]
+        cnt = np.where(cnt > tiny, cnt, 0.0)
     with np.errstate(invalid="ignore", divide="ignore"):
         means = (C[ends + 1] - C[ends + 1 - w]) / cnt[..., None] + ref
     return np.where(cnt[..., None] > 0, means, np.nan), cnt
@@ -186,8 +195,11 @@ def _fit_windows(obs, cfg, ends, w, *, weighting, rng, huff_threshold, huber_c, 
     pos = np.full((N, m, 2), np.nan)
     yaw = np.full(N, np.nan)
     status = np.empty(N, dtype=object)
-    if solver == "procrustes" and weighting == "none":
-        means, cnt = _cumsum_means(obs, ends, w)
+    if solver == "procrustes" and weighting in ("none", "huff"):
+        # Huff weights are per sample (each time step on its own, Section 3.3.3 steps 1-9),
+        # so the stacked windows share them: one call on all epochs, then cumulative sums
+        sw = None if weighting == "none" else _weights.huff_weights(obs, cfg, huff_threshold)
+        means, cnt = _cumsum_means(obs, ends, w, sw)
         bf = procrustes_batch(means, cnt, cfg)
         return bf.positions, bf.yaw, bf.status.astype(object)
     a = 0

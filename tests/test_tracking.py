@@ -322,3 +322,23 @@ def test_bad_arrays_name_the_field():
         track(t, half, cfg)
     with pytest.raises(ValueError, match="config"):
         track(t, obs, "rover_gps8")
+
+
+def test_huff_fast_path_equals_stacked_windows():
+    """Huff weights depend on their own sample only, so track() computes them once and uses
+    cumulative sums; that must equal weighting every stacked window (1e-9 m: summation
+    order only)."""
+    from estimator.weights import huff_weights
+    from estimator.window import procrustes_batch, window_means
+
+    rng = np.random.default_rng(6)
+    cfg, t, _cg, _yaw, clean = straight(n=80)
+    obs = clean + rng.normal(0, 1.0, clean.shape)
+    obs[rng.random(obs.shape[:2]) < 0.1] = np.nan
+    s = 12
+    df = track(t, obs, cfg, window=s, weighting="huff")
+    idx = np.arange(s - 1, 80)[:, None] - np.arange(s - 1, -1, -1)[None, :]
+    st_ = obs[idx]
+    means, sw = window_means(st_, huff_weights(st_, cfg))
+    ref = procrustes_batch(means, sw, cfg)
+    np.testing.assert_allclose(df[XY].to_numpy(), ref.cg, atol=1e-9)
