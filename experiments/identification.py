@@ -310,7 +310,7 @@ def run_identification(
             series.append(pd.DataFrame({"axis": axis, "kind": "step", "t": ts, "u": us,
                                         "y": ys, "y_clean_fit": pred}))
         # unit-gain step responses of the thesis's and the identified model (Figs 3.15...)
-        tu = np.arange(0.0, 10.0 + 1e-9, 0.01)
+        tu = np.arange(0.0, 10.0 + 1e-9, 0.02)
         th = THESIS[axis]["params"]
         series.append(pd.DataFrame({
             "axis": axis, "kind": "unit_step", "t": tu, "u": np.ones_like(tu),
@@ -367,7 +367,7 @@ def run_identification(
     table = pd.DataFrame(rows)
     table.to_csv(out / "identification.csv", index=False)
     pd.concat(series, ignore_index=True).to_csv(out / "identification_series.csv",
-                                                index=False)
+                                                index=False, float_format="%.7g")
     meta = {"seed": seed, "noise_m": noise_m, "quick": quick, "n_mc": n_mc,
             "n_starts": n_starts, "code_version": _code_version(),
             "sim_time_s": sim_time, "total_time_s": time.perf_counter() - t_start,
@@ -445,6 +445,7 @@ def _report(table: pd.DataFrame, summary: dict, meta: dict) -> str:
                      f"| {_fmt(r['clean'])} {ci_c} | "
                      f"{_fmt(r['noisy'])} {ci_n} | {flags} | "
                      f"{_fmt(r['mc_mean'])} +- {_fmt(r['mc_std'], 2)} |")
+        L += [""]
         if form == "second_order":
             for name, f in (("clean", c), ("noisy", n)):
                 if f is not None and f.params["zeta"] >= 1.0:
@@ -454,13 +455,39 @@ def _report(table: pd.DataFrame, summary: dict, meta: dict) -> str:
                           f"is two real poles, {w * (z + r_):.4g} s and {w * (z - r_):.4g} s.")]
             L += [""]
         corr = [f"{a}/{b} rho={rho:+.3f}" for a, b, rho in (n.correlated if n else ())]
-        L += [""]
         if corr:
             L += [f"Strongly correlated estimates (noisy fit): {', '.join(corr)}.", ""]
         if th["note"]:
             L += [f"Note: {th['note']}", ""]
         L += [f"![{axis}](identification_{axis}.png)", ""]
+    L += _summary(table)
     return "\n".join(L) + "\n"
+
+
+def _summary(table: pd.DataFrame) -> list[str]:
+    """Comparison sentences; every number is read from this run's table."""
+    L = ["## Summary", ""]
+    for axis in AXIS_FORMS:
+        sub = table[table.axis == axis].set_index("parameter")
+        lag = sub.loc["lag"]
+        sim = (f", the simulated chain's constants give {lag.simulator:.4g} s"
+               if math.isfinite(lag.simulator) else "")
+        line = (f"- **{axis}**: total lag thesis {lag.thesis:.4g} s{sim}, clean fit "
+                f"{lag.clean:.4g} s")
+        if math.isfinite(lag.noisy):
+            line += (f", noisy fit {lag.noisy:.4g} s [{lag.noisy_ci_low:.4g}, "
+                     f"{lag.noisy_ci_high:.4g}]")
+        params = [k for k in sub.index if k not in ("K", "lag")]
+        clean_no = [k for k in params if not sub.loc[k, "clean_identifiable"]]
+        noisy_no = [k for k in params if sub.loc[k, "noisy_identifiable"] is not None
+                    and not sub.loc[k, "noisy_identifiable"]]
+        line += (f". Not identifiable: clean {', '.join(clean_no) or 'none'}; noisy "
+                 f"{', '.join(noisy_no) or 'none'}.")
+        L.append(line)
+    L += ["", ("Gains K are in different units from the thesis's and are compared with the "
+          "simulator's constants only. Time constants, delays and the total lag are "
+          "comparable in seconds."), ""]
+    return L
 
 
 def plot_identification(out_dir: str | Path) -> list[Path]:
@@ -511,7 +538,7 @@ def plot_identification(out_dir: str | Path) -> list[Path]:
         ax[1].set_title(f"{axis}: impulse response and fits")
         ax[1].set_xlabel("t (s)")
         ax[1].set_ylabel(f"output ({unit})")
-        ax[1].legend(fontsize=8)
+        ax[1].legend(fontsize=8, loc="lower right")
         us = a[a.kind == "unit_step"]
         ax[2].plot(us.t, us.y, "k", label=f"thesis (Fig {THESIS[axis]['figure']} model)")
         ax[2].plot(us.t, us.y_clean_fit, "r--", label="identified from simulator")

@@ -51,6 +51,7 @@ def test_outputs_written(quick_run):
     for axis in AXIS_FORMS:
         assert f"## {axis}" in md
     assert "0.6858" in md  # the thesis's inconsistent thrust delay is reported
+    assert "## Summary" in md
 
 
 def test_table_rows_and_thesis_values(quick_run):
