@@ -198,3 +198,22 @@ def test_bad_inputs_raise_naming_field():
     P = np.array([0.4, 0.3, 2.0])
     out = T.nonlinear_ls(flat, np.linalg.norm(P - flat, axis=1), x0=[0.5, 0.5, 1.0])
     np.testing.assert_allclose(out, P, atol=1e-9)
+
+
+def test_reflect_start_removes_mirror_solutions_of_a_flat_array():
+    # Appendix B layout: 22 mm of receiver height spread, so the linear start's z is nearly
+    # unobservable and some starts fall below the array; Gauss-Newton then converges to the
+    # mirror point. reflect_start moves the start to the platform side first.
+    rec = np.array([[0.325, 0.534, 0.022], [0.975, 0.534, 0.022], [0.65, 0.0, 0.022],
+                    [0.65, 1.126, 0.0], [0.0, 0.0, 0.0], [1.3, 0.0, 0.0]])
+    rng = np.random.default_rng(11)
+    P = np.c_[rng.uniform(-8, 8, (4000, 2)), np.full(4000, 5.0)]
+    R = np.linalg.norm(P[:, None] - rec[None], axis=2) + rng.normal(0, 0.005, (4000, 6))
+    plain = T.nonlinear_ls(rec, R)
+    fixed = T.nonlinear_ls(rec, R, reflect_start=True)
+    assert np.sum(plain[:, 2] < 0) > 0                 # the thesis's start does mirror
+    assert np.all(fixed[:, 2] > 0)
+    same = plain[:, 2] > 0                             # where the start was right: unchanged
+    np.testing.assert_allclose(fixed[same], plain[same], atol=1e-9)
+    single, info = T.nonlinear_ls(rec, R[0], reflect_start=True, return_info=True)
+    assert single.shape == (3,) and np.ndim(info.iterations) == 0
