@@ -169,7 +169,7 @@ def _direct_info(no_int: np.ndarray, missing: np.ndarray) -> TrilaterationInfo:
 
 
 def simple(receivers: np.ndarray, ranges: np.ndarray, *, side: int = 1,
-           return_info: bool = False):
+           return_info: bool = False) -> np.ndarray | tuple[np.ndarray, TrilaterationInfo]:
     """Textbook three-sphere intersection (Appendix A ``SimpleMethod``).
 
     Works in the frame the thesis's pseudo-positions describe (Appendix B ``RCM_SM``):
@@ -199,7 +199,7 @@ def simple(receivers: np.ndarray, ranges: np.ndarray, *, side: int = 1,
 
 
 def closed_form(receivers: np.ndarray, ranges: np.ndarray, *, side: int = 1,
-                return_info: bool = False):
+                return_info: bool = False) -> np.ndarray | tuple[np.ndarray, TrilaterationInfo]:
     """Closed-form "CFP" trilateration (Appendix A ``ExplicitMethod_CFP``).
 
     Subtracting sphere 1 from spheres 2 and 3 gives two linear equations
@@ -256,7 +256,7 @@ def closed_form(receivers: np.ndarray, ranges: np.ndarray, *, side: int = 1,
 
 
 def cayley_menger(receivers: np.ndarray, ranges: np.ndarray, *, side: int = 1,
-                  return_info: bool = False):
+                  return_info: bool = False) -> np.ndarray | tuple[np.ndarray, TrilaterationInfo]:
     """Trilateration by Cayley-Menger bideterminants, "CMD" (Appendix A
     ``ExplicitMethod_CMD``; Thomas and Ros 2005).
 
@@ -332,7 +332,7 @@ def _linear_system(rec: np.ndarray, method: str):
 
 
 def linear_ls(receivers: np.ndarray, ranges: np.ndarray, *, side: int = 1,
-              return_info: bool = False):
+              return_info: bool = False) -> np.ndarray | tuple[np.ndarray, TrilaterationInfo]:
     """Linear least squares (Appendix A ``LeastSquare``, method ``'ls'``).
 
     Rows ``A_i = p_{i+1} - p_1``, ``b_i = (R1^2 - R_{i+1}^2 + |p_{i+1} - p_1|^2) / 2``,
@@ -367,7 +367,7 @@ def _linear_solve(rec: np.ndarray, Apinv: np.ndarray, r: np.ndarray):
 def nonlinear_ls(receivers: np.ndarray, ranges: np.ndarray, *, side: int = 1,
                  x0: np.ndarray | None = None, tol: float = NLS_TOL_M,
                  max_iter: int = NLS_MAX_ITER, reflect_start: bool = False,
-                 return_info: bool = False):
+                 return_info: bool = False) -> np.ndarray | tuple[np.ndarray, TrilaterationInfo]:
     """Gauss-Newton range least squares (Appendix A ``LeastSquare``, method ``'nls'``).
 
     Minimises ``sum_i (|p - p_i| - R_i)^2``; each step solves ``J'J dp = -J'f`` with

@@ -667,6 +667,11 @@ def _discussion(spec: StudySpec, mct: pd.DataFrame, flt: pd.DataFrame) -> list[s
         f"{row(g2, 'filter1+2 -> CMD')['rmse_3d_m']:.3g} m. 10 m/s lets spikes of up to 1 m "
         "per 0.1 s through, and every one is amplified by CMD."),
         "",
+        ("**Receivers.** Appendix C sets RCM_3 = [Rx41; Rx42; Rx45] and builds T20's ranges "
+         "from R41, R42, R45, but T21's from [T21R42, T21R42, T21R45] (R42 twice), which "
+         "would place T21 with a wrong range; that looks like a typo and both transmitters "
+         "use R41, R42, R45 here."),
+        "",
         ("**Kalman filter.** Appendix C's sigmas (3 mm/s^2 process, 2 mm measurement) make a "
         "very stiff constant-velocity filter; on this 0.5 m/s square it lags at the corners "
         "(x RMSE "
