@@ -92,7 +92,7 @@ _SVD_RTOL = 1e-9
 _CORRELATED = 0.95
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, eq=False)
 class TransferFit:
     """Result of :func:`fit_transfer_function`.
 
