@@ -115,15 +115,15 @@ def course_heading(t: object, xy: object, span_s: float, min_speed: float = 0.1
     return np.where(ok & fast & np.all(np.isfinite(d), axis=1), out, np.nan)
 
 
-def detect_turns(t: object, heading: object, *, rate_on: float = 0.15, rate_off: float = 0.05,
-                 span_s: float = 4.0) -> np.ndarray:
+def detect_turns(t: object, heading: object, *, rate_on: float = 0.05, rate_off: float = 0.025,
+                 span_s: float = 8.0) -> np.ndarray:
     """Turning flags (n,) bool from a heading series: :func:`heading_rate` then
     :func:`hysteresis` on ``|rate|``.
 
-    Defaults: 0.15 rad/s on, 0.05 rad/s off, 4 s span. A 90 degree corner taken at up to
-    0.8 rad/s (models/paths/square100.toml) turns at several times ``rate_on``; a straight
-    has zero rate, so the thresholds sit where the heading noise of the estimate allows.
-    They are parameters, not measured constants; tune them per platform.
+    Defaults (0.05 rad/s on, 0.025 rad/s off, 8 s span) are the ones chosen for the
+    simulated rover (see ``estimator.tracking.DETECTOR_DEFAULTS``); a straight has zero
+    rate, so the thresholds sit where the heading noise of the estimate allows. Tune them
+    per platform.
     """
     rate = heading_rate(t, heading, span_s)
     return hysteresis(np.abs(rate), rate_on, rate_off)

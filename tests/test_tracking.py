@@ -152,14 +152,18 @@ def test_dynamic_window_uses_small_window_exactly_on_flagged_epochs():
 
 
 def test_turn_detector_from_estimates_flags_the_corner():
-    """turning='detect' on a noise-free corner: flags only around the turn (causal delay of
-    about half the span), none on the straights far from it."""
+    """turning='detect' on a noise-free corner: flags only after the turn starts and no
+    later than the detector's causal delay allows: the window-w CG lags up to (w-1) dt, the
+    course looks back span_s, the rate regression another span_s."""
     cfg, t, _cg, _yaw, turning, obs = corner_path(leg_steps=60, turn_steps=4)
-    df = track(t, obs, cfg, window=10, dynamic_window=1, turning="detect")
+    w, span = 10, 8.0
+    df = track(t, obs, cfg, window=10, dynamic_window=1, turning="detect",
+               detector={"window": w, "span_s": span})
     flagged = df.loc[df["turning"], "t"].to_numpy()
     t_turn = t[turning]
     assert flagged.size > 0
-    assert flagged.min() >= t_turn.min() and flagged.max() <= t_turn.max() + 8.0
+    assert flagged.min() >= t_turn.min()
+    assert flagged.max() <= t_turn.max() + (w - 1) + 2 * span
     assert (df.loc[df["turning"], "window"] == 1).all()
 
 
