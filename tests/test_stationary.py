@@ -79,9 +79,24 @@ def test_noise_free_session_recovers_truth_exactly():
     assert (tab["rmse_m"] < 1e-9).all() and (tab["spread_m"] < 1e-9).all()
 
 
+def test_split_sensitivity_heading_improves_with_common_share():
+    """With all error common-mode the layout is seen exactly (heading error 0 up to the white
+    jitter and outliers); with none, heading is much worse (notes: 60-70 deg RMS)."""
+    from experiments.stationary import split_sensitivity
+
+    model = GpsNoiseModel.load().with_overrides(white_sigma_m=0.0, outlier_rate=0.0,
+                                                step_sigma_m=0.0, bias_sigma_m=0.0,
+                                                missing_fraction=0.0)
+    tab = split_sensitivity(model, CFG, 1000.0, 3, fractions=(0.0, 1.0), windows=(1,))
+    yaw = dict(zip(tab.common_fraction, tab.yaw_rmse_deg))
+    assert yaw[1.0] < 1e-6          # identical errors on every antenna: exact heading
+    assert yaw[0.0] > 20.0
+
+
 def test_cli_end_to_end(tmp_path):
     out = tmp_path / "st"
-    assert main(["--synthetic", "--duration", "400", "--seed", "1", "--out", str(out)]) == 0
+    assert main(["--synthetic", "--duration", "400", "--seed", "1", "--out", str(out),
+                 "--no-split"]) == 0
     summary = json.loads((out / "summary.json").read_text())
     assert summary["n"] == 400 - 300             # everything up to the power failure's end (300 s) discarded
     assert {r["scheme"] for r in summary["weighting"]} >= {"none", "huber", "huff", "random"}
