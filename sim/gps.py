@@ -121,9 +121,12 @@ class StationarySession:
             tp = np.asarray(tp, dtype=float)
             if tp.shape != (obs.shape[1], 2):
                 raise ValueError(f"truth_positions: expected shape ({obs.shape[1]}, 2), got {tp.shape}")
-        # one missing flag per (sample, receiver): a half-missing pair is missing
+        half = np.isnan(obs).any(axis=2) & ~np.isnan(obs).all(axis=2)
+        if half.any():
+            k, j = np.argwhere(half)[0]
+            raise ValueError(f"obs: sample {k} of receiver {names[j]!r} has one NaN coordinate; "
+                             f"a missing fix must be NaN in both x and y")
         obs = obs.copy()
-        obs[np.isnan(obs).any(axis=2)] = np.nan
         object.__setattr__(self, "t", t)
         object.__setattr__(self, "obs", obs)
         object.__setattr__(self, "names", names)

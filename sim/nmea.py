@@ -82,6 +82,7 @@ SKIP_CLASSES = (
 _SENTENCE = re.compile(r"\$([A-Z0-9]{2,5}),[\x20-\x7e]*?\*[0-9A-Fa-f]{2}")
 _FIX_TYPES = {"GGA", "RMC"}
 _DAY = 86400.0
+_WS = " \t\r\n\x0b\x0c"   # ASCII whitespace only: latin-1 bytes such as 0x85 or 0xa0 are binary
 
 
 @dataclass
@@ -156,10 +157,10 @@ def parse_nmea(lines: Iterable[bytes | str], name: str = "receiver") -> LogFixes
         # some captures store the line end as the literal characters "\r\n"
         while text.endswith(("\\r\\n", "\\n", "\\r")):
             text = text[: text.rfind("\\")]
-        if text.lstrip().startswith("#"):
+        if text.lstrip(_WS).startswith("#"):
             skipped["comment_lines"] += 1
             continue
-        if not text.strip():
+        if not text.strip(_WS):
             continue
         pos = 0
         for mt in _SENTENCE.finditer(text):
@@ -211,20 +212,20 @@ def parse_nmea(lines: Iterable[bytes | str], name: str = "receiver") -> LogFixes
 
 def _count_gap(gap: str, skipped: dict) -> None:
     """Classify text outside valid sentences: a '$' fragment is truncated, else binary."""
-    if not gap.strip():
+    if not gap.strip(_WS):
         return
     parts = gap.split("$")
-    head = parts[0].strip()
+    head = parts[0].strip(_WS)
     if head:
         # printable text without '$' is the tail of a cut-off sentence; else binary bytes
         printable = re.fullmatch(r"[\x20-\x7e]*", head) is not None
         skipped["truncated" if printable and "," in head else "binary_segments"] += 1
     for frag in parts[1:]:
-        if not frag.strip():
+        if not frag.strip(_WS):
             continue
         # a fragment with a checksum field is a sentence whose checksum did not match the
         # regex (non-printable bytes inside) -> binary noise within a sentence
-        if re.fullmatch(r"[A-Z0-9]{2,5},[\x20-\x7e]*", frag.rstrip()):
+        if re.fullmatch(r"[A-Z0-9]{2,5},[\x20-\x7e]*", frag.rstrip(_WS)):
             skipped["truncated"] += 1
         else:
             skipped["binary_segments"] += 1

@@ -240,6 +240,10 @@ def test_session_validation_names_fields():
         StationarySession(np.arange(3.0), np.zeros((3, 2, 2)), ("a", "a"))
     with pytest.raises(ValueError, match="t"):
         StationarySession(np.array([0.0, 0.0, 1.0]), np.zeros((3, 2, 2)), ("a", "b"))
+    half = np.zeros((3, 2, 2))
+    half[1, 1, 0] = np.nan
+    with pytest.raises(ValueError, match="receiver 'b'"):
+        StationarySession(np.arange(3.0), half, ("a", "b"))
 
 
 # --------------------------------------------------------------------------- replay

@@ -8,6 +8,8 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 from pyproj import Geod
 
 from sim.nmea import (
@@ -78,6 +80,19 @@ def test_each_skip_class_is_counted():
     # valid fixes: 12:00:00, :06, :07; the no-fix / empty epochs are kept as missing
     assert fx.valid.sum() == 3
     assert np.isnan(fx.lat[~fx.valid]).all()
+
+
+@settings(max_examples=40, deadline=None)
+@given(st.lists(st.binary(min_size=0, max_size=12).map(lambda b: bytes(0x80 | x for x in b)),
+                min_size=10, max_size=10))
+def test_binary_noise_never_loses_or_invents_fixes(noise):
+    """Property: non-ASCII bytes before sentences (UBX frames share a line with NMEA in the
+    hazer captures) are counted once per run and every valid fix survives unchanged."""
+    lines = [n + gga(f"1200{k:02d}.00", lat=f"3947.{k:05d}").encode() for k, n in enumerate(noise)]
+    fx = parse_nmea(lines)
+    assert fx.valid.sum() == 10
+    assert fx.skipped["binary_segments"] == sum(1 for n in noise if n)
+    assert np.allclose(fx.lat, 39 + (47 + np.arange(10) * 1e-5) / 60, atol=1e-12)
 
 
 def test_midnight_rollover_with_and_without_rmc():
