@@ -41,6 +41,7 @@ from __future__ import annotations
 import dataclasses
 import json
 import math
+import numbers
 import tomllib
 from collections.abc import Sequence
 from dataclasses import dataclass, field
@@ -545,9 +546,9 @@ def synthesize_session(model: GpsNoiseModel, config: SensorConfig, duration_s: f
     plus the configuration's ``dead``) and the power failure are applied as NaN.
     Shapes: t (n,), obs (n, m, 2) with n = round(duration_s * rate_hz).
     """
-    if not (isinstance(duration_s, (int, float)) and duration_s > 0 and math.isfinite(duration_s)):
+    if not (isinstance(duration_s, numbers.Real) and duration_s > 0 and math.isfinite(duration_s)):
         raise ValueError(f"duration_s: must be a positive number, got {duration_s!r}")
-    if not (isinstance(rate_hz, (int, float)) and rate_hz > 0 and math.isfinite(rate_hz)):
+    if not (isinstance(rate_hz, numbers.Real) and rate_hz > 0 and math.isfinite(rate_hz)):
         raise ValueError(f"rate_hz: must be a positive number, got {rate_hz!r}")
     if not isinstance(rng, np.random.Generator):
         raise ValueError(  # noqa: TRY004 (project contract: bad input is ValueError)
@@ -556,7 +557,7 @@ def synthesize_session(model: GpsNoiseModel, config: SensorConfig, duration_s: f
         if d not in config.names:
             raise ValueError(f"dead: receiver {d!r} of noise model {model.name!r} is not in "
                              f"configuration {config.name!r} (names {list(config.names)})")
-    n = round(duration_s * rate_hz)
+    n = round(float(duration_s) * float(rate_hz))
     if n < 1:
         raise ValueError(f"duration_s * rate_hz: gives {n} samples; need at least 1")
     dt = 1.0 / rate_hz
