@@ -105,3 +105,16 @@ def test_cli_end_to_end(tmp_path):
         assert (out / name).stat().st_size > 1000
     text = (out / "summary.md").read_text()
     assert "Sliding windows" in text and "Pairwise distances" in text
+
+
+def test_cli_on_a_real_log(tmp_path, realdata_dir):
+    """A real receiver without a known layout: per-sensor sections only, no fits."""
+    log = realdata_dir / "hazer/tumbleweed/HOME/20200526/benchmark.csv"
+    out = tmp_path / "real"
+    assert main(["--session", str(log), "--out", str(out)]) == 0
+    summary = json.loads((out / "summary.json").read_text())
+    assert summary["weighting"] is None and summary["windows"] is None
+    assert summary["meta"]["source"] == "tumbleweed_csv"
+    sensors = [r for r in summary["sensors"] if r.get("axis") == "x"]
+    assert len(sensors) == 1 and 0.05 < sensors[0]["std_m"] < 5.0
+    assert (out / "fig4_09_timeseries_sensorbenchmark.png").stat().st_size > 1000
