@@ -115,7 +115,8 @@ def main(argv: list[str] | None = None) -> FsPath:
                            cache_dir=False if args.no_cache else None)
     quad = simulate_quadcopter(quad_path, cache_dir=None if args.no_cache else DEFAULT_CACHE_DIR)
     out = plot_paths([
-        (rover, rover_path, f"GPS rover, {rover_path.name}", 0),
+        (rover, rover_path, f"GPS rover, {rover_path.name} at {rover_path.cruise_speed_mps:g} m/s",
+         0),
         (quad, quad_path, f"quadcopter, {quad_path.name} at {quad_path.altitude_m:g} m", None),
     ], args.out)
     for name, tr, p in (("rover", rover, rover_path), ("quadcopter", quad, quad_path)):

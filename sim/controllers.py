@@ -19,10 +19,15 @@ Section 4.9). Here that is a pure-pursuit follower of the path's polyline:
   the wheel speeds ``(v -/+ omega b/2)/r`` are rate-limited too (no wheel skid at waypoint
   switches, ../shared/notes/mujoco.md).
 - Turning flag (the "control information" of Section 3.4.2.1): ``|omega_cmd| >
-  turning_threshold_radps`` of the controller's own rate-limited command.
+  turning_curvature_per_m * cruise_speed_mps`` of the controller's own rate-limited command,
+  i.e. the commanded turn rate exceeds that of a 15 m radius circle at cruise speed. The
+  threshold scales with the cruise speed because pure pursuit's geometry does not: the same
+  corner is driven on (nearly) the same curve at any speed, with turn rates proportional to
+  the speed (measured at 0.2 m/s on square100: corner peak 0.082 rad/s, below the 0.1 rad/s
+  that marked the corners at 1.5 m/s).
 
-Everything here is pure Python on floats (the controller runs every 20 ms inside the MuJoCo
-loop; small numpy operations would cost more than the physics).
+Everything here is pure Python on floats (the controller runs at 20-50 Hz inside the MuJoCo
+loop; small numpy operations would cost more than the controller's arithmetic).
 """
 
 from __future__ import annotations
@@ -54,10 +59,13 @@ class PurePursuitParams:
     target_radius_m : radius of the target area around each waypoint (Section 4.9).
     cruise_speed_mps, max_turn_rate_radps, max_lateral_accel_mps2, max_accel_mps2 :
         speed and limits. max_yaw_accel_radps2 : rate limit of the turn-rate command.
-    turning_threshold_radps : ``|omega_cmd|`` above this sets the turning flag. Default
-        0.1 rad/s: about 20x the largest correction measured on straights (see
-        sim/rover.py's module docstring) and 5x below the corner turn rate, so the flag
-        marks the corners and nothing else.
+    turning_curvature_per_m : the turning flag is set while ``|omega_cmd| >
+        turning_curvature_per_m * cruise_speed_mps`` (1/m). Default 1/15 (a 15 m turn
+        radius; 0.1 rad/s at 1.5 m/s, 0.013 rad/s at 0.2 m/s): the corners peak at a
+        curvature of about 0.4 1/m (measured at both speeds), while the heading corrections
+        measured more than 8 m from a corner stay below 0.02 rad/s at 1.5 m/s and
+        0.0009 rad/s at 0.2 m/s (curvature < 0.013 1/m), so the flag marks the corners and
+        nothing else.
     stop_tolerance_m : the run ends once the platform is this close (along the final segment)
         to the end point, or past it, and has stopped.
     """
@@ -69,7 +77,7 @@ class PurePursuitParams:
     max_lateral_accel_mps2: float = 0.8
     max_accel_mps2: float = 0.5
     max_yaw_accel_radps2: float = 1.0
-    turning_threshold_radps: float = 0.1
+    turning_curvature_per_m: float = 1.0 / 15.0
     stop_tolerance_m: float = 0.02
 
     def __post_init__(self) -> None:
@@ -183,7 +191,8 @@ def pure_pursuit_step(state: PurePursuitState, x: float, y: float, yaw: float,
     w_max = min(p.max_turn_rate_radps, p.max_lateral_accel_mps2 / max(state.v_cmd, 1e-9))
     omega_target = max(-w_max, min(w_max, state.v_cmd * kappa))
     state.omega_cmd = rate_limit(omega_target, state.omega_cmd, p.max_yaw_accel_radps2, dt)
-    return state.v_cmd, state.omega_cmd, abs(state.omega_cmd) > p.turning_threshold_radps
+    turning = abs(state.omega_cmd) > p.turning_curvature_per_m * p.cruise_speed_mps
+    return state.v_cmd, state.omega_cmd, turning
 
 
 def simulate_unicycle(path: Path, params: PurePursuitParams | None = None, *, dt: float = 0.02,

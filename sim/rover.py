@@ -5,7 +5,8 @@ provided the "perfect" trajectory of the eight antennas while the platform drove
 Path 2 (Section 4.9).
 
 Model: ``models/rover.xml``, a 64 kg differential-drive platform (1.5 x 1.0 m roof, wheels
-r = 0.2 m on velocity servos, track 1.1 m, frictionless casters), 1 ms ``implicitfast`` steps.
+r = 0.2 m on velocity servos, track 1.1 m, frictionless casters), 5 ms ``implicitfast`` steps
+(``timestep_s``; see the XML and :func:`simulate_rover` for the measured choice).
 The wheels collide as spheres (one contact point each; see the XML for the measured reason),
 so the platform turns at the rate its wheel speeds imply and follows the same controller on
 an ideal unicycle (:func:`sim.controllers.simulate_unicycle`) to about 2 cm at the corners.
@@ -22,13 +23,23 @@ tilts by < 1e-4 rad on the soft contacts while it accelerates (measured on squar
 roof centre, 0.6 m up, is up to 0.05 mm horizontally from the body origin. The drive axle
 passes under it, so it has no lateral slip and is the point the controller steers.
 
-Control: :mod:`sim.controllers` pure pursuit at ``control_rate_hz`` (default 50 Hz); between
+Control: :mod:`sim.controllers` pure pursuit at ``control_rate_hz`` (default from the cruise speed,
+:func:`default_control_steps`: 20 Hz at 0.2 m/s, 50 Hz at 1.5 m/s); between
 updates ``mj_step(model, data, nstep)`` advances the physics. Sample times come from an
 integer step counter (``t = step * timestep``; sample k at step ``round(k / (rate *
 timestep))``), and positions are logged after ``mj_kinematics`` (site positions read after
 ``mj_step`` are one step old). The turning flag of sample k is True if any command issued in
-``[t_{k-1}, t_k)`` had ``|omega_cmd| > turning_threshold_radps`` (the controller's own
+``[t_{k-1}, t_k)`` had ``|omega_cmd| > turning_curvature_per_m * cruise_speed_mps`` (the controller's own
 "control information", Section 3.4.2.1).
+
+Speed (measured on this shared 2-core machine, loaded by other jobs, default settings):
+Path 1 (square100 at 0.2 m/s, 1984 s simulated) in 3.0-5.8 s wall, Path 2 (square200,
+3985 s) in 7.7-10.8 s (load average 3.7-4.0 on 2 cores; 2.7-2.8 s and 5.5-6.1 s of CPU),
+i.e. 340-660 simulated seconds per wall second. ``mj_step`` takes about 80 % of the time
+(cProfile) (a fixed ~6-15 us per step: the Newton solver converges in one
+iteration, and no solver option changed that measurably), so wall time scales with the
+number of physics steps; hence the 5 ms step (at 1 ms Path 1 took 31 s). The Python
+controller at 20 Hz and the 1 Hz logging are the rest.
 
 Randomness: none. The run is deterministic (same inputs -> bit-identical arrays, tested); the
 ``seed`` is recorded and enters the cache key only, so seeded sweeps stay uniform.
@@ -59,22 +70,56 @@ from sim.controllers import (
 from sim.paths import Path, load_path, path_errors
 from sim.truth import Truth
 
-__all__ = ["ROVER_XML", "SITE_PREFIX", "build_rover_model", "simulate_rover"]
+__all__ = ["MAX_TIMESTEP_S", "ROVER_XML", "SITE_PREFIX", "build_rover_model",
+           "default_control_steps", "simulate_rover"]
 
 ROVER_XML = MODELS_DIR / "rover.xml"
 SITE_PREFIX = "gps_"
+#: Largest physics step accepted: half the contacts' solref time constant (0.01 s in the XML).
+MAX_TIMESTEP_S = 0.005
 _SETTLE_S = 0.2
+#: Default control period: the platform moves at most this far between controller updates
+#: at cruise speed (3 cm = 50 Hz at 1.5 m/s), ...
+_CTRL_TRAVEL_M = 0.03
+#: ... but the controller never runs slower than this (see default_control_steps).
+_MIN_CTRL_RATE_HZ = 20.0
 
 
-def build_rover_model(config: SensorConfig, xml_path: str | FsPath = ROVER_XML
-                      ) -> tuple[mujoco.MjModel, str]:
+def default_control_steps(cruise_speed_mps: float, timestep_s: float) -> int:
+    """Physics steps per controller update when ``control_rate_hz`` is not given.
+
+    The largest whole number of steps in which the platform travels at most
+    ``_CTRL_TRAVEL_M`` = 3 cm at cruise speed, capped so that the controller runs at
+    least ``_MIN_CTRL_RATE_HZ`` = 20 Hz, and at least one step. At 5 ms steps: 50 Hz at
+    1.5 m/s, 20 Hz at 0.2 m/s. Measured on square100 at 0.2 m/s, 5 ms: 10 Hz gave 4.0 mm
+    straight-line error (at the final stop) and 20 Hz 0.8 mm for the same wall time (the
+    controller is < 10 % of it), hence the 20 Hz floor.
+    """
+    by_travel = math.floor(_CTRL_TRAVEL_M / (cruise_speed_mps * timestep_s) + 1e-9)
+    by_rate = math.floor(1.0 / (_MIN_CTRL_RATE_HZ * timestep_s) + 1e-9)
+    return max(1, min(by_travel, by_rate))
+
+
+def build_rover_model(config: SensorConfig, xml_path: str | FsPath = ROVER_XML, *,
+                      timestep_s: float | None = None) -> tuple[mujoco.MjModel, str]:
     """Compile the rover with one site per sensor of ``config`` (generated with MjSpec).
 
+    ``timestep_s`` overrides the physics step of the XML (``<option timestep>``, 5 ms in
+    models/rover.xml); it must be > 0 and at most :data:`MAX_TIMESTEP_S` (the contacts'
+    ``solref`` time constant 0.01 s needs at least two steps, or MuJoCo silently softens it).
+
     Returns (model, xml) where ``xml`` is the full MJCF text of what was compiled (it enters
-    the cache key). Raises ValueError if the model has no body "chassis", already contains
-    sites named ``gps_*``, or the compiled sites do not reproduce the configuration.
+    the cache key, so the timestep does too). Raises ValueError if the model has no body
+    "chassis", already contains sites named ``gps_*``, the timestep is out of range, or the
+    compiled sites do not reproduce the configuration.
     """
     spec = mujoco.MjSpec.from_file(str(xml_path))
+    if timestep_s is not None:
+        if isinstance(timestep_s, bool) or not isinstance(timestep_s, (int, float)) or not (
+                math.isfinite(timestep_s) and 0 < timestep_s <= MAX_TIMESTEP_S):
+            raise ValueError(f"timestep_s: must be a number in (0, {MAX_TIMESTEP_S}] s, "
+                             f"got {timestep_s!r}")
+        spec.option.timestep = float(timestep_s)
     chassis = spec.body("chassis")
     if chassis is None:
         raise ValueError(f"xml_path: {xml_path} has no body named 'chassis'")
@@ -112,7 +157,8 @@ def simulate_rover(
     seed: int = 0,
     sample_rate_hz: float | None = None,
     cache_dir: str | FsPath | None | bool = None,
-    control_rate_hz: float = 50.0,
+    control_rate_hz: float | None = None,
+    timestep_s: float | None = None,
     controller: dict[str, float] | None = None,
     xml_path: str | FsPath = ROVER_XML,
     max_duration_s: float | None = None,
@@ -126,9 +172,13 @@ def simulate_rover(
     seed : recorded and part of the cache key; the simulation itself is deterministic.
     sample_rate_hz : Truth sample rate; default ``path.sample_rate_hz`` (GPS: 1 Hz).
     cache_dir : None = results/cache/truth, a directory, or False to disable caching.
-    control_rate_hz : controller rate; the control period must be a whole number of steps.
+    control_rate_hz : controller rate; the control period must be a whole number of physics
+        steps. Default: from the cruise speed (:func:`default_control_steps`: at most 3 cm of
+        travel per update, at least 20 Hz; 20 Hz at 0.2 m/s, 50 Hz at 1.5 m/s).
+    timestep_s : physics step, default the XML's 5 ms (``implicitfast``); at most 5 ms. Both
+        rates enter the cache key (through the compiled XML and the run parameters).
     controller : overrides of :class:`~sim.controllers.PurePursuitParams` fields
-        (e.g. ``{"turning_threshold_radps": 0.2}``); the rest comes from the path.
+        (e.g. ``{"turning_curvature_per_m": 0.1}``); the rest comes from the path.
     xml_path : the MJCF model (default models/rover.xml); it must have a body "chassis",
         hinge joints and velocity actuators named "wheel_left"/"wheel_right".
     max_duration_s : give up (RuntimeError) if the route is not finished by then; default
@@ -155,13 +205,21 @@ def simulate_rover(
             math.isfinite(rate) and rate > 0):
         raise ValueError(f"sample_rate_hz: must be a finite number > 0, got {rate!r}")
     params = PurePursuitParams.from_path(path, **(controller or {}))
-    model, xml = build_rover_model(config, xml_path)
+    model, xml = build_rover_model(config, xml_path, timestep_s=timestep_s)
     dt = float(model.opt.timestep)
-    steps_per_ctrl = 1.0 / (control_rate_hz * dt)
-    if not (control_rate_hz > 0 and abs(steps_per_ctrl - round(steps_per_ctrl)) < 1e-9
-            and round(steps_per_ctrl) >= 1):
-        raise ValueError(f"control_rate_hz: the control period must be a whole number of "
-                         f"{dt} s steps, got {control_rate_hz!r}")
+    if control_rate_hz is None:
+        steps_per_ctrl = float(default_control_steps(params.cruise_speed_mps, dt))
+        control_rate_hz = 1.0 / (steps_per_ctrl * dt)
+    else:
+        if isinstance(control_rate_hz, bool) or not isinstance(control_rate_hz, (int, float)) \
+                or not (math.isfinite(control_rate_hz) and control_rate_hz > 0):
+            raise ValueError(f"control_rate_hz: must be a finite number > 0, "
+                             f"got {control_rate_hz!r}")
+        steps_per_ctrl = 1.0 / (control_rate_hz * dt)
+        if not (abs(steps_per_ctrl - round(steps_per_ctrl)) < 1e-9
+                and round(steps_per_ctrl) >= 1):
+            raise ValueError(f"control_rate_hz: the control period must be a whole number of "
+                             f"{dt} s steps, got {control_rate_hz!r}")
     if max_duration_s is None:
         max_duration_s = 2.0 * path.length_m / params.cruise_speed_mps + 120.0
     run_params: dict[str, Any] = {
