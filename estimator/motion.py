@@ -37,7 +37,7 @@ import numpy as np
 
 from estimator.configuration import SensorConfig
 
-__all__ = ["MotionFit", "motion_compensated_batch"]
+__all__ = ["MotionFit", "motion_compensated_batch", "motion_compensated_series"]
 
 _GOLDEN = (np.sqrt(5.0) - 1.0) / 2.0
 
@@ -68,18 +68,22 @@ def _s_of(x: np.ndarray) -> np.ndarray:
 
 
 class _Sums:
-    """Per-window, per-epoch sums over sensors (omega-independent)."""
+    """Per-window, per-epoch sums over sensors (omega-independent), (N, s) arrays."""
 
-    def __init__(self, tau: np.ndarray, o: np.ndarray, wt: np.ndarray, b: np.ndarray):
+    def __init__(self, tau, Wt, Bt, Ot, EOt, BB, OO, o=None, wt=None, b=None):
         self.tau = tau  # (N, s)
-        self.o, self.wt, self.b = o, wt, b
-        self.Wt = wt.sum(axis=2)  # (N, s)
-        self.Bt = (wt * b[None, None, :]).sum(axis=2)
-        self.Ot = (wt * o).sum(axis=2)
-        self.EOt = (wt * np.conj(b)[None, None, :] * o).sum(axis=2)
-        self.BB = (wt * (np.abs(b) ** 2)[None, None, :]).sum(axis=(1, 2))  # (N,)
-        self.OO = (wt * np.abs(o) ** 2).sum(axis=(1, 2))
-        self.W = self.Wt.sum(axis=1)
+        self.Wt, self.Bt, self.Ot, self.EOt = Wt, Bt, Ot, EOt
+        self.BB, self.OO = BB, OO  # (N,)
+        self.W = Wt.sum(axis=1)
+        self.o, self.wt, self.b = o, wt, b  # stacked samples, for exact_objective only
+
+    @classmethod
+    def from_stacked(cls, tau: np.ndarray, o: np.ndarray, wt: np.ndarray, b: np.ndarray):
+        """From stacked windows: o (N, s, m) complex, wt (N, s, m), b (m,) complex."""
+        return cls(tau, wt.sum(axis=2), (wt * b[None, None, :]).sum(axis=2),
+                   (wt * o).sum(axis=2), (wt * np.conj(b)[None, None, :] * o).sum(axis=2),
+                   (wt * (np.abs(b) ** 2)[None, None, :]).sum(axis=(1, 2)),
+                   (wt * np.abs(o) ** 2).sum(axis=(1, 2)), o, wt, b)
 
     def exact_objective(self, omega: np.ndarray) -> np.ndarray:
         """Objective from explicit residuals (no cancellation; O(N s m))."""
@@ -191,7 +195,7 @@ def motion_compensated_batch(tau: np.ndarray, obs: np.ndarray, config: SensorCon
     oc = np.where(present, oc - ref[:, None, None], 0.0)
     B = config.body_positions
     b = B[:, 0] + 1j * B[:, 1]
-    sums = _Sums(tau, oc, wt, b)
+    sums = _Sums.from_stacked(tau, oc, wt, b)
     omega = np.zeros(N)
     if yaw_rate:
         if not np.isfinite(omega_max) or omega_max <= 0:
@@ -241,20 +245,76 @@ def motion_compensated_batch(tau: np.ndarray, obs: np.ndarray, config: SensorCon
         step = np.clip(np.nan_to_num(step), -10.0 * d, 10.0 * d)
         cand = np.clip(omega + step, -rng_k, rng_k)
         omega = np.where(sums.exact_objective(cand) <= j0, cand, omega)
+    return _finish(sums, omega, ref, b, (wt.sum(axis=1) > 0).sum(axis=1), config)
+
+
+def _finish(sums: _Sums, omega: np.ndarray, ref: np.ndarray, b: np.ndarray,
+            n_sensors: np.ndarray, config: SensorConfig) -> MotionFit:
+    """Pose at the newest epoch from the closed form at yaw rate omega (N,)."""
     c, v, z, obj = sums.solve(omega)
-    n_sensors = (wt.sum(axis=1) > 0).sum(axis=1)
     ok = (n_sensors >= 2) & np.isfinite(z)
     c = c + ref
     pos_c = c[:, None] + z[:, None] * b[None, :]
     pos = np.stack([pos_c.real, pos_c.imag], axis=-1)
-    yaw = np.angle(z)
     vel = np.stack([v.real, v.imag], axis=-1)
     bad = ~ok
     pos[bad] = np.nan
     vel[bad] = np.nan
-    yaw = np.where(ok, yaw, np.nan)
-    omega = np.where(ok, omega, np.nan)
-    obj = np.where(ok, obj, np.nan)
-    status = np.where(ok, "ok", "insufficient_data")
-    return MotionFit(positions=pos, cg=config.cg_from_positions(pos), yaw=yaw, velocity=vel,
-                     yaw_rate=omega, objective=obj, status=status)
+    return MotionFit(positions=pos, cg=config.cg_from_positions(pos),
+                     yaw=np.where(ok, np.angle(z), np.nan), velocity=vel,
+                     yaw_rate=np.where(ok, omega, np.nan), objective=np.where(ok, obj, np.nan),
+                     status=np.where(ok, "ok", "insufficient_data"))
+
+
+def motion_compensated_series(t: np.ndarray, obs: np.ndarray, config: SensorConfig,
+                              ends: np.ndarray, window: int,
+                              sample_weights: np.ndarray | None = None) -> MotionFit:
+    """Constant-velocity fits (omega = 0) of the windows ``ends - window + 1 .. ends`` of one
+    recording, from per-epoch sums over the sensors: the same closed form as
+    :func:`motion_compensated_batch` with ``yaw_rate=False``, without stacking the sensor
+    axis (O(N s) small operations instead of O(N s m)).
+
+    t : (n,) s. obs : (n, m, 2) metres, NaN = missing. ends : (N,) int. window : s >= 1.
+    sample_weights : None or (n, m) >= 0, weights that belong to a sample whatever its
+    window (e.g. Huff weights).
+    """
+    obs = np.asarray(obs, dtype=float)
+    if config.d != 2:
+        config = config.planar()
+    n, m = obs.shape[:2]
+    present = np.all(np.isfinite(obs), axis=-1)
+    wt = present.astype(float)
+    if sample_weights is not None:
+        sw = np.asarray(sample_weights, dtype=float)
+        if sw.shape != (n, m) or not np.all(np.isfinite(sw)) or np.any(sw < 0):
+            raise ValueError(f"sample_weights: expected finite values >= 0 of shape ({n}, {m})")
+        wt = np.where(present, sw, 0.0)
+    ref0 = np.nanmean(obs.reshape(-1, 2), axis=0) if present.any() else np.zeros(2)
+    o = np.where(present, (obs[..., 0] - ref0[0]) + 1j * (obs[..., 1] - ref0[1]), 0.0)
+    B = config.body_positions
+    b = B[:, 0] + 1j * B[:, 1]
+    # per-epoch sums over sensors (n,)
+    Wt = wt.sum(axis=1)
+    Bt = wt @ b
+    Ot = (wt * o).sum(axis=1)
+    EOt = (wt * o) @ np.conj(b)
+    BBt = wt @ (np.abs(b) ** 2)
+    OOt = (wt * np.abs(o) ** 2).sum(axis=1)
+    ends = np.asarray(ends, dtype=int)
+    idx = ends[:, None] - np.arange(window - 1, -1, -1)[None, :]
+    tau = np.asarray(t, dtype=float)[idx] - np.asarray(t, dtype=float)[ends][:, None]
+    # centre each window on its weighted mean (as motion_compensated_batch does)
+    Wi, Oi = Wt[idx], Ot[idx]
+    W = Wi.sum(axis=1)
+    ref = np.where(W > 0, Oi.sum(axis=1) / np.where(W > 0, W, 1.0), 0.0)
+    Bi = Bt[idx]
+    sums = _Sums(tau, Wi, Bi, Oi - ref[:, None] * Wi, EOt[idx] - ref[:, None] * np.conj(Bi),
+                 BBt[idx].sum(axis=1),
+                 OOt[idx].sum(axis=1) - 2.0 * (np.conj(ref) * Oi.sum(axis=1)).real
+                 + np.abs(ref) ** 2 * W)
+    cnt = np.zeros((n + 1, m))
+    np.cumsum(wt > 0, axis=0, out=cnt[1:])
+    n_sensors = ((cnt[ends + 1] - cnt[ends + 1 - window]) > 0).sum(axis=1)
+    return _finish(sums, np.zeros(ends.size), ref + (ref0[0] + 1j * ref0[1]), b, n_sensors,
+                   config)
+

@@ -50,6 +50,7 @@ these numbers.
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import numpy as np
@@ -109,42 +110,54 @@ class PoseFilterResult:
 
 
 def _wrap(a: float) -> float:
-    return float(np.pi - np.mod(np.pi - a, 2.0 * np.pi))
+    a = float(a)
+    if -math.pi < a <= math.pi:
+        return a
+    return math.pi - math.fmod(math.fmod(math.pi - a, _TWO_PI) + _TWO_PI, _TWO_PI)
+
+
+_TWO_PI = 2.0 * math.pi
 
 
 def ctrv_predict(x: np.ndarray, P: np.ndarray, dt: float, sigma_accel: float,
                  sigma_yaw_accel: float) -> tuple[np.ndarray, np.ndarray]:
-    """CTRV prediction of state (5,) and covariance (5, 5) over dt seconds (EKF)."""
-    px, py, yaw, v, om = x
+    """CTRV prediction of state (5,) and covariance (5, 5) over dt seconds (EKF).
+
+    Scalar math on purpose: this runs once per epoch in a Python loop.
+    """
+    px, py, yaw, v, om = (float(e) for e in x)
     # exact CTRV written with f1 = sin(q)/q, f2 = (1 - cos q)/q, q = omega dt, which are
     # smooth through omega = 0 (no branch, so state and Jacobian always agree)
     q = om * dt
-    f1 = float(np.sinc(q / np.pi))
-    f2 = float(np.sin(q / 2.0) * np.sinc(q / (2.0 * np.pi)))
     if abs(q) > 1e-4:
-        g1 = (q * np.cos(q) - np.sin(q)) / q**2  # d f1 / d q
-        g2 = (q * np.sin(q) - (1.0 - np.cos(q))) / q**2  # d f2 / d q
+        sq, cq = math.sin(q), math.cos(q)
+        f1 = sq / q
+        f2 = (1.0 - cq) / q
+        g1 = (q * cq - sq) / (q * q)  # d f1 / d q
+        g2 = (q * sq - (1.0 - cq)) / (q * q)  # d f2 / d q
     else:  # series: f1 = 1 - q^2/6, f2 = q/2 - q^3/24
+        f1 = 1.0 - q * q / 6.0
+        f2 = 0.5 * q - q * q * q / 24.0
         g1 = -q / 3.0
         g2 = 0.5 - q * q / 8.0
-    c0, s0 = np.cos(yaw), np.sin(yaw)
+    c0, s0 = math.cos(yaw), math.sin(yaw)
     ax = c0 * f1 - s0 * f2  # displacement direction / (v dt)
     ay = s0 * f1 + c0 * f2
-    nx = px + v * dt * ax
-    ny = py + v * dt * ay
-    th = yaw + q
-    F = np.eye(5)
-    F[0, 2] = -v * dt * ay
-    F[1, 2] = v * dt * ax
-    F[0, 3] = dt * ax
-    F[1, 3] = dt * ay
-    F[0, 4] = v * dt * dt * (c0 * g1 - s0 * g2)
-    F[1, 4] = v * dt * dt * (s0 * g1 + c0 * g2)
-    F[2, 4] = dt
-    xn = np.array([nx, ny, _wrap(th), v, om])
+    vdt = v * dt
+    F = np.array([
+        [1.0, 0.0, -vdt * ay, dt * ax, vdt * dt * (c0 * g1 - s0 * g2)],
+        [0.0, 1.0, vdt * ax, dt * ay, vdt * dt * (s0 * g1 + c0 * g2)],
+        [0.0, 0.0, 1.0, 0.0, dt],
+        [0.0, 0.0, 0.0, 1.0, 0.0],
+        [0.0, 0.0, 0.0, 0.0, 1.0],
+    ])
+    xn = np.array([px + vdt * ax, py + vdt * ay, _wrap(yaw + q), v, om])
+    # Q = G diag(sa^2, sy^2) G^T, G = [[h c0, 0], [h s0, 0], [0, h], [dt, 0], [0, dt]]
     h = 0.5 * dt * dt
-    G = np.array([[h * np.cos(yaw), 0.0], [h * np.sin(yaw), 0.0], [0.0, h], [dt, 0.0], [0.0, dt]])
-    Q = G @ np.diag([sigma_accel**2, sigma_yaw_accel**2]) @ G.T
+    qa, qy = sigma_accel**2, sigma_yaw_accel**2
+    ga = np.array([h * c0, h * s0, 0.0, dt, 0.0])
+    gy = np.array([0.0, 0.0, h, 0.0, dt])
+    Q = qa * np.outer(ga, ga) + qy * np.outer(gy, gy)
     return xn, F @ P @ F.T + Q
 
 
@@ -168,31 +181,46 @@ def antenna_update(x: np.ndarray, P: np.ndarray, z: np.ndarray, r: np.ndarray,
     """EKF update with antenna fixes z (k, 2) at body offsets r (k, 2) from the CG.
 
     Antennas whose innovation NIS (2 dof, predicted covariance) exceeds ``gate`` are left
-    out. Joseph-form covariance update. Returns (x (5,), P (5, 5), accepted (k,) bool).
+    out. The joint update of the accepted antennas is done in information form, which is
+    the same update as the textbook gain form (tested against FilterPy) but only needs
+    5x5 inverses: each antenna's Jacobian ``[I, J R r_i, 0, 0]`` touches (px, py, yaw) only,
+    so the k antennas add ``M = sum H_i^T H_i / sigma^2`` (a 3x3 block) to the information
+    and ``b = sum H_i^T nu_i / sigma^2`` to the information vector:
+    ``P+ = (P^-1 + M)^-1``, ``x+ = x + P+ b``. Returns (x (5,), P (5, 5), accepted (k,)).
     """
-    zp, H = _h(x, r)
-    nu = z - zp
-    k = z.shape[0]
-    R2 = sigma_meas**2 * np.eye(2)
-    acc = np.ones(k, dtype=bool)
+    c, s = math.cos(x[2]), math.sin(x[2])
+    rx = c * r[:, 0] - s * r[:, 1]  # R(yaw) r, world frame
+    ry = s * r[:, 0] + c * r[:, 1]
+    nux = z[:, 0] - (x[0] + rx)
+    nuy = z[:, 1] - (x[1] + ry)
+    r2 = sigma_meas**2
     if np.isfinite(gate):
-        for i in range(k):
-            Hi = H[2 * i:2 * i + 2]
-            S = Hi @ P @ Hi.T + R2
-            acc[i] = float(nu[i] @ np.linalg.solve(S, nu[i])) <= gate
+        # S_i = h_i P[:3, :3] h_i^T + sigma^2 I with h_i = [[1, 0, -ry], [0, 1, rx]]
+        P00, P01, P02, P11, P12, P22 = P[0, 0], P[0, 1], P[0, 2], P[1, 1], P[1, 2], P[2, 2]
+        a = P00 - 2.0 * ry * P02 + ry * ry * P22 + r2
+        b = P01 + rx * P02 - ry * P12 - rx * ry * P22
+        d = P11 + 2.0 * rx * P12 + rx * rx * P22 + r2
+        nis = (d * nux * nux - 2.0 * b * nux * nuy + a * nuy * nuy) / (a * d - b * b)
+        acc = nis <= gate
+    else:
+        acc = np.ones(z.shape[0], dtype=bool)
     if not acc.any():
         return x, P, acc
-    rows = np.repeat(acc, 2)
-    Ha = H[rows]
-    nua = nu[acc].reshape(-1)
-    Ra = sigma_meas**2 * np.eye(Ha.shape[0])
-    S = Ha @ P @ Ha.T + Ra
-    K = np.linalg.solve(S, Ha @ P).T  # P H^T S^-1 (S, P symmetric)
-    xn = x + K @ nua
+    rx, ry, nux, nuy = rx[acc], ry[acc], nux[acc], nuy[acc]
+    k = float(rx.size)
+    M = np.zeros((5, 5))
+    M[0, 0] = M[1, 1] = k
+    M[0, 2] = M[2, 0] = -ry.sum()
+    M[1, 2] = M[2, 1] = rx.sum()
+    M[2, 2] = (rx * rx + ry * ry).sum()
+    bvec = np.array([nux.sum(), nuy.sum(), (rx * nuy - ry * nux).sum(), 0.0, 0.0])
+    Pn = np.linalg.inv(np.linalg.inv(P) + M / r2)
+    Pn = 0.5 * (Pn + Pn.T)
+    xn = x + Pn @ (bvec / r2)
     xn[2] = _wrap(xn[2])
-    IKH = np.eye(5) - K @ Ha
-    Pn = IKH @ P @ IKH.T + K @ Ra @ K.T
-    return xn, 0.5 * (Pn + Pn.T), acc
+    return xn, Pn, acc
+
+
 
 
 def run_pose_filter(t: np.ndarray, obs: np.ndarray, offsets: np.ndarray, x0: np.ndarray,

@@ -24,7 +24,7 @@ def _err(df, t, cg):
     {"window": 1},
     {"window": 1, "method": "motion_compensated"},
     {"window": 25, "method": "motion_compensated"},
-    {"window": 25, "method": "motion_compensated", "yaw_rate": False},
+    {"window": 25, "method": "motion_compensated", "yaw_rate": True},
 ])
 def test_noise_free_straight_is_exact(kw):
     """Window 1 and the motion-compensated window return the true CG and heading at every
@@ -126,7 +126,7 @@ def test_noisy_straight_lag_and_motion_compensation_remove_trail():
     for data, kw in [(obs, {"lag_correction": "pose"}), (obs, {"lag_correction": "course"}),
                      (holey, {"lag_correction": "course"}),
                      (holey, {"method": "motion_compensated"}),
-                     (holey, {"method": "motion_compensated", "yaw_rate": False})]:
+                     (holey, {"method": "motion_compensated", "yaw_rate": True})]:
         assert abs(mean_along(track(t, data, cfg, window=s, **kw))) < 0.05 * trail, kw
 
 
@@ -237,7 +237,7 @@ def test_motion_compensated_through_a_corner_noise_free():
     """Constant twist holds inside the turn: windows entirely in the arc are exact."""
     cfg, t, cg, _yaw, turning, obs = corner_path(leg_steps=30, turn_steps=8)
     s = 4
-    df = track(t, obs, cfg, window=s, method="motion_compensated")
+    df = track(t, obs, cfg, window=s, method="motion_compensated", yaw_rate=True)
     e, k = _err(df, t, cg)
     inside = np.array([turning[kk - s + 1:kk + 1].all() for kk in k])
     straight_rows = np.array([not turning[kk - s + 1:kk + 1].any() for kk in k])
@@ -346,3 +346,28 @@ def test_huff_fast_path_equals_stacked_windows():
     means, sw = window_means(st_, huff_weights(st_, cfg))
     ref = procrustes_batch(means, sw, cfg)
     np.testing.assert_allclose(df[XY].to_numpy(), ref.cg, atol=1e-9)
+
+
+@pytest.mark.parametrize("weighting", ["none", "huff"])
+def test_motion_compensated_series_path_equals_stacked_batch(weighting):
+    """track() fits the constant-velocity model from per-epoch sums for per-sample weights;
+    it must equal the stacked-window closed form (1e-9 m: summation order only)."""
+    from estimator.motion import motion_compensated_batch
+    from estimator.weights import huff_weights
+
+    rng = np.random.default_rng(9)
+    cfg = rover()
+    t = np.cumsum(rng.uniform(0.5, 1.5, 90))
+    cg, yaw = constant_twist(t, 0.8, -0.4, 0.02)
+    obs = antennas(cfg, cg, yaw) + rng.normal(0, 1.0, (90, 8, 2))
+    obs[rng.random(obs.shape[:2]) < 0.1] = np.nan
+    s = 15
+    df = track(t, obs, cfg, window=s, method="motion_compensated", weighting=weighting)
+    ends = np.arange(s - 1, 90)
+    idx = ends[:, None] - np.arange(s - 1, -1, -1)[None, :]
+    st_ = obs[idx]
+    w = None if weighting == "none" else huff_weights(st_, cfg)
+    ref = motion_compensated_batch(t[idx] - t[ends][:, None], st_, cfg, w, yaw_rate=False)
+    np.testing.assert_allclose(df[XY].to_numpy(), ref.cg, atol=1e-9)
+    np.testing.assert_allclose(df["speed"].to_numpy(),
+                               np.hypot(ref.velocity[:, 0], ref.velocity[:, 1]), atol=1e-9)
