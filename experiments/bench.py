@@ -154,6 +154,79 @@ def bench_solvers(quick: bool = False) -> list[dict]:
     return rows
 
 
+@section("sim")
+def bench_sim(quick: bool = False) -> list[dict]:
+    """Wall time of the MuJoCo simulations from an empty cache (issue 3)."""
+    from sim.quadcopter import simulate_quadcopter
+    from sim.rover import simulate_rover
+
+    runs = [("rover", "square20"), ("quadcopter", "quad_square6")] if quick else \
+        [("rover", "square100"), ("rover", "square200"), ("quadcopter", "quad_square6")]
+    rows = []
+    for platform, path in runs:
+        t0 = time.perf_counter()
+        if platform == "rover":
+            truth = simulate_rover(path, cache_dir=False)
+        else:
+            truth = simulate_quadcopter(path, cache_dir=False)
+        wall = time.perf_counter() - t0
+        simulated = float(truth.t[-1] - truth.t[0])
+        rows.append({"platform": platform, "path": path, "samples": truth.n,
+                     "simulated s": f"{simulated:.0f}", "wall s": f"{wall:.2f}",
+                     "simulated s / wall s": f"{simulated / wall:.0f}"})
+    print("### Simulation: one run each, cache disabled\n")
+    print_table(rows, ["platform", "path", "samples", "simulated s", "wall s",
+                       "simulated s / wall s"])
+    print()
+    return rows
+
+
+def straight_line_obs(n: int, cfg: SensorConfig, rng: np.random.Generator,
+                      speed_mps: float = 0.2) -> tuple[np.ndarray, np.ndarray]:
+    """(t (n,), obs (n, m, 2)): the platform driving +x at ``speed_mps`` with GPS-like noise."""
+    t = np.arange(n, dtype=float)
+    cg = np.stack([speed_mps * t, np.zeros(n)], axis=1)
+    obs = cg[:, None, :] + cfg.body_positions[None, :, :]
+    return t, obs + gps_like_obs(cfg, n, rng) - cfg.body_positions
+
+
+@section("track")
+def bench_track(quick: bool = False) -> list[dict]:
+    """Wall time of ``estimator.tracking.track`` over a whole recording (issue 5)."""
+    from estimator.tracking import track
+
+    cfg = live_config()
+    rng = np.random.default_rng(7)
+    n = 1000
+    t, obs = straight_line_obs(n, cfg, rng)
+    cases = [
+        ("window", "procrustes", 100, "none", False),
+        ("window", "procrustes", 100, "huff", False),
+        ("window", "procrustes", 100, "none", True),
+        ("window", "procrustes", 10, "huff", False),
+        ("motion_compensated", "procrustes", 100, "none", False),
+        ("ekf", "procrustes", 10, "none", False),
+        ("naive", "procrustes", 10, "none", False),
+    ]
+    if not quick:
+        cases.append(("window", "slsqp", 10, "none", False))
+    rows = []
+    for method, solver, s, weighting, lag in cases:
+        def run() -> None:
+            track(t, obs, cfg, window=s, weighting=weighting, lag_correction=lag,
+                  solver=solver, method=method, rng=np.random.default_rng(0))
+        reps = 1 if solver != "procrustes" else (3 if quick else 7)
+        wall = _median_time(run, reps)
+        rows.append({"method": method, "solver": solver, "window": s, "weighting": weighting,
+                     "lag correction": "yes" if lag else "no",
+                     "wall per track": _fmt(wall), "per epoch": _fmt(wall / (n - s + 1))})
+    print(f"### Tracking: {n} epochs, m = {cfg.m}, median over repeats\n")
+    print_table(rows, ["method", "solver", "window", "weighting", "lag correction",
+                       "wall per track", "per epoch"])
+    print()
+    return rows
+
+
 # ----------------------------------------------------------------------------- CLI
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(prog="python -m experiments.bench", description=__doc__,
