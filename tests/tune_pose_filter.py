@@ -46,25 +46,27 @@ def main() -> None:
         return float(np.mean(errs))
 
     print(f"{t.size} epochs x {N_SESSIONS} sessions; mean Euclidean CG error (m) of references:")
-    for kw in ({"window": 1}, {"window": 10}, {"window": 10, "method": "motion_compensated"},
+    for kw in ({"window": 1}, {"window": 10},
+               {"window": 10, "method": "motion_compensated", "yaw_rate": True},
                {"window": 10, "method": "naive"}):
         print(f"  {kw}: {score(**kw):.3f}")
-    rows = []
-    t0 = time.perf_counter()
-    # first pass: sigma_meas {0.5,1,2,3} x sigma_accel {0.2,0.5,1,2} x sigma_yaw_accel
-    # {0.02,0.05,0.1,0.2}: best at the grid's edge (3, 2, 0.02; 2.018 m), flat in
-    # sigma_accel; this second pass extends the edges
-    for sm, sa, sy in itertools.product([2.0, 3.0, 4.0, 6.0], [0.5, 1.0, 2.0],
-                                        [0.005, 0.01, 0.02, 0.05]):
-        p = PoseFilterParams(sigma_meas=sm, sigma_accel=sa, sigma_yaw_accel=sy)
-        rows.append((round(score(window=10, method="ekf", filter_params=p), 4), sm, sa, sy))
-    rows.sort()
-    print(f"grid of {len(rows)} in {time.perf_counter() - t0:.1f} s; best 8 "
-          "(error m, sigma_meas, sigma_accel, sigma_yaw_accel):")
-    for r in rows[:8]:
-        print("  ", r)
-    print("worst:", rows[-1])
-
+    grids = [
+        ("first", [0.5, 1.0, 2.0, 3.0], [0.2, 0.5, 1.0, 2.0], [0.02, 0.05, 0.1, 0.2]),
+        ("second (edges extended)", [2.0, 3.0, 4.0, 6.0], [0.5, 1.0, 2.0],
+         [0.005, 0.01, 0.02, 0.05]),
+    ]
+    for name, sms, sas, sys_ in grids:
+        rows = []
+        t0 = time.perf_counter()
+        for sm, sa, sy in itertools.product(sms, sas, sys_):
+            p = PoseFilterParams(sigma_meas=sm, sigma_accel=sa, sigma_yaw_accel=sy)
+            rows.append((round(score(window=10, method="ekf", filter_params=p), 4), sm, sa, sy))
+        rows.sort()
+        print(f"{name} grid, {len(rows)} points in {time.perf_counter() - t0:.1f} s; best 5 "
+              "(error m, sigma_meas, sigma_accel, sigma_yaw_accel):")
+        for r in rows[:5]:
+            print("  ", r)
+        print("   worst:", rows[-1])
 
 if __name__ == "__main__":
     main()
