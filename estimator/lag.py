@@ -63,9 +63,9 @@ LAG_MODES = ("pose", "course")
 def estimate_velocity(t: np.ndarray, xy: np.ndarray, span: int) -> np.ndarray:
     """Causal velocity of a track: ``(xy[k] - xy[k - span']) / (t[k] - t[k - span'])``.
 
-    t : (N,) seconds (the estimates' dates), strictly increasing. xy : (N, 2) metres (NaN rows allowed: a NaN at
-    either end gives NaN). span : >= 1 rows; near the start ``span' = min(span, k)``, so
-    row 0 has no velocity (NaN).
+    t : (N,) seconds (the estimates' dates), strictly increasing. xy : (N, 2) metres (NaN
+    rows allowed: a NaN at either end gives NaN). span : >= 1 rows; near the start
+    ``span' = min(span, k)``, so row 0 has no velocity (NaN).
     Returns (N, 2) m/s.
     """
     t = np.asarray(t, dtype=float)

@@ -104,7 +104,8 @@ def summarize(errors: object, mask: object | None = None) -> dict[str, float]:
     if mask is not None:
         mk = np.asarray(mask)
         if mk.shape != e.shape or mk.dtype != bool:
-            raise ValueError(f"mask: expected bool array of shape {e.shape}, got {mk.dtype} {mk.shape}")
+            raise ValueError(
+                f"mask: expected bool array of shape {e.shape}, got {mk.dtype} {mk.shape}")
         e = e[mk]
     fin = e[np.isfinite(e)]
     out: dict[str, float] = {"n": int(fin.size), "n_nan": int(e.size - fin.size)}
@@ -166,7 +167,10 @@ def align_to_truth(est_t: object, truth_t: object, *, tol: float = 1e-6) -> np.n
         raise ValueError("truth_t: empty")
     if np.any(np.diff(tt) <= 0):
         raise ValueError("truth_t: must be strictly increasing")
-    idx = np.clip(np.searchsorted(tt, te), 1, tt.size - 1) if tt.size > 1 else np.zeros(te.size, int)
+    if tt.size > 1:
+        idx = np.clip(np.searchsorted(tt, te), 1, tt.size - 1)
+    else:
+        idx = np.zeros(te.size, int)
     if tt.size > 1:
         left = idx - 1
         idx = np.where(np.abs(tt[left] - te) <= np.abs(tt[idx] - te), left, idx)

@@ -18,8 +18,9 @@ minimizing the weighted squared residuals over c and v in closed form leaves
 ``alpha |z|^2 - 2 Re(conj(z) g) + const`` with real ``alpha``, so under ``|z| = 1`` the
 optimum is ``z = g / |g|``: the rigid, exact-distance (procrustes) solution, with every
 sample at its own time. Omega is found by a grid over ``[-omega_max, omega_max]`` refined by
-golden-section search, all windows at once (range limited to half a turn per window); with ``yaw_rate=False`` omega = 0 and the fit is
-one closed form (constant velocity, constant heading).
+golden-section search, all windows at once (range limited to half a turn per window); with
+``yaw_rate=False`` omega = 0 and the fit is one closed form (constant velocity, constant
+heading).
 
 Weights are per sample and sensor ``(s, m)``; per-axis weights ``(s, m, 2)`` (Huber) are
 reduced to their mean over the axes (the complex closed form needs isotropic weights).
@@ -181,7 +182,8 @@ def motion_compensated_batch(tau: np.ndarray, obs: np.ndarray, config: SensorCon
         if w.shape == obs.shape:
             w = w.mean(axis=-1)
         if w.shape != obs.shape[:3]:
-            raise ValueError(f"weights: expected shape {obs.shape[:3]} or {obs.shape}, got {w.shape}")
+            raise ValueError(
+                f"weights: expected shape {obs.shape[:3]} or {obs.shape}, got {w.shape}")
         if not np.all(np.isfinite(w)) or np.any(w < 0):
             raise ValueError("weights: must be finite and >= 0")
         wt = np.where(present, w, 0.0)

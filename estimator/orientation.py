@@ -77,7 +77,8 @@ def heading_from_points(front: np.ndarray, rear: np.ndarray) -> np.ndarray:
     rear = np.asarray(rear, dtype=float)
     if front.shape[-1:] not in ((2,), (3,)) or rear.shape[-1:] not in ((2,), (3,)):
         raise ValueError(
-            f"front/rear: last axis must be 2 or 3 (x, y[, z]), got shapes {front.shape} and {rear.shape}")
+            f"front/rear: last axis must be 2 or 3 (x, y[, z]), got shapes {front.shape} "
+            f"and {rear.shape}")
     d = front[..., :2] - rear[..., :2]
     return wrap_angle(np.arctan2(d[..., 1], d[..., 0]))
 

@@ -31,21 +31,21 @@ Initialisation (by :func:`estimator.tracking.track`): the motion-compensated win
 (:mod:`estimator.motion`, constant velocity) over the first ``s`` epochs gives position,
 heading and the speed along it.
 
-Tuning (done once, on synthetic data; ``tests/tune_pose_filter.py`` reruns it, ~4 min):
-Path 1 (square100 at 0.2 m/s, 1985 epochs at 1 Hz) driven by the MuJoCo rover with the
-rover_gps8 layout, GPS errors from models/noise/gps_stationary.toml (2 m per axis, half
-common-mode, smooth Gauss-Markov, plateaus, outliers, bursty dropouts) in 4000 s sessions
-replayed onto the truth; four sessions spawned from seed 20261122, which no test and no
-sweep preset uses. Criterion: mean Euclidean CG error over the whole path, averaged over the
-sessions. First grid sigma_meas {0.5, 1, 2, 3} m x sigma_accel {0.2, 0.5, 1, 2} m/s^2 x
-sigma_yaw_accel {0.02, 0.05, 0.1, 0.2} rad/s^2: best 1.621 m at (3, 2, 0.05), worst 2.217 m;
-second grid {2, 3, 4, 6} x {0.5, 1, 2} x {0.005, 0.01, 0.02, 0.05}: best 1.563 m at the
-defaults below (3, 0.5, 0.01), worst 1.702 m. Same data: window-1 fit 1.535 m, motion-
-compensated window 10 with yaw rate 1.533 m, window 10 1.688 m, naive window 10 1.850 m. With errors this
-time-correlated (the filter's white-noise model is wrong, and the common mode is invisible
-to any configuration method) the EKF does not beat the window-1 fit on position; its
-heading, carried by the motion model, is far better (median 0.18 rad against ~0.8 rad for
-the window fits on one such session). ``TUNING`` holds these numbers.
+Tuning (done once, on synthetic data; ``tests/tune_pose_filter.py`` reruns it, ~4 min): Path
+1 (square100 at 0.2 m/s, 1985 epochs at 1 Hz) driven by the MuJoCo rover with the rover_gps8
+layout, GPS errors from models/noise/gps_stationary.toml (2 m per axis, half common-mode,
+smooth Gauss-Markov, plateaus, outliers, bursty dropouts) in 4000 s sessions replayed onto
+the truth; four sessions spawned from seed 20261122, which no test and no sweep preset uses.
+Criterion: mean Euclidean CG error over the whole path, averaged over the sessions. First
+grid sigma_meas {0.5, 1, 2, 3} m x sigma_accel {0.2, 0.5, 1, 2} m/s^2 x sigma_yaw_accel
+{0.02, 0.05, 0.1, 0.2} rad/s^2: best 1.621 m at (3, 2, 0.05), worst 2.217 m; second grid {2,
+3, 4, 6} x {0.5, 1, 2} x {0.005, 0.01, 0.02, 0.05}: best 1.563 m at the defaults below (3,
+0.5, 0.01), worst 1.702 m. Same data: window-1 fit 1.535 m, motion-compensated window 10
+with yaw rate 1.533 m, window 10 1.688 m, naive window 10 1.850 m. With errors this time-
+correlated (the filter's white-noise model is wrong, and the common mode is invisible to any
+configuration method) the EKF does not beat the window-1 fit on position; its heading,
+carried by the motion model, is far better (median 0.18 rad against ~0.8 rad for the window
+fits on one such session). ``TUNING`` holds these numbers.
 """
 
 from __future__ import annotations
@@ -93,8 +93,8 @@ TUNING: dict[str, object] = {
             "4 sessions from seed 20261122",
     "best": {"sigma_meas": 3.0, "sigma_accel": 0.5, "sigma_yaw_accel": 0.01,
              "mean_cg_error_m": 1.563},
-    "references_m": {"window_1": 1.535, "motion_compensated_yaw_rate_10": 1.533, "window_10": 1.688,
-                     "naive_10": 1.850},
+    "references_m": {"window_1": 1.535, "motion_compensated_yaw_rate_10": 1.533,
+                     "window_10": 1.688, "naive_10": 1.850},
 }
 
 

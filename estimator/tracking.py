@@ -97,7 +97,8 @@ def _check_inputs(t: Any, obs: Any, config: Any) -> tuple[np.ndarray, np.ndarray
         raise ValueError("t: contains NaN or infinite times")
     if tt.size > 1 and np.any(np.diff(tt) <= 0):
         k = int(np.argmax(np.diff(tt) <= 0))
-        raise ValueError(f"t: must be strictly increasing; t[{k}]={tt[k]!r} >= t[{k+1}]={tt[k+1]!r}")
+        raise ValueError(
+            f"t: must be strictly increasing; t[{k}]={tt[k]!r} >= t[{k+1}]={tt[k+1]!r}")
     o = np.asarray(obs, dtype=float)
     if o.shape != (tt.size, cfg.m, 2):
         raise ValueError(f"obs: expected shape ({tt.size}, {cfg.m}, 2) (epochs, sensors of "
@@ -278,7 +279,8 @@ def detect_turning(t: np.ndarray, obs: np.ndarray, config: SensorConfig,
     """
     unknown = sorted(set(options) - set(DETECTOR_DEFAULTS))
     if unknown:
-        raise ValueError(f"detector: unknown option(s) {unknown}; known: {sorted(DETECTOR_DEFAULTS)}")
+        raise ValueError(
+            f"detector: unknown option(s) {unknown}; known: {sorted(DETECTOR_DEFAULTS)}")
     opt = {**DETECTOR_DEFAULTS, **options}
     tt, o, cfg = _check_inputs(t, obs, config)
     w = _check_int(opt["window"], "detector.window", 1, tt.size)
@@ -348,7 +350,8 @@ def track(t: Any, obs: Any, config: SensorConfig, window: int = 10, weighting: s
     if solver not in SOLVERS:
         raise ValueError(f"solver: unknown {solver!r}; choose one of {list(SOLVERS)}")
     if method != "window" and solver != "procrustes":
-        raise ValueError(f"solver: {solver!r} applies to method='window' only (got method={method!r})")
+        raise ValueError(
+            f"solver: {solver!r} applies to method='window' only (got method={method!r})")
     if lag_correction not in LAG_OPTIONS or (isinstance(lag_correction, (int, float))
                                              and not isinstance(lag_correction, bool)):
         raise ValueError(f"lag_correction: must be one of {LAG_OPTIONS}, got {lag_correction!r}")
@@ -377,7 +380,8 @@ def track(t: Any, obs: Any, config: SensorConfig, window: int = 10, weighting: s
     elif turning is not None:
         fl = np.asarray(turning)
         if fl.shape != (n,) or fl.dtype != bool:
-            raise ValueError(f"turning: expected a bool array of shape ({n},), got {fl.dtype} {fl.shape}")
+            raise ValueError(
+                f"turning: expected a bool array of shape ({n},), got {fl.dtype} {fl.shape}")
         flags = fl.copy()
     if detector is not None and not isinstance(turning, str):
         raise ValueError("detector: only used with turning='detect'")
@@ -391,7 +395,8 @@ def track(t: Any, obs: Any, config: SensorConfig, window: int = 10, weighting: s
     yaw = np.full(N, np.nan)
     status = np.empty(N, dtype=object)
     extra: dict[str, np.ndarray] = {}
-    common = {"weighting": weighting, "rng": rng, "huff_threshold": huff_threshold, "huber_c": huber_c}
+    common = {"weighting": weighting, "rng": rng, "huff_threshold": huff_threshold,
+              "huber_c": huber_c}
 
     if method == "window":
         for w in np.unique(wsize):
@@ -460,7 +465,8 @@ def track(t: Any, obs: Any, config: SensorConfig, window: int = 10, weighting: s
     df.attrs["settings"] = {
         "method": method, "window": s, "weighting": weighting,
         "lag_correction": lag_mode or False, "dynamic_window": dynamic_window,
-        "turning": "detect" if isinstance(turning, str) else ("flags" if turning is not None else None),
+        "turning": ("detect" if isinstance(turning, str)
+                    else "flags" if turning is not None else None),
         "solver": solver, "eps": eps, "huff_threshold": huff_threshold, "huber_c": huber_c,
         "warm_start": warm_start, "config": cfg.name,
     }

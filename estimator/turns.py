@@ -80,7 +80,8 @@ def hysteresis(signal: object, on: float, off: float) -> np.ndarray:
     if sig.ndim != 1:
         raise ValueError(f"signal: expected shape (n,), got {sig.shape}")
     if not (np.isfinite(on) and np.isfinite(off)) or off > on:
-        raise ValueError(f"on/off: need finite thresholds with off <= on, got on={on!r}, off={off!r}")
+        raise ValueError(
+            f"on/off: need finite thresholds with off <= on, got on={on!r}, off={off!r}")
     out = np.zeros(sig.shape, dtype=bool)
     state = False
     for k, v in enumerate(sig):
