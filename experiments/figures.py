@@ -110,9 +110,13 @@ def _boxes(ax, groups: list[tuple[str, np.ndarray, str]], ylabel: str) -> None:
     ax.grid(axis="y", alpha=0.3)
 
 
+def _subplots(*args, **kw):
+    """plt.subplots with constrained layout (one layout pass at draw time)."""
+    return plt.subplots(*args, layout="constrained", **kw)
+
+
 def _save(fig, path: Path, written: list[Path]) -> None:
-    fig.tight_layout()
-    fig.savefig(path, dpi=110)
+    fig.savefig(path, dpi=100)
     plt.close(fig)
     written.append(path)
 
@@ -125,7 +129,7 @@ def _weighting_figs(E: _Epochs, out: Path, written: list[Path]) -> None:
         if not weights or not windows:
             continue
         small = [w for w in windows if w <= 10]
-        fig, axes = plt.subplots(2, 2 if small and len(small) < len(windows) else 1,
+        fig, axes = _subplots(2, 2 if small and len(small) < len(windows) else 1,
                                  figsize=(13, 8), squeeze=False)
         seeds_all: list[int] = []
         for r, axis in enumerate(("x", "y")):
@@ -166,7 +170,7 @@ def _orientation_figs(E: _Epochs, out: Path, written: list[Path]) -> None:
     windows = sorted(E.find(path=path, technique="none", weighting=wt)["window"].unique())
     if not windows:
         return
-    fig, axes = plt.subplots(len(windows), 1, figsize=(12, 2.4 * len(windows)), sharex=True,
+    fig, axes = _subplots(len(windows), 1, figsize=(12, 2.4 * len(windows)), sharex=True,
                              squeeze=False)
     for ax, w in zip(axes[:, 0], windows):
         r = _pick(E, path=path, technique="none", weighting=wt, window=w)
@@ -185,7 +189,7 @@ def _orientation_figs(E: _Epochs, out: Path, written: list[Path]) -> None:
                  f"{wt} weights, seed {int(r['seed'])}")
     _save(fig, out / "fig_4_118_orientation.png", written)
 
-    fig, ax = plt.subplots(figsize=(8, 4.5))
+    fig, ax = _subplots(figsize=(8, 4.5))
     groups, seeds = [], []
     for w in windows:
         v, s = E.pooled("err_yaw", path=path, technique="none", weighting=wt, window=w)
@@ -210,7 +214,7 @@ def _technique_fig(E: _Epochs, out: Path, written: list[Path], name: str, title:
                      if w > 1)
     if not windows:
         return
-    fig, axes = plt.subplots(2, len(masks), figsize=(6.5 * len(masks) + 1.5, 8), squeeze=False)
+    fig, axes = _subplots(2, len(masks), figsize=(6.5 * len(masks) + 1.5, 8), squeeze=False)
     seeds: list[int] = []
     for r, axis in enumerate(("x", "y")):
         for c, mask in enumerate(masks):
@@ -238,7 +242,7 @@ def _overlay_figs(E: _Epochs, out: Path, written: list[Path]) -> None:
             r = _pick(E, path=path, technique="none", weighting=wt, window=w)
             ep = E.load(r["key"])
             s1 = _sensor1(ep)
-            fig, ax = plt.subplots(figsize=(8.5, 8))
+            fig, ax = _subplots(figsize=(8.5, 8))
             ax.plot(ep[f"obs_{s1}_x"], ep[f"obs_{s1}_y"], ".", color="#9467bd", ms=2, alpha=0.5,
                     label=f"sensor {s1} observed")
             ax.plot(ep[f"x_{s1}"], ep[f"y_{s1}"], color="C0", lw=0.9,
@@ -268,7 +272,7 @@ def _sensor1_lag_figs(E: _Epochs, out: Path, written: list[Path]) -> None:
         wins = [w for w in (10, 100) if w in windows] or windows[-2:]
         if not wins:
             continue
-        fig, axes = plt.subplots(2, len(wins), figsize=(7 * len(wins), 7.5), squeeze=False)
+        fig, axes = _subplots(2, len(wins), figsize=(7 * len(wins), 7.5), squeeze=False)
         for c, w in enumerate(wins):
             r = _pick(E, path=path, technique="none", weighting=wt, window=w)
             ep = E.load(r["key"])
@@ -314,7 +318,7 @@ def _tables_fig(out: Path, written: list[Path]) -> None:
     files = [(ax, out / f"table_4_{n}.csv") for ax, n in (("x", 1), ("y", 2))]
     if not all(f.exists() for _, f in files):
         return
-    fig, axes = plt.subplots(1, 2, figsize=(14, 5.5))
+    fig, axes = _subplots(1, 2, figsize=(14, 5.5))
     for ax_plot, (axis, f) in zip(axes, files):
         df = pd.read_csv(f)
         df = df[df["window"] > 1]
@@ -337,29 +341,58 @@ def _tables_fig(out: Path, written: list[Path]) -> None:
     _save(fig, out / "fig_tables.png", written)
 
 
-def draw_all(out_dir: str | Path) -> list[Path]:
-    """Draw every figure whose data the results folder holds; returns the files written."""
-    out = Path(out_dir)
+_TASKS = ("weighting", "orientation", "lag_correction", "dynamic", "lc_dyn", "beyond",
+          "overlay", "sensor1", "tables")
+
+
+def _draw(out: Path, task: str) -> list[Path]:
+    """One group of figures (a task of :func:`draw_all`)."""
     written: list[Path] = []
+    if task == "tables":
+        _tables_fig(out, written)
+        return written
     E = _Epochs(out)
-    if not E.index.empty:
+    if E.index.empty:
+        return written
+    if task == "weighting":
         _weighting_figs(E, out, written)
+    elif task == "orientation":
         _orientation_figs(E, out, written)
+    elif task == "lag_correction":
         _technique_fig(E, out, written, "fig_4_120_121_lag_correction.png",
                        "lag correction on the full path and without turns (Figs 4.120/4.121)",
                        ["none", "lc"], ["full", "no_turns"])
+    elif task == "dynamic":
         _technique_fig(E, out, written, "fig_4_122_dynamic.png",
                        "static vs dynamic window (Fig 4.122)", ["none", "dyn"], ["full"])
+    elif task == "lc_dyn":
         _technique_fig(E, out, written, "fig_4_123_lc_dyn.png",
                        "lag correction combined with the dynamic window (Fig 4.123)",
                        ["none", "lc", "dyn", "lc+dyn"], ["full"])
+    elif task == "beyond":
         _technique_fig(E, out, written, "fig_beyond.png",
                        "the dissertation's techniques and the beyond-the-thesis trackers",
                        ["none", "lc+dyn", "motion_compensated", "ekf", "naive"], ["full"])
+    elif task == "overlay":
         _overlay_figs(E, out, written)
+    elif task == "sensor1":
         _sensor1_lag_figs(E, out, written)
-    _tables_fig(out, written)
     return written
+
+
+def draw_all(out_dir: str | Path, jobs: int = 1) -> list[Path]:
+    """Draw every figure whose data the results folder holds; returns the files written.
+
+    jobs > 1 draws the figure groups in that many processes (joblib loky).
+    """
+    out = Path(out_dir)
+    if jobs > 1:
+        from joblib import Parallel, delayed
+
+        parts = Parallel(n_jobs=jobs, backend="loky")(delayed(_draw)(out, t) for t in _TASKS)
+    else:
+        parts = [_draw(out, t) for t in _TASKS]
+    return [p for part in parts for p in part]
 
 
 def main(argv: list[str] | None = None) -> int:

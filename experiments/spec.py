@@ -515,9 +515,9 @@ def _check_epochs(e: object, where: str, base: Path) -> dict:
         raise SpecError(f"{where}: unknown key(s) {unknown}; allowed: ['seeds', 'where']")
     out: dict[str, Any] = {}
     seeds = e.get("seeds", "all")
-    if seeds != "all":
-        if not isinstance(seeds, list) or not all(_is_int(s) and s >= 0 for s in seeds):
-            raise SpecError(f"{where}.seeds: must be \"all\" or a list of seed values, "
+    if seeds != "all" and (not isinstance(seeds, list)
+                           or not all(_is_int(s) and s >= 0 for s in seeds)):
+        raise SpecError(f"{where}.seeds: must be \"all\" or a list of seed values, "
                             f"got {seeds!r}")
     out["seeds"] = seeds
     w = e.get("where", {})

@@ -200,7 +200,7 @@ def _observations(cell: Cell, truth, config, ctx: CellContext) -> np.ndarray:
         obs = replay(truth, session, start=start, mode="error")
     obs.setflags(write=False)
     ctx.memo[key] = obs
-    while len(ctx.memo) > 4:
+    while len(ctx.memo) > 6:
         ctx.memo.popitem(last=False)
     return obs
 
@@ -213,8 +213,8 @@ def _tukey_outlier_fraction(e: np.ndarray) -> float:
     return float(np.mean(e > q3 + 1.5 * (q3 - q1)))
 
 
-def score_track(df: pd.DataFrame, truth, obs: np.ndarray, config, masks: Iterable[str]
-                ) -> tuple[list[dict], pd.DataFrame]:
+def score_track(df: pd.DataFrame, truth, obs: np.ndarray, config, masks: Iterable[str],
+                epochs: bool = True) -> tuple[list[dict], pd.DataFrame | None]:
     """Eq. 4.1/4.2 errors of a track against the truth, summarised per evaluation mask.
 
     Returns one dict per mask with, for each error series (``ex`` = |x| CG error, ``ey`` = |y|,
@@ -223,7 +223,8 @@ def score_track(df: pd.DataFrame, truth, obs: np.ndarray, config, masks: Iterabl
     (mean, median; negative = the estimate trails the truth, the lag of Section 3.4.2), the
     epoch-to-epoch jitter (RMS change of the error vector between consecutive epochs, the
     "variation from one estimate to the next" of Section 4.10), the raw observations' own
-    per-axis error for comparison, and counts. Also returns the per-epoch error table.
+    per-axis error for comparison, and counts. Also returns the per-epoch table (truth,
+    errors, observations at the estimate times) when ``epochs`` is True, else None.
     """
     from estimator.metrics import (
         STATISTICS,
@@ -279,18 +280,19 @@ def score_track(df: pd.DataFrame, truth, obs: np.ndarray, config, masks: Iterabl
             row["obs_ex_mean"] = float(np.nanmean(obs_ex[mk])) if mk.any() else float("nan")
             row["obs_ey_mean"] = float(np.nanmean(obs_ey[mk])) if mk.any() else float("nan")
         rows.append(row)
-    ep = pd.DataFrame({"truth_cg_x": tru[:, 0], "truth_cg_y": tru[:, 1],
-                       "truth_yaw": truth.yaw[idx],
-                       "truth_turning": truth.turning[idx].astype(bool),
-                       "err_x": d[:, 0], "err_y": d[:, 1],
-                       "err_yaw": wrap_angle(df["yaw"].to_numpy(float) - truth.yaw[idx]),
-                       "along": along, "cross": cross})
+    if not epochs:
+        return rows, None
+    cols: dict[str, Any] = {
+        "truth_cg_x": tru[:, 0], "truth_cg_y": tru[:, 1], "truth_yaw": truth.yaw[idx],
+        "truth_turning": truth.turning[idx].astype(bool), "err_x": d[:, 0], "err_y": d[:, 1],
+        "err_yaw": wrap_angle(df["yaw"].to_numpy(float) - truth.yaw[idx]),
+        "along": along, "cross": cross}
     for j, nm in enumerate(truth.sensor_names):
-        ep[f"truth_{nm}_x"] = truth.sensor_positions[idx, j, 0]
-        ep[f"truth_{nm}_y"] = truth.sensor_positions[idx, j, 1]
-        ep[f"obs_{nm}_x"] = obs[idx, j, 0]
-        ep[f"obs_{nm}_y"] = obs[idx, j, 1]
-    return rows, ep
+        cols[f"truth_{nm}_x"] = truth.sensor_positions[idx, j, 0]
+        cols[f"truth_{nm}_y"] = truth.sensor_positions[idx, j, 1]
+        cols[f"obs_{nm}_x"] = obs[idx, j, 0]
+        cols[f"obs_{nm}_y"] = obs[idx, j, 1]
+    return rows, pd.DataFrame(cols)
 
 
 def evaluate_cell(cell: Cell, truth, ctx: CellContext) -> CellOutput:
@@ -299,7 +301,10 @@ def evaluate_cell(cell: Cell, truth, ctx: CellContext) -> CellOutput:
     from estimator.tracking import track
 
     t0 = time.perf_counter()
-    config = SensorConfig.load(cell.file("config")).planar()
+    ckey = ("config", cell.file("config"))
+    if ckey not in ctx.memo:
+        ctx.memo[ckey] = SensorConfig.load(cell.file("config")).planar()
+    config = ctx.memo[ckey]
     obs = _observations(cell, truth, config, ctx)
     t1 = time.perf_counter()
     kw = dict(_TECHNIQUE_KW[cell.technique])
@@ -316,7 +321,7 @@ def evaluate_cell(cell: Cell, truth, ctx: CellContext) -> CellOutput:
                solver="procrustes" if cell.solver == "-" else cell.solver, **extra,
                rng=cell_rng(ctx.spec_seed, cell.seed, STREAM_ESTIMATOR), **kw)
     t2 = time.perf_counter()
-    rows, ep = score_track(df, truth, obs, config, ctx.masks)
+    rows, ep = score_track(df, truth, obs, config, ctx.masks, epochs=ctx.want_epochs)
     t3 = time.perf_counter()
     counts = {str(k): int(v) for k, v in df["solver_status"].value_counts().items()} \
         if "solver_status" in df else {}
@@ -623,7 +628,7 @@ def run(spec: Spec | str | Path, *, out: str | Path | None = None, jobs: int | N
         if figures:
             from experiments import figures as figs
 
-            figs.draw_all(out_dir)
+            figs.draw_all(out_dir, jobs=jobs if backend == "loky" else 1)
     t_out = time.perf_counter() - t_out0
     res.wall_s = time.perf_counter() - t_start
     res.timings = {"simulate_s": t_sim, "cells_s": t_cells, "outputs_s": t_out,
