@@ -41,9 +41,11 @@ __all__ = ["draw_all", "load_epochs", "main"]
 
 PATH_LABELS = {"square100": "Path 1", "square200": "Path 2"}
 WEIGHT_COLORS = {"none": "#1f77b4", "random": "#7f7f7f", "huff": "#d62728"}
-TECH_COLORS = {"none": "#1f77b4", "lc": "#ff7f0e", "dyn": "#2ca02c", "lc+dyn": "#9467bd",
+TECH_COLORS = {"none": "#1f77b4", "lc": "#ff7f0e", "dyn": "#2ca02c", "lc+dyn": "#9467bd", "lc_course": "#bcbd22", "lc_course+dyn": "#17becf",
                "motion_compensated": "#8c564b", "ekf": "#e377c2", "naive": "#7f7f7f"}
+WEIGHT_LABELS = {"none": "no", "random": "random", "huff": "Huff"}
 TECH_LABELS = {"none": "None", "lc": "LC", "dyn": "Dyn SW", "lc+dyn": "LC+Dyn",
+               "lc_course": "LC course", "lc_course+dyn": "LCc+Dyn",
                "motion_compensated": "Motion-comp.", "ekf": "EKF", "naive": "Naive"}
 
 
@@ -186,7 +188,7 @@ def _orientation_figs(E: _Epochs, out: Path, written: list[Path]) -> None:
         ax.set_title(f"window {w}", fontsize=9, loc="left")
     axes[-1, 0].set_xlabel("time (s)")
     fig.suptitle(f"{PATH_LABELS.get(path, path)}: orientation against time (Fig 4.118), "
-                 f"{wt} weights, seed {int(r['seed'])}")
+                 f"{WEIGHT_LABELS.get(wt, wt)} weights, seed {int(r['seed'])}")
     _save(fig, out / "fig_4_118_orientation.png", written)
 
     fig, ax = _subplots(figsize=(8, 4.5))
@@ -197,7 +199,7 @@ def _orientation_figs(E: _Epochs, out: Path, written: list[Path]) -> None:
         groups.append((f"w={w}", np.degrees(v), "C0"))
     _boxes(ax, groups, "|heading error| (deg)")
     ax.set_title(f"{PATH_LABELS.get(path, path)}: orientation error per window (Fig 4.119), "
-                 f"{wt} weights, {_seeds_txt(sorted(set(seeds)))}", fontsize=10)
+                 f"{WEIGHT_LABELS.get(wt, wt)} weights, {_seeds_txt(sorted(set(seeds)))}", fontsize=10)
     _save(fig, out / "fig_4_119_orientation_box.png", written)
 
 
@@ -229,7 +231,7 @@ def _technique_fig(E: _Epochs, out: Path, written: list[Path], name: str, title:
             _boxes(axes[r, c], groups, f"|{axis}| CG error (m)")
             axes[r, c].set_title(f"|{axis}|, {'full path' if mask == 'full' else 'no turns'}",
                                  fontsize=10)
-    fig.suptitle(f"{PATH_LABELS.get(path, path)}: {title}, {wt} weights, "
+    fig.suptitle(f"{PATH_LABELS.get(path, path)}: {title}, {WEIGHT_LABELS.get(wt, wt)} weights, "
                  f"{_seeds_txt(sorted(set(seeds)))}")
     _save(fig, out / name, written)
 
@@ -255,7 +257,7 @@ def _overlay_figs(E: _Epochs, out: Path, written: list[Path]) -> None:
             ax.grid(alpha=0.3)
             ax.legend(loc="center", frameon=True, fontsize=9)   # the square's empty middle
             ax.set_title(f"{PATH_LABELS.get(path, path)}: truth, observations and estimates, "
-                         f"window {w}, {wt} weights, seed {int(r['seed'])} (Figs 4.34-4.49)",
+                         f"window {w}, {WEIGHT_LABELS.get(wt, wt)} weights, seed {int(r['seed'])} (Figs 4.34-4.49)",
                          fontsize=10)
             _save(fig, out / f"fig_overlay_{path}_w{w}.png", written)
 
@@ -310,7 +312,7 @@ def _sensor1_lag_figs(E: _Epochs, out: Path, written: list[Path]) -> None:
                         fontsize=9, va="top")
         fig.suptitle(f"{PATH_LABELS.get(path, path)}: sensor {s1} against time, windows "
                      f"{' and '.join(map(str, wins))}: the estimate trails the truth (lag, "
-                     f"Figs 4.50-4.53), {wt} weights, seed {int(r['seed'])}")
+                     f"Figs 4.50-4.53), {WEIGHT_LABELS.get(wt, wt)} weights, seed {int(r['seed'])}")
         _save(fig, out / f"fig_sensor1_lag_{path}.png", written)
 
 
@@ -372,7 +374,8 @@ def _draw(out: Path, task: str) -> list[Path]:
     elif task == "beyond":
         _technique_fig(E, out, written, "fig_beyond.png",
                        "the dissertation's techniques and the beyond-the-thesis trackers",
-                       ["none", "lc+dyn", "motion_compensated", "ekf", "naive"], ["full"])
+                       ["none", "lc+dyn", "lc_course+dyn", "motion_compensated", "ekf", "naive"],
+                       ["full"])
     elif task == "overlay":
         _overlay_figs(E, out, written)
     elif task == "sensor1":

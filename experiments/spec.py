@@ -90,7 +90,10 @@ WEIGHTINGS = ("none", "random", "huff", "huff:3.5", "huber", "huff_huber")
 _HUFF_T = re.compile(r"^huff:(\d+(\.\d+)?)$")
 #: Techniques. Dissertation: none, lc (Section 3.4.2), dyn (3.4.2.1), lc+dyn (4.12.4).
 #: Beyond it (issue 5): motion-compensated window, constant-velocity EKF, naive CG average.
-TECHNIQUES = ("none", "lc", "dyn", "lc+dyn", "motion_compensated", "ekf", "naive")
+#: "lc_course" is the lag correction with the course (direction of the estimated velocity)
+#: in place of the platform orientation (estimator.lag, variant "course").
+TECHNIQUES = ("none", "lc", "dyn", "lc+dyn", "lc_course", "lc_course+dyn", "motion_compensated",
+              "ekf", "naive")
 SOLVERS = ("procrustes", "slsqp", "ccp")
 MASKS = ("full", "no_turns")
 TURNING = ("controller", "detector")
@@ -99,7 +102,7 @@ TURNING = ("controller", "detector")
 #: axis value is recorded as "-" (not applicable) so such cells are not duplicated.
 NO_SOLVER = ("motion_compensated", "ekf", "naive")
 NO_WEIGHTS = ("ekf", "naive")
-DYNAMIC = ("dyn", "lc+dyn")
+DYNAMIC = ("dyn", "lc+dyn", "lc_course+dyn")
 
 #: Every axis and its default when neither [defaults] nor a grid block sets it.
 AXES: dict[str, Any] = {

@@ -157,6 +157,8 @@ _TECHNIQUE_KW = {
     "lc": {"lag_correction": True},
     "dyn": {"dynamic": True},
     "lc+dyn": {"lag_correction": True, "dynamic": True},
+    "lc_course": {"lag_correction": "course"},
+    "lc_course+dyn": {"lag_correction": "course", "dynamic": True},
     "motion_compensated": {"method": "motion_compensated"},
     "ekf": {"method": "ekf"},
     "naive": {"method": "naive"},
@@ -337,9 +339,16 @@ _WORKER_MEMO: OrderedDict[tuple, Any] = OrderedDict()
 
 
 def _run_batch(cells: list[Cell], truth, spec_seed: int, masks: tuple[str, ...],
-               session_s: float, want: list[bool], cell_fn: CellFn | None) -> list[dict]:
-    """Run a batch of cells (same truth) in one worker; never raises for a cell's error."""
+               session_s: float, want: list[bool], cell_fn: CellFn | None,
+               store_dir: str | None = None) -> list[dict]:
+    """Run a batch of cells (same truth) in one worker; never raises for a cell's error.
+
+    With ``store_dir`` (workers sharing the results folder: in-process and loky) each cell
+    is persisted the moment it finishes and only its key comes back; without it (Dask
+    workers on other machines) the results travel back and the parent writes them.
+    """
     fn = cell_fn or evaluate_cell
+    store = CellStore(Path(store_dir)) if store_dir else None
     out = []
     for cell, w in zip(cells, want):
         ctx = CellContext(spec_seed=spec_seed, masks=masks, session_s=session_s,
@@ -354,6 +363,9 @@ def _run_batch(cells: list[Cell], truth, spec_seed: int, masks: tuple[str, ...],
             out.append({"key": cell.key, "ok": False,
                         "error": f"{type(exc).__name__}: {exc}",
                         "traceback": traceback.format_exc(limit=20)})
+        if store is not None:
+            store.write(cell, out[-1])
+            out[-1] = {"key": cell.key, "ok": out[-1]["ok"], "written": True}
     return out
 
 
@@ -475,7 +487,8 @@ def _batches(todo: list[Cell], jobs: int) -> list[list[Cell]]:
     groups: OrderedDict[tuple, list[Cell]] = OrderedDict()
     for c in todo:
         groups.setdefault(c.noise_key, []).append(c)
-    target = max(1, math.ceil(len(todo) / max(1, jobs * 4)))
+    # >= 8 tasks per worker for load balance and a lively progress bar, <= 16 cells per task
+    target = max(1, min(16, math.ceil(len(todo) / max(1, jobs * 8))))
     out = []
     for cells in groups.values():
         n_chunks = max(1, round(len(cells) / target))
@@ -484,12 +497,13 @@ def _batches(todo: list[Cell], jobs: int) -> list[list[Cell]]:
     return out
 
 
-def _iter_loky(batches, truths, spec, wants, jobs, cell_fn) -> Iterator[tuple[list, list]]:
+def _iter_loky(batches, truths, spec, wants, jobs, cell_fn, store_dir
+               ) -> Iterator[list[dict]]:
     from joblib import Parallel, delayed
 
     par = Parallel(n_jobs=jobs, backend="loky", return_as="generator_unordered")
     tasks = (delayed(_run_batch)(b, truths[b[0].truth_key], spec.seed, spec.masks,
-                                   spec.session_s, w, cell_fn)
+                                 spec.session_s, w, cell_fn, store_dir)
              for b, w in zip(batches, wants))
     # results arrive in completion order; each carries its cells' keys
     yield from par(tasks)
@@ -508,7 +522,8 @@ def _iter_dask(batches, truths, spec, wants, jobs, cell_fn, scheduler):
     try:
         tfut = {k: client.scatter(v, broadcast=False) for k, v in truths.items()}
         futs = [client.submit(_run_batch, b, tfut[b[0].truth_key], spec.seed, spec.masks,
-                              spec.session_s, w, cell_fn, pure=False) for b, w in zip(batches, wants)]
+                              spec.session_s, w, cell_fn, None, pure=False)
+                for b, w in zip(batches, wants)]
         for fut in as_completed(futs):
             yield fut.result()
             fut.release()
@@ -596,16 +611,17 @@ def run(spec: Spec | str | Path, *, out: str | Path | None = None, jobs: int | N
                    smoothing=0.1, dynamic_ncols=True)
         if jobs == 1 and backend == "loky":
             it = (_run_batch(b, truths[b[0].truth_key], spec.seed, spec.masks,
-                                   spec.session_s, w, cell_fn)
+                             spec.session_s, w, cell_fn, str(out_dir))
                   for b, w in zip(batches, wants))
         elif backend == "loky":
-            it = _iter_loky(batches, truths, spec, wants, jobs, cell_fn)
+            it = _iter_loky(batches, truths, spec, wants, jobs, cell_fn, str(out_dir))
         else:
             it = _iter_dask(batches, truths, spec, wants, jobs, cell_fn, scheduler)
         try:
             for results in it:
                 for res in results:
-                    store.write(by_key[res["key"]], res)
+                    if not res.get("written"):
+                        store.write(by_key[res["key"]], res)
                     n_done_now += 1
                 bar.update(len(results))
         finally:

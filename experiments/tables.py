@@ -50,6 +50,8 @@ THESIS_ROWS = {
 }
 #: Beyond-the-dissertation rows (issue 5), scored on the full path.
 BEYOND_ROWS = {
+    "LC (course)": ("lc_course", "full"),
+    "LC (course) + Dyn SW": ("lc_course+dyn", "full"),
     "Motion-compensated": ("motion_compensated", "full"),
     "CV Kalman (EKF)": ("ekf", "full"),
     "Naive CG mean": ("naive", "full"),
@@ -168,6 +170,17 @@ VARIANT_AXES = ("config", "noise", "noise_overrides", "path_overrides", "solver"
 _NA = {"-", 0}
 
 
+def _vlabel(axis: str, value) -> str:
+    """'config=rover_gps4'; overrides as their fields ('cruise_speed_mps=0.5', '{}' = as shipped)."""
+    if axis.endswith("_overrides"):
+        import json
+
+        d = json.loads(value) if isinstance(value, str) else value
+        what = axis.split("_")[0]
+        return f"{what} as shipped" if not d else ", ".join(f"{k}={v}" for k, v in d.items())
+    return f"{axis}={value}"
+
+
 def variants(cells: pd.DataFrame) -> list[tuple[str, pd.DataFrame]]:
     """Split ``cells`` into variants over :data:`VARIANT_AXES`; returns (label, subset).
 
@@ -188,7 +201,7 @@ def variants(cells: pd.DataFrame) -> list[tuple[str, pd.DataFrame]]:
             mk &= ((col == v) | col.isin(list(_NA))).to_numpy()
         sub = cells[mk]
         if not sub.empty:
-            out.append((", ".join(f"{a}={v}" for a, v in zip(multi, combo)), sub))
+            out.append((", ".join(_vlabel(a, v) for a, v in zip(multi, combo)), sub))
     return out
 
 

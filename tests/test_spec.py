@@ -35,8 +35,8 @@ def test_presets_load_and_have_the_thesis_axes():
     assert {c.path for c in cells} == {"square100", "square200"}
     assert {c.window for c in cells} == {1, 5, 10, 100}
     assert {"none", "random", "huff"} <= {c.weighting for c in cells}
-    assert {"none", "lc", "dyn", "lc+dyn", "motion_compensated", "ekf", "naive"} == \
-        {c.technique for c in cells}
+    assert {"none", "lc", "dyn", "lc+dyn", "lc_course", "lc_course+dyn", "motion_compensated",
+            "ekf", "naive"} == {c.technique for c in cells}
     assert thesis.masks == ("full", "no_turns")
     quick = load_spec("quick")
     assert len(quick.seeds) == 2 and {c.path for c in quick.expand()} == {"square100"}
