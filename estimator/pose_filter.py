@@ -120,13 +120,10 @@ def _wrap(a: float) -> float:
 _TWO_PI = 2.0 * math.pi
 
 
-def ctrv_predict(x: np.ndarray, P: np.ndarray, dt: float, sigma_accel: float,
-                 sigma_yaw_accel: float) -> tuple[np.ndarray, np.ndarray]:
-    """CTRV prediction of state (5,) and covariance (5, 5) over dt seconds (EKF).
-
-    Scalar math on purpose: this runs once per epoch in a Python loop.
-    """
-    px, py, yaw, v, om = (float(e) for e in x)
+def _predict(x: list, P: np.ndarray, dt: float, qa: float, qy: float
+             ) -> tuple[list, np.ndarray]:
+    """CTRV prediction on a state list [px, py, yaw, v, omega] (see :func:`ctrv_predict`)."""
+    px, py, yaw, v, om = x
     # exact CTRV written with f1 = sin(q)/q, f2 = (1 - cos q)/q, q = omega dt, which are
     # smooth through omega = 0 (no branch, so state and Jacobian always agree)
     q = om * dt
@@ -152,14 +149,38 @@ def ctrv_predict(x: np.ndarray, P: np.ndarray, dt: float, sigma_accel: float,
         [0.0, 0.0, 0.0, 1.0, 0.0],
         [0.0, 0.0, 0.0, 0.0, 1.0],
     ])
-    xn = np.array([px + vdt * ax, py + vdt * ay, _wrap(yaw + q), v, om])
-    # Q = G diag(sa^2, sy^2) G^T, G = [[h c0, 0], [h s0, 0], [0, h], [dt, 0], [0, dt]]
+    Pn = F @ P @ F.T
+    # + Q = qa ga ga^T + qy gy gy^T, ga = [h c0, h s0, 0, dt, 0], gy = [0, 0, h, 0, dt]
+    # (added entry by entry: the outer products are sparse)
     h = 0.5 * dt * dt
-    qa, qy = sigma_accel**2, sigma_yaw_accel**2
-    ga = np.array([h * c0, h * s0, 0.0, dt, 0.0])
-    gy = np.array([0.0, 0.0, h, 0.0, dt])
-    Q = qa * np.outer(ga, ga) + qy * np.outer(gy, gy)
-    return xn, F @ P @ F.T + Q
+    hc, hs = h * c0, h * s0
+    qhc, qhs, qdt = qa * hc, qa * hs, qa * dt
+    Pn[0, 0] += qhc * hc
+    Pn[0, 1] += qhc * hs
+    Pn[1, 0] += qhs * hc
+    Pn[1, 1] += qhs * hs
+    Pn[0, 3] += qhc * dt
+    Pn[3, 0] += qdt * hc
+    Pn[1, 3] += qhs * dt
+    Pn[3, 1] += qdt * hs
+    Pn[3, 3] += qdt * dt
+    qh, qyd = qy * h, qy * dt
+    Pn[2, 2] += qh * h
+    Pn[2, 4] += qh * dt
+    Pn[4, 2] += qyd * h
+    Pn[4, 4] += qyd * dt
+    return [px + vdt * ax, py + vdt * ay, _wrap(yaw + q), v, om], Pn
+
+
+def ctrv_predict(x: np.ndarray, P: np.ndarray, dt: float, sigma_accel: float,
+                 sigma_yaw_accel: float) -> tuple[np.ndarray, np.ndarray]:
+    """CTRV prediction of state (5,) and covariance (5, 5) over dt seconds (EKF).
+
+    Scalar math on purpose: this runs once per epoch in a Python loop.
+    """
+    xn, Pn = _predict([float(e) for e in x], np.asarray(P, dtype=float), float(dt),
+                      sigma_accel**2, sigma_yaw_accel**2)
+    return np.array(xn), Pn
 
 
 def _h(x: np.ndarray, r: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -176,6 +197,54 @@ def _h(x: np.ndarray, r: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return z, H
 
 
+def _update(x: list, P: np.ndarray, zs: list, rs: list, r2: float, gate: float
+            ) -> tuple[list, np.ndarray, list]:
+    """Information-form update (see :func:`antenna_update`) on Python scalars: x a state
+    list, zs/rs lists of (x, y) fixes and body offsets. Returns (x, P, accepted flags)."""
+    c, s = math.cos(x[2]), math.sin(x[2])
+    x0, x1 = x[0], x[1]
+    if gate != math.inf:
+        P00, P01, P02 = float(P[0, 0]), float(P[0, 1]), float(P[0, 2])
+        P11, P12, P22 = float(P[1, 1]), float(P[1, 2]), float(P[2, 2])
+    acc = []
+    k = 0
+    sx = sy = sr = sny = snx = s3 = 0.0
+    for (zx, zy), (r0, r1) in zip(zs, rs):
+        rx = c * r0 - s * r1  # R(yaw) r, world frame
+        ry = s * r0 + c * r1
+        nux = zx - (x0 + rx)
+        nuy = zy - (x1 + ry)
+        if gate != math.inf:
+            # S_i = h_i P[:3, :3] h_i^T + sigma^2 I with h_i = [[1, 0, -ry], [0, 1, rx]]
+            a = P00 - 2.0 * ry * P02 + ry * ry * P22 + r2
+            b = P01 + rx * P02 - ry * P12 - rx * ry * P22
+            d = P11 + 2.0 * rx * P12 + rx * rx * P22 + r2
+            ok = (d * nux * nux - 2.0 * b * nux * nuy + a * nuy * nuy) / (a * d - b * b) <= gate
+        else:
+            ok = True
+        acc.append(ok)
+        if ok:  # running sums in antenna order (numpy's order for these short sums)
+            k += 1
+            sy += ry
+            sx += rx
+            sr += rx * rx + ry * ry
+            snx += nux
+            sny += nuy
+            s3 += rx * nuy - ry * nux
+    if k == 0:
+        return x, P, acc
+    M = np.zeros((5, 5))
+    M[0, 0] = M[1, 1] = float(k)
+    M[0, 2] = M[2, 0] = -sy
+    M[1, 2] = M[2, 1] = sx
+    M[2, 2] = sr
+    Pn = np.linalg.inv(np.linalg.inv(P) + M / r2)
+    Pn = 0.5 * (Pn + Pn.T)
+    dx = Pn[:, :3] @ [snx / r2, sny / r2, s3 / r2]
+    xn = [x[0] + dx[0], x[1] + dx[1], _wrap(x[2] + dx[2]), x[3] + dx[3], x[4] + dx[4]]
+    return xn, Pn, acc
+
+
 def antenna_update(x: np.ndarray, P: np.ndarray, z: np.ndarray, r: np.ndarray,
                    sigma_meas: float, gate: float = np.inf
                    ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -189,39 +258,11 @@ def antenna_update(x: np.ndarray, P: np.ndarray, z: np.ndarray, r: np.ndarray,
     and ``b = sum H_i^T nu_i / sigma^2`` to the information vector:
     ``P+ = (P^-1 + M)^-1``, ``x+ = x + P+ b``. Returns (x (5,), P (5, 5), accepted (k,)).
     """
-    c, s = math.cos(x[2]), math.sin(x[2])
-    rx = c * r[:, 0] - s * r[:, 1]  # R(yaw) r, world frame
-    ry = s * r[:, 0] + c * r[:, 1]
-    nux = z[:, 0] - (x[0] + rx)
-    nuy = z[:, 1] - (x[1] + ry)
-    r2 = sigma_meas**2
-    if np.isfinite(gate):
-        # S_i = h_i P[:3, :3] h_i^T + sigma^2 I with h_i = [[1, 0, -ry], [0, 1, rx]]
-        P00, P01, P02, P11, P12, P22 = P[0, 0], P[0, 1], P[0, 2], P[1, 1], P[1, 2], P[2, 2]
-        a = P00 - 2.0 * ry * P02 + ry * ry * P22 + r2
-        b = P01 + rx * P02 - ry * P12 - rx * ry * P22
-        d = P11 + 2.0 * rx * P12 + rx * rx * P22 + r2
-        nis = (d * nux * nux - 2.0 * b * nux * nuy + a * nuy * nuy) / (a * d - b * b)
-        acc = nis <= gate
-    else:
-        acc = np.ones(z.shape[0], dtype=bool)
-    if not acc.any():
-        return x, P, acc
-    rx, ry, nux, nuy = rx[acc], ry[acc], nux[acc], nuy[acc]
-    k = float(rx.size)
-    M = np.zeros((5, 5))
-    M[0, 0] = M[1, 1] = k
-    M[0, 2] = M[2, 0] = -ry.sum()
-    M[1, 2] = M[2, 1] = rx.sum()
-    M[2, 2] = (rx * rx + ry * ry).sum()
-    bvec = np.array([nux.sum(), nuy.sum(), (rx * nuy - ry * nux).sum(), 0.0, 0.0])
-    Pn = np.linalg.inv(np.linalg.inv(P) + M / r2)
-    Pn = 0.5 * (Pn + Pn.T)
-    xn = x + Pn @ (bvec / r2)
-    xn[2] = _wrap(xn[2])
-    return xn, Pn, acc
-
-
+    P = np.asarray(P, dtype=float)
+    xn, Pn, acc = _update([float(e) for e in x], P, np.asarray(z, dtype=float).tolist(),
+                          np.asarray(r, dtype=float).tolist(), float(sigma_meas) ** 2,
+                          float(gate))
+    return np.array(xn, dtype=float), Pn, np.array(acc, dtype=bool)
 
 
 def run_pose_filter(t: np.ndarray, obs: np.ndarray, offsets: np.ndarray, x0: np.ndarray,
@@ -240,28 +281,37 @@ def run_pose_filter(t: np.ndarray, obs: np.ndarray, offsets: np.ndarray, x0: np.
     n_gated = np.zeros(n, dtype=int)
     gate = float(chi2.ppf(params.gate_prob, 2)) if params.gate_prob < 1 else np.inf
     present = np.all(np.isfinite(obs), axis=-1)
-    x = np.asarray(x0, dtype=float).copy()
+    x = [float(e) for e in np.asarray(x0, dtype=float)]
     P = np.asarray(P0, dtype=float).copy()
     X[k0], PP[k0], status[k0] = x, P, "init"
+    # per-epoch Python lists of the reporting antennas' fixes and offsets (scalar math in
+    # the loop: numpy's per-call overhead dominates arrays of <= m elements)
+    off = np.asarray(offsets, dtype=float).tolist()
+    zl = obs.tolist()
+    idx = [np.flatnonzero(p).tolist() for p in present]
+    tl = np.asarray(t, dtype=float).tolist()
+    qa, qy, r2 = params.sigma_accel**2, params.sigma_yaw_accel**2, params.sigma_meas**2
     rejects = 0
     for k in range(k0 + 1, n):
-        x, P = ctrv_predict(x, P, float(t[k] - t[k - 1]), params.sigma_accel,
-                            params.sigma_yaw_accel)
-        pk = present[k]
+        x, P = _predict(x, P, tl[k] - tl[k - 1], qa, qy)
+        ik = idx[k]
         st = "predicted"
-        if pk.any():
-            x1, P1, acc = antenna_update(x, P, obs[k, pk], offsets[pk], params.sigma_meas, gate)
-            if acc.any():
+        if ik:
+            zs = [zl[k][i] for i in ik]
+            rs = [off[i] for i in ik]
+            x1, P1, acc = _update(x, P, zs, rs, r2, gate)
+            na = sum(acc)
+            if na:
                 x, P, rejects, st = x1, P1, 0, "ok"
-                n_used[k] = int(acc.sum())
-                n_gated[k] = int((~acc).sum())
+                n_used[k] = na
+                n_gated[k] = len(ik) - na
             else:
                 rejects += 1
-                n_gated[k] = int(pk.sum())
+                n_gated[k] = len(ik)
                 if rejects >= params.max_rejects:
                     P = np.asarray(P0, dtype=float).copy()
-                    x, P, acc = antenna_update(x, P, obs[k, pk], offsets[pk], params.sigma_meas)
-                    n_used[k], n_gated[k], rejects, st = int(pk.sum()), 0, 0, "reset"
+                    x, P, acc = _update(x, P, zs, rs, r2, math.inf)
+                    n_used[k], n_gated[k], rejects, st = len(ik), 0, 0, "reset"
         X[k], PP[k], status[k] = x, P, st
     return PoseFilterResult(states=X, covariances=PP, status=status.astype(str),
                             n_used=n_used, n_gated=n_gated)
