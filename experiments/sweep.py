@@ -289,11 +289,13 @@ def score_track(df: pd.DataFrame, truth, obs: np.ndarray, config, masks: Iterabl
         "truth_turning": truth.turning[idx].astype(bool), "err_x": d[:, 0], "err_y": d[:, 1],
         "err_yaw": wrap_angle(df["yaw"].to_numpy(float) - truth.yaw[idx]),
         "along": along, "cross": cross}
+    # per-antenna truth and observations for plots: float32 (1e-5 m resolution at 200 m)
+    # halves the files; the estimates, CG truth and errors stay float64
     for j, nm in enumerate(truth.sensor_names):
-        cols[f"truth_{nm}_x"] = truth.sensor_positions[idx, j, 0]
-        cols[f"truth_{nm}_y"] = truth.sensor_positions[idx, j, 1]
-        cols[f"obs_{nm}_x"] = obs[idx, j, 0]
-        cols[f"obs_{nm}_y"] = obs[idx, j, 1]
+        cols[f"truth_{nm}_x"] = truth.sensor_positions[idx, j, 0].astype(np.float32)
+        cols[f"truth_{nm}_y"] = truth.sensor_positions[idx, j, 1].astype(np.float32)
+        cols[f"obs_{nm}_x"] = obs[idx, j, 0].astype(np.float32)
+        cols[f"obs_{nm}_y"] = obs[idx, j, 1].astype(np.float32)
     return rows, pd.DataFrame(cols)
 
 

@@ -159,3 +159,12 @@ def test_variants_are_reported_separately(tmp_path):
     assert labels == ["config=rover_gps8", "config=rover_gps4"]
     text = report.write_report(cells, tmp_path).read_text()
     assert "Verdict (config=rover_gps8)" in text and "Verdict (config=rover_gps4)" in text
+
+
+def test_report_cli_rewrites_outputs_from_cells_parquet(tmp_path, capsys):
+    cells = _weights(0.8, 1.0, 1.1)
+    cells.to_parquet(tmp_path / "cells.parquet", index=False)
+    assert report.main([str(tmp_path)]) == 0
+    assert (tmp_path / "REPORT.md").exists() and (tmp_path / "tables.md").exists()
+    assert "C7" in (tmp_path / "REPORT.md").read_text()
+    assert report.main([str(tmp_path / "nothing")]) == 2
