@@ -198,6 +198,32 @@ def _cumsum_means(obs: np.ndarray, ends: np.ndarray, w: int,
     return np.where(cnt[..., None] > 0, means, np.nan), cnt
 
 
+def _weighted_window_means(obs: np.ndarray, ends: np.ndarray, w: int, wts: np.ndarray
+                           ) -> tuple[np.ndarray, np.ndarray]:
+    """:func:`estimator.window.window_means` of the windows ending at ``ends`` with
+    per-window weights ``wts`` (N, w, m), without the (N, w, m, 2) stack: one pass per
+    window offset j, adding in the order of window_means' reduction over the window axis
+    (j = 0 .. w-1), so the sums are the same floating-point numbers."""
+    present = ~np.isnan(obs[..., 0])
+    o = np.where(present[..., None], obs, 0.0)
+    start = ends - (w - 1)
+    contiguous = ends.size > 0 and bool(np.all(np.diff(ends) == 1))
+    num = np.zeros((ends.size, obs.shape[1], 2))
+    W = np.zeros((ends.size, obs.shape[1]))
+    for j in range(w):
+        if contiguous:
+            rows = slice(int(start[0]) + j, int(start[0]) + j + ends.size)
+        else:
+            rows = start + j
+        wj = np.where(present[rows], wts[:, j], 0.0)
+        W += wj
+        num += wj[..., None] * o[rows]
+    with np.errstate(invalid="ignore", divide="ignore"):
+        means = num / W[..., None]
+    full = W > 0
+    return np.where(full[..., None], means, np.nan), np.where(full, W, 0.0)
+
+
 def _fit_windows(obs, cfg, ends, w, *, weighting, rng, huff_threshold, huber_c, solver, eps,
                  warm_start, fit_kw):
     """Window fits for rows ending at ``ends`` with window size w.
@@ -218,9 +244,17 @@ def _fit_windows(obs, cfg, ends, w, *, weighting, rng, huff_threshold, huber_c, 
     a = 0
     prev = None
     for ch in _chunks(ends, w, m):
+        sl = slice(a, a + ch.size)
+        if solver == "procrustes" and weighting == "random":
+            # the weights need no data: sum the windows without stacking them
+            wts = _weights.random_weights((ch.size, w, m), rng)
+            means, sw = _weighted_window_means(obs, ch, w, wts)
+            bf = procrustes_batch(means, sw, cfg)
+            pos[sl], yaw[sl], status[sl] = bf.positions, bf.yaw, bf.status
+            a += ch.size
+            continue
         st = _stack(obs, ch, w)
         wts = _window_weights(st, cfg, weighting, rng, huff_threshold, huber_c)
-        sl = slice(a, a + ch.size)
         if solver == "procrustes":
             means, sw = window_means(st, wts)
             bf = procrustes_batch(means, sw, cfg)

@@ -371,3 +371,38 @@ def test_motion_compensated_series_path_equals_stacked_batch(weighting):
     np.testing.assert_allclose(df[XY].to_numpy(), ref.cg, atol=1e-9)
     np.testing.assert_allclose(df["speed"].to_numpy(),
                                np.hypot(ref.velocity[:, 0], ref.velocity[:, 1]), atol=1e-9)
+
+
+@pytest.mark.parametrize("dynamic", [False, True])
+def test_random_weights_path_equals_stacked_windows(dynamic, monkeypatch):
+    """track(weighting="random") sums the windows without stacking them; it must give the
+    stacked-window result bit for bit (same weights from the same Generator, same
+    summation order), also across chunk boundaries and on the non-contiguous rows of a
+    dynamic window."""
+    import estimator.tracking as tr
+    from estimator.weights import random_weights
+    from estimator.window import procrustes_batch, window_means
+
+    monkeypatch.setattr(tr, "_CHUNK_SAMPLES", 8 * 12 * 7)  # 7 windows per chunk
+    rng = np.random.default_rng(11)
+    cfg, t, _cg, _yaw, clean = straight(n=90)
+    obs = clean + rng.normal(0, 1.0, clean.shape)
+    obs[rng.random(obs.shape[:2]) < 0.15] = np.nan
+    s = 12
+    flags = rng.random(90) < 0.3 if dynamic else None
+    kw = {"dynamic_window": 3, "turning": flags} if dynamic else {}
+    df = track(t, obs, cfg, window=s, weighting="random", rng=np.random.default_rng(4), **kw)
+    # reference: the stacked path as it was (chunks of the rows of each window size)
+    g = np.random.default_rng(4)
+    ends = np.arange(s - 1, 90)
+    wsize = np.where(flags[ends], 3, s) if dynamic else np.full(ends.size, s)
+    cg = np.full((ends.size, 2), np.nan)
+    for w in np.unique(wsize):
+        sel = np.flatnonzero(wsize == w)
+        for a in range(0, sel.size, max(1, tr._CHUNK_SAMPLES // (w * 8))):
+            rows = sel[a:a + max(1, tr._CHUNK_SAMPLES // (w * 8))]
+            e = ends[rows]
+            st_ = obs[e[:, None] - np.arange(w - 1, -1, -1)[None, :]]
+            means, sw = window_means(st_, random_weights(st_.shape[:3], g))
+            cg[rows] = procrustes_batch(means, sw, cfg).cg
+    np.testing.assert_array_equal(df[XY].to_numpy(), cg)
