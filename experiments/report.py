@@ -597,9 +597,9 @@ def _setup(cells: pd.DataFrame, out: Path) -> list[str]:
         lines.append(f"- spec seed {m.get('spec_seed')}, seeds {m.get('seeds')}, code "
                      f"{code.get('git_describe') or code.get('git_commit')} (package "
                      f"{code.get('package')}); see `manifest.json` and `spec.toml`.")
-    lines += ["- The dissertation does not state its vehicle's speed; the shipped paths use the "
+    lines += [("- The dissertation does not state its vehicle's speed; the shipped paths use the "
               "speed its Table 4.1 implies (see the comments in models/paths/). "
-              "`experiments/presets/speed.toml` checks the claims at other speeds.", ""]
+              "`experiments/presets/speed.toml` checks the claims at other speeds."), ""]
     return lines
 
 

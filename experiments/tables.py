@@ -150,6 +150,7 @@ def aggregate(cells: pd.DataFrame, by: list[str], metrics: list[str]) -> pd.Data
 
     Columns: by..., n_seeds, then <metric>, <metric>_lo, <metric>_hi.
     """
+    metrics = [m for m in metrics if m in cells.columns]
     rows = []
     for key, g in cells.groupby(by, sort=True, dropna=False):
         key = key if isinstance(key, tuple) else (key,)
@@ -264,7 +265,7 @@ def weighting_table(cells: pd.DataFrame, technique: str = "none") -> pd.DataFram
 def orientation_table(cells: pd.DataFrame, technique: str = "none") -> pd.DataFrame:
     """Section 4.12.1 / Figure 4.119 as numbers: heading error (degrees) per path, window."""
     sub = select(cells, technique=technique, mask="full").copy()
-    if sub.empty:
+    if sub.empty or "eh_mean" not in sub:
         return pd.DataFrame()
     for s in ("mean", "median", "p95", "max"):
         sub[f"eh_{s}_deg"] = np.degrees(sub[f"eh_{s}"])
