@@ -322,7 +322,7 @@ def _tables_fig(out: Path, written: list[Path]) -> None:
         return
     fig, axes = _subplots(1, 2, figsize=(14, 5.5))
     for ax_plot, (axis, f) in zip(axes, files):
-        df = pd.read_csv(f)
+        df = pd.read_csv(f, keep_default_na=False, na_values=[""])   # "None" is a row label
         df = df[df["window"] > 1]
         labels = [f"w={w}\n{t}" for w, t in zip(df["window"], df["technique"])]
         xs = np.arange(len(df))
@@ -334,6 +334,10 @@ def _tables_fig(out: Path, written: list[Path]) -> None:
                      label="dissertation (one run)")
         ax_plot.set_xticks(xs, labels, rotation=90, fontsize=7)
         ax_plot.set_yscale("log")
+        from matplotlib.ticker import FormatStrFormatter
+
+        ax_plot.yaxis.set_major_formatter(FormatStrFormatter("%g"))
+        ax_plot.yaxis.set_minor_formatter(FormatStrFormatter("%g"))
         ax_plot.set_ylabel(f"mean |{axis}| CG error (m)")
         ax_plot.grid(alpha=0.3, which="both")
         ax_plot.set_title(f"Table 4.{1 if axis == 'x' else 2} (|{axis}|), "
