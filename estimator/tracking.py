@@ -154,16 +154,29 @@ def _stack(obs: np.ndarray, ends: np.ndarray, w: int) -> np.ndarray:
 
 def _window_weights(stack: np.ndarray, cfg: SensorConfig, weighting: str,
                     rng: np.random.Generator | None, huff_threshold: float | None,
-                    huber_c: float) -> np.ndarray | None:
+                    huber_c: float, huff: np.ndarray | None = None) -> np.ndarray | None:
+    """Weights of stacked windows. ``huff``: the Huff weights of the same stack, gathered
+    from one call on the whole recording (they depend on their own sample only)."""
     if weighting == "none":
         return None
     if weighting == "random":
         return _weights.random_weights(stack.shape[:3], rng)
     if weighting == "huff":
-        return _weights.huff_weights(stack, cfg, huff_threshold)
+        return huff if huff is not None else _weights.huff_weights(stack, cfg, huff_threshold)
     if weighting == "huber":
         return _weights.huber_weights(stack, huber_c)
-    return _weights.huff_huber_weights(stack, cfg, huff_threshold, huber_c)
+    if huff is None:
+        return _weights.huff_huber_weights(stack, cfg, huff_threshold, huber_c)
+    return huff[..., None] * _weights.huber_weights(stack, huber_c)  # Eq. 3.14
+
+
+def _sample_huff(obs: np.ndarray, cfg: SensorConfig, weighting: str,
+                 huff_threshold: float | None) -> np.ndarray | None:
+    """Per-sample Huff weights (n, m) of the whole recording when ``weighting`` uses them
+    (Section 3.3.3 weighs each time step on its own, so every window shares them)."""
+    if weighting in ("huff", "huff_huber"):
+        return _weights.huff_weights(obs, cfg, huff_threshold)
+    return None
 
 
 def _chunks(ends: np.ndarray, w: int, m: int):
@@ -243,6 +256,7 @@ def _fit_windows(obs, cfg, ends, w, *, weighting, rng, huff_threshold, huber_c, 
         return bf.positions, bf.yaw, bf.status.astype(object)
     a = 0
     prev = None
+    huff = _sample_huff(obs, cfg, weighting, huff_threshold)
     for ch in _chunks(ends, w, m):
         sl = slice(a, a + ch.size)
         if solver == "procrustes" and weighting == "random":
@@ -254,7 +268,8 @@ def _fit_windows(obs, cfg, ends, w, *, weighting, rng, huff_threshold, huber_c, 
             a += ch.size
             continue
         st = _stack(obs, ch, w)
-        wts = _window_weights(st, cfg, weighting, rng, huff_threshold, huber_c)
+        wts = _window_weights(st, cfg, weighting, rng, huff_threshold, huber_c,
+                              None if huff is None else _stack(huff, ch, w))
         if solver == "procrustes":
             means, sw = window_means(st, wts)
             bf = procrustes_batch(means, sw, cfg)
@@ -284,9 +299,11 @@ def _motion_windows(t, obs, cfg, ends, w, *, weighting, rng, huff_threshold, hub
                "vy": fit.velocity[:, 1]}
         return fit.positions, out, fit.status.astype(object)
     a = 0
+    huff = _sample_huff(obs, cfg, weighting, huff_threshold)
     for ch in _chunks(ends, w, m):
         st = _stack(obs, ch, w)
-        wts = _window_weights(st, cfg, weighting, rng, huff_threshold, huber_c)
+        wts = _window_weights(st, cfg, weighting, rng, huff_threshold, huber_c,
+                              None if huff is None else _stack(huff, ch, w))
         idx = ch[:, None] - np.arange(w - 1, -1, -1)[None, :]
         tau = t[idx] - t[ch][:, None]
         fit = motion_compensated_batch(tau, st, cfg, wts, yaw_rate=yaw_rate,

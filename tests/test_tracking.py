@@ -406,3 +406,32 @@ def test_random_weights_path_equals_stacked_windows(dynamic, monkeypatch):
             means, sw = window_means(st_, random_weights(st_.shape[:3], g))
             cg[rows] = procrustes_batch(means, sw, cfg).cg
     np.testing.assert_array_equal(df[XY].to_numpy(), cg)
+
+
+@pytest.mark.parametrize("method", ["window", "motion_compensated"])
+def test_huff_huber_from_per_sample_huff_equals_stacked_windows(method):
+    """track() computes the Huff factor of Eq. 3.14 once per sample and gathers it into the
+    windows; the weights, hence the fits, are the same floats as weighting each stacked
+    window with huff_huber_weights (bit equality)."""
+    from estimator.motion import motion_compensated_batch
+    from estimator.weights import huff_huber_weights
+    from estimator.window import procrustes_batch, window_means
+
+    rng = np.random.default_rng(12)
+    cfg, t, _cg, _yaw, clean = straight(n=70)
+    obs = clean + rng.normal(0, 1.0, clean.shape)
+    obs[rng.random(obs.shape[:2]) < 0.15] = np.nan
+    s = 9
+    df = track(t, obs, cfg, window=s, weighting="huff_huber", huff_threshold=3.0,
+               method=method)
+    ends = np.arange(s - 1, 70)
+    idx = ends[:, None] - np.arange(s - 1, -1, -1)[None, :]
+    st_ = obs[idx]
+    w = huff_huber_weights(st_, cfg, 3.0)
+    if method == "window":
+        means, sw = window_means(st_, w)
+        cg = procrustes_batch(means, sw, cfg).cg
+    else:
+        cg = motion_compensated_batch(t[idx] - t[ends][:, None], st_, cfg, w,
+                                      yaw_rate=False).cg
+    np.testing.assert_array_equal(df[XY].to_numpy(), cg)
