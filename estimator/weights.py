@@ -199,8 +199,13 @@ def huff_weights(obs: Any, config: SensorConfig, threshold: float | None = None,
     m = config.m
     present = ~nan.any(axis=-1)                                   # (..., s, m)
     o = np.where(present[..., None], arr, 0.0)
-    diff = o[..., :, None, :] - o[..., None, :, :]                # (..., s, m, m, d)
-    dist = np.sqrt((diff * diff).sum(axis=-1))
+    # pairwise distances (..., s, m, m), one coordinate at a time (no (..., m, m, d) array;
+    # the squares are added in the order of a sum over the last axis, so same floats)
+    dist2 = None
+    for k in range(arr.shape[-1]):
+        dk = o[..., :, None, k] - o[..., None, :, k]
+        dist2 = dk * dk if dist2 is None else dist2 + dk * dk
+    dist = np.sqrt(dist2)
     rel = present[..., :, None] & present[..., None, :] & ~np.eye(m, dtype=bool)
     err = np.where(rel, np.abs(dist - config.distances()), 0.0)   # steps 2-3
     n_i = rel.sum(axis=-1)                                        # relationships per sensor
