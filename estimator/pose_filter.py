@@ -233,12 +233,39 @@ def _update(x: list, P: np.ndarray, zs: list, rs: list, r2: float, gate: float
             s3 += rx * nuy - ry * nux
     if k == 0:
         return x, P, acc
-    M = np.zeros((5, 5))
-    M[0, 0] = M[1, 1] = float(k)
-    M[0, 2] = M[2, 0] = -sy
-    M[1, 2] = M[2, 1] = sx
-    M[2, 2] = sr
-    Pn = np.linalg.inv(np.linalg.inv(P) + M / r2)
+    # P+ = (P^-1 + E M3 E^T / r2)^-1 with E the first three unit vectors and
+    # M3 = [[k, 0, -sy], [0, k, sx], [-sy, sx, sr]]; by the push-through identity
+    # P+ = P - P E G E^T P with G = (r2 I + M3 P3)^-1 M3 (P3 = E^T P E): one 3x3 inverse
+    # (closed form, adjugate) instead of two 5x5 inverses; valid for any k >= 1 (M3 is
+    # singular for k = 1).
+    kf = float(k)
+    if gate == math.inf:
+        P00, P01, P02 = float(P[0, 0]), float(P[0, 1]), float(P[0, 2])
+        P11, P12, P22 = float(P[1, 1]), float(P[1, 2]), float(P[2, 2])
+    c00 = kf * P00 - sy * P02 + r2
+    c01 = kf * P01 - sy * P12
+    c02 = kf * P02 - sy * P22
+    c10 = kf * P01 + sx * P02
+    c11 = kf * P11 + sx * P12 + r2
+    c12 = kf * P12 + sx * P22
+    c20 = -sy * P00 + sx * P01 + sr * P02
+    c21 = -sy * P01 + sx * P11 + sr * P12
+    c22 = -sy * P02 + sx * P12 + sr * P22 + r2
+    i00 = c11 * c22 - c12 * c21
+    i01 = c02 * c21 - c01 * c22
+    i02 = c01 * c12 - c02 * c11
+    i10 = c12 * c20 - c10 * c22
+    i11 = c00 * c22 - c02 * c20
+    i12 = c02 * c10 - c00 * c12
+    i20 = c10 * c21 - c11 * c20
+    i21 = c01 * c20 - c00 * c21
+    i22 = c00 * c11 - c01 * c10
+    det = c00 * i00 + c01 * i10 + c02 * i20
+    G = np.array([[kf * i00 - sy * i02, kf * i01 + sx * i02, -sy * i00 + sx * i01 + sr * i02],
+                  [kf * i10 - sy * i12, kf * i11 + sx * i12, -sy * i10 + sx * i11 + sr * i12],
+                  [kf * i20 - sy * i22, kf * i21 + sx * i22, -sy * i20 + sx * i21 + sr * i22]])
+    PE = P[:, :3]
+    Pn = P - (PE @ (G / det)) @ PE.T
     Pn = 0.5 * (Pn + Pn.T)
     dx = Pn[:, :3] @ [snx / r2, sny / r2, s3 / r2]
     xn = [x[0] + dx[0], x[1] + dx[1], _wrap(x[2] + dx[2]), x[3] + dx[3], x[4] + dx[4]]
@@ -252,11 +279,13 @@ def antenna_update(x: np.ndarray, P: np.ndarray, z: np.ndarray, r: np.ndarray,
 
     Antennas whose innovation NIS (2 dof, predicted covariance) exceeds ``gate`` are left
     out. The joint update of the accepted antennas is done in information form, which is
-    the same update as the textbook gain form (tested against FilterPy) but only needs
-    5x5 inverses: each antenna's Jacobian ``[I, J R r_i, 0, 0]`` touches (px, py, yaw) only,
-    so the k antennas add ``M = sum H_i^T H_i / sigma^2`` (a 3x3 block) to the information
-    and ``b = sum H_i^T nu_i / sigma^2`` to the information vector:
-    ``P+ = (P^-1 + M)^-1``, ``x+ = x + P+ b``. Returns (x (5,), P (5, 5), accepted (k,)).
+    the same update as the textbook gain form (tested against FilterPy) without a 2k x 2k
+    innovation covariance: each antenna's Jacobian ``[I, J R r_i, 0, 0]`` touches
+    (px, py, yaw) only, so the k antennas add ``M = sum H_i^T H_i / sigma^2`` (a 3x3 block)
+    to the information and ``b = sum H_i^T nu_i / sigma^2`` to the information vector:
+    ``P+ = (P^-1 + M)^-1``, ``x+ = x + P+ b``; ``P+`` is evaluated through the 3x3 block
+    (push-through identity, one closed-form 3x3 inverse). Returns (x (5,), P (5, 5),
+    accepted (k,)).
     """
     P = np.asarray(P, dtype=float)
     xn, Pn, acc = _update([float(e) for e in x], P, np.asarray(z, dtype=float).tolist(),
