@@ -6,11 +6,14 @@ the ``thesis`` preset; any spec (see :mod:`experiments.spec`) runs the same way.
 
 Pipeline per cell (one point of the grid, one seed):
 
-1. truth: each distinct (path, configuration) is simulated ONCE, up front, in the parent
-   (through the on-disk truth cache, :mod:`sim.cache`), then handed to the workers;
-2. noise: a stationary GPS session is synthesized for the cell's seed and replayed onto the
-   truth (Section 4.1.2); cells that share (truth, noise model, seed) share the observations
-   (common random numbers, so techniques are compared on identical data);
+1. truth: each distinct (path, configuration) is simulated ONCE, up front, before any cell
+   (through the on-disk truth cache, :mod:`sim.cache`; with several paths and jobs > 1 the
+   parent runs the simulations side by side in worker processes), then handed to the workers;
+2. noise: a stationary GPS session of ``spec.session_s`` seconds (the dissertation's ~4000 s
+   recording, Section 4.1.1) is synthesized for the cell's seed, cut after its power failure,
+   and a random stretch of it replayed onto the truth: truth + (observation - that
+   receiver's session mean), Section 4.1.2. Cells that share (truth, noise model, seed) share
+   the observations (common random numbers: techniques are compared on identical data);
 3. estimate: :func:`estimator.tracking.track` with the cell's window, weighting, technique
    and solver;
 4. score: Eq. 4.1 / 4.2 errors per evaluation mask (full path, no turns), summarised.
@@ -20,7 +23,9 @@ Randomness: every stream is a ``numpy.random.Generator`` seeded from
 numbers in any order, on any number of workers.
 
 Persistence: each finished cell is written atomically as ``cells/<key>.json`` (temp file +
-``os.replace``; per-epoch estimates, when asked for, go to ``epochs/<key>.parquet`` first),
+``os.replace``; per-epoch estimates, when asked for, go to ``epochs/<key>.parquet`` first)
+by the worker that computed it the moment it finishes (Dask workers, which may not share
+the file system, send it back and the parent writes it),
 so a run killed at any moment (SIGKILL included) loses no finished cell and never duplicates
 one; rerunning skips finished cells, ``--force`` recomputes. ``cells.parquet`` is assembled
 from the cell files at the end. Errors inside a cell are recorded (``errors/<key>.json``,
