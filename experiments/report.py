@@ -679,8 +679,8 @@ def write_report(cells: pd.DataFrame, out_dir: str | Path, spec=None) -> Path:
             ts = sum(o.thesis_result == "supports" for o in r0.outcomes)
             tv = f"{r0.thesis_verdict} ({ts}/{len(r0.outcomes)})"
         lines.append(row + f" {tv} |")
-    lines += ["", "Rows C13c-C22c repeat the lag-correction claims with the course-based lag "
-              "correction (our variant, beyond the dissertation) in place of the as-written one."]
+    lines += ["", ("Rows C13c-C22c repeat the lag-correction claims with the course-based lag "
+              "correction (our variant, beyond the dissertation) in place of the as-written one.")]
     for lab, res in per_variant:
         counts: dict[str, int] = {}
         for r in res:
