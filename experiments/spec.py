@@ -528,8 +528,9 @@ def _check_epochs(e: object, where: str, base: Path) -> dict:
         raise SpecError(f"{where}.where: must be a table of axis = [values]")
     out["where"] = {}
     for k, vals in w.items():
-        if k != "seed" and k not in AXES:
-            raise SpecError(f"{where}.where: unknown axis {k!r}; allowed: {sorted(AXES)}")
+        if k not in AXES:
+            raise SpecError(f"{where}.where: unknown axis {k!r}; allowed: {sorted(AXES)} "
+                            "(select seeds with epochs.seeds)")
         vals = vals if isinstance(vals, list) else [vals]
         out["where"][k] = [_check_axis(k, x, f"{where}.where.{k}[{i}]", base, scalar=True)
                            for i, x in enumerate(vals)]
