@@ -164,6 +164,14 @@ def _pick(E: _Epochs, **where) -> pd.Series | None:
     return rows.sort_values("seed").iloc[0]
 
 
+def _break_wraps(deg: np.ndarray) -> np.ndarray:
+    """NaN where a heading wraps across +/-180 deg, so the line breaks instead of jumping."""
+    d = np.asarray(deg, dtype=float).copy()
+    jump = np.abs(np.diff(d)) > 180
+    d[1:][jump] = np.nan
+    return d
+
+
 def _orientation_figs(E: _Epochs, out: Path, written: list[Path]) -> None:
     path = _path1(E)
     if path is None:
@@ -177,8 +185,8 @@ def _orientation_figs(E: _Epochs, out: Path, written: list[Path]) -> None:
     for ax, w in zip(axes[:, 0], windows):
         r = _pick(E, path=path, technique="none", weighting=wt, window=w)
         ep = E.load(r["key"])
-        ax.plot(ep["t"], np.degrees(ep["truth_yaw"]), color="k", lw=1.5)
-        ax.plot(ep["t"], np.degrees(ep["yaw"]), color="C3", lw=0.8, alpha=0.8)
+        ax.plot(ep["t"], _break_wraps(np.degrees(ep["truth_yaw"])), color="k", lw=1.5)
+        ax.plot(ep["t"], _break_wraps(np.degrees(ep["yaw"])), color="C3", lw=0.8, alpha=0.8)
         ax.text(1.005, 0.75, "truth", color="k", transform=ax.transAxes, fontsize=9)
         ax.text(1.005, 0.45, f"estimate\nw={w}", color="C3", transform=ax.transAxes, fontsize=9)
         ax.set_ylabel("heading (deg)")
