@@ -103,7 +103,6 @@ class _Sums:
         ph = np.exp(1j * x)
         s = tau * _s_of(x)
         Wt = self.Wt
-        W = self.W
         S1 = (Wt * s).sum(axis=1)
         S2 = (Wt * np.abs(s) ** 2).sum(axis=1)
         E1 = (ph * self.Bt).sum(axis=1)
@@ -111,40 +110,48 @@ class _Sums:
         rc = self.Ot.sum(axis=1)
         rw = (np.conj(s) * self.Ot).sum(axis=1)
         rz = (np.conj(ph) * self.EOt).sum(axis=1)
-        det = W * S2 - np.abs(S1) ** 2  # real, >= 0
-        moving = det > 1e-12 * np.maximum(W * S2, 1e-300)
-        safe_det = np.where(moving, det, 1.0)
-        safe_W = np.where(W > 0, W, 1.0)
-        # A11^{-1} = [[S2, -S1], [-conj(S1), W]] / det  (Hermitian 2x2)
-        # alpha = a22 - a12^H A11^{-1} a12 ; g = rz - a12^H A11^{-1} r1
-        a12 = (E1, SE)
-        r1 = (rc, rw)
+        return _closed_form(self.W, S1, S2, E1, SE, rc, rw, rz, self.BB, self.OO)
 
-        def quad(u, v):  # u^H A11^{-1} v
-            return (np.conj(u[0]) * (S2 * v[0] - S1 * v[1])
-                    + np.conj(u[1]) * (-np.conj(S1) * v[0] + W * v[1])) / safe_det
 
-        alpha_m = self.BB - quad(a12, a12).real
-        g_m = rz - quad(a12, r1)
-        base_m = self.OO - quad(r1, r1).real
-        # not moving (all samples at one time): v = 0, only c
-        alpha_s = self.BB - np.abs(E1) ** 2 / safe_W
-        g_s = rz - np.conj(E1) * rc / safe_W
-        base_s = self.OO - np.abs(rc) ** 2 / safe_W
-        alpha = np.where(moving, alpha_m, alpha_s)
-        g = np.where(moving, g_m, g_s)
-        base = np.where(moving, base_m, base_s)
-        ag = np.abs(g)
-        z = np.where(ag > 0, g / np.where(ag > 0, ag, 1.0), np.nan)
-        obj = np.maximum(base + alpha - 2.0 * ag, 0.0)
-        # back-substitute y = A11^{-1} (r1 - a12 z)
-        q0 = rc - E1 * z
-        q1 = rw - SE * z
-        c_m = (S2 * q0 - S1 * q1) / safe_det
-        v_m = (-np.conj(S1) * q0 + W * q1) / safe_det
-        c = np.where(moving, c_m, q0 / safe_W)
-        v = np.where(moving, v_m, 0.0)
-        return c, v, z, obj
+def _closed_form(W, S1, S2, E1, SE, rc, rw, rz, BB, OO):
+    """(c, v, z, objective) (N,) from the window sums of the normal equations at one yaw
+    rate: W = sum w, S1 = sum w s, S2 = sum w |s|^2, E1 = sum e B, SE = sum conj(s) e B,
+    rc = sum O, rw = sum conj(s) O, rz = sum conj(e) EO (e = exp(i omega tau), B = w b,
+    O = w o, EO = w conj(b) o, all centred), BB = sum w |b|^2, OO = sum w |o|^2."""
+    det = W * S2 - np.abs(S1) ** 2  # real, >= 0
+    moving = det > 1e-12 * np.maximum(W * S2, 1e-300)
+    safe_det = np.where(moving, det, 1.0)
+    safe_W = np.where(W > 0, W, 1.0)
+    # A11^{-1} = [[S2, -S1], [-conj(S1), W]] / det  (Hermitian 2x2)
+    # alpha = a22 - a12^H A11^{-1} a12 ; g = rz - a12^H A11^{-1} r1
+    a12 = (E1, SE)
+    r1 = (rc, rw)
+
+    def quad(u, v):  # u^H A11^{-1} v
+        return (np.conj(u[0]) * (S2 * v[0] - S1 * v[1])
+                + np.conj(u[1]) * (-np.conj(S1) * v[0] + W * v[1])) / safe_det
+
+    alpha_m = BB - quad(a12, a12).real
+    g_m = rz - quad(a12, r1)
+    base_m = OO - quad(r1, r1).real
+    # not moving (all samples at one time): v = 0, only c
+    alpha_s = BB - np.abs(E1) ** 2 / safe_W
+    g_s = rz - np.conj(E1) * rc / safe_W
+    base_s = OO - np.abs(rc) ** 2 / safe_W
+    alpha = np.where(moving, alpha_m, alpha_s)
+    g = np.where(moving, g_m, g_s)
+    base = np.where(moving, base_m, base_s)
+    ag = np.abs(g)
+    z = np.where(ag > 0, g / np.where(ag > 0, ag, 1.0), np.nan)
+    obj = np.maximum(base + alpha - 2.0 * ag, 0.0)
+    # back-substitute y = A11^{-1} (r1 - a12 z)
+    q0 = rc - E1 * z
+    q1 = rw - SE * z
+    c_m = (S2 * q0 - S1 * q1) / safe_det
+    v_m = (-np.conj(S1) * q0 + W * q1) / safe_det
+    c = np.where(moving, c_m, q0 / safe_W)
+    v = np.where(moving, v_m, 0.0)
+    return c, v, z, obj
 
 
 def motion_compensated_batch(tau: np.ndarray, obs: np.ndarray, config: SensorConfig,
@@ -247,13 +254,15 @@ def motion_compensated_batch(tau: np.ndarray, obs: np.ndarray, config: SensorCon
         step = np.clip(np.nan_to_num(step), -10.0 * d, 10.0 * d)
         cand = np.clip(omega + step, -rng_k, rng_k)
         omega = np.where(sums.exact_objective(cand) <= j0, cand, omega)
-    return _finish(sums, omega, ref, b, (wt.sum(axis=1) > 0).sum(axis=1), config)
+    return _finish(sums.solve(omega), omega, ref, b, (wt.sum(axis=1) > 0).sum(axis=1),
+                   config)
 
 
-def _finish(sums: _Sums, omega: np.ndarray, ref: np.ndarray, b: np.ndarray,
+def _finish(solved: tuple, omega: np.ndarray, ref: np.ndarray, b: np.ndarray,
             n_sensors: np.ndarray, config: SensorConfig) -> MotionFit:
-    """Pose at the newest epoch from the closed form at yaw rate omega (N,)."""
-    c, v, z, obj = sums.solve(omega)
+    """Pose at the newest epoch from the closed form (c, v, z, objective) at yaw rate
+    omega (N,); ``ref`` (N,) complex is added back to c (the windows were centred)."""
+    c, v, z, obj = solved
     ok = (n_sensors >= 2) & np.isfinite(z)
     c = c + ref
     pos_c = c[:, None] + z[:, None] * b[None, :]
@@ -268,19 +277,46 @@ def _finish(sums: _Sums, omega: np.ndarray, ref: np.ndarray, b: np.ndarray,
                      status=np.where(ok, "ok", "insufficient_data"))
 
 
+def _block_sums(vals: np.ndarray, a: np.ndarray, e: np.ndarray, L: int
+                ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Sums of ``vals`` (n, k) over the index ranges a..e (inclusive, e - a < L), split at
+    the boundary of blocks of L samples: returns (head, tail, split) where head is the sum
+    over a..min(e, end of a's block), tail over the rest (0 when the range lies in one
+    block) and split (N,) bool. The prefix sums restart in every block, so their round-off
+    is that of sums over at most L samples, not over the whole recording."""
+    n, k = vals.shape
+    nb = -(-n // L)
+    pad = np.zeros((nb * L, k), dtype=vals.dtype)
+    pad[:n] = vals
+    C = np.cumsum(pad.reshape(nb, L, k), axis=1).reshape(nb * L, k)
+    ba, be = a // L, e // L
+    split = be != ba
+    prev = np.where((a % L != 0)[:, None], C[np.maximum(a - 1, 0)], 0.0)
+    head_end = np.where(split, ba * L + L - 1, e)
+    head = C[head_end] - prev
+    tail = np.where(split[:, None], C[e], 0.0)
+    return head, tail, split
+
+
 def motion_compensated_series(t: np.ndarray, obs: np.ndarray, config: SensorConfig,
                               ends: np.ndarray, window: int,
                               sample_weights: np.ndarray | None = None) -> MotionFit:
     """Constant-velocity fits (omega = 0) of the windows ``ends - window + 1 .. ends`` of one
-    recording, from per-epoch sums over the sensors: the same closed form as
-    :func:`motion_compensated_batch` with ``yaw_rate=False``, without stacking the sensor
-    axis (O(N s) small operations instead of O(N s m)).
+    recording in O(n + N), independent of the window size: the same closed form as
+    :func:`motion_compensated_batch` with ``yaw_rate=False``, from window sums of per-epoch
+    sums over the sensors. With omega = 0 every sum the closed form needs is a sum over the
+    window of a per-epoch quantity times 1, tau or tau^2 (tau = t - t_end); these are taken
+    from prefix sums that restart every ``window`` samples, with time measured from each
+    block's first epoch and shifted to t_end afterwards (sum w tau = sum w u + d sum w,
+    sum w tau^2 = sum w u^2 + 2 d sum w u + d^2 sum w, u = t - t_block, d = t_block - t_end),
+    so the round-off stays that of window-length sums.
 
     t : (n,) s. obs : (n, m, 2) metres, NaN = missing. ends : (N,) int. window : s >= 1.
     sample_weights : None or (n, m) >= 0, weights that belong to a sample whatever its
     window (e.g. Huff weights).
     """
     obs = np.asarray(obs, dtype=float)
+    tt = np.asarray(t, dtype=float)
     if config.d != 2:
         config = config.planar()
     n, m = obs.shape[:2]
@@ -295,28 +331,40 @@ def motion_compensated_series(t: np.ndarray, obs: np.ndarray, config: SensorConf
     o = np.where(present, (obs[..., 0] - ref0[0]) + 1j * (obs[..., 1] - ref0[1]), 0.0)
     B = config.body_positions
     b = B[:, 0] + 1j * B[:, 1]
-    # per-epoch sums over sensors (n,)
+    L = int(window)
+    ends = np.asarray(ends, dtype=int)
+    starts = ends - (L - 1)
+    # per-epoch sums over sensors, time from the first epoch of each block of L samples
     Wt = wt.sum(axis=1)
     Bt = wt @ b
     Ot = (wt * o).sum(axis=1)
-    EOt = (wt * o) @ np.conj(b)
-    BBt = wt @ (np.abs(b) ** 2)
-    OOt = (wt * np.abs(o) ** 2).sum(axis=1)
-    ends = np.asarray(ends, dtype=int)
-    idx = ends[:, None] - np.arange(window - 1, -1, -1)[None, :]
-    tau = np.asarray(t, dtype=float)[idx] - np.asarray(t, dtype=float)[ends][:, None]
+    u = tt - tt[(np.arange(n) // L) * L]
+    vals = np.stack([Wt, Wt * u, Wt * u * u, Bt, Bt * u, Ot, Ot * u, (wt * o) @ np.conj(b),
+                     wt @ (np.abs(b) ** 2), (wt * np.abs(o) ** 2).sum(axis=1)], axis=1)
+    head, tail, split = _block_sums(vals, starts, ends, L)
+    t_end = tt[ends]
+    d_head = tt[(starts // L) * L] - t_end
+    d_tail = np.where(split, tt[np.minimum((ends // L) * L, n - 1)] - t_end, 0.0)
+
+    def shifted(part, d):  # sums over one part with tau = u + d
+        w0, w1, w2 = part[:, 0].real, part[:, 1].real, part[:, 2].real
+        return (w0, w1 + d * w0, w2 + 2.0 * d * w1 + d * d * w0,
+                part[:, 3], part[:, 4] + d * part[:, 3], part[:, 5], part[:, 6] + d * part[:, 5])
+
+    hs, ts_ = shifted(head, d_head), shifted(tail, d_tail)
+    W, S1, S2, E1, SE, Osum, Otau = (x + y for x, y in zip(hs, ts_))
+    EO = head[:, 7] + tail[:, 7]
+    BB = (head[:, 8] + tail[:, 8]).real
+    OO = (head[:, 9] + tail[:, 9]).real
     # centre each window on its weighted mean (as motion_compensated_batch does)
-    Wi, Oi = Wt[idx], Ot[idx]
-    W = Wi.sum(axis=1)
-    ref = np.where(W > 0, Oi.sum(axis=1) / np.where(W > 0, W, 1.0), 0.0)
-    Bi = Bt[idx]
-    sums = _Sums(tau, Wi, Bi, Oi - ref[:, None] * Wi, EOt[idx] - ref[:, None] * np.conj(Bi),
-                 BBt[idx].sum(axis=1),
-                 OOt[idx].sum(axis=1) - 2.0 * (np.conj(ref) * Oi.sum(axis=1)).real
-                 + np.abs(ref) ** 2 * W)
+    ref = np.where(W > 0, Osum / np.where(W > 0, W, 1.0), 0.0)
+    rc = Osum - ref * W
+    rw = Otau - ref * S1
+    rz = EO - ref * np.conj(E1)
+    OOc = OO - 2.0 * (np.conj(ref) * Osum).real + np.abs(ref) ** 2 * W
+    solved = _closed_form(W, S1, S2, E1, SE, rc, rw, rz, BB, OOc)
     cnt = np.zeros((n + 1, m))
     np.cumsum(wt > 0, axis=0, out=cnt[1:])
-    n_sensors = ((cnt[ends + 1] - cnt[ends + 1 - window]) > 0).sum(axis=1)
-    return _finish(sums, np.zeros(ends.size), ref + (ref0[0] + 1j * ref0[1]), b, n_sensors,
+    n_sensors = ((cnt[ends + 1] - cnt[ends + 1 - L]) > 0).sum(axis=1)
+    return _finish(solved, np.zeros(ends.size), ref + (ref0[0] + 1j * ref0[1]), b, n_sensors,
                    config)
-
