@@ -13,6 +13,11 @@ Reported: median wall time per window of one ``fit_window`` call per solver, and
 batched paths over all windows at once: "batched" = ``window_means`` of the stacked windows
 (N, s, m, 2) + ``procrustes_batch``; "sliding" = ``sliding_window_means`` (cumulative sums,
 cost independent of s) + ``procrustes_batch``. Speed-up = slsqp time / time. Timings are single-threaded (OPENBLAS_NUM_THREADS=1).
+
+Section ``sim``: wall time of each MuJoCo simulation with the cache disabled, and simulated
+seconds per wall second. Section ``track``: ``estimator.tracking.track`` over a 1000-epoch
+recording per method. Section ``sweep``: wall time of the main job,
+``python -m experiments.sweep`` on its default preset, in a fresh process from an empty cache.
 """
 
 from __future__ import annotations
@@ -223,6 +228,42 @@ def bench_track(quick: bool = False) -> list[dict]:
     print(f"### Tracking: {n} epochs, m = {cfg.m}, median over repeats\n")
     print_table(rows, ["method", "solver", "window", "weighting", "lag correction",
                        "wall per track", "per epoch"])
+    print()
+    return rows
+
+
+@section("sweep")
+def bench_sweep(quick: bool = False) -> list[dict]:
+    """Wall time of the main job, ``python -m experiments.sweep`` (issue 6).
+
+    Runs the CLI in a fresh process, exactly as a user would (imports, simulation, all
+    cells, tables, REPORT.md and figures), from an empty truth cache into a temporary
+    output folder, with the default solver and ``--jobs`` = all cores. ``--quick`` times the
+    ``quick`` preset instead of the default ``thesis`` preset.
+    """
+    import subprocess
+    import sys
+    import tempfile
+
+    from experiments.sweep import DEFAULT_PRESET
+    from experiments.spec import load_spec
+
+    preset = "quick" if quick else DEFAULT_PRESET
+    n_cells = len(load_spec(preset).expand())
+    with tempfile.TemporaryDirectory(prefix="bench-sweep-") as tmp:
+        cmd = [sys.executable, "-m", "experiments.sweep", "--preset", preset,
+               "--out", os.path.join(tmp, "out"), "--cache-dir", os.path.join(tmp, "cache"),
+               "--quiet"]
+        t0 = time.perf_counter()
+        proc = subprocess.run(cmd, capture_output=True, text=True)
+        wall = time.perf_counter() - t0
+    if proc.returncode != 0:
+        raise RuntimeError(f"{' '.join(cmd)} failed ({proc.returncode}):\n{proc.stderr[-2000:]}")
+    rows = [{"preset": preset, "cells": n_cells, "jobs": os.cpu_count(),
+             "wall s": f"{wall:.1f}", "per cell": _fmt(wall / n_cells)}]
+    print("### Main job: `python -m experiments.sweep` from an empty cache "
+          "(simulation, cells, tables, report, figures)\n")
+    print_table(rows, ["preset", "cells", "jobs", "wall s", "per cell"])
     print()
     return rows
 

@@ -19,7 +19,7 @@ Parts (each writes Markdown + CSV tables and PNG figures to ``--out``, default
    rear, unwrapped, PV Kalman with 1 deg/s^2, 1 deg as Appendix C). Position RMSE per axis and
    heading RMSE at every stage, for the robust gates and the literal thesis gates.
 3. Transfer-function identification (Section 3.3) via
-   :func:`experiments.identification.run_identification`, when that module is installed.
+   :func:`experiments.identification.run_identification`.
 
 Figures are drawn from the saved tables (``mc_pixels.csv``, ``flight_series.csv``), so
 re-plotting never re-simulates. ``run(...)`` is the callable entry point; ``main`` parses
@@ -487,12 +487,10 @@ def _md(df: pd.DataFrame, floatfmt: str = ".4g") -> str:
 
 
 def _identification(out: Path, seed: int) -> tuple[pd.DataFrame | None, str]:
-    """Part 3: experiments.identification (helper-owned) writes its own identification.md/csv,
+    """Part 3: :mod:`experiments.identification` writes its own identification.md/csv,
     series and figures into ``out``; the table is returned for the README."""
-    try:
-        from experiments.identification import run_identification
-    except ImportError as exc:
-        return None, f"not run: experiments.identification is not available ({exc})"
+    from experiments.identification import run_identification
+
     return run_identification(out, seed=seed), "ok"
 
 
