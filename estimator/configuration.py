@@ -21,16 +21,16 @@ Body frame: x forward, y left, z up, metres. TOML format (see models/configs/)::
 from __future__ import annotations
 
 import math
-import tomllib
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Iterable, Sequence
 
 import numpy as np
 
+from estimator.model_files import MODELS_DIR, read_model_toml
+
 __all__ = ["SensorConfig", "ConfigError", "MODELS_DIR", "CONFIGS_DIR"]
 
-MODELS_DIR = Path(__file__).resolve().parents[1] / "models"
 CONFIGS_DIR = MODELS_DIR / "configs"
 
 
@@ -292,17 +292,7 @@ class SensorConfig:
 
         Every field is validated; unknown keys are rejected. Errors name the file and field.
         """
-        path = Path(path_or_name)
-        if not path.suffix:
-            path = CONFIGS_DIR / f"{path_or_name}.toml"
-        if not path.is_file():
-            known = sorted(p.stem for p in CONFIGS_DIR.glob("*.toml"))
-            raise ConfigError(f"config {str(path_or_name)!r}: no such file {path}; known names: {known}")
-        try:
-            with open(path, "rb") as fh:
-                data = tomllib.load(fh)
-        except tomllib.TOMLDecodeError as exc:
-            raise ConfigError(f"{path}: not valid TOML: {exc}") from None
+        data, path = read_model_toml(path_or_name, CONFIGS_DIR, "config", error=ConfigError)
         return cls.from_dict(data, source=str(path))
 
     @classmethod

@@ -74,6 +74,7 @@ from typing import Any
 import numpy as np
 
 from estimator.configuration import SensorConfig
+from estimator.orientation import wrap_angle
 
 __all__ = [
     "SOLVERS",
@@ -102,13 +103,6 @@ STATUSES = {
     "fallback_failed": "solver raised or returned no solution; procrustes returned",
 }
 
-_TWO_PI = 2.0 * math.pi
-
-
-def _wrap(a: np.ndarray) -> np.ndarray:
-    """Wrap angles to (-pi, pi]."""
-    out = np.mod(a + math.pi, _TWO_PI) - math.pi
-    return np.where(out <= -math.pi, out + _TWO_PI, out)
 
 
 # ----------------------------------------------------------------------------- results
@@ -350,7 +344,7 @@ def procrustes_batch(means: Any, sensor_weight: Any, config: SensorConfig) -> Ba
     mobj = np.maximum(Sy + Sb - 2.0 * best_mirror, 0.0)
     t = ybar - np.einsum("nab,nb->na", R, bbar)
     pos = np.einsum("nab,mb->nma", R, B) + t[:, None, :]
-    yaw = _wrap(np.arctan2(R[:, 1, 0], R[:, 0, 0]))
+    yaw = wrap_angle(np.arctan2(R[:, 1, 0], R[:, 0, 0]))  # atan2 can give -pi
     bad = ~ok
     if bad.any():
         pos[bad] = np.nan

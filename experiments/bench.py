@@ -217,7 +217,8 @@ def bench_track(quick: bool = False) -> list[dict]:
         cases.append(("window", "slsqp", 10, "none", False))
     rows = []
     for method, solver, s, weighting, lag in cases:
-        def run() -> None:
+        def run(method: str = method, solver: str = solver, s: int = s,
+                weighting: str = weighting, lag: bool = lag) -> None:
             track(t, obs, cfg, window=s, weighting=weighting, lag_correction=lag,
                   solver=solver, method=method, rng=np.random.default_rng(0))
         reps = 1 if solver != "procrustes" else (3 if quick else 7)
@@ -245,8 +246,8 @@ def bench_sweep(quick: bool = False) -> list[dict]:
     import sys
     import tempfile
 
-    from experiments.sweep import DEFAULT_PRESET
     from experiments.spec import load_spec
+    from experiments.sweep import DEFAULT_PRESET
 
     preset = "quick" if quick else DEFAULT_PRESET
     n_cells = len(load_spec(preset).expand())
@@ -255,7 +256,7 @@ def bench_sweep(quick: bool = False) -> list[dict]:
                "--out", os.path.join(tmp, "out"), "--cache-dir", os.path.join(tmp, "cache"),
                "--quiet"]
         t0 = time.perf_counter()
-        proc = subprocess.run(cmd, capture_output=True, text=True)
+        proc = subprocess.run(cmd, check=False, capture_output=True, text=True)
         wall = time.perf_counter() - t0
     if proc.returncode != 0:
         raise RuntimeError(f"{' '.join(cmd)} failed ({proc.returncode}):\n{proc.stderr[-2000:]}")

@@ -42,7 +42,6 @@ import dataclasses
 import json
 import math
 import numbers
-import tomllib
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -51,7 +50,8 @@ from typing import Literal
 import numpy as np
 from scipy.signal import lfilter
 
-from estimator.configuration import MODELS_DIR, SensorConfig
+from estimator.configuration import SensorConfig
+from estimator.model_files import MODELS_DIR, read_model_toml
 from sim.truth import Truth
 
 __all__ = [
@@ -390,17 +390,8 @@ class GpsNoiseModel:
     @classmethod
     def load(cls, name_or_path: str | Path = "gps_stationary") -> GpsNoiseModel:
         """Load a TOML model: a path, or a name looked up in ``models/noise/``."""
-        path = Path(name_or_path)
-        if not path.suffix:
-            path = NOISE_DIR / f"{name_or_path}.toml"
-        if not path.is_file():
-            known = sorted(p.stem for p in NOISE_DIR.glob("gps*.toml"))
-            raise GpsModelError(f"noise model {str(name_or_path)!r}: no such file {path}; known: {known}")
-        try:
-            with open(path, "rb") as fh:
-                data = tomllib.load(fh)
-        except tomllib.TOMLDecodeError as exc:
-            raise GpsModelError(f"{path}: not valid TOML: {exc}") from None
+        data, path = read_model_toml(name_or_path, NOISE_DIR, "noise model",
+                                     error=GpsModelError, known_glob="gps*.toml")
         data.setdefault("name", path.stem)
         return cls.from_dict(data, source=str(path))
 

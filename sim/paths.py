@@ -35,14 +35,13 @@ end point is not a corner (the platform stops there).
 from __future__ import annotations
 
 import math
-import tomllib
 from dataclasses import dataclass, field
 from pathlib import Path as FsPath
 from typing import Any
 
 import numpy as np
 
-from estimator.configuration import MODELS_DIR
+from estimator.model_files import MODELS_DIR, read_model_toml
 
 __all__ = [
     "PATHS_DIR",
@@ -242,16 +241,7 @@ def load_path(name_or_path: str | FsPath | Path) -> Path:
     """
     if isinstance(name_or_path, Path):
         return name_or_path
-    p = FsPath(name_or_path)
-    if not p.suffix and p.parent == FsPath("."):
-        p = PATHS_DIR / f"{name_or_path}.toml"
-    if not p.is_file():
-        raise PathError(f"path {str(name_or_path)!r}: no such file {p}; known names: {available_paths()}")
-    try:
-        with open(p, "rb") as fh:
-            data = tomllib.load(fh)
-    except tomllib.TOMLDecodeError as exc:
-        raise PathError(f"{p}: not valid TOML: {exc}") from None
+    data, p = read_model_toml(name_or_path, PATHS_DIR, "path", error=PathError)
     if "name" in data and data["name"] != p.stem:
         raise PathError(f"{p}: name {data['name']!r} must equal the file name's stem {p.stem!r}")
     return Path.from_dict(data, source=str(p))

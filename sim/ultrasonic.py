@@ -24,14 +24,13 @@ fresh samples a spike. ``return_faults=True`` also returns the per-sample fault 
 
 from __future__ import annotations
 
-import tomllib
 from dataclasses import dataclass, fields
 from pathlib import Path
 
 import numpy as np
 from scipy import stats
 
-from estimator.configuration import MODELS_DIR
+from estimator.model_files import MODELS_DIR, read_model_toml
 
 __all__ = [
     "CLEAN",
@@ -53,19 +52,6 @@ NOISE_DIR = MODELS_DIR / "noise"
 CLEAN, SPIKE, HELD, DROPOUT = 0, 1, 2, 3
 
 
-def _read_toml(name_or_path: str | Path, folder: Path, what: str) -> tuple[dict, Path]:
-    p = Path(name_or_path)
-    if p.suffix != ".toml":
-        p = folder / f"{name_or_path}.toml"
-    if not p.is_file():
-        raise ValueError(f"{what}: no file {p}")
-    with open(p, "rb") as fh:
-        try:
-            return tomllib.load(fh), p
-        except tomllib.TOMLDecodeError as exc:
-            raise ValueError(f"{what}: {p} is not valid TOML: {exc}") from exc
-
-
 def load_receivers(name_or_path: str | Path = "montecarlo", *,
                    translate: bool = True) -> tuple[tuple[str, ...], np.ndarray]:
     """Receiver layout from ``models/receivers/<name>.toml`` (or a path).
@@ -73,7 +59,7 @@ def load_receivers(name_or_path: str | Path = "montecarlo", *,
     Returns ``(names, positions)`` with positions ``(k, 3)`` metres. ``translate=True`` adds
     the file's ``translation_m`` (Appendix B centres its array this way).
     """
-    data, p = _read_toml(name_or_path, RECEIVERS_DIR, "receivers")
+    data, p = read_model_toml(name_or_path, RECEIVERS_DIR, "receivers")
     allowed = {"name", "description", "source", "names", "positions_m", "translation_m"}
     unknown = set(data) - allowed
     if unknown:
@@ -152,7 +138,8 @@ class UltrasonicNoiseModel:
     @classmethod
     def load(cls, name_or_path: str | Path = "ultrasonic") -> UltrasonicNoiseModel:
         """Read ``models/noise/<name>.toml`` (or a path); unknown keys are rejected."""
-        data, p = _read_toml(name_or_path, NOISE_DIR, "noise model")
+        data, p = read_model_toml(name_or_path, NOISE_DIR, "noise model",
+                                  known_glob="ultrasonic*.toml")
         known = {f.name for f in fields(cls)}
         unknown = set(data) - known
         if unknown:

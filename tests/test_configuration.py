@@ -138,3 +138,20 @@ def test_planar_projection():
     p = cfg.planar()
     assert p.d == 2 and p.dead == ("c",)
     np.testing.assert_array_equal(p.body_positions, [[0, 0], [1, 0], [0, 1]])
+
+
+def test_model_files_resolution_and_errors(tmp_path):
+    from estimator.model_files import MODELS_DIR, read_model_toml, resolve_model_file
+
+    folder = MODELS_DIR / "configs"
+    assert resolve_model_file("rover_gps8", folder, "config") == folder / "rover_gps8.toml"
+    # a name with a directory part or a suffix is a file path, never looked up in the folder
+    own = tmp_path / "rover_gps8.toml"
+    own.write_text('name = "x"\n')
+    assert read_model_toml(own, folder, "config") == ({"name": "x"}, own)
+    with pytest.raises(ConfigError, match=r"config 'sub/rover_gps8': no such file"):
+        resolve_model_file("sub/rover_gps8", folder, "config", error=ConfigError)
+    bad = tmp_path / "bad.toml"
+    bad.write_text("[[sensor\n")
+    with pytest.raises(ValueError, match=r"bad\.toml: not valid TOML"):
+        read_model_toml(bad, folder, "config")
