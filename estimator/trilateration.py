@@ -33,6 +33,13 @@ part of the complex solution; the same point for ``simple``, ``closed_form`` and
 ``cayley_menger``), and ``info.no_intersection`` is True for that row. Rows whose ranges
 contain NaN (a dropout) give NaN positions with ``info.missing`` True: never a silent NaN.
 
+Degenerate Gauss-Newton rows. ``nonlinear_ls`` has no step where the range Jacobian is
+undefined (the iterate sits exactly on a receiver) or ``J'J`` is singular or numerically so
+(coplanar receivers and the iterate in their plane, e.g. a start taken from a three-receiver
+``no_intersection`` point), or where the start itself is not finite. Such a row stops at its
+last iterate, ``info.degenerate`` is True and ``info.converged`` False; the other rows of the
+batch are solved as if it were not there.
+
 Degenerate geometry (coincident or collinear receivers, coplanar receivers for ``linear_ls``),
 wrong shapes and negative ranges raise ``ValueError`` naming the field.
 """
@@ -64,6 +71,9 @@ NLS_MAX_ITER = 15
 _COINCIDENT_REL = 1e-9   # receivers closer than this x array size are "coincident"
 _COLLINEAR_SIN = 1e-9    # |v1 x v2| <= this * |v1| |v2|: the three receivers are collinear
 _COPLANAR_REL = 1e-9     # smallest singular value of the difference matrix vs the largest
+#: Gauss-Newton: J'J counts as singular when its smallest eigenvalue is <= this x its largest
+#: (condition number >= 1e12: the step would keep fewer than ~4 significant digits).
+_NLS_SINGULAR_REL = 1e-12
 
 
 @dataclass(frozen=True)
@@ -77,12 +87,16 @@ class TrilaterationInfo:
         thesis's ``i_count_ls``); 0 for the closed forms.
     converged : bool, ``nonlinear_ls`` step fell below ``tol`` within ``max_iter``; True for the
         direct methods.
+    degenerate : bool, ``nonlinear_ls`` found no Gauss-Newton step (start not finite, iterate
+        on a receiver, or ``J'J`` singular: condition number >= 1e12) and stopped the row at
+        its last iterate (see the module docstring); False for the other methods.
     """
 
     no_intersection: np.ndarray
     missing: np.ndarray
     iterations: np.ndarray
     converged: np.ndarray
+    degenerate: np.ndarray
 
 
 # ---------------------------------------------------------------------------------------------
@@ -153,14 +167,15 @@ def _finish(pos: np.ndarray, info: TrilaterationInfo, single: bool, return_info:
     if single:
         pos = pos[0]
         info = TrilaterationInfo(*(np.asarray(a)[0] for a in (
-            info.no_intersection, info.missing, info.iterations, info.converged)))
+            info.no_intersection, info.missing, info.iterations, info.converged,
+            info.degenerate)))
     return (pos, info) if return_info else pos
 
 
 def _direct_info(no_int: np.ndarray, missing: np.ndarray) -> TrilaterationInfo:
     n = no_int.shape[0]
     return TrilaterationInfo(no_int & ~missing, missing, np.zeros(n, dtype=int),
-                             np.ones(n, dtype=bool))
+                             np.ones(n, dtype=bool), np.zeros(n, dtype=bool))
 
 
 # ---------------------------------------------------------------------------------------------
@@ -351,7 +366,7 @@ def linear_ls(receivers: np.ndarray, ranges: np.ndarray, *, side: int = 1,
     pos, missing = _linear_solve(rec, Apinv, r)
     n = r.shape[0]
     info = TrilaterationInfo(np.zeros(n, dtype=bool), missing, np.ones(n, dtype=int),
-                             np.ones(n, dtype=bool))
+                             np.ones(n, dtype=bool), np.zeros(n, dtype=bool))
     return _finish(pos, info, single, return_info)
 
 
@@ -375,7 +390,11 @@ def nonlinear_ls(receivers: np.ndarray, ranges: np.ndarray, *, side: int = 1,
     (or ``x0``, ``(3,)`` or ``(N, 3)``, required when the receivers are coplanar); a row stops
     when its step norm is below ``tol`` metres (default 1e-9 m = the thesis's 1e-6 mm) or after
     ``max_iter`` iterations (default 15). ``info.iterations`` counts the Gauss-Newton steps
-    taken, ``info.converged`` whether the step test was met.
+    taken, ``info.converged`` whether the step test was met. A row with no Gauss-Newton step
+    (start not finite, iterate exactly on a receiver, or ``J'J`` singular, e.g. coplanar
+    receivers with the iterate in their plane) stops at its last iterate with
+    ``info.degenerate`` True and ``info.converged`` False; the batch never fails for one row
+    and the other rows are unaffected.
 
     Mirror solutions: for a nearly flat array the cost has two minima mirrored in the array's
     plane and Gauss-Newton converges to the one nearer its start; the thesis's linear start
@@ -412,7 +431,9 @@ def nonlinear_ls(receivers: np.ndarray, ranges: np.ndarray, *, side: int = 1,
         p[wrong] -= 2.0 * h[wrong, None] * normal
     iters = np.zeros(n, dtype=int)
     converged = np.zeros(n, dtype=bool)
-    active = ~missing & np.all(np.isfinite(p), axis=1)
+    finite = np.all(np.isfinite(p), axis=1)
+    degenerate = ~missing & ~finite          # a start that is not a point: no step at all
+    active = ~missing & finite
     for _ in range(int(max_iter)):
         idx = np.flatnonzero(active)
         if idx.size == 0:
@@ -420,10 +441,21 @@ def nonlinear_ls(receivers: np.ndarray, ranges: np.ndarray, *, side: int = 1,
         pa = p[idx]
         diff = pa[:, None, :] - rec[None, :, :]               # (M, k, 3)
         dist = np.sqrt(np.einsum("mkc,mkc->mk", diff, diff))
-        J = diff / dist[:, :, None]
+        # on a receiver the Jacobian row (p - p_i) / |p - p_i| is undefined
+        ok = np.all(dist > 0, axis=1)
+        J = diff / np.where(dist > 0, dist, 1.0)[:, :, None]
         f = dist - r[idx]
         JtJ = np.einsum("mki,mkj->mij", J, J)
         Jtf = np.einsum("mki,mk->mi", J, f)
+        ev = np.linalg.eigvalsh(JtJ)                          # ascending, >= 0 up to rounding
+        ok &= ev[:, 0] > _NLS_SINGULAR_REL * ev[:, -1]
+        if not ok.all():
+            # stop these rows at their current iterate; the others step as before
+            degenerate[idx[~ok]] = True
+            active[idx[~ok]] = False
+            idx, pa, JtJ, Jtf = idx[ok], pa[ok], JtJ[ok], Jtf[ok]
+            if idx.size == 0:
+                break
         step = -np.linalg.solve(JtJ, Jtf[:, :, None])[:, :, 0]
         p[idx] = pa + step
         iters[idx] += 1
@@ -431,7 +463,8 @@ def nonlinear_ls(receivers: np.ndarray, ranges: np.ndarray, *, side: int = 1,
         converged[idx[done]] = True
         active[idx[done]] = False
     p[missing] = np.nan
-    info = TrilaterationInfo(np.zeros(n, dtype=bool), missing, iters, converged | missing)
+    info = TrilaterationInfo(np.zeros(n, dtype=bool), missing, iters, converged | missing,
+                             degenerate)
     return _finish(p, info, single, return_info)
 
 

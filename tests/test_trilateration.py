@@ -217,3 +217,40 @@ def test_reflect_start_removes_mirror_solutions_of_a_flat_array():
     np.testing.assert_allclose(fixed[same], plain[same], atol=1e-9)
     single, info = T.nonlinear_ls(rec, R[0], reflect_start=True, return_info=True)
     assert single.shape == (3,) and np.ndim(info.iterations) == 0
+
+
+def test_nonlinear_ls_degenerate_rows_are_flagged_and_do_not_touch_the_batch():
+    # Coplanar receivers (z = 0). Rows 0 and 3 start above the plane (normal Gauss-Newton);
+    # row 1 starts in the plane at a three-receiver no_intersection point, where J'J is
+    # singular (every Jacobian row has zero z); row 2 starts exactly on receiver 1, where
+    # the Jacobian divides by zero. Before: LinAlgError for the whole batch.
+    flat = np.array([[0.0, 0, 0], [1, 0, 0], [0, 1, 0], [1, 1, 0]])
+    P = np.array([[0.4, 0.3, 2.0], [0.2, 0.7, 1.5], [0.6, 0.6, 1.0], [0.9, 0.1, 3.0]])
+    R = np.linalg.norm(P[:, None] - flat[None], axis=2)
+    R[1, :3] = 0.2                                   # three spheres of 0.2 m do not meet
+    x3, i3 = T.cayley_menger(flat[:3], R[1, :3], return_info=True)
+    assert i3.no_intersection and x3[2] == 0.0       # the start lies in the receivers' plane
+    x0 = np.array([[0.5, 0.5, 1.0], x3, flat[1], [0.5, 0.5, 1.0]])
+    out, info = T.nonlinear_ls(flat, R, x0=x0, return_info=True)
+    normal = [0, 3]
+    alone, info_alone = T.nonlinear_ls(flat, R[normal], x0=x0[normal], return_info=True)
+    np.testing.assert_allclose(out[normal], alone, rtol=0, atol=1e-12)
+    np.testing.assert_allclose(out[normal], P[normal], atol=1e-9)
+    assert list(info.degenerate) == [False, True, True, False]
+    assert list(info.converged) == [True, False, False, True]
+    assert not info.missing.any()
+    # degenerate rows stop at their last (here: first) iterate, finite, never a silent NaN
+    np.testing.assert_array_equal(out[[1, 2]], x0[[1, 2]])
+    assert list(info.iterations) == [info_alone.iterations[0], 0, 0, info_alone.iterations[1]]
+    # a start that is not a point is flagged too; NaN ranges stay "missing", not degenerate
+    x0n = x0.copy()
+    x0n[1] = np.nan
+    Rn = R.copy()
+    Rn[2, 0] = np.nan
+    out2, info2 = T.nonlinear_ls(flat, Rn, x0=x0n, return_info=True)
+    assert list(info2.degenerate) == [False, True, False, False]
+    assert list(info2.missing) == [False, False, True, False]
+    np.testing.assert_allclose(out2[normal], alone, rtol=0, atol=1e-12)
+    # the direct methods never report degenerate rows
+    _, i_lin = T.linear_ls(np.r_[flat[:3], [[0.0, 0.0, 1.0]]], R, return_info=True)
+    assert not i_lin.degenerate.any() and not i3.degenerate
