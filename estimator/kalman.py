@@ -27,6 +27,8 @@ from __future__ import annotations
 
 import numpy as np
 
+from estimator._checks import check_increasing_times
+
 __all__ = ["N_INIT", "PVKalman", "process_noise", "pv_kalman"]
 
 #: measurements averaged for the initial position (Appendix C: ``mean(Distance_Vector(1:10))``)
@@ -109,14 +111,10 @@ class PVKalman:
 
 
 def _check_tz(t: np.ndarray, z: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    tt = np.asarray(t, dtype=float)
+    tt = check_increasing_times(t, "t", min_size=1)
     zz = np.asarray(z, dtype=float)
-    if tt.ndim != 1 or tt.size < 1:
-        raise ValueError(f"t: expected shape (n,) with n >= 1, got {tt.shape}")
     if zz.shape != tt.shape:
         raise ValueError(f"z: expected shape {tt.shape}, got {zz.shape}")
-    if not np.all(np.isfinite(tt)) or (tt.size > 1 and not np.all(np.diff(tt) > 0)):
-        raise ValueError("t: must be finite and strictly increasing")
     if np.any(np.isinf(zz)):
         raise ValueError("z: must be finite or NaN (NaN = missing), got inf")
     return tt, zz

@@ -54,6 +54,8 @@ from __future__ import annotations
 
 import numpy as np
 
+from estimator._checks import check_increasing_times
+
 __all__ = ["LAG_MODES", "estimate_velocity", "first_observations", "lag_shift"]
 
 #: Lag-correction variants (see module docstring).
@@ -68,7 +70,7 @@ def estimate_velocity(t: np.ndarray, xy: np.ndarray, span: int) -> np.ndarray:
     ``span' = min(span, k)``, so row 0 has no velocity (NaN).
     Returns (N, 2) m/s.
     """
-    t = np.asarray(t, dtype=float)
+    t = check_increasing_times(t, "t")
     xy = np.asarray(xy, dtype=float)
     if xy.ndim != 2 or xy.shape != (t.shape[0], 2):
         raise ValueError(f"xy: expected shape ({t.shape[0]}, 2), got {xy.shape}")

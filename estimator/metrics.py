@@ -23,6 +23,7 @@ from collections.abc import Mapping
 import numpy as np
 import pandas as pd
 
+from estimator._checks import check_increasing_times
 from estimator.orientation import wrap_angle
 
 __all__ = [
@@ -160,13 +161,12 @@ def align_to_truth(est_t: object, truth_t: object, *, tol: float = 1e-6) -> np.n
     with no truth sample raises ValueError naming it (no interpolation, nothing dropped).
     """
     te = np.asarray(est_t, dtype=float)
-    tt = np.asarray(truth_t, dtype=float)
-    if te.ndim != 1 or tt.ndim != 1:
-        raise ValueError(f"est_t/truth_t: expected 1-D arrays, got {te.shape}, {tt.shape}")
-    if tt.size == 0:
-        raise ValueError("truth_t: empty")
-    if np.any(np.diff(tt) <= 0):
-        raise ValueError("truth_t: must be strictly increasing")
+    if te.ndim != 1:
+        raise ValueError(f"est_t: expected shape (k,) of seconds, got shape {te.shape}")
+    if not np.all(np.isfinite(te)):
+        k = int(np.argmax(~np.isfinite(te)))
+        raise ValueError(f"est_t: times must be finite; est_t[{k}] = {te[k]!r}")
+    tt = check_increasing_times(truth_t, "truth_t", min_size=1)
     if tt.size > 1:
         idx = np.clip(np.searchsorted(tt, te), 1, tt.size - 1)
     else:

@@ -71,6 +71,8 @@ from dataclasses import dataclass, field
 import numpy as np
 from scipy import linalg, optimize, signal, stats
 
+from estimator._checks import check_increasing_times
+
 __all__ = [
     "FORMS",
     "TransferFit",
@@ -152,16 +154,8 @@ def _check_form(form: str) -> tuple[str, ...]:
 
 
 def _check_grid(t: np.ndarray) -> float:
-    t = np.asarray(t, dtype=float)
-    if t.ndim != 1 or t.size < 2:
-        raise ValueError(f"t: must be a 1-D array with at least 2 samples, got shape {t.shape}")
-    if not np.all(np.isfinite(t)):
-        raise ValueError("t: contains non-finite values")
+    t = check_increasing_times(t, "t", min_size=2)
     dts = np.diff(t)
-    if np.any(dts <= 0):
-        i = int(np.argmax(dts <= 0))
-        raise ValueError(f"t: must be strictly increasing (t[{i + 1}] = {t[i + 1]!r} "
-                         f"<= t[{i}] = {t[i]!r})")
     dt = (t[-1] - t[0]) / (t.size - 1)
     spread = float(np.max(np.abs(dts - dt)) / dt)
     if spread > _UNIFORM_RTOL:

@@ -47,6 +47,7 @@ import pandas as pd
 from estimator import lag as _lag
 from estimator import turns as _turns
 from estimator import weights as _weights
+from estimator._checks import check_increasing_times
 from estimator.configuration import SensorConfig
 from estimator.motion import motion_compensated_batch, motion_compensated_series
 from estimator.orientation import law_of_cosines_heading
@@ -90,15 +91,7 @@ def _check_inputs(t: Any, obs: Any, config: Any) -> tuple[np.ndarray, np.ndarray
         raise ValueError(  # noqa: TRY004 (bad input is ValueError by contract)
             f"config: expected a SensorConfig, got {type(config).__name__}")
     cfg = config.planar()
-    tt = np.asarray(t, dtype=float)
-    if tt.ndim != 1 or tt.size == 0:
-        raise ValueError(f"t: expected a non-empty 1-D array of seconds, got shape {tt.shape}")
-    if not np.all(np.isfinite(tt)):
-        raise ValueError("t: contains NaN or infinite times")
-    if tt.size > 1 and np.any(np.diff(tt) <= 0):
-        k = int(np.argmax(np.diff(tt) <= 0))
-        raise ValueError(
-            f"t: must be strictly increasing; t[{k}]={tt[k]!r} >= t[{k+1}]={tt[k+1]!r}")
+    tt = check_increasing_times(t, "t", min_size=1)
     o = np.asarray(obs, dtype=float)
     if o.shape != (tt.size, cfg.m, 2):
         raise ValueError(f"obs: expected shape ({tt.size}, {cfg.m}, 2) (epochs, sensors of "

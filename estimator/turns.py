@@ -26,18 +26,14 @@ import math
 
 import numpy as np
 
+from estimator._checks import check_increasing_times
 from estimator.orientation import unwrap_angle
 
 __all__ = ["course_heading", "detect_turns", "heading_rate", "hysteresis"]
 
 
 def _check_t(t: object, n: int | None = None) -> np.ndarray:
-    tt = np.asarray(t, dtype=float)
-    if tt.ndim != 1 or (n is not None and tt.shape[0] != n):
-        raise ValueError(f"t: expected shape ({n if n is not None else 'n'},), got {tt.shape}")
-    if tt.size > 1 and np.any(np.diff(tt) <= 0):
-        raise ValueError("t: must be strictly increasing")
-    return tt
+    return check_increasing_times(t, "t", n)
 
 
 def heading_rate(t: object, heading: object, span_s: float) -> np.ndarray:

@@ -65,3 +65,14 @@ def test_course_mode_standing_still_does_not_move():
     sp = lag_shift(t, pos, first, np.array([[0]]), np.array([4.0]), np.zeros((1, 2)),
                    np.array([0.0]), np.array([5]), mode="pose")
     np.testing.assert_allclose(sp, [[-np.hypot(0.3, 0.2), 0.0]])
+
+
+@pytest.mark.parametrize("bad", [np.nan, 1.0], ids=["nan", "repeated"])
+def test_estimate_velocity_rejects_nan_or_repeated_time(bad):
+    # used to divide by a zero or NaN time difference without a word
+    t = np.array([0.0, 1.0, 3.0, 4.0, 7.0])
+    t[2] = bad
+    with pytest.raises(ValueError, match=r"^t: .*t\[2\]"):
+        estimate_velocity(t, np.zeros((5, 2)), 2)
+    with pytest.raises(ValueError, match=r"^t: "):
+        estimate_velocity(np.zeros((5, 1)), np.zeros((5, 2)), 2)

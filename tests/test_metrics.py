@@ -106,3 +106,17 @@ def test_evaluate_track_hand_example():
     assert ev.loc[("no_turns", "x"), "n"] == 3
     with pytest.raises(ValueError, match="cg_x"):
         evaluate_track(df.drop(columns="cg_x"), tt, cg, yaw)
+
+
+@pytest.mark.parametrize("bad", [np.nan, 0.5], ids=["nan", "repeated"])
+def test_align_to_truth_rejects_nan_or_repeated_truth_time(bad):
+    tt = np.array([0.0, 0.5, 1.0, 2.0])
+    tt[2] = bad
+    with pytest.raises(ValueError, match=r"^truth_t: .*truth_t\[2\]"):
+        align_to_truth(np.array([0.0]), tt)
+
+
+def test_align_to_truth_rejects_nan_estimate_time():
+    # a NaN estimate time used to be matched silently to the last truth sample
+    with pytest.raises(ValueError, match=r"^est_t: .*est_t\[1\]"):
+        align_to_truth(np.array([0.0, np.nan]), np.array([0.0, 0.5, 1.0]))

@@ -320,6 +320,8 @@ def test_bad_arrays_name_the_field():
         track(t[::-1], obs, cfg)
     with pytest.raises(ValueError, match="t:"):
         track(np.r_[t[:-1], np.nan], obs, cfg)
+    with pytest.raises(ValueError, match=r"^t: .*t\[5\]"):
+        track(np.r_[t[:5], t[4], t[6:]], obs, cfg)    # repeated time
     half = obs.copy()
     half[3, 0, 1] = np.nan
     with pytest.raises(ValueError, match="obs"):

@@ -49,3 +49,15 @@ def test_detect_turns_on_a_clean_corner():
     on = np.flatnonzero(flags)
     assert on.size > 0 and on.min() >= 41 and on.max() <= 48
     assert not flags[:41].any() and not flags[49:].any()
+
+
+@pytest.mark.parametrize("bad", [np.nan, 2.0], ids=["nan", "repeated"])
+def test_nan_or_repeated_time_raises_naming_t(bad):
+    # a NaN used to pass the `diff <= 0` test (comparisons with NaN are False)
+    t = np.arange(10.0)
+    t[3] = bad
+    h = np.zeros(10)
+    with pytest.raises(ValueError, match=r"^t: .*t\[3\]"):
+        heading_rate(t, h, 2.0)
+    with pytest.raises(ValueError, match=r"^t: .*t\[3\]"):
+        course_heading(t, np.zeros((10, 2)), 2.0)
