@@ -37,6 +37,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from estimator.configuration import SensorConfig
+from estimator.orientation import wrap_angle
 
 __all__ = ["MotionFit", "motion_compensated_batch", "motion_compensated_series"]
 
@@ -272,7 +273,8 @@ def _finish(solved: tuple, omega: np.ndarray, ref: np.ndarray, b: np.ndarray,
     pos[bad] = np.nan
     vel[bad] = np.nan
     return MotionFit(positions=pos, cg=config.cg_from_positions(pos),
-                     yaw=np.where(ok, np.angle(z), np.nan), velocity=vel,
+                     # np.angle gives -pi for z = -x - 0j; the convention is (-pi, pi]
+                     yaw=np.where(ok, wrap_angle(np.angle(z)), np.nan), velocity=vel,
                      yaw_rate=np.where(ok, omega, np.nan), objective=np.where(ok, obj, np.nan),
                      status=np.where(ok, "ok", "insufficient_data"))
 

@@ -50,7 +50,7 @@ from estimator import weights as _weights
 from estimator._checks import check_increasing_times
 from estimator.configuration import SensorConfig
 from estimator.motion import motion_compensated_batch, motion_compensated_series
-from estimator.orientation import law_of_cosines_heading
+from estimator.orientation import law_of_cosines_heading, wrap_angle
 from estimator.pose_filter import PoseFilterParams, run_pose_filter
 from estimator.window import SOLVERS, fit_window, procrustes_batch, window_means
 
@@ -553,7 +553,8 @@ def _run_ekf(tt, o, cfg, s, params):
     vel = fit.velocity[0]
     speed = float(np.hypot(vel[0], vel[1]))
     if speed >= _EKF_INIT_MIN_SPEED:
-        yaw0, v0 = float(np.arctan2(vel[1], vel[0])), speed
+        # arctan2(-0.0, x < 0) = -pi: wrap to (-pi, pi] (the state's first row is x0)
+        yaw0, v0 = float(wrap_angle(np.arctan2(vel[1], vel[0]))), speed
     else:
         yaw0, v0 = float(fit.yaw[0]), 0.0
     x0 = np.array([fit.cg[0, 0], fit.cg[0, 1], yaw0, v0, 0.0])

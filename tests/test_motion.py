@@ -81,3 +81,19 @@ def test_insufficient_data_and_bad_input():
         motion_compensated_batch(np.zeros((1, 3)), obs, cfg, np.ones((1, 3)))
     with pytest.raises(ValueError, match="omega_max"):
         motion_compensated_batch(np.zeros((1, 3)), obs, cfg, omega_max=0.0)
+
+
+def test_heading_minus_pi_is_wrapped_to_plus_pi():
+    # a platform driving exactly west: the fitted rotation is z = -1 - 0j, for which
+    # np.angle returns -pi, outside the convention's (-pi, pi]
+    from estimator.motion import motion_compensated_series
+
+    cfg = rover()
+    t = np.arange(12.0)
+    cg, yaw = constant_twist(t, 1.0, -math.pi)
+    obs = antennas(cfg, cg, yaw)
+    ends = np.arange(4, 12)
+    tau, st_ = _windows(t, obs, ends, 5)
+    for fit in (motion_compensated_batch(tau, st_, cfg),
+                motion_compensated_series(t, obs, cfg, ends, 5)):
+        assert np.all(fit.yaw == math.pi)

@@ -472,3 +472,16 @@ def test_motion_compensated_series_long_recording_equals_batch(s):
         np.testing.assert_allclose(fast.velocity, ref.velocity, rtol=0, atol=1e-9)
         ok = ref.status == "ok"
         np.testing.assert_allclose(wrap_angle(fast.yaw[ok] - ref.yaw[ok]), 0.0, atol=1e-9)
+
+
+@pytest.mark.parametrize("method", ["motion_compensated", "ekf"])
+def test_heading_exactly_west_is_plus_pi(method):
+    """Driving exactly west gives a fitted rotation -1 - 0j: np.angle / arctan2 return -pi,
+    outside (-pi, pi]; every row (the EKF's first row is its start state) must say +pi."""
+    cfg = rover()
+    t = np.arange(20.0)
+    cg, yaw = constant_twist(t, 1.0, -math.pi)
+    df = track(t, antennas(cfg, cg, yaw), cfg, window=5, method=method)
+    y = df["yaw"].to_numpy()
+    assert np.all((y > -math.pi) & (y <= math.pi))
+    np.testing.assert_allclose(y, math.pi, atol=1e-9)
