@@ -29,6 +29,7 @@ import numpy as np
 import pandas as pd
 
 from experiments.tables import PATH_LABELS, THESIS_ROWS, THESIS_TABLES, select
+from sim.atomic import atomic_write, atomic_write_text
 
 __all__ = [
     "CLAIMS",
@@ -692,9 +693,9 @@ def write_report(cells: pd.DataFrame, out_dir: str | Path, spec=None) -> Path:
     for lab, res in per_variant:
         for r in res:
             lines += _claim_section(r, rows, lab)
-    pd.DataFrame(rows).to_csv(out / "claims.csv", index=False)
+    atomic_write(out / "claims.csv", lambda p: pd.DataFrame(rows).to_csv(p, index=False))
     path = out / "REPORT.md"
-    path.write_text("\n".join(lines))
+    atomic_write_text(path, "\n".join(lines))
     return path
 
 

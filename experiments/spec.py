@@ -368,6 +368,17 @@ class Spec:
                 except ValueError as exc:
                     raise SpecError(f"{where}.path_overrides: {exc}") from None
                 checked.add(k)
+        if "noise" in files and not v["noise"].startswith("session:"):
+            k = ("noise-model", files["noise"][0])
+            if k not in checked:  # a GPS noise model must load (not, e.g., the ultrasonic one)
+                from sim.gps import GpsNoiseModel
+
+                try:
+                    GpsNoiseModel.load(files["noise"][0])
+                except (ValueError, TypeError) as exc:
+                    raise SpecError(f"{where}.noise: {v['noise']!r} is not a GPS noise model: "
+                                    f"{exc}") from None
+                checked.add(k)
         if v["noise_overrides"]:
             if "noise" not in files or v["noise"].startswith("session:"):
                 raise SpecError(f"{where}.noise_overrides: only applies to a noise model, "

@@ -54,6 +54,7 @@ import numpy as np
 import pandas as pd
 
 from experiments.spec import REPO, Cell, Spec, SpecError, available_presets, load_spec
+from sim.atomic import atomic_write, atomic_write_text
 
 __all__ = [
     "Results",
@@ -172,7 +173,7 @@ _TECHNIQUE_KW = {
 
 def _observations(cell: Cell, truth, config, ctx: CellContext) -> np.ndarray:
     """Noisy observations (n, m, 2) for the cell's noise key, memoised per worker."""
-    key = (ctx.spec_seed, *cell.noise_key)
+    key = (ctx.spec_seed, ctx.session_s, *cell.noise_key)
     if key in ctx.memo:
         ctx.memo.move_to_end(key)
         return ctx.memo[key]
@@ -343,17 +344,24 @@ def evaluate_cell(cell: Cell, truth, ctx: CellContext) -> CellOutput:
 
 # --------------------------------------------------------------------------- workers
 _WORKER_MEMO: OrderedDict[tuple, Any] = OrderedDict()
+_WORKER_RUN = ""  # the run the memo belongs to
 
 
 def _run_batch(cells: list[Cell], truth, spec_seed: int, masks: tuple[str, ...],
                session_s: float, want: list[bool], cell_fn: CellFn | None,
-               store_dir: str | None = None) -> list[dict]:
+               store_dir: str | None = None, run_id: str = "") -> list[dict]:
     """Run a batch of cells (same truth) in one worker; never raises for a cell's error.
 
     With ``store_dir`` (workers sharing the results folder: in-process and loky) each cell
     is persisted the moment it finishes and only its key comes back; without it (Dask
     workers on other machines) the results travel back and the parent writes them.
+    The worker's memo (observations, configurations) lives for one ``run_id`` only: worker
+    processes outlive a run, and files may change between runs.
     """
+    global _WORKER_RUN
+    if _WORKER_RUN != run_id:
+        _WORKER_MEMO.clear()
+        _WORKER_RUN = run_id
     fn = cell_fn or evaluate_cell
     store = CellStore(Path(store_dir)) if store_dir else None
     out = []
@@ -388,17 +396,25 @@ class CellStore:
         for d in (self.cells_dir, self.epochs_dir, self.errors_dir):
             d.mkdir(parents=True, exist_ok=True)
 
-    def _atomic(self, final: Path, write: Callable[[Path], None]) -> None:
-        tmp = final.with_name(f".{final.name}.{os.getpid()}.{uuid.uuid4().hex[:8]}.tmp")
-        try:
-            write(tmp)
-            os.replace(tmp, final)
-        finally:
-            if tmp.exists():
-                tmp.unlink()
+    _atomic = staticmethod(atomic_write)
 
     def done(self) -> set[str]:
+        """Keys of every finished cell, whatever code computed it."""
         return {p.stem for p in self.cells_dir.glob("*.json")}
+
+    def stale(self, keys: Iterable[str], code: str) -> set[str]:
+        """Those of ``keys`` whose stored record was computed by other code than ``code``
+        (see :func:`cell_code_digest`); a resumed run recomputes them."""
+        out = set()
+        for k in keys:
+            try:
+                rec = json.loads((self.cells_dir / f"{k}.json").read_text())
+            except (OSError, ValueError):
+                out.add(k)
+                continue
+            if rec.get("code") != code:
+                out.add(k)
+        return out
 
     def clear(self, keys: Iterable[str]) -> None:
         for k in keys:
@@ -420,7 +436,7 @@ class CellStore:
                          lambda p: ep.to_parquet(p, index=False))
         rec = {"key": cell.key, "params": cell.params(), "rows": res["rows"],
                "timings": res["timings"], "status_counts": res["status_counts"],
-               "epochs": res.get("epochs") is not None}
+               "epochs": res.get("epochs") is not None, "code": cell_code_digest()}
         self._atomic(self.cells_dir / f"{cell.key}.json",
                      lambda p: p.write_text(json.dumps(rec, allow_nan=True)))
         err = self.errors_dir / f"{cell.key}.json"
@@ -453,6 +469,21 @@ class CellStore:
 
 
 # --------------------------------------------------------------------------- versions
+#: Source files whose code determines a cell's numbers (simulation, noise, estimation,
+#: scoring). Their digest is stored with every finished cell; a rerun recomputes the cells
+#: that other code produced instead of mixing results of two code versions.
+CELL_SOURCES = tuple(sorted(
+    [*(REPO / "estimator").glob("*.py"), *(REPO / "sim").glob("*.py"),
+     REPO / "experiments" / "sweep.py", REPO / "experiments" / "spec.py"]))
+
+
+def cell_code_digest() -> str:
+    """Digest (16 hex digits) of :data:`CELL_SOURCES` as they are on disk now."""
+    from sim.cache import source_digest
+
+    return source_digest(CELL_SOURCES)[:16]
+
+
 def code_version() -> dict:
     """Git describe/commit of the checkout (if any) and the installed package version."""
     info: dict[str, Any] = {}
@@ -483,9 +514,7 @@ def code_version() -> dict:
 
 
 def _write_json(path: Path, obj: Any) -> None:
-    tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
-    tmp.write_text(json.dumps(obj, indent=1, default=str))
-    os.replace(tmp, path)
+    atomic_write_text(path, json.dumps(obj, indent=1, default=str))
 
 
 # --------------------------------------------------------------------------- scheduling
@@ -504,19 +533,19 @@ def _batches(todo: list[Cell], jobs: int) -> list[list[Cell]]:
     return out
 
 
-def _iter_loky(batches, truths, spec, wants, jobs, cell_fn, store_dir
+def _iter_loky(batches, truths, spec, wants, jobs, cell_fn, store_dir, run_id
                ) -> Iterator[list[dict]]:
     from joblib import Parallel, delayed
 
     par = Parallel(n_jobs=jobs, backend="loky", return_as="generator_unordered")
     tasks = (delayed(_run_batch)(b, truths[b[0].truth_key], spec.seed, spec.masks,
-                                 spec.session_s, w, cell_fn, store_dir)
+                                 spec.session_s, w, cell_fn, store_dir, run_id)
              for b, w in zip(batches, wants))
     # results arrive in completion order; each carries its cells' keys
     yield from par(tasks)
 
 
-def _iter_dask(batches, truths, spec, wants, jobs, cell_fn, scheduler):
+def _iter_dask(batches, truths, spec, wants, jobs, cell_fn, scheduler, run_id):
     from distributed import Client, LocalCluster, as_completed
 
     cluster = None
@@ -529,7 +558,7 @@ def _iter_dask(batches, truths, spec, wants, jobs, cell_fn, scheduler):
     try:
         tfut = {k: client.scatter(v, broadcast=False) for k, v in truths.items()}
         futs = [client.submit(_run_batch, b, tfut[b[0].truth_key], spec.seed, spec.masks,
-                              spec.session_s, w, cell_fn, None, pure=False)
+                              spec.session_s, w, cell_fn, None, run_id, pure=False)
                 for b, w in zip(batches, wants)]
         for fut in as_completed(futs):
             yield fut.result()
@@ -591,16 +620,25 @@ def run(spec: Spec | str | Path, *, out: str | Path | None = None, jobs: int | N
     if force:
         store.clear(by_key)
     done = store.done() & set(by_key)
+    code = cell_code_digest()
+    stale = store.stale(done, code)
+    if stale:
+        print(f"{spec.name}: {len(stale)} of {len(done)} finished cells were computed by other "
+              "code (estimator/, sim/ or the runner changed since); recomputing them",
+              file=sys.stderr)
+        store.clear(stale)
+        done -= stale
     todo = [c for c in cells if c.key not in done]
+    run_id = uuid.uuid4().hex
 
     manifest = {"spec": spec.to_dict(), "spec_raw": spec.raw, "spec_base_dir": str(spec.base_dir),
                 "spec_seed": spec.seed, "seeds": list(spec.seeds),
                 "code": code_version(), "started_utc": time.strftime("%Y-%m-%dT%H:%M:%SZ",
                                                                       time.gmtime()),
+                "cell_code": code, "n_stale": len(stale),
                 "backend": backend, "jobs": jobs, "n_cells": len(cells), "status": "running"}
     _write_json(out_dir / "manifest.json", manifest)
-    if spec.source != "<dict>" and Path(spec.source).is_file():
-        (out_dir / "spec.toml").write_text(Path(spec.source).read_text())
+    _write_spec_toml(spec, out_dir / "spec.toml")
 
     t_sim0 = time.perf_counter()
     truths = _simulate_all(todo, spec, jobs, truth_fn,
@@ -618,12 +656,12 @@ def run(spec: Spec | str | Path, *, out: str | Path | None = None, jobs: int | N
                    smoothing=0.1, dynamic_ncols=True)
         if jobs == 1 and backend == "loky":
             it = (_run_batch(b, truths[b[0].truth_key], spec.seed, spec.masks,
-                             spec.session_s, w, cell_fn, str(out_dir))
+                             spec.session_s, w, cell_fn, str(out_dir), run_id)
                   for b, w in zip(batches, wants))
         elif backend == "loky":
-            it = _iter_loky(batches, truths, spec, wants, jobs, cell_fn, str(out_dir))
+            it = _iter_loky(batches, truths, spec, wants, jobs, cell_fn, str(out_dir), run_id)
         else:
-            it = _iter_dask(batches, truths, spec, wants, jobs, cell_fn, scheduler)
+            it = _iter_dask(batches, truths, spec, wants, jobs, cell_fn, scheduler, run_id)
         try:
             for results in it:
                 for res in results:
@@ -665,10 +703,19 @@ def run(spec: Spec | str | Path, *, out: str | Path | None = None, jobs: int | N
     return res
 
 
+def _write_spec_toml(spec: Spec, path: Path) -> None:
+    """The spec as run (command-line overrides such as --solver and --seeds applied), as
+    TOML that :func:`experiments.spec.load_spec` reads back to the same cells when it is
+    placed beside the spec's files (relative names resolve against ``spec_base_dir``)."""
+    import tomli_w
+
+    header = (f"# The spec as run by python -m experiments.sweep (overrides applied).\n"
+              f"# Source: {spec.source}; relative file names resolve against {spec.base_dir}.\n")
+    atomic_write_text(path, header + tomli_w.dumps(spec.raw))
+
+
 def _write_table(df: pd.DataFrame, path: Path) -> None:
-    tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
-    df.to_parquet(tmp, index=False)
-    os.replace(tmp, path)
+    atomic_write(path, lambda p: df.to_parquet(p, index=False))
 
 
 # --------------------------------------------------------------------------- CLI
@@ -731,7 +778,7 @@ def main(argv: list[str] | None = None) -> int:
         spec = load_spec(args.spec or args.preset or DEFAULT_PRESET)
         if args.solver:
             spec = spec.with_solver(args.solver)
-        if args.seeds:
+        if args.seeds is not None:
             spec = spec.with_seeds(range(args.seeds))
     except SpecError as exc:
         print(f"error: {exc}", file=sys.stderr)

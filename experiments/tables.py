@@ -24,6 +24,8 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
+from sim.atomic import atomic_write, atomic_write_text
+
 __all__ = [
     "BEYOND_ROWS",
     "PATH_LABELS",
@@ -316,7 +318,8 @@ def _variant_tables(cells: pd.DataFrame, out: Path, vlabel: str) -> list[str]:
                 continue
             label = PATH_LABELS.get(p, p)
             suffix = "" if p == "square100" else f"_{p}"
-            df.to_csv(out / f"table_{tno.replace('.', '_')}{suffix}{tag}.csv", index=False)
+            atomic_write(out / f"table_{tno.replace('.', '_')}{suffix}{tag}.csv",
+                         lambda f, df=df: df.to_csv(f, index=False))
             thesis = df[df["thesis_row"] & df["window"].isin(THESIS_WINDOWS)]
             beyond = df[~df.index.isin(thesis.index)]
             md += [(f"## Table {tno}: |{axis}| CG error, {label} ({p}), "
@@ -327,7 +330,7 @@ def _variant_tables(cells: pd.DataFrame, out: Path, vlabel: str) -> list[str]:
                        f"path, |{axis}| error:"), "", thesis_table_md(beyond), ""]
     wt = weighting_table(cells)
     if not wt.empty:
-        wt.to_csv(out / f"weighting{tag}.csv", index=False)
+        atomic_write(out / f"weighting{tag}.csv", lambda p: wt.to_csv(p, index=False))
         md += ["## Weighting comparison (Figures 4.114-4.117): no / random / Huff weights", "",
                ("Technique none, full path; mean over seeds of the per-seed mean and median "
                "absolute error (m)."), ""]
@@ -337,7 +340,7 @@ def _variant_tables(cells: pd.DataFrame, out: Path, vlabel: str) -> list[str]:
                         ("mean |y|", _ci("ey_mean")), ("median |y|", _ci("ey_median"))]), ""]
     ot = orientation_table(cells)
     if not ot.empty:
-        ot.to_csv(out / f"orientation{tag}.csv", index=False)
+        atomic_write(out / f"orientation{tag}.csv", lambda p: ot.to_csv(p, index=False))
         md += ["## Orientation error per window (Section 4.12.1, Figure 4.119)", "",
                "Absolute heading error, Eq. 4.2, degrees; technique none, full path.", ""]
         md += [_md(ot, [("Path", lambda r: PATH_LABELS.get(r["path"], r["path"])),
@@ -365,14 +368,15 @@ def write_tables(cells: pd.DataFrame, out_dir: str | Path) -> Path:
         if vlabel:
             md += [f"# Variant: {vlabel}", ""]
         md += _variant_tables(vcells, out, vlabel)
-    by = aggregate(cells, ["path", "config", "noise", "noise_overrides", "path_overrides",
-                           "solver", "weighting", "technique", "window", "mask"],
+    axes = ["path", "config", "noise", "noise_overrides", "path_overrides", "solver",
+            "weighting", "technique", "window", "dyn_window", "turning", "mask"]
+    by = aggregate(cells, [a for a in axes if a in cells.columns],
                    ["ex_mean", "ex_median", "ex_std", "ey_mean", "ey_median", "ey_std",
                     "eu_mean", "eu_rmse", "eh_median", "along_mean", "jitter_rms",
                     "t_track_s"])
-    by.to_csv(out / "by_cell.csv", index=False)
+    atomic_write(out / "by_cell.csv", lambda p: by.to_csv(p, index=False))
     md += [("All cells, aggregated over seeds: `by_cell.csv`; one row per cell x mask: "
            "`cells.parquet`."), ""]
     path = out / "tables.md"
-    path.write_text("\n".join(md))
+    atomic_write_text(path, "\n".join(md))
     return path

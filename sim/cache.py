@@ -4,8 +4,9 @@ A sweep evaluates many estimators on the same few paths; simulating each path on
 reusing the file keeps the sweep fast (issue 3: "cache by a hash of everything that determines
 it"). The key is a JSON-able dict of *everything* that determines the arrays: the model's XML
 text, the sensor configuration, the path, the controller parameters, the seed, the mujoco and
-numpy versions and a code-version salt (:data:`CODE_SALT`, bumped whenever the simulators'
-code changes what they produce). Its SHA-256 over canonical JSON names the file
+numpy versions, a digest of the simulators' source files (:data:`SIMULATOR_SOURCES`, so
+editing the simulator invalidates its cached truths without anyone remembering to) and a
+manual salt (:data:`CODE_SALT`, for changes outside those files). Its SHA-256 over canonical JSON names the file
 ``<cache_dir>/<hash>.npz``.
 
 Concurrency: parallel sweep workers may compute the same key at once. Each writer saves to a
@@ -18,11 +19,11 @@ recomputed and replaced, with a warning (it can only come from outside interfere
 from __future__ import annotations
 
 import dataclasses
+import functools
 import hashlib
 import json
 import math
 import os
-import uuid
 import warnings
 from collections.abc import Callable
 from pathlib import Path as FsPath
@@ -34,10 +35,15 @@ from estimator.configuration import MODELS_DIR, SensorConfig
 from sim.paths import Path
 from sim.truth import Truth
 
-__all__ = ["CODE_SALT", "DEFAULT_CACHE_DIR", "cached", "canonical", "key_hash", "truth_key"]
+__all__ = ["CODE_SALT", "DEFAULT_CACHE_DIR", "SIMULATOR_SOURCES", "cached", "canonical",
+           "key_hash", "source_digest", "truth_key"]
 
-#: Bump when a simulator's code changes its output for the same inputs (invalidates the cache).
+#: Bump when something outside :data:`SIMULATOR_SOURCES` changes a simulator's output.
 CODE_SALT = "truth-2026-11-22a"
+
+#: The modules whose code determines a simulated Truth (their text is part of every key).
+SIMULATOR_SOURCES = tuple(FsPath(__file__).resolve().parent / f for f in (
+    "rover.py", "quadcopter.py", "controllers.py", "paths.py", "truth.py"))
 
 #: ``results/cache/truth`` in the repository.
 DEFAULT_CACHE_DIR = MODELS_DIR.parent / "results" / "cache" / "truth"
@@ -82,6 +88,18 @@ def canonical(obj: Any) -> Any:
     raise ValueError(f"cache key: cannot canonicalise value of type {type(obj).__name__}: {obj!r}")
 
 
+@functools.cache
+def source_digest(files: tuple[FsPath, ...]) -> str:
+    """SHA-256 (hex) over the names and bytes of ``files``: changes when any of them does.
+
+    Cached per process (the files are read once).
+    """
+    h = hashlib.sha256()
+    for f in sorted(FsPath(f) for f in files):
+        h.update(f.name.encode() + b"\0" + f.read_bytes() + b"\0")
+    return h.hexdigest()
+
+
 def key_hash(key: dict) -> str:
     """SHA-256 (first 24 hex digits) of the canonical JSON of ``key``."""
     text = json.dumps(canonical(key), sort_keys=True, separators=(",", ":"), allow_nan=False)
@@ -96,7 +114,8 @@ def truth_key(*, simulator: str, model_xml: str, path: Path, params: dict, seed:
     model_xml : the full MJCF text actually compiled (after any generated edits).
     path : the path followed. params : controller/simulation parameters (JSON-able).
     seed : the run's seed. config : the sensor configuration (None when fixed by the model).
-    Versions of mujoco and numpy and :data:`CODE_SALT` are added here.
+    Versions of mujoco and numpy, the digest of :data:`SIMULATOR_SOURCES` and
+    :data:`CODE_SALT` are added here.
     """
     import mujoco
 
@@ -106,6 +125,7 @@ def truth_key(*, simulator: str, model_xml: str, path: Path, params: dict, seed:
         "config": config, "path": path, "params": params, "seed": int(seed),
         "versions": {"mujoco": mujoco.__version__, "numpy": np.__version__},
         "code_salt": CODE_SALT,
+        "code_sha256": source_digest(SIMULATOR_SOURCES),
     })
 
 
@@ -133,12 +153,5 @@ def cached(key: dict, compute: Callable[[], Truth], cache_dir: str | os.PathLike
     if not isinstance(truth, Truth):
         raise TypeError(f"compute: must return a Truth, got {type(truth).__name__}")
     truth = dataclasses.replace(truth, meta={**truth.meta, "hash": h, "cache_key": canonical(key)})
-    cache_dir.mkdir(parents=True, exist_ok=True)
-    tmp = cache_dir / f".{h}.{os.getpid()}.{uuid.uuid4().hex}.npz"
-    try:
-        truth.save(tmp)
-        os.replace(tmp, final)
-    finally:
-        if tmp.exists():
-            tmp.unlink()
+    truth.save(final)  # atomic (sim.atomic): concurrent writers never share a temp file
     return truth

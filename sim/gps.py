@@ -52,6 +52,7 @@ from scipy.signal import lfilter
 
 from estimator.configuration import SensorConfig
 from estimator.model_files import MODELS_DIR, read_model_toml
+from sim.atomic import atomic_write
 from sim.truth import Truth
 
 __all__ = [
@@ -199,15 +200,16 @@ class StationarySession:
         """Write to one ``.npz`` file (atomically: temp file then rename)."""
         path = Path(path)
         path.parent.mkdir(parents=True, exist_ok=True)
-        tmp = path.with_name(path.name + ".tmp")
         arrays = {"t": self.t, "obs": self.obs, "names": np.array(self.names),
                   "meta": np.array(json.dumps(self.meta, sort_keys=True, default=_json_default))}
         if self.truth_positions is not None:
             arrays["truth_positions"] = self.truth_positions
-        with open(tmp, "wb") as fh:
-            np.savez_compressed(fh, **arrays)
-        tmp.replace(path)
-        return path
+
+        def write(tmp: Path) -> None:
+            with open(tmp, "wb") as fh:
+                np.savez_compressed(fh, **arrays)
+
+        return atomic_write(path, write)
 
     @classmethod
     def load(cls, path: str | Path) -> StationarySession:

@@ -15,6 +15,8 @@ from pathlib import Path
 
 import numpy as np
 
+from sim.atomic import atomic_write
+
 __all__ = ["Truth"]
 
 _ARRAYS = ("t", "sensor_positions", "cg", "yaw", "speed", "yaw_rate", "turning")
@@ -88,13 +90,14 @@ class Truth:
         """Write to a single ``.npz`` file (atomically: temp file then rename)."""
         path = Path(path)
         path.parent.mkdir(parents=True, exist_ok=True)
-        tmp = path.with_name(path.name + ".tmp")
-        with open(tmp, "wb") as fh:
-            np.savez(fh, **{k: getattr(self, k) for k in _ARRAYS},
-                     sensor_names=np.array(self.sensor_names),
-                     meta=np.array(json.dumps(self.meta, sort_keys=True, default=str)))
-        tmp.replace(path)
-        return path
+
+        def write(tmp: Path) -> None:
+            with open(tmp, "wb") as fh:
+                np.savez(fh, **{k: getattr(self, k) for k in _ARRAYS},
+                         sensor_names=np.array(self.sensor_names),
+                         meta=np.array(json.dumps(self.meta, sort_keys=True, default=str)))
+
+        return atomic_write(path, write)
 
     @classmethod
     def load(cls, path: str | Path) -> "Truth":

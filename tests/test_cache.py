@@ -95,3 +95,35 @@ def test_concurrent_writers_never_expose_partial_files(tmp_path):
         out = pool.map(_worker, [(tmp_path, i) for i in range(8)])
     assert len(set(out)) == 1
     assert sorted(p.name for p in tmp_path.iterdir()) == [f"{key_hash(base_key())}.npz"]
+
+
+def test_truth_key_follows_the_simulator_sources(tmp_path):
+    from sim.cache import SIMULATOR_SOURCES, source_digest
+
+    assert {p.name for p in SIMULATOR_SOURCES} >= {"rover.py", "quadcopter.py", "controllers.py"}
+    a, b = tmp_path / "a.py", tmp_path / "b.py"
+    a.write_text("x = 1\n")
+    b.write_text("y = 2\n")
+    d1 = source_digest((a, b))
+    c = tmp_path / "c"
+    c.mkdir()
+    a2 = c / "a.py"
+    a2.write_text("x = 2\n")  # one character of one file changed
+    assert source_digest((a2, b)) != d1
+    assert source_digest((b, a)) == d1  # order-free
+
+
+def test_atomic_write_leaves_nothing_behind_on_failure(tmp_path):
+    from sim.atomic import atomic_write, atomic_write_text
+
+    target = tmp_path / "out.csv"
+    atomic_write_text(target, "old")
+
+    def broken(p):
+        p.write_text("partial")
+        raise RuntimeError("disk full")
+
+    with pytest.raises(RuntimeError, match="disk full"):
+        atomic_write(target, broken)
+    assert target.read_text() == "old"
+    assert sorted(f.name for f in tmp_path.iterdir()) == ["out.csv"]

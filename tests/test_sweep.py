@@ -261,3 +261,86 @@ def _toml(d: dict) -> str:
                 lines.append(f"[[{k}]]")
                 lines += [f"{kk} = {val(vv)}" for kk, vv in block.items()]
     return "\n".join(lines) + "\n"
+
+
+# --------------------------------------------------------------------------- provenance
+def test_cells_computed_by_other_code_are_recomputed(tmp_path, monkeypatch, capsys):
+    import experiments.sweep as sweep
+
+    spec = _fake_spec()
+    n = len(spec.expand())
+    _fake_run(spec, tmp_path, cell_fn=fake_cell)
+    rec = json.loads(next((tmp_path / "cells").glob("*.json")).read_text())
+    assert rec["code"] == sweep.cell_code_digest()
+    # same code: everything resumes; changed sources: nothing old is mixed in
+    assert _fake_run(spec, tmp_path, cell_fn=fake_cell).n_resumed == n
+    monkeypatch.setattr(sweep, "cell_code_digest", lambda: "other-code")
+    r = _fake_run(spec, tmp_path, cell_fn=fake_cell)
+    assert (r.n_computed, r.n_resumed) == (n, 0)
+    assert f"{n} of {n} finished cells were computed by other code" in capsys.readouterr().err
+    assert json.loads((tmp_path / "manifest.json").read_text())["n_stale"] == n
+
+
+def test_spec_toml_records_the_overrides_and_reloads_to_the_same_cells(tmp_path):
+    from experiments.spec import load_spec
+
+    spec = _fake_spec().with_solver("slsqp").with_seeds([3, 4])
+    _fake_run(spec, tmp_path, cell_fn=fake_cell)
+    again = load_spec(tmp_path / "spec.toml")
+    assert again.name == "tiny-slsqp" and again.seeds == (3, 4)
+    assert [c.key for c in again.expand()] == [c.key for c in spec.expand()]
+    assert {c.solver for c in again.expand()} <= {"slsqp", "-"}
+
+
+def test_worker_memo_does_not_outlive_a_run_or_ignore_the_session_length():
+    import experiments.sweep as sweep
+
+    calls = []
+
+    def cell_fn(cell, truth, ctx):
+        key = ("obs", ctx.session_s)
+        if key not in ctx.memo:
+            calls.append(ctx.session_s)
+            ctx.memo[key] = object()
+        return CellOutput(rows=[{"mask": "full", "ex_mean": 0.0}])
+
+    cells = _fake_spec().expand()[:2]
+    for run_id in ("a", "a", "b"):
+        sweep._run_batch(cells, None, 0, ("full",), 100.0, [False, False], cell_fn, None, run_id)
+    assert calls == [100.0, 100.0]  # memo reused within run "a", cleared for run "b"
+    sweep._WORKER_MEMO.clear()
+
+
+def test_observations_memo_keys_on_the_session_length(truth_cache):
+    from collections import OrderedDict
+
+    import experiments.sweep as sweep
+    from estimator.configuration import SensorConfig
+
+    cell = Spec.from_dict({**TINY, "defaults": {"noise": "gps_stationary"}}).expand()[0]
+    truth = sweep.simulate_truth(cell.file("path"), cell.path_overrides, cell.file("config"), 0,
+                                 str(truth_cache))
+    config = SensorConfig.load(cell.file("config")).planar()
+    memo = OrderedDict()
+
+    def obs(session_s):
+        ctx = sweep.CellContext(spec_seed=1, masks=("full",), session_s=session_s,
+                                want_epochs=False, memo=memo)
+        return sweep._observations(cell, truth, config, ctx)
+
+    a, b = obs(4000.0), obs(1000.0)
+    assert not np.array_equal(a, b, equal_nan=True)  # a shorter session: other errors
+    assert obs(4000.0) is a  # memoised
+
+
+def test_cli_rejects_zero_seeds(capsys):
+    assert main(["--preset", "quick", "--seeds", "0", "--out", "/nonexistent/never"]) == 2
+    assert "seeds" in capsys.readouterr().err
+
+
+def test_spec_rejects_a_noise_file_that_is_not_a_gps_model():
+    from experiments.spec import SpecError
+
+    with pytest.raises(SpecError, match=r"grid\[0\]\.noise: 'ultrasonic' is not a GPS noise model"):
+        Spec.from_dict({"name": "x", "defaults": {"path": "square20", "noise": "ultrasonic"},
+                        "grid": [{"window": [1]}]})
