@@ -32,7 +32,12 @@ Beyond the dissertation (each selectable, each a row in tables):
   outlier gating (:mod:`estimator.pose_filter`), initialised from the motion-compensated fit
   of the first ``window`` epochs (heading = course when moving at >= 0.2 m/s, moving forward).
 - ``method="naive"``: no configuration knowledge; CG = mean of the CG antennas' own window
-  means (Eq. 3.8 on raw means), no heading (NaN). What the configuration buys.
+  means (Eq. 3.8 on raw means), no heading (NaN). What the configuration buys. A naive
+  estimate needs every CG antenna observed at least once in the window: averaging only the
+  ones present would move the CG by up to the platform's size (~0.3 m on rover_gps8) while
+  looking valid, so such a row is NaN (every position and the CG) with status
+  "insufficient_data". (A configuration with a dead CG member therefore has no naive
+  estimate at all.)
 
 Observations are planar ``(n, m, 2)``; a 3-D configuration is projected (``config.planar()``).
 """
@@ -368,7 +373,9 @@ def track(t: Any, obs: Any, config: SensorConfig, window: int = 10, weighting: s
         :func:`detect_turning`).
     solver : "procrustes" | "slsqp" | "ccp" (method "window" only); eps (m), warm_start and
         fit_options (e.g. ``{"maxiter": 100}``) pass to :func:`estimator.window.fit_window`.
-    method : one of :data:`METHODS` (module docstring). yaw_rate : the motion-compensated
+    method : one of :data:`METHODS` (module docstring); "naive" gives a row only where every
+        CG sensor has data in the window, else NaN and "insufficient_data". yaw_rate : the
+        motion-compensated
         model's constant yaw rate (default False: constant velocity and heading; on Path 1
         under gps_stationary noise the yaw rate changed the mean CG error by < 0.01 m for
         windows 5-30 at 6-9x the time). omega_max (rad/s) bounds it.
@@ -463,20 +470,16 @@ def track(t: Any, obs: Any, config: SensorConfig, window: int = 10, weighting: s
         for w in np.unique(wsize):
             sel = wsize == w
             means, cnt = _cumsum_means(o, ends[sel], int(w))
-            pos[sel] = means
-            status[sel] = np.where((cnt[:, cgm] > 0).any(axis=1), "ok", "insufficient_data")
+            # every CG member must be in the window (module docstring): the mean of a
+            # subset is a different point of the platform
+            full = (cnt[:, cgm] > 0).all(axis=1)
+            pos[sel] = np.where(full[:, None, None], means, np.nan)
+            status[sel] = np.where(full, "ok", "insufficient_data")
     else:  # ekf
         pos, yaw, status, extra = _run_ekf(tt, o, cfg, s, filter_params or PoseFilterParams())
 
-    # CG (Eq. 3.8)
-    if method == "naive":
-        cgp = pos[:, cfg.cg_mask]
-        cnt = np.isfinite(cgp[..., 0]).sum(axis=1)
-        with np.errstate(invalid="ignore", divide="ignore"):
-            cg = np.nansum(cgp, axis=1) / cnt[:, None]
-        cg = np.where(cnt[:, None] > 0, cg, np.nan)
-    else:
-        cg = cfg.cg_from_positions(pos)
+    # CG (Eq. 3.8; naive: of the raw window means, all CG members present or NaN)
+    cg = cfg.cg_from_positions(pos)
 
     # law-of-cosines heading of the fitted positions (Section 3.2)
     if method == "naive":

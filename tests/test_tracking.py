@@ -203,11 +203,48 @@ def test_naive_baseline():
     assert np.abs(e).max() < 1e-9  # all CG antennas present: their mean is the CG
     assert df["yaw"].isna().all() and df["yaw_loc"].isna().all()
     obs2 = obs.copy()
-    obs2[:, cfg.index("2")] = np.nan  # a CG antenna missing: the naive mean is biased
-    e2, _ = _err(track(t, obs2, cfg, window=1, method="naive"), t, cg)
-    assert np.abs(e2).max() > 0.1
+    obs2[:, cfg.index("2")] = np.nan  # a CG antenna missing: no naive estimate at all
+    d2 = track(t, obs2, cfg, window=1, method="naive")
+    assert d2[XY].isna().all().all() and (d2["solver_status"] == "insufficient_data").all()
     e3, _ = _err(track(t, obs2, cfg, window=1), t, cg)
     assert np.abs(e3).max() < 1e-6  # the configuration fills it in
+
+
+@pytest.mark.parametrize("dynamic", [False, True])
+def test_naive_needs_every_cg_member_in_the_window(dynamic):
+    """A window missing one CG antenna used to average the other three (a CG shifted by up
+    to ~0.3 m, status "ok"); now it is NaN with "insufficient_data". A full window gives
+    the exact mean of the CG antennas' window means (to rounding, 1e-12 m)."""
+    rng = np.random.default_rng(21)
+    cfg, t, _cg, _yaw, clean = straight(n=40)
+    obs = clean + rng.normal(0.0, 0.5, clean.shape)
+    obs[rng.random(obs.shape[:2]) < 0.2] = np.nan   # scattered dropouts, any antenna
+    i2 = cfg.index("2")
+    for j in np.flatnonzero(cfg.cg_mask):           # other CG members: no 5-epoch gaps
+        obs[::3, j] = clean[::3, j]
+    obs[:, i2] = clean[:, i2]                       # CG member "2" complete ...
+    obs[20:25, i2] = np.nan                         # ... except epochs 20..24
+    s = 5
+    kw = {"dynamic_window": 2, "turning": np.arange(40) % 7 == 0} if dynamic else {}
+    df = track(t, obs, cfg, window=s, method="naive", **kw)
+    ends = np.arange(s - 1, 40)
+    w = df["window"].to_numpy()
+    for r, k in enumerate(ends):
+        win = obs[k - w[r] + 1:k + 1]
+        present = ~np.isnan(win[..., 0])
+        full = present[:, cfg.cg_mask].any(axis=0).all()
+        row = df.iloc[r]
+        if full:
+            expect = np.nanmean(win[:, cfg.cg_mask], axis=0).mean(axis=0)
+            assert row["solver_status"] == "ok"
+            np.testing.assert_allclose(row[XY].to_numpy(float), expect, rtol=0, atol=1e-12)
+        else:
+            assert row["solver_status"] == "insufficient_data"
+            assert np.isnan(row[XY].to_numpy(float)).all()
+            assert np.isnan(row[[f"x_{n}" for n in cfg.names]].to_numpy(float)).all()
+    # the window over epochs 20..24 (row 20) has no sample of antenna "2"
+    assert df["solver_status"].iloc[20] == "insufficient_data"
+    assert (df["solver_status"] == "ok").sum() >= 20
 
 
 def test_ekf_converges_and_gates_outlier():
