@@ -45,7 +45,6 @@ from __future__ import annotations
 
 import argparse
 import math
-import subprocess
 import sys
 import time
 from collections.abc import Callable, Mapping
@@ -61,6 +60,7 @@ from estimator.sysid import (
     simulate,
     step_response,
 )
+from experiments.provenance import git_describe
 
 __all__ = ["AXIS_FORMS", "THESIS", "main", "plot_identification", "run_identification"]
 
@@ -111,15 +111,6 @@ def _lag(form: str, p: Mapping[str, float]) -> float:
 
 #: (axis, kind) -> (t, u, y): "impulse" = the fitted experiment, "step" = validation.
 Responses = Mapping[tuple[str, str], tuple[np.ndarray, np.ndarray, np.ndarray]]
-
-
-def _code_version() -> str:
-    try:
-        out = subprocess.run(["git", "-C", str(REPO), "describe", "--always", "--dirty"],
-                             capture_output=True, text=True, timeout=10, check=True)
-        return out.stdout.strip()
-    except (OSError, subprocess.SubprocessError):
-        return "unknown (not a git checkout)"
 
 
 def simulator_responses(*, quick: bool = False) -> dict[tuple[str, str], tuple]:
@@ -369,7 +360,7 @@ def run_identification(
     pd.concat(series, ignore_index=True).to_csv(out / "identification_series.csv",
                                                 index=False, float_format="%.7g")
     meta = {"seed": seed, "noise_m": noise_m, "quick": quick, "n_mc": n_mc,
-            "n_starts": n_starts, "code_version": _code_version(),
+            "n_starts": n_starts, "code_version": git_describe(),
             "sim_time_s": sim_time, "total_time_s": time.perf_counter() - t_start,
             "source": "synthetic (passed in)" if responses is not None
             else "sim.quadcopter.impulse_response"}

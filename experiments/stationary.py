@@ -32,7 +32,6 @@ from __future__ import annotations
 import argparse
 import json
 import math
-import subprocess
 import sys
 from dataclasses import dataclass
 from pathlib import Path
@@ -50,6 +49,7 @@ from estimator.weights import (
     random_weights,
 )
 from estimator.window import fit_stationary, procrustes_batch, window_means
+from experiments.provenance import git_describe
 from sim.gps import GpsNoiseModel, StationarySession, synthesize_session
 
 __all__ = [
@@ -367,14 +367,6 @@ def analyse(session: StationarySession, config: SensorConfig | None, out: Path,
     return summary
 
 
-def _code_version() -> str:
-    try:
-        return subprocess.run(["git", "-C", str(REPO), "rev-parse", "--short", "HEAD"],
-                              capture_output=True, text=True, check=True).stdout.strip()
-    except (OSError, subprocess.CalledProcessError):
-        return "unknown"
-
-
 def _md(df: pd.DataFrame, floatfmt: str = ".3f") -> str:
     cols = list(df.columns)
     lines = ["| " + " | ".join(cols) + " |", "|" + "---|" * len(cols)]
@@ -392,7 +384,7 @@ def _write_summary(out: Path, session: StationarySession, config: SensorConfig |
                    win_tab: pd.DataFrame | None) -> dict:
     meta = session.meta
     lines = [f"# Stationary analysis ({meta.get('source', 'session')})", ""]
-    lines.append(f"Code version {_code_version()}. Session: {session.n} samples "
+    lines.append(f"Code version {git_describe()}. Session: {session.n} samples "
                  f"({session.t[-1] - session.t[0] + (session.t[1] - session.t[0] if session.n > 1 else 0):.0f} s), "
                  f"{session.m} receivers {list(session.names)}, dead {list(session.dead)}, "
                  f"missing {1 - session.present.mean():.1%} of all samples, "
@@ -438,7 +430,7 @@ def _write_summary(out: Path, session: StationarySession, config: SensorConfig |
     for p in sorted(out.glob("*.png")):
         lines.append(f"- [{p.name}]({p.name})")
     (out / "summary.md").write_text("\n".join(lines) + "\n")
-    summary = {"code_version": _code_version(), "n": session.n, "m": session.m,
+    summary = {"code_version": git_describe(), "n": session.n, "m": session.m,
                "names": list(session.names), "meta": meta,
                "sensors": s_tab.to_dict(orient="records"), "pairs": p_tab.to_dict(orient="records"),
                "weighting": None if w_est is None else [

@@ -39,7 +39,6 @@ import argparse
 import json
 import math
 import os
-import subprocess
 import sys
 import time
 import traceback
@@ -53,6 +52,7 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
+from experiments.provenance import code_version
 from experiments.spec import REPO, Cell, Spec, SpecError, available_presets, load_spec
 from sim.atomic import atomic_write, atomic_write_text
 
@@ -482,35 +482,6 @@ def cell_code_digest() -> str:
     from sim.cache import source_digest
 
     return source_digest(CELL_SOURCES)[:16]
-
-
-def code_version() -> dict:
-    """Git describe/commit of the checkout (if any) and the installed package version."""
-    info: dict[str, Any] = {}
-    try:
-        from importlib.metadata import version
-
-        info["package"] = version("configpose")
-    except Exception:  # noqa: BLE001 - not installed: leave it out
-        info["package"] = None
-    for key, cmd in (("git_describe", ["git", "describe", "--always", "--dirty", "--tags"]),
-                     ("git_commit", ["git", "rev-parse", "HEAD"])):
-        try:
-            info[key] = subprocess.run(cmd, cwd=REPO, capture_output=True, text=True, check=False,
-                                       timeout=10).stdout.strip() or None
-        except Exception:  # noqa: BLE001 - no git: leave it out
-            info[key] = None
-    import platform
-
-    info["python"] = platform.python_version()
-    info["numpy"] = np.__version__
-    try:
-        import mujoco
-
-        info["mujoco"] = mujoco.__version__
-    except Exception:  # noqa: BLE001
-        info["mujoco"] = None
-    return info
 
 
 def _write_json(path: Path, obj: Any) -> None:
