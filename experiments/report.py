@@ -140,8 +140,6 @@ def compare(cells: pd.DataFrame, c: Comparison) -> Outcome:
         h = float(stats.t.ppf(0.975, n - 1) * d.std(ddof=1) / math.sqrt(n))
     else:
         h = math.inf
-    if h == 0.0:          # identical differences across seeds: the interval is the point
-        h = 0.0
     res = _relation(c.rel, m, m - h, m + h, float(b.mean()), c.tol)
     return Outcome(c, n, float(a.mean()), float(b.mean()), m, m - h, m + h, res, thesis_result)
 

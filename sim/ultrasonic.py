@@ -201,11 +201,12 @@ def _markov_dropouts(n: int, c: int, model: UltrasonicNoiseModel,
 def simulate_ranges(t: np.ndarray, tx_positions: np.ndarray, receivers: np.ndarray,
                     model: UltrasonicNoiseModel, rng: np.random.Generator, *,
                     return_faults: bool = False):
-    """Observed ranges from transmitter truth.
+    """Observed ranges from transmitter truth (thesis 003, Section 3.2.2, Figs 3.6-3.8).
 
     t (n,) s strictly increasing (only validated: faults are per sample); tx_positions
     (n, T, 3) m (T = 2 transmitters for the quadcopter); receivers (k, 3) m; model; rng.
-    Returns ranges (n, T, k) m with NaN for dropouts [and fault codes (n, T, k) int8].
+    Returns ranges (n, T, k) m with NaN for dropouts; with ``return_faults=True`` the tuple
+    ``(ranges, codes)`` with fault codes (n, T, k) int8 (CLEAN, SPIKE, HELD, DROPOUT).
     """
     tt = np.asarray(t, dtype=float)
     if tt.ndim != 1:
