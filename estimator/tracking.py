@@ -12,7 +12,9 @@ Source: 000_8f82f8df647bf685.txt (GPS dissertation), Sections 3.1.2, 3.2, 3.4 an
 - Solvers from :mod:`estimator.window`: ``"procrustes"`` (closed form; all windows in one
   batched call, cumulative sums when unweighted), ``"slsqp"``/``"ccp"`` (Eq. 3.9 with the eps
   slack, one window at a time, cold-started from procrustes; ``warm_start=True`` passes the
-  previous window's fit as ``x0``, the dissertation's start, Section 3.1.2).
+  previous row's fit as ``x0``, the dissertation's start, Section 3.1.2; with a dynamic
+  window too, the rows are fitted in time order so the previous row may have either size;
+  a row with insufficient data passes on the fit before it).
 - CG from the configured CG sensors (Eq. 3.8); heading both as the fitted rigid pose's
   atan2 (``yaw``) and by the law-of-cosines construction of Section 3.2 (``yaw_loc``,
   :func:`estimator.orientation.law_of_cosines_heading`, relative to the first estimate).
@@ -236,10 +238,13 @@ def _weighted_window_means(obs: np.ndarray, ends: np.ndarray, w: int, wts: np.nd
 
 
 def _fit_windows(obs, cfg, ends, w, *, weighting, rng, huff_threshold, huber_c, solver, eps,
-                 warm_start, fit_kw):
+                 warm_start, fit_kw, prev=None):
     """Window fits for rows ending at ``ends`` with window size w.
 
-    Returns positions (N, m, 2), yaw (N,), status (N,) object.
+    ``prev``: with ``warm_start``, the x0 of the first row (the last fit before ``ends[0]``,
+    or None); each later row starts from the previous row's fit.
+    Returns positions (N, m, 2), yaw (N,), status (N,) object and the last fit with data
+    (the ``prev`` for the rows that follow; unchanged by procrustes).
     """
     N, m = ends.size, cfg.m
     pos = np.full((N, m, 2), np.nan)
@@ -251,9 +256,8 @@ def _fit_windows(obs, cfg, ends, w, *, weighting, rng, huff_threshold, huber_c, 
         sw = None if weighting == "none" else _weights.huff_weights(obs, cfg, huff_threshold)
         means, cnt = _cumsum_means(obs, ends, w, sw)
         bf = procrustes_batch(means, cnt, cfg)
-        return bf.positions, bf.yaw, bf.status.astype(object)
+        return bf.positions, bf.yaw, bf.status.astype(object), prev
     a = 0
-    prev = None
     huff = _sample_huff(obs, cfg, weighting, huff_threshold)
     for ch in _chunks(ends, w, m):
         sl = slice(a, a + ch.size)
@@ -280,7 +284,14 @@ def _fit_windows(obs, cfg, ends, w, *, weighting, rng, huff_threshold, huber_c, 
                 if fit.status != "insufficient_data":
                     prev = fit.positions
         a += ch.size
-    return pos, yaw, status
+    return pos, yaw, status, prev
+
+
+def _runs(values: np.ndarray) -> list[tuple[int, int]]:
+    """(start, stop) of the runs of equal consecutive values."""
+    cut = np.flatnonzero(np.diff(values) != 0) + 1
+    edges = np.r_[0, cut, values.size]
+    return [(int(a), int(b)) for a, b in zip(edges[:-1], edges[1:])]
 
 
 def _motion_windows(t, obs, cfg, ends, w, *, weighting, rng, huff_threshold, huber_c,
@@ -450,11 +461,22 @@ def track(t: Any, obs: Any, config: SensorConfig, window: int = 10, weighting: s
               "huber_c": huber_c}
 
     if method == "window":
-        for w in np.unique(wsize):
-            sel = wsize == w
-            p, y, st = _fit_windows(o, cfg, ends[sel], int(w), solver=solver, eps=eps,
-                                    warm_start=warm_start, fit_kw=fit_options or {}, **common)
-            pos[sel], yaw[sel], status[sel] = p, y, st
+        if warm_start and solver != "procrustes":
+            # x0 of every row is the previous row's fit (Section 3.1.2), whatever the window
+            # size: fit the runs of equal size in time order, carrying the last fit across
+            prev = None
+            for a, b in _runs(wsize):
+                sl = slice(a, b)
+                pos[sl], yaw[sl], status[sl], prev = _fit_windows(
+                    o, cfg, ends[sl], int(wsize[a]), solver=solver, eps=eps, warm_start=True,
+                    fit_kw=fit_options or {}, prev=prev, **common)
+        else:
+            for w in np.unique(wsize):
+                sel = wsize == w
+                p, y, st, _ = _fit_windows(o, cfg, ends[sel], int(w), solver=solver, eps=eps,
+                                           warm_start=warm_start, fit_kw=fit_options or {},
+                                           **common)
+                pos[sel], yaw[sel], status[sel] = p, y, st
     elif method == "motion_compensated":
         extra = {k: np.full(N, np.nan) for k in ("yaw_rate", "vx", "vy")}
         for w in np.unique(wsize):
@@ -527,8 +549,8 @@ def _lag_correct(tt, o, cfg, ends, wsize, pos, cg, yaw_loc, s, mode, span, dynam
         # velocity from a uniform window-s series, so it is not polluted by the jump in lag
         # between small- and large-window rows
         # (procrustes, whatever the rows' solver: the series only feeds the velocity)
-        p, _, _ = _fit_windows(o, cfg, ends, s, solver="procrustes", eps=eps,
-                               warm_start=False, fit_kw={}, **common)
+        p, _, _, _ = _fit_windows(o, cfg, ends, s, solver="procrustes", eps=eps,
+                                  warm_start=False, fit_kw={}, **common)
         vel_cg = cfg.cg_from_positions(p)
     else:
         vel_cg = cg

@@ -311,6 +311,44 @@ def test_slsqp_rows_agree_with_procrustes_within_slack():
                                        "fallback_mirrored", "fallback_failed"}
 
 
+@pytest.mark.parametrize("warm", [True, False])
+def test_warm_start_with_dynamic_window_starts_from_the_previous_row(warm, monkeypatch):
+    """With warm_start, the x0 of every row is the fit of the row before it in time, also
+    where the window size changes (the rows used to be fitted per window size, so x0 came
+    from the previous row *of the same size*); without warm_start there is no x0, and
+    the rows are fitted as before."""
+    import estimator.tracking as tracking
+
+    calls = []
+    real = tracking.fit_window
+
+    def spy(obs, config, weights=None, **kw):
+        fit = real(obs, config, weights, **kw)
+        calls.append((obs.shape[0], kw.get("x0"), fit))
+        return fit
+
+    monkeypatch.setattr(tracking, "fit_window", spy)
+    rng = np.random.default_rng(6)
+    cfg, t, _cg, _yaw, clean = straight(n=24)
+    obs = clean + rng.normal(0, 0.5, clean.shape)
+    turning = np.zeros(24, bool)
+    turning[[8, 9, 10, 15, 19]] = True
+    df = track(t, obs, cfg, window=4, dynamic_window=1, turning=turning, solver="slsqp",
+               warm_start=warm)
+    w = df["window"].to_numpy()
+    assert len(calls) == len(df) and len(set(w)) == 2
+    if not warm:
+        assert all(x0 is None for _, x0, _ in calls)
+        return
+    # the calls follow the rows in time: window sizes in row order
+    assert [c[0] for c in calls] == list(w)
+    assert calls[0][1] is None
+    for k in range(1, len(calls)):
+        np.testing.assert_array_equal(calls[k][1], calls[k - 1][2].positions)
+    pos = df[[f"{a}_{n}" for n in cfg.names for a in "xy"]].to_numpy().reshape(-1, cfg.m, 2)
+    np.testing.assert_array_equal(pos[-1], calls[-1][2].positions)
+
+
 def test_output_columns_and_settings():
     cfg, t, _cg, _yaw, obs = straight(n=30)
     for method in METHODS:
