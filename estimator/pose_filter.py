@@ -56,6 +56,8 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.stats import chi2
 
+from estimator._checks import check_increasing_times
+
 __all__ = [
     "TUNING",
     "PoseFilterParams",
@@ -299,10 +301,42 @@ def run_pose_filter(t: np.ndarray, obs: np.ndarray, offsets: np.ndarray, x0: np.
                     ) -> PoseFilterResult:
     """Run the filter from epoch ``k0`` (state x0, covariance P0 there) to the end.
 
-    t : (n,) s; obs : (n, m, 2) metres, NaN = missing; offsets : (m, 2) body offsets of the
-    antennas from the CG (dead antennas simply never report). Rows before k0 are NaN.
+    t : (n,) s, finite and strictly increasing (uneven steps are fine: each prediction uses
+        its own dt).
+    obs : (n, m, 2) metres (world x east, y north), NaN = the antenna did not report.
+    offsets : (m, 2) metres, body offsets ``r_i = b_i - cg_body`` of the antennas from the CG
+        (body x forward, y left); dead antennas simply never report.
+    x0 : (5,) the state at epoch k0, ``(px m, py m, yaw rad CCW from +x, v m/s,
+        omega rad/s)`` (module docstring), finite.
+    P0 : (5, 5) its covariance in the same units, finite; also the covariance a "reset"
+        restarts from.
+    k0 : int in [0, n - 1], the first epoch. params : :class:`PoseFilterParams`.
+
+    Returns a :class:`PoseFilterResult` of n rows; row k0 holds x0, P0 with status "init",
+    rows before k0 are NaN (status ""). Wrong shapes or values raise ValueError naming the
+    field.
     """
-    n, _m = obs.shape[:2]
+    obs = np.asarray(obs, dtype=float)
+    if obs.ndim != 3 or obs.shape[2] != 2:
+        raise ValueError(f"obs: expected shape (n, m, 2) metres, got {obs.shape}")
+    n, m = obs.shape[:2]
+    check_increasing_times(t, "t", n=n)
+    off_arr = np.asarray(offsets, dtype=float)
+    if off_arr.shape != (m, 2) or not np.all(np.isfinite(off_arr)):
+        raise ValueError(f"offsets: expected finite values of shape ({m}, 2) metres, got "
+                         f"shape {off_arr.shape}")
+    x0_arr = np.asarray(x0, dtype=float)
+    if x0_arr.shape != (5,) or not np.all(np.isfinite(x0_arr)):
+        raise ValueError(f"x0: expected 5 finite values (px, py, yaw, v, omega), got "
+                         f"{x0_arr.tolist() if x0_arr.size <= 5 else x0_arr.shape}")
+    P0_arr = np.asarray(P0, dtype=float)
+    if P0_arr.shape != (5, 5) or not np.all(np.isfinite(P0_arr)):
+        raise ValueError(f"P0: expected a finite (5, 5) covariance, got shape {P0_arr.shape}")
+    if isinstance(k0, bool) or not isinstance(k0, (int, np.integer)) or not 0 <= k0 < n:
+        raise ValueError(f"k0: must be an integer in [0, {n - 1}], got {k0!r}")
+    if not isinstance(params, PoseFilterParams):
+        raise ValueError(  # noqa: TRY004 (bad input is ValueError by contract)
+            f"params: expected a PoseFilterParams, got {type(params).__name__}")
     X = np.full((n, 5), np.nan)
     PP = np.full((n, 5, 5), np.nan)
     status = np.full(n, "", dtype=object)

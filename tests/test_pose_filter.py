@@ -155,3 +155,41 @@ def test_public_steps_match_reference_implementation():
             np.testing.assert_array_equal(a[2], b[2])
             np.testing.assert_allclose(a[0], b[0], rtol=0, atol=1e-10)
             np.testing.assert_allclose(a[1], b[1], rtol=1e-12, atol=1e-12)
+
+
+def _valid_args():
+    n = 6
+    t = np.arange(float(n))
+    obs = np.c_[t, np.zeros(n)][:, None, :] + OFFSETS[None]
+    x0 = np.array([0.0, 0.0, 0.0, 1.0, 0.0])
+    P0 = np.diag([1.0, 1.0, 0.1, 0.1, 0.01])
+    return {"t": t, "obs": obs, "offsets": OFFSETS, "x0": x0, "P0": P0, "k0": 0}
+
+
+@pytest.mark.parametrize("field, bad", [
+    ("x0", np.zeros(4)),                       # used to run with a 4-element state
+    ("x0", np.zeros((5, 1))),
+    ("x0", np.array([0.0, 0.0, np.nan, 1.0, 0.0])),
+    ("P0", np.eye(4)),
+    ("P0", np.eye(5)[:, :, None]),
+    ("P0", np.diag([1.0, 1.0, np.inf, 1.0, 1.0])),
+    ("offsets", OFFSETS[:, :1]),
+    ("offsets", OFFSETS[:-1]),
+    ("obs", np.zeros((6, 4))),
+    ("t", np.arange(5.0)),                    # wrong length
+    ("t", np.r_[0.0, 1.0, np.nan, 3.0, 4.0, 5.0]),
+    ("k0", 6),
+    ("k0", -1),
+    ("k0", 1.0),
+])
+def test_run_pose_filter_rejects_bad_arguments_naming_the_field(field, bad):
+    args = {**_valid_args(), field: bad}
+    with pytest.raises(ValueError, match=rf"^{field}:"):
+        run_pose_filter(**args)
+
+
+def test_run_pose_filter_docstring_states_the_arguments():
+    doc = run_pose_filter.__doc__
+    for text in ("x0 : (5,)", "P0 : (5, 5)", "offsets : (m, 2)", "obs : (n, m, 2)",
+                 "t : (n,)", "k0 :", "params :"):
+        assert text in doc, text
