@@ -88,7 +88,9 @@ def estimate_velocity(t: np.ndarray, xy: np.ndarray, span: int) -> np.ndarray:
 
 def first_observations(obs: np.ndarray, start: np.ndarray, end: np.ndarray
                        ) -> tuple[np.ndarray, np.ndarray]:
-    """First complete observation of every sensor inside windows ``start..end`` (inclusive).
+    """First complete observation of every sensor inside windows ``start..end`` (inclusive):
+    the "first complete set of observed data for a particular sensor in that window" of
+    Section 3.4.2, step 2 (module docstring).
 
     obs : (n, m, 2) metres, NaN = missing. start, end : (N,) int epoch indices.
     Returns ``first_obs (N, m, 2)`` (NaN where the sensor has no data in the window) and

@@ -75,8 +75,10 @@ def along_cross_errors(est_xy: object, true_xy: object, direction: object
                        ) -> tuple[np.ndarray, np.ndarray]:
     """Signed along-track and cross-track errors (metres).
 
-    direction : (n,) yaw of the direction of travel (rad, CCW from +x), e.g. the true
-    course. along > 0 means the estimate is ahead of the truth; a lagging window gives
+    est_xy, true_xy : (n, 2) (or (n, 3), z ignored) metres. direction : (n,) yaw of the
+    direction of travel (rad, CCW from +x), e.g. the true course.
+    Returns ``(along, cross)``, each (n,) metres (NaN where the estimate is NaN).
+    along > 0 means the estimate is ahead of the truth; a lagging window gives
     along < 0. cross > 0 means to the left of the direction of travel.
     """
     e = _as_xy(est_xy, "est_xy")

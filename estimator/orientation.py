@@ -28,6 +28,8 @@ __all__ = [
 ]
 
 _TWO_PI = 2.0 * np.pi
+#: law_of_cosines_angle: largest |cos C| - 1 treated as rounding (clipped), not an error.
+_COS_EXCESS_TOL = 1e-9
 
 
 def wrap_angle(a: np.ndarray | float) -> np.ndarray | float:
@@ -84,13 +86,23 @@ def heading_from_points(front: np.ndarray, rear: np.ndarray) -> np.ndarray:
 
 
 def yaw_from_bearing(bearing: np.ndarray | float) -> np.ndarray | float:
-    """Compass bearing (North = 0, clockwise, radians) -> yaw (CCW from east, (-pi, pi])."""
+    """Compass bearing (North = 0, clockwise, radians) -> yaw (CCW from east, (-pi, pi]).
+
+    bearing : scalar or array of any shape (...), radians (any value; wrapped).
+    Returns the same shape (a Python float for a scalar), radians in (-pi, pi].
+    Section 3.2 measures orientation from North; see the module docstring for the mapping.
+    """
     return wrap_angle(np.pi / 2 - np.asarray(bearing, dtype=float)) if np.ndim(bearing) else \
         wrap_angle(np.pi / 2 - float(bearing))
 
 
 def bearing_from_yaw(yaw: np.ndarray | float) -> np.ndarray | float:
-    """Yaw (CCW from east) -> compass bearing in [0, 2 pi) (North = 0, clockwise)."""
+    """Yaw (CCW from east) -> compass bearing in [0, 2 pi) (North = 0, clockwise).
+
+    yaw : scalar or array of any shape (...), radians (any value).
+    Returns the same shape (a Python float for a scalar), radians in [0, 2 pi): the
+    orientation of Section 3.2 (the inverse of :func:`yaw_from_bearing`).
+    """
     b = np.mod(np.pi / 2 - np.asarray(yaw, dtype=float), _TWO_PI)
     return b if np.ndim(yaw) else float(b)
 
@@ -98,8 +110,9 @@ def bearing_from_yaw(yaw: np.ndarray | float) -> np.ndarray | float:
 def law_of_cosines_angle(a: np.ndarray, b: np.ndarray, c: np.ndarray) -> np.ndarray:
     """Eq. 3.10: C = arccos((a^2 + b^2 - c^2) / (2 a b)), the angle opposite side c.
 
-    a, b, c : side lengths (metres), broadcastable. The cosine is clipped to [-1, 1] only to
-    absorb floating-point rounding (|excess| <= 1e-12); a larger excess means the three
+    a, b, c : side lengths (metres), broadcastable; returns their broadcast shape, radians in
+    [0, pi]. The cosine is clipped to [-1, 1] only to absorb floating-point rounding
+    (``|cos C| - 1 <= 1e-9``, :data:`_COS_EXCESS_TOL`); a larger excess means the three
     lengths do not form a triangle and raises ValueError. NaN where a or b is 0 or NaN.
     """
     a = np.asarray(a, dtype=float)
@@ -108,7 +121,7 @@ def law_of_cosines_angle(a: np.ndarray, b: np.ndarray, c: np.ndarray) -> np.ndar
     with np.errstate(invalid="ignore", divide="ignore"):
         cos_c = (a * a + b * b - c * c) / (2.0 * a * b)
     excess = np.abs(cos_c) - 1.0
-    if np.any(np.isfinite(excess) & (excess > 1e-9)):
+    if np.any(np.isfinite(excess) & (excess > _COS_EXCESS_TOL)):
         raise ValueError(f"a, b, c: side lengths violate the triangle inequality "
                          f"(max |cos C| - 1 = {float(np.nanmax(excess)):.3g})")
     with np.errstate(invalid="ignore"):

@@ -102,7 +102,9 @@ class TransferFit:
     per second; time constants and delay in seconds; zeta dimensionless).
     ``intervals``: ``(low, high)`` confidence interval per parameter at ``confidence``.
     ``identifiable``: per-parameter flag (rule in the module docstring).
-    ``nrmse``: fit percent, ``100 (1 - ||y - y_hat|| / ||y - mean y||)``.
+    ``nrmse``: not an error but MATLAB's fit percent ("fit to estimation data", named
+    after MATLAB's NRMSE fit), ``100 (1 - ||y - y_hat|| / ||y - mean y||)``: 100 = perfect
+    fit, 0 = no better than the mean of y, negative = worse; higher is better.
     ``status``: ``"ok"``, or ``"not_converged"`` when no start converged, or
     ``"at_bound"`` when the best estimate has a free parameter on a bound (``at_bound``).
     ``covariance``: (p, p) parameter covariance over ``estimated`` (the free parameters in

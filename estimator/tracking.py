@@ -330,6 +330,16 @@ def detect_turning(t: np.ndarray, obs: np.ndarray, config: SensorConfig,
                    **options: Any) -> np.ndarray:
     """Turning flags (n,) bool computed from the observations alone (no controller).
 
+    The dynamic window of Section 3.4.2.1 (000_8f82f8df647bf685.txt) switches to a small
+    window while the platform turns, knowing the turns from the platform's control; a real
+    log has no such flag, so this derives one from the estimates (:mod:`estimator.turns`).
+
+    t : (n,) seconds, finite and strictly increasing. obs : (n, m, 2) metres (world x east,
+    y north), NaN = missing (both coordinates). config : the sensor configuration (m
+    sensors; a 3-D one is projected). options : ``window`` (int >= 1, epochs), ``source``
+    ("course" | "pose"), ``span_s`` (s), ``rate_on``/``rate_off`` (rad/s), ``min_speed``
+    (m/s, "course" only).
+
     A plain procrustes track with window ``options["window"]`` (default 10) gives CG and yaw
     per epoch; the heading is either the course of the CG over ``span_s`` seconds
     (``source="course"``, default) or the fitted yaw (``source="pose"``); then

@@ -76,3 +76,8 @@ def test_estimate_velocity_rejects_nan_or_repeated_time(bad):
         estimate_velocity(t, np.zeros((5, 2)), 2)
     with pytest.raises(ValueError, match=r"^t: "):
         estimate_velocity(np.zeros((5, 1)), np.zeros((5, 2)), 2)
+
+
+def test_first_observations_cites_section_3_4_2_step_2():
+    doc = " ".join(first_observations.__doc__.split())
+    assert "Section 3.4.2, step 2" in doc

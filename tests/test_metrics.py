@@ -120,3 +120,9 @@ def test_align_to_truth_rejects_nan_estimate_time():
     # a NaN estimate time used to be matched silently to the last truth sample
     with pytest.raises(ValueError, match=r"^est_t: .*est_t\[1\]"):
         align_to_truth(np.array([0.0, np.nan]), np.array([0.0, 0.5, 1.0]))
+
+
+def test_along_cross_errors_docstring_states_shapes():
+    doc = along_cross_errors.__doc__
+    assert "est_xy, true_xy : (n, 2)" in doc and "direction : (n,)" in doc
+    assert "each (n,) metres" in doc

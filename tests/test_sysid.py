@@ -333,3 +333,12 @@ def test_covariance_matches_stderr_and_swap():
         assert (hi - lo) / 2 == pytest.approx(fit.t_quantile * fit.stderr[k], rel=1e-12)
     _, (lo, hi) = equivalent_lag(fit)
     assert lo <= 1.3 <= hi
+
+
+def test_transfer_fit_nrmse_is_documented_as_fit_percent():
+    """``nrmse`` holds MATLAB's fit percent (100 = perfect), not an error: the docstring
+    must say so (the values are tested in test_nrmse_is_matlab_fit_percent)."""
+    from estimator.sysid import TransferFit
+
+    doc = " ".join(TransferFit.__doc__.split())
+    assert "fit percent" in doc and "100 = perfect" in doc and "higher is better" in doc

@@ -560,3 +560,11 @@ def test_heading_exactly_west_is_plus_pi(method):
     y = df["yaw"].to_numpy()
     assert np.all((y > -math.pi) & (y <= math.pi))
     np.testing.assert_allclose(y, math.pi, atol=1e-9)
+
+
+def test_detect_turning_docstring_states_inputs_and_source():
+    from estimator.tracking import detect_turning
+
+    doc = " ".join(detect_turning.__doc__.split())
+    assert "Section 3.4.2.1" in doc
+    assert "obs : (n, m, 2) metres" in doc and "t : (n,) seconds" in doc
