@@ -14,17 +14,30 @@ import numpy as np
 
 from experiments.spec import REPO
 
-__all__ = ["code_version", "git_describe"]
+__all__ = ["CODE_PATHS", "code_version", "git_describe"]
+
+#: What "the code" is for provenance: uncommitted changes here mark a version ``-dirty``.
+#: Generated results are not code, so regenerating them does not taint the next run.
+CODE_PATHS = ("estimator", "sim", "experiments", "models", "pyproject.toml")
+
+
+def _git(*args: str) -> str | None:
+    try:
+        out = subprocess.run(["git", "-C", str(REPO), *args], capture_output=True, text=True,
+                             timeout=10, check=True)
+    except (OSError, subprocess.SubprocessError):
+        return None
+    return out.stdout.strip()
 
 
 def git_describe() -> str:
-    """``git describe --always --dirty`` of the checkout, or "unknown (not a git checkout)"."""
-    try:
-        out = subprocess.run(["git", "-C", str(REPO), "describe", "--always", "--dirty"],
-                             capture_output=True, text=True, timeout=10, check=True)
-        return out.stdout.strip() or "unknown (not a git checkout)"
-    except (OSError, subprocess.SubprocessError):
+    """``git describe --always`` of the checkout, plus ``-dirty`` when :data:`CODE_PATHS`
+    have uncommitted changes; "unknown (not a git checkout)" without git."""
+    rev = _git("describe", "--always", "--tags")
+    if not rev:
         return "unknown (not a git checkout)"
+    dirty = _git("status", "--porcelain", "--untracked-files=no", "--", *CODE_PATHS)
+    return rev + ("-dirty" if dirty else "")
 
 
 def code_version() -> dict:
@@ -36,13 +49,9 @@ def code_version() -> dict:
         info["package"] = version("configpose")
     except Exception:  # noqa: BLE001 - not installed: leave it out
         info["package"] = None
-    for key, cmd in (("git_describe", ["git", "describe", "--always", "--dirty", "--tags"]),
-                     ("git_commit", ["git", "rev-parse", "HEAD"])):
-        try:
-            info[key] = subprocess.run(cmd, cwd=REPO, capture_output=True, text=True, check=False,
-                                       timeout=10).stdout.strip() or None
-        except Exception:  # noqa: BLE001 - no git: leave it out
-            info[key] = None
+    describe = git_describe()
+    info["git_describe"] = None if describe.startswith("unknown") else describe
+    info["git_commit"] = _git("rev-parse", "HEAD") or None
     info["python"] = platform.python_version()
     info["numpy"] = np.__version__
     try:

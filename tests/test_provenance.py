@@ -1,0 +1,41 @@
+"""Provenance: regenerated results do not mark the code dirty; code changes do."""
+
+import subprocess
+
+import pytest
+
+import experiments.provenance as prov
+
+
+def _git(repo, *args):
+    subprocess.run(["git", "-C", str(repo), *args], check=True, capture_output=True)
+
+
+@pytest.fixture
+def repo(tmp_path, monkeypatch):
+    for d in ("estimator", "results"):
+        (tmp_path / d).mkdir()
+    (tmp_path / "estimator" / "a.py").write_text("x = 1\n")
+    (tmp_path / "results" / "tables.md").write_text("old\n")
+    _git(tmp_path, "init", "-q")
+    _git(tmp_path, "add", ".")
+    _git(tmp_path, "-c", "user.name=t", "-c", "user.email=t@t", "commit", "-qm", "init")
+    monkeypatch.setattr(prov, "REPO", tmp_path)
+    return tmp_path
+
+
+def test_results_changes_are_not_dirty_code_changes_are(repo):
+    clean = prov.git_describe()
+    assert clean and not clean.endswith("-dirty") and not clean.startswith("unknown")
+    (repo / "results" / "tables.md").write_text("regenerated\n")
+    assert prov.git_describe() == clean
+    (repo / "estimator" / "a.py").write_text("x = 2\n")
+    assert prov.git_describe() == clean + "-dirty"
+    info = prov.code_version()
+    assert info["git_describe"] == clean + "-dirty" and len(info["git_commit"]) == 40
+
+
+def test_outside_a_checkout(tmp_path, monkeypatch):
+    monkeypatch.setattr(prov, "REPO", tmp_path)
+    assert prov.git_describe() == "unknown (not a git checkout)"
+    assert prov.code_version()["git_describe"] is None
