@@ -76,6 +76,26 @@ _COPLANAR_REL = 1e-9     # smallest singular value of the difference matrix vs t
 _NLS_SINGULAR_REL = 1e-12
 
 
+def _well_conditioned(A: np.ndarray) -> np.ndarray:
+    """(M,) bool for symmetric PSD (M, 3, 3): smallest eigenvalue > _NLS_SINGULAR_REL x largest.
+
+    Cheap sufficient test first: det > rel * trace^3 implies lambda_min >= det / lambda_max^2
+    > rel * lambda_max (trace >= lambda_max). Only rows failing it (rare: degenerate ones)
+    get the exact eigenvalue test, so the Gauss-Newton loop does not pay an eigen-
+    decomposition per row and iteration.
+    """
+    det = (A[:, 0, 0] * (A[:, 1, 1] * A[:, 2, 2] - A[:, 1, 2] * A[:, 2, 1])
+           - A[:, 0, 1] * (A[:, 1, 0] * A[:, 2, 2] - A[:, 1, 2] * A[:, 2, 0])
+           + A[:, 0, 2] * (A[:, 1, 0] * A[:, 2, 1] - A[:, 1, 1] * A[:, 2, 0]))
+    tr = A[:, 0, 0] + A[:, 1, 1] + A[:, 2, 2]
+    ok = det > _NLS_SINGULAR_REL * tr ** 3
+    rest = np.flatnonzero(~ok)
+    if rest.size:
+        ev = np.linalg.eigvalsh(A[rest])                      # ascending, >= 0 up to rounding
+        ok[rest] = ev[:, 0] > _NLS_SINGULAR_REL * ev[:, -1]
+    return ok
+
+
 @dataclass(frozen=True)
 class TrilaterationInfo:
     """Per-row diagnostics of a trilateration call.
@@ -447,8 +467,7 @@ def nonlinear_ls(receivers: np.ndarray, ranges: np.ndarray, *, side: int = 1,
         f = dist - r[idx]
         JtJ = np.einsum("mki,mkj->mij", J, J)
         Jtf = np.einsum("mki,mk->mi", J, f)
-        ev = np.linalg.eigvalsh(JtJ)                          # ascending, >= 0 up to rounding
-        ok &= ev[:, 0] > _NLS_SINGULAR_REL * ev[:, -1]
+        ok &= _well_conditioned(JtJ)
         if not ok.all():
             # stop these rows at their current iterate; the others step as before
             degenerate[idx[~ok]] = True

@@ -254,3 +254,19 @@ def test_nonlinear_ls_degenerate_rows_are_flagged_and_do_not_touch_the_batch():
     # the direct methods never report degenerate rows
     _, i_lin = T.linear_ls(np.r_[flat[:3], [[0.0, 0.0, 1.0]]], R, return_info=True)
     assert not i_lin.degenerate.any() and not i3.degenerate
+
+
+def test_nls_conditioning_test_equals_the_eigenvalue_rule():
+    """The cheap determinant pre-test classifies exactly like lambda_min > rel * lambda_max."""
+    from estimator.trilateration import _NLS_SINGULAR_REL, _well_conditioned
+
+    rng = np.random.default_rng(5)
+    M = rng.normal(size=(20000, 6, 3))
+    # a tenth nearly rank-deficient, spanning condition numbers around the 1e12 threshold
+    k = 2000
+    M[:k, :, 2] = M[:k, :, 1] + rng.normal(0, 1, (k, 1)) * 10 ** rng.uniform(-9, -4, (k, 1))
+    A = np.einsum("mki,mkj->mij", M, M)
+    ev = np.linalg.eigvalsh(A)
+    exact = ev[:, 0] > _NLS_SINGULAR_REL * ev[:, -1]
+    assert 0 < (~exact).sum() < k  # both sides of the threshold are exercised
+    np.testing.assert_array_equal(_well_conditioned(A), exact)
