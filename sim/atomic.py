@@ -19,13 +19,13 @@ def atomic_write(path: str | os.PathLike, write: Callable[[Path], object]) -> Pa
     """Call ``write(tmp)`` on a unique temporary path beside ``path``, then move it in place.
 
     ``write`` receives the temporary :class:`~pathlib.Path` and must create the file there
-    (e.g. ``lambda p: df.to_parquet(p)``). The temporary name keeps ``path``'s suffixes, for
-    writers that choose a format by suffix (``np.savez`` appends ``.npz`` otherwise).
-    Returns ``path``.
+    (e.g. ``lambda p: df.to_parquet(p)``). The temporary name is hidden and ends in ``.tmp``
+    (``.<name>.<pid>.<random>.tmp``), so a torn file left by a killed process never matches
+    a glob for finished files such as ``*.json``; writers that pick a format from the suffix
+    must be given it explicitly (or write through an open file handle). Returns ``path``.
     """
     final = Path(path)
-    tmp = final.with_name(f".{final.stem}.{os.getpid()}.{uuid.uuid4().hex[:12]}.tmp"
-                          f"{''.join(final.suffixes) or ''}")
+    tmp = final.with_name(f".{final.name}.{os.getpid()}.{uuid.uuid4().hex[:12]}.tmp")
     try:
         write(tmp)
         os.replace(tmp, final)
