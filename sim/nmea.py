@@ -93,6 +93,8 @@ class LogFixes:
     includes no-fix epochs, whose lat/lon are NaN. lat, lon : (k,) degrees WGS 84.
     quality : (k,) int, GGA fix quality (RMC-only epochs: 1 for 'A', 0 for 'V').
     skipped : counts per class (see module docstring). meta : source details.
+    height_m : (k,) metres above the WGS 84 ellipsoid, NaN where the log has none, or None
+        when the reader does not provide heights at all.
     """
 
     name: str
@@ -103,6 +105,7 @@ class LogFixes:
     date_known: bool
     skipped: dict = field(default_factory=dict)
     meta: dict = field(default_factory=dict)
+    height_m: np.ndarray | None = None
 
     @property
     def valid(self) -> np.ndarray:
