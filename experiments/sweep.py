@@ -177,36 +177,16 @@ def _observations(cell: Cell, truth, config, ctx: CellContext) -> np.ndarray:
     if key in ctx.memo:
         ctx.memo.move_to_end(key)
         return ctx.memo[key]
-    if cell.noise == "none":
-        obs = truth.sensor_positions[:, :, :2].copy()
-        obs[:, ~config.alive_mask] = np.nan
-    else:
-        from sim.gps import GpsNoiseModel, StationarySession, replay, synthesize_session
+    from sim.gps import StationarySession, observe
 
+    if cell.noise == "none":
+        obs = observe(truth, config, None)
+    else:
         rng = cell_rng(ctx.spec_seed, cell.seed, STREAM_NOISE)
-        if cell.noise.startswith("session:"):
-            session = StationarySession.load(cell.file("noise")).after_power_failure()
-        else:
-            # A long stationary session (the dissertation's ~4000 s recording, Section 4.1.1),
-            # cut after its power failure as the dissertation did; the moving run replays a
-            # random stretch of it, so each receiver's error is relative to its mean over the
-            # whole session (Section 4.1.2), not over the (shorter) run.
-            model = GpsNoiseModel.load(cell.file("noise"))
-            ov = json.loads(cell.noise_overrides)
-            if ov:
-                model = model.with_overrides(**ov)
-            dt = float(np.median(np.diff(truth.t))) if truth.n > 1 else 1.0
-            lost = model.power_failure_start_s + model.power_failure_duration_s \
-                if model.power_failure_duration_s > 0 else 0.0
-            duration = max(ctx.session_s, truth.n * dt) + lost
-            session = synthesize_session(model, config, duration, rng,
-                                         rate_hz=1.0 / dt).after_power_failure()
-        if session.n < truth.n:
-            raise ValueError(f"noise: session of {session.n} samples is shorter than the run "
-                             f"({truth.n} samples); use a longer session")
-        start = int(rng.integers(0, session.n - truth.n + 1))
-        obs = replay(truth, session, start=start, mode="error")
-    obs.setflags(write=False)
+        noise = (StationarySession.load(cell.file("noise")) if cell.noise.startswith("session:")
+                 else cell.file("noise"))
+        obs = observe(truth, config, noise, rng=rng, session_s=ctx.session_s,
+                      noise_overrides=json.loads(cell.noise_overrides) or None)
     ctx.memo[key] = obs
     while len(ctx.memo) > 6:
         ctx.memo.popitem(last=False)

@@ -672,3 +672,55 @@ def replay(truth: Truth, session: StationarySession, *, rng: np.random.Generator
         rows = (start + np.arange(n)) % ns
     dev, _ = _centre(session.obs[:, idx])                     # (ns, m, 2), zero-mean per receiver
     return truth.sensor_positions[:, :, :2] + dev[rows]
+
+
+# --------------------------------------------------------------------------- observe
+def observe(truth: Truth, config: SensorConfig,
+            noise: str | Path | GpsNoiseModel | StationarySession | None, *,
+            rng: np.random.Generator | None = None, session_s: float = 4000.0,
+            noise_overrides: dict | None = None) -> np.ndarray:
+    """A cell's noisy GPS observations of a simulated truth: the one way the sweep, the
+    tuning script and the tests build them (dissertation Sections 4.1.1-4.1.2).
+
+    truth : Truth with sensor_positions (n, m, 3), metres, at the GPS rate.
+    config : the SensorConfig the truth was simulated with (dead sensors stay NaN).
+    noise : None or "none" (noise-free: the true antenna positions, dead ones NaN); a
+        :class:`GpsNoiseModel` or a noise-model name/file (``models/noise/``); or a
+        :class:`StationarySession` (a saved or imported recording).
+    rng : the noise stream (required unless noise-free).
+    session_s : length of the synthesized stationary session, s (the dissertation's
+        recording lasted ~4000 s, Section 4.1.1); at least the run's length is used.
+    noise_overrides : model fields replaced before synthesis (e.g. ``common_fraction``).
+
+    A model synthesizes a session of ``session_s`` seconds (plus the power failure), cut
+    after its power failure as the dissertation did; a session is cut the same way. The
+    run replays a random stretch of it (start drawn from ``rng``): truth + (observation -
+    that receiver's mean over the whole session), :func:`replay` with ``mode="error"``.
+    Returns obs (n, m, 2) float64 metres, NaN = missing, read-only.
+    """
+    if noise is None or (isinstance(noise, str) and noise == "none"):
+        obs = truth.sensor_positions[:, :, :2].copy()
+        obs[:, ~config.alive_mask] = np.nan
+        obs.setflags(write=False)
+        return obs
+    if not isinstance(rng, np.random.Generator):
+        raise ValueError(f"rng: noisy observations need a numpy.random.Generator, got {rng!r}")
+    if isinstance(noise, StationarySession):
+        session = noise.after_power_failure()
+    else:
+        model = noise if isinstance(noise, GpsNoiseModel) else GpsNoiseModel.load(noise)
+        if noise_overrides:
+            model = model.with_overrides(**noise_overrides)
+        dt = float(np.median(np.diff(truth.t))) if truth.n > 1 else 1.0
+        lost = (model.power_failure_start_s + model.power_failure_duration_s
+                if model.power_failure_duration_s > 0 else 0.0)
+        duration = max(float(session_s), truth.n * dt) + lost
+        session = synthesize_session(model, config, duration, rng,
+                                     rate_hz=1.0 / dt).after_power_failure()
+    if session.n < truth.n:
+        raise ValueError(f"noise: session of {session.n} samples is shorter than the run "
+                         f"({truth.n} samples); use a longer session")
+    start = int(rng.integers(0, session.n - truth.n + 1))
+    obs = replay(truth, session, start=start, mode="error")
+    obs.setflags(write=False)
+    return obs

@@ -360,3 +360,35 @@ def test_replay_ignores_receiver_offsets(offset, seed):
     truth = _truth(120)
     a, b = replay(truth, s), replay(truth, s2)
     assert np.allclose(a, b, equal_nan=True, atol=1e-9 * (1 + max(map(abs, offset))))
+
+
+def test_observe_is_the_sweeps_composition_and_noise_free_is_truth():
+    """sim.gps.observe = synthesize (session_s + power failure) -> cut -> random stretch ->
+    replay; the same Generator state gives the same array, noise-free gives the truth."""
+    from estimator.configuration import SensorConfig
+    from sim.gps import GpsNoiseModel, observe, replay, synthesize_session
+    from sim.truth import Truth
+
+    cfg = SensorConfig.load("rover_gps8").planar()
+    n = 50
+    t = np.arange(n, dtype=float)
+    pos = np.zeros((n, cfg.m, 3))
+    pos[:, :, :2] = cfg.body_positions[None, :, :2] + np.c_[0.2 * t, 0 * t][:, None, :]
+    truth = Truth(t=t, sensor_positions=pos, sensor_names=cfg.names,
+                  cg=pos[:, :3].mean(axis=1), yaw=np.zeros(n), turning=np.zeros(n, bool),
+                  speed=np.full(n, 0.2), yaw_rate=np.zeros(n), meta={})
+    clean = observe(truth, cfg, None)
+    assert not clean.flags.writeable
+    alive = cfg.alive_mask
+    assert np.array_equal(clean[:, alive], pos[:, alive, :2])
+    assert np.isnan(clean[:, ~alive]).all()
+    model = GpsNoiseModel.load("gps_stationary")
+    a = observe(truth, cfg, model, rng=np.random.default_rng(5), session_s=600.0)
+    rng = np.random.default_rng(5)
+    lost = model.power_failure_start_s + model.power_failure_duration_s
+    session = synthesize_session(model, cfg, 600.0 + lost, rng).after_power_failure()
+    start = int(rng.integers(0, session.n - n + 1))
+    b = replay(truth, session, start=start, mode="error")
+    assert np.array_equal(a, b, equal_nan=True)
+    with pytest.raises(ValueError, match="rng"):
+        observe(truth, cfg, model)

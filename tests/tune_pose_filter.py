@@ -2,8 +2,8 @@
 
 Not a test (pytest does not collect it). Run: ``python tests/tune_pose_filter.py``.
 Data: Path 1 (square100) driven by the MuJoCo rover, GPS errors from the default stationary
-noise model (models/noise/gps_stationary.toml, 4000 s sessions like the dissertation's)
-replayed onto the truth, four sessions spawned from seed 20261122, which no test and no
+noise model (models/noise/gps_stationary.toml) built exactly as the sweep builds them
+(sim.gps.observe: 4000 s sessions cut after the power failure, a random stretch replayed), four sessions spawned from seed 20261122, which no test and no
 sweep preset uses. Criterion: mean Euclidean CG error over the whole path.
 """
 
@@ -18,7 +18,7 @@ from estimator.configuration import SensorConfig
 from estimator.metrics import cg_errors
 from estimator.pose_filter import PoseFilterParams
 from estimator.tracking import track
-from sim.gps import GpsNoiseModel, replay, synthesize_session
+from sim.gps import observe
 from sim.rover import simulate_rover
 
 SEED = 20261122
@@ -28,14 +28,14 @@ N_SESSIONS = 4
 def main() -> None:
     cfg = SensorConfig.load("rover_gps8")
     truth = simulate_rover("square100", cfg)
-    model = GpsNoiseModel.load("gps_stationary")
     t = truth.t
     cg = truth.cg[:, :2]
     runs = []
     for child in np.random.SeedSequence(SEED).spawn(N_SESSIONS):
         rng = np.random.default_rng(child)
-        session = synthesize_session(model, cfg, 4000.0, rng)  # the dissertation: ~4000 s
-        runs.append(replay(truth, session, rng=rng))
+        # the sweep's observations (sim.gps.observe): a ~4000 s session cut after its power
+        # failure, a random stretch replayed onto the truth
+        runs.append(observe(truth, cfg, "gps_stationary", rng=rng, session_s=4000.0))
 
     def score(**kw):
         errs = []
