@@ -60,6 +60,7 @@ import copy
 import hashlib
 import itertools
 import json
+import math
 import re
 import tomllib
 from collections.abc import Iterable
@@ -119,6 +120,17 @@ AXES: dict[str, Any] = {
     "turning": "controller",
 }
 _DICT_AXES = ("path_overrides", "noise_overrides")
+
+#: Validation limits (checked on load, before anything is allocated or simulated).
+#: A window longer than this many epochs is no sliding window (Path 2 has ~4000 epochs).
+MAX_WINDOW = 100_000
+#: A synthesized stationary session longer than 7 days (the NMEA importer's grid limit too)
+#: would only allocate memory: the dissertation's recording lasted ~4000 s (Section 4.1.1).
+MAX_SESSION_S = 7 * 86400.0
+#: Seeds per spec and cells per spec: a grid above this is a typo, not an experiment
+#: (the thesis preset has 780 cells; expanding 1e6 cells alone takes about a minute).
+MAX_SEEDS = 10_000
+MAX_CELLS = 200_000
 _TOP = {"name", "description", "seed", "seeds", "masks", "sim_seed", "session_s", "defaults",
         "grid", "epochs"}
 
@@ -136,13 +148,21 @@ def _resolve(kind: str, value: str, base: Path, where: str) -> Path:
     """Resolve a resource name to a file: ``models/<kind>/<name>.toml`` or a path."""
     p = Path(value)
     if p.suffix or "/" in value:
-        cand = p if p.is_absolute() else base / p
-        if not cand.is_file():
-            cand2 = REPO / p
-            if not p.is_absolute() and cand2.is_file():
-                return cand2.resolve()
-            raise SpecError(f"{where}: no such file {value!r} (looked in {base} and {REPO})")
-        return cand.resolve()
+        if p.is_absolute():
+            if not p.is_file():
+                raise SpecError(f"{where}: no such file {value!r}")
+            return p.resolve()
+        # a relative name is a file shipped beside the spec (or in the project): it may not
+        # climb out of both, e.g. '../../../../etc/hostname' (give an absolute path instead)
+        for root in (base, REPO):
+            cand = (root / p).resolve()
+            if cand.is_file() and cand.is_relative_to(root.resolve()):
+                return cand
+        inside = [r for r in (base, REPO) if (r / p).resolve().is_relative_to(r.resolve())]
+        if not inside:
+            raise SpecError(f"{where}: relative path {value!r} leaves the spec's folder "
+                            f"({base}) and the project; give an absolute path")
+        raise SpecError(f"{where}: no such file {value!r} (looked in {base} and {REPO})")
     cand = MODELS / kind / f"{value}.toml"
     if not cand.is_file():
         known = sorted(q.stem for q in (MODELS / kind).glob("*.toml"))
@@ -247,15 +267,16 @@ class Spec:
             raise SpecError(f"{src}: sim_seed: must be a non-negative integer, got {sim_seed!r}")
         session_s = data.get("session_s", 4000.0)
         if (not isinstance(session_s, (int, float)) or isinstance(session_s, bool)
-                or not 0 < session_s < float("inf")):
-            raise SpecError(f"{src}: session_s: must be a positive number of seconds, "
-                            f"got {session_s!r}")
+                or not 0 < session_s <= MAX_SESSION_S):
+            raise SpecError(f"{src}: session_s: must be a number of seconds in "
+                            f"(0, {MAX_SESSION_S:.0f}] (7 days), got {session_s!r}")
         seeds_raw = data.get("seeds", 1)
         if _is_int(seeds_raw):
-            if seeds_raw < 1:
-                raise SpecError(f"{src}: seeds: count must be >= 1, got {seeds_raw!r}")
+            if not 1 <= seeds_raw <= MAX_SEEDS:
+                raise SpecError(f"{src}: seeds: count must be in [1, {MAX_SEEDS}], "
+                                f"got {seeds_raw!r}")
             seeds = tuple(range(seeds_raw))
-        elif isinstance(seeds_raw, list) and seeds_raw:
+        elif isinstance(seeds_raw, list) and 0 < len(seeds_raw) <= MAX_SEEDS:
             for i, s in enumerate(seeds_raw):
                 if not _is_int(s) or s < 0:
                     raise SpecError(f"{src}: seeds[{i}]: must be a non-negative integer, got {s!r}")
@@ -263,8 +284,8 @@ class Spec:
                 raise SpecError(f"{src}: seeds: duplicate values in {seeds_raw!r}")
             seeds = tuple(int(s) for s in seeds_raw)
         else:
-            raise SpecError(f"{src}: seeds: must be a count >= 1 or a non-empty list of "
-                            f"integers, got {seeds_raw!r}")
+            raise SpecError(f"{src}: seeds: must be a count in [1, {MAX_SEEDS}] or a list of "
+                            f"1 to {MAX_SEEDS} integers, got {seeds_raw!r}"[:300])
         masks_raw = data.get("masks", list(MASKS))
         masks = tuple(_as_list(masks_raw, f"{src}: masks"))
         for i, mk in enumerate(masks):
@@ -305,10 +326,14 @@ class Spec:
         epochs = data.get("epochs")
         if epochs is not None:
             epochs = _check_epochs(epochs, f"{src}: epochs", base)
+        n_grid = sum(math.prod(len(b[k]) for k in b if k != "name") for b in grid)
+        if n_grid * len(seeds) > MAX_CELLS:
+            raise SpecError(f"{src}: grid: {n_grid} axis combinations x {len(seeds)} seeds = "
+                            f"{n_grid * len(seeds)} cells, more than {MAX_CELLS}; split the spec")
         spec = cls(name=name, description=desc, seed=int(seed), seeds=seeds, masks=masks,
                    sim_seed=int(sim_seed), defaults=defaults, grid=tuple(grid), epochs=epochs,
                    session_s=float(session_s), source=src, base_dir=base, raw=data)
-        spec.expand()   # resolve every file now, so bad names fail at load time
+        spec.expand()   # resolve and check every file now, so bad names fail at load time
         return spec
 
     # ---------------------------------------------------------------- grid
@@ -409,6 +434,8 @@ class Spec:
                 path = _resolve(kind, val, self.base_dir, f"{where}.{axis}")
             k = (kind, str(path))
             if k not in hashes:
+                if axis != "noise" or not val.startswith("session:"):
+                    _check_kind(kind, path, f"{where}.{axis}", val)
                 hashes[k] = _sha(path)
             out[axis] = (str(path), hashes[k])
         return out
@@ -464,6 +491,29 @@ class Spec:
 
 
 # --------------------------------------------------------------------------- validation
+def _check_kind(kind: str, path: Path, where: str, value: str) -> None:
+    """The file must load as what the axis names: a path file as ``path``, a sensor
+    configuration as ``config``, a GPS noise model as ``noise`` (a configuration given as
+    a path, or any other file, fails here and not in the middle of a run)."""
+    try:
+        if kind == "paths":
+            from sim.paths import load_path
+
+            load_path(path)
+        elif kind == "configs":
+            from estimator.configuration import SensorConfig
+
+            SensorConfig.load(path)
+        else:
+            from sim.gps import GpsNoiseModel
+
+            GpsNoiseModel.load(path)
+    except (ValueError, TypeError, OSError, UnicodeDecodeError) as exc:
+        what = {"paths": "path file", "configs": "sensor configuration",
+                "noise": "GPS noise model"}[kind]
+        raise SpecError(f"{where}: {value!r} is not a {what}: {exc}") from None
+
+
 def _is_int(v: object) -> bool:
     return isinstance(v, int) and not isinstance(v, bool)
 
@@ -493,8 +543,9 @@ def _check_axis(axis: str, v: object, where: str, base: Path, *, scalar: bool) -
                 raise SpecError(f"{where}: {bad} cannot be overridden (add a path file instead)")
         return dict(v)
     if axis in ("window", "dyn_window"):
-        if not _is_int(v) or v < 1:
-            raise SpecError(f"{where}: must be a positive integer, got {v!r}")
+        if not _is_int(v) or not 1 <= v <= MAX_WINDOW:
+            raise SpecError(f"{where}: must be a positive integer, got {v!r} "
+                            f"(at most {MAX_WINDOW} epochs)")
         return int(v)
     if not isinstance(v, str) or not v:
         raise SpecError(f"{where}: must be a non-empty string, got {v!r}")
@@ -568,7 +619,10 @@ def load_spec(path_or_name: str | Path) -> Spec:
     if not p.is_file():
         raise SpecError(f"spec {str(path_or_name)!r}: no such file")
     try:
-        data = tomllib.loads(p.read_text())
+        data = tomllib.loads(p.read_text(encoding="utf-8"))
+    except UnicodeDecodeError as exc:
+        raise SpecError(f"{p}: not UTF-8 text (byte {exc.start}: {exc.object[exc.start:exc.start + 1]!r}); "
+                        "a spec is a TOML file") from None
     except tomllib.TOMLDecodeError as exc:
         raise SpecError(f"{p}: not valid TOML: {exc}") from None
     return Spec.from_dict(data, source=str(p), base_dir=p.resolve().parent)

@@ -175,3 +175,63 @@ def test_epochs_selection():
     want = {(c.seed, c.window) for c in spec.expand() if spec.epochs_wanted(c)}
     assert want == {(1, 5)}
     assert not any(_spec().epochs_wanted(c) for c in _spec().expand())
+
+
+# ---------------------------------------------------------------- limits and kinds (issue 13)
+@pytest.mark.parametrize("changes, field", [
+    ({"session_s": 1e15}, "session_s: must be a number of seconds in"),
+    ({"seeds": 1_000_000_000}, r"seeds: count must be in \[1, 10000\]"),
+    ({"seeds": list(range(10_001))}, "seeds: must be a count"),
+    ({"grid": [{"path": "square20", "window": [1_000_000_000]}]}, r"window\[0\]: must be a "
+                                                                   "positive integer"),
+])
+def test_physical_ranges_are_checked_on_load(changes, field):
+    with pytest.raises(SpecError, match=field):
+        _spec(**changes)
+
+
+def test_grid_size_is_checked_before_expansion():
+    import time
+
+    t0 = time.perf_counter()
+    with pytest.raises(SpecError, match=r"grid: 1000 axis combinations x 1000 seeds = 1000000 "
+                                        r"cells, more than"):
+        _spec(seeds=1000, grid=[{"path": "square20", "window": list(range(1, 1001))}])
+    assert time.perf_counter() - t0 < 2.0   # refused before any expansion (was ~1 min)
+
+
+@pytest.mark.parametrize("axis, value, what", [
+    ("config", "square20.toml", "is not a sensor configuration"),   # a path file as config
+    ("path", "rover_gps8.toml", "is not a path file"),              # a config as path
+    ("noise", "rover_gps8.toml", "is not a GPS noise model"),
+])
+def test_a_file_of_the_wrong_kind_is_refused_on_load(tmp_path, axis, value, what):
+    kind = {"square20.toml": "paths", "rover_gps8.toml": "configs"}[value]
+    shutil.copy(REPO / "models" / kind / value, tmp_path / value)
+    block = {"path": "square20", "window": 1, "noise": "none", axis: value}
+    spec = tmp_path / "s.toml"
+    spec.write_text('name = "k"\n[[grid]]\n' + "".join(
+        f"{k} = {v!r}\n".replace("'", '"') for k, v in block.items()))
+    with pytest.raises(SpecError, match=f"grid\\[0\\].{axis}: '{value}' {what}"):
+        load_spec(spec)
+
+
+def test_relative_paths_may_not_leave_the_spec_folder_and_the_project(tmp_path):
+    sub = tmp_path / "specs"
+    sub.mkdir()
+    (sub / "s.toml").write_text(textwrap.dedent("""
+        name = "k"
+        [[grid]]
+        path = "square20"
+        window = 1
+        config = "../../../../../../../../../etc/hostname"
+    """))
+    with pytest.raises(SpecError, match="leaves the spec's folder"):
+        load_spec(sub / "s.toml")
+
+
+def test_non_utf8_spec_is_a_spec_error(tmp_path):
+    p = tmp_path / "s.toml"
+    p.write_bytes(b'name = "k\xff\xfe"\n')
+    with pytest.raises(SpecError, match="not UTF-8"):
+        load_spec(p)
