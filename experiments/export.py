@@ -87,12 +87,13 @@ def _epochs(results: Path, cell: pd.Series) -> pd.DataFrame:
     # recompute this one cell from the recorded spec (the truth comes from the cache)
     from collections import OrderedDict
 
-    from experiments.spec import Spec
+    from experiments.spec import REPO, Spec
     from experiments.sweep import CellContext, CellStore, evaluate_cell, simulate_truth
 
     man = json.loads((results / "manifest.json").read_text())
+    base = Path(man.get("spec_base_dir", "."))
     spec = Spec.from_dict(man["spec_raw"], source=man["spec"]["source"],
-                          base_dir=Path(man.get("spec_base_dir", ".")))
+                          base_dir=base if base.is_absolute() else REPO / base)
     match = [c for c in spec.expand() if c.key == cell["key"]]
     if not match:
         raise ValueError(f"cell {cell['key']}: not in the recorded spec (files changed since?)")

@@ -28,6 +28,7 @@ from __future__ import annotations
 import argparse
 import json
 import sys
+from collections.abc import Callable
 from pathlib import Path
 
 import matplotlib
@@ -395,18 +396,31 @@ def _draw(out: Path, task: str) -> list[Path]:
     return written
 
 
-def draw_all(out_dir: str | Path, jobs: int = 1) -> list[Path]:
+def figure_tasks() -> tuple:
+    """The figure groups :func:`draw_all` draws (one unit of progress each)."""
+    return tuple(_TASKS)
+
+
+def draw_all(out_dir: str | Path, jobs: int = 1,
+             on_done: Callable[[list[Path]], object] | None = None) -> list[Path]:
     """Draw every figure whose data the results folder holds; returns the files written.
 
-    jobs > 1 draws the figure groups in that many processes (joblib loky).
+    jobs > 1 draws the figure groups in that many processes (joblib loky). ``on_done`` is
+    called with each group's files as the group finishes (progress).
     """
     out = Path(out_dir)
+    parts = []
     if jobs > 1:
         from joblib import Parallel, delayed
 
-        parts = Parallel(n_jobs=jobs, backend="loky")(delayed(_draw)(out, t) for t in _TASKS)
+        it = Parallel(n_jobs=jobs, backend="loky", return_as="generator")(
+            delayed(_draw)(out, t) for t in _TASKS)
     else:
-        parts = [_draw(out, t) for t in _TASKS]
+        it = (_draw(out, t) for t in _TASKS)
+    for part in it:
+        parts.append(part)
+        if on_done is not None:
+            on_done(part)
     return [p for part in parts for p in part]
 
 

@@ -58,6 +58,7 @@ from sim.atomic import atomic_write, atomic_write_text
 
 __all__ = [
     "Results",
+    "SweepError",
     "cell_rng",
     "code_version",
     "evaluate_cell",
@@ -72,6 +73,11 @@ STREAM_NOISE, STREAM_ESTIMATOR = 0, 1
 
 #: A cell function: (cell, truth, context) -> CellOutput. Pluggable for tests.
 CellFn = Callable[[Cell, Any, "CellContext"], "CellOutput"]
+
+
+class SweepError(RuntimeError):
+    """A run cannot go on (unreachable scheduler, unwritable results folder); the message is
+    one line that names the cause and what to do. The CLI prints it without a traceback."""
 
 
 # --------------------------------------------------------------------------- records
@@ -382,19 +388,29 @@ class CellStore:
         """Keys of every finished cell, whatever code computed it."""
         return {p.stem for p in self.cells_dir.glob("*.json")}
 
-    def stale(self, keys: Iterable[str], code: str) -> set[str]:
-        """Those of ``keys`` whose stored record was computed by other code than ``code``
-        (see :func:`cell_code_digest`); a resumed run recomputes them."""
-        out = set()
+    def check(self, keys: Iterable[str], code: str) -> tuple[set[str], set[str]]:
+        """Sort finished ``keys`` into (stale, damaged); a resumed run recomputes both.
+
+        stale : the stored record was computed by other code than ``code``
+            (see :func:`cell_code_digest`).
+        damaged : the record cannot be read (empty, truncated or not JSON, e.g. a disk that
+            filled up), or it says it has per-epoch estimates and their parquet is missing
+            or unreadable (only the parquet footer is read: cheap, and it catches truncation).
+        """
+        stale, damaged = set(), set()
         for k in keys:
             try:
                 rec = json.loads((self.cells_dir / f"{k}.json").read_text())
+                ok = isinstance(rec, dict) and isinstance(rec.get("rows"), list)
             except (OSError, ValueError):
-                out.add(k)
-                continue
-            if rec.get("code") != code:
-                out.add(k)
-        return out
+                ok = False
+            if not ok:
+                damaged.add(k)
+            elif rec.get("epochs") and not _parquet_readable(self.epochs_dir / f"{k}.parquet"):
+                damaged.add(k)
+            elif rec.get("code") != code:
+                stale.add(k)
+        return stale, damaged
 
     def clear(self, keys: Iterable[str]) -> None:
         for k in keys:
@@ -448,6 +464,17 @@ class CellStore:
         return out
 
 
+def _parquet_readable(path: Path) -> bool:
+    """Whether ``path`` is a complete parquet file (its footer parses)."""
+    import pyarrow.parquet as pq
+
+    try:
+        pq.read_metadata(path)
+    except (OSError, ValueError, Exception):  # noqa: BLE001 - pyarrow raises ArrowInvalid etc.
+        return False
+    return True
+
+
 # --------------------------------------------------------------------------- versions
 #: Source files whose code determines a cell's numbers (simulation, noise, estimation,
 #: scoring). Their digest is stored with every finished cell; a rerun recomputes the cells
@@ -496,12 +523,47 @@ def _iter_loky(batches, truths, spec, wants, jobs, cell_fn, store_dir, run_id
     yield from par(tasks)
 
 
+#: Seconds to wait for a Dask scheduler before giving up with a clear message.
+_CONNECT_TIMEOUT_S = 5
+
+
+def _no_scheduler(address: str, why: object) -> str:
+    return (f"cannot reach the Dask scheduler at {address} ({why}); start one with "
+            f"'dask scheduler --port 8786' and workers with 'dask worker {address}', "
+            "or drop --scheduler to use a local cluster")
+
+
+def check_scheduler(address: str, timeout_s: float = _CONNECT_TIMEOUT_S) -> None:
+    """Raise :class:`SweepError` unless a TCP connection to a ``tcp://host:port`` Dask
+    scheduler opens within ``timeout_s`` (checked before any simulation, so a wrong address
+    fails in seconds, not after the truths are built). Other schemes are left to Dask."""
+    import socket
+    from urllib.parse import urlsplit
+
+    u = urlsplit(address if "://" in address else f"tcp://{address}")
+    if u.scheme != "tcp":
+        return
+    try:
+        host, port = u.hostname, u.port
+    except ValueError as exc:
+        raise SweepError(f"--scheduler: bad address {address!r} ({exc})") from None
+    if not host or not port:
+        raise SweepError(f"--scheduler: expected tcp://HOST:PORT, got {address!r}")
+    try:
+        socket.create_connection((host, port), timeout=timeout_s).close()
+    except OSError as exc:
+        raise SweepError(_no_scheduler(address, exc)) from None
+
+
 def _iter_dask(batches, truths, spec, wants, jobs, cell_fn, scheduler, run_id):
     from distributed import Client, LocalCluster, as_completed
 
     cluster = None
     if scheduler:
-        client = Client(scheduler)
+        try:
+            client = Client(scheduler, timeout=f"{_CONNECT_TIMEOUT_S}s")
+        except (OSError, TimeoutError) as exc:
+            raise SweepError(_no_scheduler(scheduler, exc)) from None
     else:
         cluster = LocalCluster(n_workers=jobs, threads_per_worker=1, processes=True,
                                dashboard_address=None)
@@ -520,17 +582,33 @@ def _iter_dask(batches, truths, spec, wants, jobs, cell_fn, scheduler, run_id):
             cluster.close()
 
 
-def _simulate_all(cells: list[Cell], spec: Spec, jobs: int, truth_fn, cache_dir) -> dict:
+def _simulate_all(cells: list[Cell], spec: Spec, jobs: int, truth_fn, cache_dir,
+                  progress: bool = False) -> dict:
+    """The truth of every distinct (path, configuration) of ``cells``, simulated once (or
+    loaded from the truth cache), side by side in worker processes when jobs > 1."""
+    from tqdm import tqdm
+
     keys = list(OrderedDict.fromkeys(c.truth_key for c in cells))
     fn = truth_fn or simulate_truth
     args = [(pf, po, cf, spec.sim_seed, cache_dir) for (pf, po, cf) in keys]
-    if jobs > 1 and len(keys) > 1:
-        from joblib import Parallel, delayed
+    bar = tqdm(total=len(keys), unit="truth", desc=f"{spec.name}: simulate",
+               disable=not progress, dynamic_ncols=True)
+    try:
+        if jobs > 1 and len(keys) > 1:
+            from joblib import Parallel, delayed
 
-        truths = Parallel(n_jobs=min(jobs, len(keys)), backend="loky")(
-            delayed(fn)(*a) for a in args)
-    else:
-        truths = [fn(*a) for a in args]
+            truths = []
+            for tr in Parallel(n_jobs=min(jobs, len(keys)), backend="loky",
+                               return_as="generator")(delayed(fn)(*a) for a in args):
+                truths.append(tr)
+                bar.update()
+        else:
+            truths = []
+            for a in args:
+                truths.append(fn(*a))
+                bar.update()
+    finally:
+        bar.close()
     return dict(zip(keys, truths))
 
 
@@ -558,6 +636,8 @@ def run(spec: Spec | str | Path, *, out: str | Path | None = None, jobs: int | N
         raise ValueError(f"backend: must be 'loky' or 'dask', got {backend!r}")
     if scheduler and backend != "dask":
         raise ValueError("scheduler: only meaningful with backend='dask'")
+    if scheduler:
+        check_scheduler(scheduler)
     jobs = int(jobs) if jobs else (os.cpu_count() or 1)
     if jobs < 1:
         raise ValueError(f"jobs: must be >= 1, got {jobs!r}")
@@ -572,85 +652,120 @@ def run(spec: Spec | str | Path, *, out: str | Path | None = None, jobs: int | N
         store.clear(by_key)
     done = store.done() & set(by_key)
     code = cell_code_digest()
-    stale = store.stale(done, code)
+    stale, damaged = store.check(done, code)
     if stale:
         print(f"{spec.name}: {len(stale)} of {len(done)} finished cells were computed by other "
               "code (estimator/, sim/ or the runner changed since); recomputing them",
               file=sys.stderr)
-        store.clear(stale)
-        done -= stale
+    if damaged:
+        print(f"{spec.name}: {len(damaged)} of {len(done)} finished cells have damaged files "
+              "(unreadable cell record or per-epoch parquet, e.g. from a full disk); "
+              "recomputing them", file=sys.stderr)
+    store.clear(stale | damaged)
+    done -= stale | damaged
     todo = [c for c in cells if c.key not in done]
     run_id = uuid.uuid4().hex
 
-    manifest = {"spec": spec.to_dict(), "spec_raw": spec.raw, "spec_base_dir": str(spec.base_dir),
-                "spec_seed": spec.seed, "seeds": list(spec.seeds),
-                "code": code_version(), "started_utc": time.strftime("%Y-%m-%dT%H:%M:%SZ",
-                                                                      time.gmtime()),
-                "cell_code": code, "n_stale": len(stale),
-                "backend": backend, "jobs": jobs, "n_cells": len(cells), "status": "running"}
+    # manifest.json (tracked in reference runs) holds only what determines the numbers, with
+    # paths relative to the project, so a rerun of the same code and spec leaves it
+    # byte-identical; what varies per run (times, machine, resume counts) goes to the
+    # git-ignored sidecar run.local.json
+    manifest = {"spec": {**spec.to_dict(), "source": _rel(spec.source)}, "spec_raw": spec.raw,
+                "spec_base_dir": _rel(spec.base_dir), "spec_seed": spec.seed,
+                "seeds": list(spec.seeds), "code": code_version(), "cell_code": code,
+                "n_cells": len(cells), "status": "running"}
+    run_info = {"started_utc": time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime()),
+                "backend": backend, "jobs": jobs, "cpu_count": os.cpu_count(),
+                "n_stale": len(stale), "n_damaged": len(damaged)}
     _write_json(out_dir / "manifest.json", manifest)
+    _write_json(out_dir / "run.local.json", run_info)
     _write_spec_toml(spec, out_dir / "spec.toml")
 
-    t_sim0 = time.perf_counter()
-    truths = _simulate_all(todo, spec, jobs, truth_fn,
-                           str(cache_dir) if cache_dir else None) if todo else {}
-    t_sim = time.perf_counter() - t_sim0
+    try:
+        t_sim0 = time.perf_counter()
+        truths = _simulate_all(todo, spec, jobs, truth_fn,
+                               str(cache_dir) if cache_dir else None,
+                               progress=progress) if todo else {}
+        t_sim = time.perf_counter() - t_sim0
 
-    t_cells0 = time.perf_counter()
-    n_done_now = 0
-    if todo:
-        batches = _batches(todo, jobs)
-        wants = [[spec.epochs_wanted(c) for c in b] for b in batches]
-        from tqdm import tqdm
+        t_cells0 = time.perf_counter()
+        n_done_now = 0
+        if todo:
+            batches = _batches(todo, jobs)
+            wants = [[spec.epochs_wanted(c) for c in b] for b in batches]
+            from tqdm import tqdm
 
-        bar = tqdm(total=len(todo), unit="cell", desc=spec.name, disable=not progress,
-                   smoothing=0.1, dynamic_ncols=True)
-        if jobs == 1 and backend == "loky":
-            it = (_run_batch(b, truths[b[0].truth_key], spec.seed, spec.masks,
-                             spec.session_s, w, cell_fn, str(out_dir), run_id)
-                  for b, w in zip(batches, wants))
-        elif backend == "loky":
-            it = _iter_loky(batches, truths, spec, wants, jobs, cell_fn, str(out_dir), run_id)
-        else:
-            it = _iter_dask(batches, truths, spec, wants, jobs, cell_fn, scheduler, run_id)
-        try:
-            for results in it:
-                for res in results:
-                    if not res.get("written"):
-                        store.write(by_key[res["key"]], res)
-                    n_done_now += 1
-                bar.update(len(results))
-        finally:
-            bar.close()
-    t_cells = time.perf_counter() - t_cells0
+            bar = tqdm(total=len(todo), unit="cell", desc=spec.name, disable=not progress,
+                       smoothing=0.1, dynamic_ncols=True)
+            if jobs == 1 and backend == "loky":
+                it = (_run_batch(b, truths[b[0].truth_key], spec.seed, spec.masks,
+                                 spec.session_s, w, cell_fn, str(out_dir), run_id)
+                      for b, w in zip(batches, wants))
+            elif backend == "loky":
+                it = _iter_loky(batches, truths, spec, wants, jobs, cell_fn, str(out_dir), run_id)
+            else:
+                it = _iter_dask(batches, truths, spec, wants, jobs, cell_fn, scheduler, run_id)
+            try:
+                for results in it:
+                    for res in results:
+                        if not res.get("written"):
+                            store.write(by_key[res["key"]], res)
+                        n_done_now += 1
+                    bar.update(len(results))
+            finally:
+                bar.close()
+        t_cells = time.perf_counter() - t_cells0
 
-    t_out0 = time.perf_counter()
-    keys = [c.key for c in cells]
-    table = store.read_cells(keys)
-    errors = store.read_errors(keys)
-    _write_table(table, out_dir / "cells.parquet")
-    _write_json(out_dir / "errors.json", errors)
-    res = Results(spec=spec, out_dir=out_dir, cells=table, errors=errors, n_cells=len(cells),
-                  n_computed=n_done_now - len(errors), n_resumed=len(done), wall_s=0.0)
-    if outputs and not table.empty:
-        from experiments import report, tables
+        t_out0 = time.perf_counter()
+        keys = [c.key for c in cells]
+        table = store.read_cells(keys)
+        errors = store.read_errors(keys)
+        _write_table(table, out_dir / "cells.parquet")
+        _write_json(out_dir / "errors.json", errors)
+        res = Results(spec=spec, out_dir=out_dir, cells=table, errors=errors, n_cells=len(cells),
+                      n_computed=n_done_now - len(errors), n_resumed=len(done), wall_s=0.0)
+        if outputs and not table.empty:
+            from tqdm import tqdm
 
-        tables.write_tables(table, out_dir)
-        report.write_report(table, out_dir, spec=spec)
-        if figures:
             from experiments import figures as figs
+            from experiments import report, tables
 
-            figs.draw_all(out_dir, jobs=jobs if backend == "loky" else 1)
-    t_out = time.perf_counter() - t_out0
+            n_fig = len(figs.figure_tasks()) if figures else 0
+            obar = tqdm(total=2 + n_fig, unit="step", desc=f"{spec.name}: outputs",
+                        disable=not progress, dynamic_ncols=True)
+            try:
+                tables.write_tables(table, out_dir)
+                obar.update()
+                report.write_report(table, out_dir, spec=spec)
+                obar.update()
+                if figures:
+                    figs.draw_all(out_dir, jobs=jobs if backend == "loky" else 1,
+                                  on_done=lambda _paths: obar.update())
+            finally:
+                obar.close()
+        t_out = time.perf_counter() - t_out0
+    except OSError as exc:
+        # a full disk or a write-protected folder: the cells written so far are safe (each
+        # one is atomic), the rerun resumes them; say so in one line, no traceback
+        manifest["status"] = "interrupted"
+        try:
+            _write_json(out_dir / "manifest.json", manifest)
+            marked = f"marked interrupted in {out_dir / 'manifest.json'}"
+        except OSError:
+            marked = "could not be marked interrupted (the folder is not writable)"
+        where = exc.filename or out_dir
+        raise SweepError(f"cannot write {where}: {exc.strerror or exc}; the run {marked}; "
+                         "free space or fix permissions and rerun the same command to "
+                         "resume") from None
     res.wall_s = time.perf_counter() - t_start
     res.timings = {"simulate_s": t_sim, "cells_s": t_cells, "outputs_s": t_out,
                    "wall_s": res.wall_s}
-    manifest.update({"status": "complete" if not errors else "complete_with_errors",
-                     "finished_utc": time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime()),
+    manifest["status"] = "complete" if not errors else "complete_with_errors"
+    run_info.update({"finished_utc": time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime()),
                      "n_computed": res.n_computed, "n_resumed": res.n_resumed,
-                     "n_failed": res.n_failed, "timings_s": res.timings,
-                     "cpu_count": os.cpu_count()})
+                     "n_failed": res.n_failed, "timings_s": res.timings})
     _write_json(out_dir / "manifest.json", manifest)
+    _write_json(out_dir / "run.local.json", run_info)
     return res
 
 
@@ -661,8 +776,19 @@ def _write_spec_toml(spec: Spec, path: Path) -> None:
     import tomli_w
 
     header = (f"# The spec as run by python -m experiments.sweep (overrides applied).\n"
-              f"# Source: {spec.source}; relative file names resolve against {spec.base_dir}.\n")
+              f"# Source: {_rel(spec.source)}; relative file names resolve against "
+              f"{_rel(spec.base_dir)}.\n")
     atomic_write_text(path, header + tomli_w.dumps(spec.raw))
+
+
+def _rel(path: str | Path) -> str:
+    """``path`` relative to the project when it lies inside it (machine-independent in
+    tracked files), else as given (e.g. "<dict>" or a spec elsewhere)."""
+    p = Path(path)
+    try:
+        return p.resolve().relative_to(REPO).as_posix() if p.is_absolute() else str(path)
+    except ValueError:
+        return str(path)
 
 
 def _write_table(df: pd.DataFrame, path: Path) -> None:
@@ -720,7 +846,8 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def main(argv: list[str] | None = None) -> int:
-    """CLI entry point; returns the exit code (0 ok, 1 some cells failed, 2 bad spec)."""
+    """CLI entry point; returns the exit code (0 ok, 1 some cells failed, 2 bad spec,
+    3 the run could not go on: unreachable scheduler, unwritable results folder)."""
     args = build_parser().parse_args(argv)
     if args.spec and args.preset:
         print("error: give a spec file or --preset, not both", file=sys.stderr)
@@ -734,9 +861,17 @@ def main(argv: list[str] | None = None) -> int:
     except SpecError as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 2
-    res = run(spec, out=args.out, jobs=args.jobs, backend=args.backend,
-              scheduler=args.scheduler, force=args.force, progress=not args.quiet,
-              figures=not args.no_figures, cache_dir=args.cache_dir)
+    try:
+        res = run(spec, out=args.out, jobs=args.jobs, backend=args.backend,
+                  scheduler=args.scheduler, force=args.force, progress=not args.quiet,
+                  figures=not args.no_figures, cache_dir=args.cache_dir)
+    except SweepError as exc:
+        print(f"error: {exc}", file=sys.stderr)
+        return 3
+    except OSError as exc:  # e.g. the results folder cannot even be created
+        print(f"error: cannot write {exc.filename or args.out or 'the results folder'}: "
+              f"{exc.strerror or exc}", file=sys.stderr)
+        return 3
     for e in res.errors[:10]:
         print(f"FAILED cell {e['key']} {json.dumps(e['params'])}: {e['error']}", file=sys.stderr)
     if len(res.errors) > 10:

@@ -278,7 +278,7 @@ def test_cells_computed_by_other_code_are_recomputed(tmp_path, monkeypatch, caps
     r = _fake_run(spec, tmp_path, cell_fn=fake_cell)
     assert (r.n_computed, r.n_resumed) == (n, 0)
     assert f"{n} of {n} finished cells were computed by other code" in capsys.readouterr().err
-    assert json.loads((tmp_path / "manifest.json").read_text())["n_stale"] == n
+    assert json.loads((tmp_path / "run.local.json").read_text())["n_stale"] == n
 
 
 def test_spec_toml_records_the_overrides_and_reloads_to_the_same_cells(tmp_path):
@@ -344,3 +344,103 @@ def test_spec_rejects_a_noise_file_that_is_not_a_gps_model():
     with pytest.raises(SpecError, match=r"grid\[0\]\.noise: 'ultrasonic' is not a GPS noise model"):
         Spec.from_dict({"name": "x", "defaults": {"path": "square20", "noise": "ultrasonic"},
                         "grid": [{"window": [1]}]})
+
+
+# --------------------------------------------------------------------------- faults (issue 13)
+def epochs_cell(cell, truth, ctx):
+    out = fake_cell(cell, truth, ctx)
+    if ctx.want_epochs:
+        out.epochs = pd.DataFrame({"t": np.arange(50.0), "cg_x": np.arange(50.0)})
+    return out
+
+
+def test_disk_full_mid_run_is_one_line_and_the_rerun_resumes(tmp_path, monkeypatch):
+    import errno
+
+    from experiments import sweep
+    from experiments.sweep import SweepError
+
+    spec = _fake_spec()
+    n = len(spec.expand())
+    real_write = sweep.CellStore.write
+    calls = {"n": 0}
+
+    def full_disk(self, cell, res):
+        calls["n"] += 1
+        if calls["n"] > 3:
+            raise OSError(errno.ENOSPC, "No space left on device", str(self.cells_dir / "x.tmp"))
+        real_write(self, cell, res)
+
+    monkeypatch.setattr(sweep.CellStore, "write", full_disk)
+    with pytest.raises(SweepError) as exc:
+        _fake_run(spec, tmp_path, cell_fn=fake_cell)
+    msg = str(exc.value)
+    assert "\n" not in msg and "No space left on device" in msg and "x.tmp" in msg
+    assert "rerun the same command to resume" in msg
+    assert json.loads((tmp_path / "manifest.json").read_text())["status"] == "interrupted"
+    monkeypatch.setattr(sweep.CellStore, "write", real_write)
+    r = _fake_run(spec, tmp_path, cell_fn=fake_cell)
+    assert (r.n_resumed, r.n_computed, r.n_failed) == (3, n - 3, 0)
+    assert json.loads((tmp_path / "manifest.json").read_text())["status"] == "complete"
+
+
+def test_cli_unwritable_results_is_one_line_exit_3(tmp_path, capsys, monkeypatch):
+    from experiments import sweep
+
+    def refuse(path, obj):
+        raise PermissionError(13, "Permission denied", str(path))
+
+    monkeypatch.setattr(sweep, "_write_json", refuse)
+    spec = tmp_path / "s.toml"
+    spec.write_text('name = "ro"\n[defaults]\nnoise = "none"\n[[grid]]\npath = "square20"\n'
+                    'window = 1\n')
+    assert main([str(spec), "--out", str(tmp_path / "out"), "--quiet", "--jobs", "1"]) == 3
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "Permission denied" in err[0] and "manifest.json" in err[0]
+
+
+def test_unreachable_dask_scheduler_fails_fast_naming_the_address(tmp_path):
+    import socket
+
+    from experiments.sweep import SweepError
+
+    with socket.socket() as s:  # a port nobody listens on
+        s.bind(("127.0.0.1", 0))
+        port = s.getsockname()[1]
+    addr = f"tcp://127.0.0.1:{port}"
+    t0 = time.perf_counter()
+    with pytest.raises(SweepError, match=rf"{addr}.*dask scheduler --port"):
+        run(_fake_spec(), out=tmp_path, backend="dask", scheduler=addr, progress=False,
+            outputs=False, truth_fn=fake_truth, cell_fn=fake_cell)
+    assert time.perf_counter() - t0 < 10.0     # was a 30 s hang and a 61-line OSError
+
+
+def test_damaged_cell_files_are_detected_reported_and_recomputed(tmp_path, capsys):
+    spec = _fake_spec()
+    n = len(spec.expand())
+    _fake_run(spec, tmp_path, cell_fn=epochs_cell)
+    parquets = sorted((tmp_path / "epochs").glob("*.parquet"))
+    jsons = sorted((tmp_path / "cells").glob("*.json"))
+    assert parquets
+    p = parquets[0]
+    p.write_bytes(p.read_bytes()[: p.stat().st_size // 2])        # truncated parquet
+    victim = next(j for j in jsons if j.stem != p.stem)
+    victim.write_text("")                                          # empty cell record
+    capsys.readouterr()
+    r = _fake_run(spec, tmp_path, cell_fn=epochs_cell)
+    err = capsys.readouterr().err
+    assert "2 of" in err and "damaged files" in err and "other code" not in err
+    assert (r.n_computed, r.n_resumed) == (2, n - 2)
+    pd.read_parquet(p)                                             # readable again
+    assert json.loads((tmp_path / "run.local.json").read_text())["n_damaged"] == 2
+
+
+def test_rerun_leaves_the_manifest_byte_identical(tmp_path):
+    spec = _fake_spec()
+    _fake_run(spec, tmp_path, cell_fn=fake_cell)
+    first = (tmp_path / "manifest.json").read_bytes()
+    _fake_run(spec, tmp_path, cell_fn=fake_cell)
+    assert (tmp_path / "manifest.json").read_bytes() == first
+    man = json.loads(first)
+    assert not any(k in man for k in ("started_utc", "timings_s", "cpu_count"))
+    assert not str(REPO) in first.decode()
