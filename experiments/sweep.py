@@ -318,6 +318,14 @@ def evaluate_cell(cell: Cell, truth, ctx: CellContext) -> CellOutput:
                rng=cell_rng(ctx.spec_seed, cell.seed, STREAM_ESTIMATOR), **kw)
     t2 = time.perf_counter()
     rows, ep = score_track(df, truth, obs, config, ctx.masks, epochs=ctx.want_epochs)
+    # the models' own names (a spec may name them by file, e.g. "rects/rect30.toml"): tables
+    # and file names use these
+    names = {"config_name": config.name,
+             "path_name": str((getattr(truth, "meta", {}) or {}).get("path", {}).get("name", ""))
+             or Path(cell.path).stem,
+             "noise_name": _noise_name(cell)}
+    for row in rows:
+        row.update(names)
     t3 = time.perf_counter()
     counts = {str(k): int(v) for k, v in df["solver_status"].value_counts().items()} \
         if "solver_status" in df else {}
@@ -326,6 +334,21 @@ def evaluate_cell(cell: Cell, truth, ctx: CellContext) -> CellOutput:
         epochs = pd.concat([df.reset_index(drop=True), ep], axis=1)
     return CellOutput(rows=rows, epochs=epochs, status_counts=counts,
                       timings={"t_noise_s": t1 - t0, "t_track_s": t2 - t1, "t_score_s": t3 - t2})
+
+
+def _noise_name(cell: Cell) -> str:
+    """The noise model's ``name`` field (or "none" / the session file's stem)."""
+    f = cell.file("noise")
+    if cell.noise == "none" or f is None:
+        return "none"
+    if cell.noise.startswith("session:"):
+        return "session:" + Path(f).stem
+    import tomllib
+
+    try:
+        return str(tomllib.loads(Path(f).read_text(encoding="utf-8")).get("name") or Path(f).stem)
+    except (OSError, ValueError):
+        return Path(f).stem
 
 
 # --------------------------------------------------------------------------- workers
@@ -743,6 +766,11 @@ def run(spec: Spec | str | Path, *, out: str | Path | None = None, jobs: int | N
                                   on_done=lambda _paths: obar.update())
             finally:
                 obar.close()
+            if figures and not table.get("has_epochs", pd.Series(dtype=bool)).any():
+                print(f"{spec.name}: note: no cell kept per-epoch estimates (the spec has no "
+                      "[epochs] table), so the figures drawn from per-epoch errors were not written "
+                      "(box plots, orientation, overlays, sensor-1 lag): add "
+                      "'[epochs]' with 'seeds = [0]' to the spec", file=sys.stderr)
         t_out = time.perf_counter() - t_out0
     except OSError as exc:
         # a full disk or a write-protected folder: the cells written so far are safe (each

@@ -108,9 +108,22 @@ STATS = ("mean", "median", "std")
 
 
 # --------------------------------------------------------------------------- statistics
-def seed_ci(values: np.ndarray | pd.Series) -> tuple[float, float, float, int]:
+#: Intervals over fewer seeds than this are marked unreliable (†) in the tables: a Student-t
+#: interval from 2-4 values is very wide and its coverage rests entirely on normality.
+MIN_RELIABLE_SEEDS = 5
+#: Metric-name prefixes of signed statistics (every other metric is >= 0: absolute errors,
+#: RMS, jitter, times, counts).
+SIGNED_PREFIXES = ("along_",)
+
+
+def seed_ci(values: np.ndarray | pd.Series, lower: float | None = None
+            ) -> tuple[float, float, float, int]:
     """Mean over seeds and its 95 % Student-t interval: (mean, lo, hi, n). NaNs are dropped.
 
+    lower : the statistic's support bound (0 for absolute errors): the interval is
+        intersected with [lower, inf). The mean of a non-negative quantity cannot lie below
+        0, so the intersection keeps the interval's coverage while a plain t-interval over
+        2 seeds can reach far below zero (e.g. 0.264 [-1.443, 1.971]).
     With one seed the interval is (nan, nan).
     """
     from scipy import stats
@@ -124,16 +137,21 @@ def seed_ci(values: np.ndarray | pd.Series) -> tuple[float, float, float, int]:
     if n == 1:
         return m, math.nan, math.nan, 1
     h = float(stats.t.ppf(0.975, n - 1) * v.std(ddof=1) / math.sqrt(n))
-    return m, m - h, m + h, n
+    lo, hi = m - h, m + h
+    if lower is not None:
+        lo = max(lo, float(lower))
+    return m, lo, hi, n
 
 
-def fmt_ci(m: float, lo: float, hi: float, digits: int = 3) -> str:
-    """'1.234 [1.100, 1.370]' (or just the mean when the interval is undefined)."""
+def fmt_ci(m: float, lo: float, hi: float, digits: int = 3, n: int | None = None) -> str:
+    """'1.234 [1.100, 1.370]' (or just the mean when the interval is undefined); with
+    ``n`` < :data:`MIN_RELIABLE_SEEDS` the interval is marked '†' (unreliable)."""
     if not np.isfinite(m):
         return "n/a"
     if not (np.isfinite(lo) and np.isfinite(hi)):
         return f"{m:.{digits}f}"
-    return f"{m:.{digits}f} [{lo:.{digits}f}, {hi:.{digits}f}]"
+    mark = "†" if n is not None and n < MIN_RELIABLE_SEEDS else ""
+    return f"{m:.{digits}f} [{lo:.{digits}f}, {hi:.{digits}f}]{mark}"
 
 
 def select(cells: pd.DataFrame, **where) -> pd.DataFrame:
@@ -159,7 +177,8 @@ def aggregate(cells: pd.DataFrame, by: list[str], metrics: list[str]) -> pd.Data
         row = dict(zip(by, key))
         row["n_seeds"] = int(g["seed"].nunique())
         for mcol in metrics:
-            m, lo, hi, _ = seed_ci(g[mcol])
+            m, lo, hi, _ = seed_ci(g[mcol], lower=None if mcol.startswith(SIGNED_PREFIXES)
+                                   else 0.0)
             row[mcol], row[f"{mcol}_lo"], row[f"{mcol}_hi"] = m, lo, hi
         rows.append(row)
     return pd.DataFrame(rows)
@@ -173,8 +192,25 @@ VARIANT_AXES = ("config", "noise", "noise_overrides", "path_overrides", "solver"
 _NA = {"-", 0}
 
 
-def _vlabel(axis: str, value) -> str:
+def model_name(cells: pd.DataFrame, axis: str, value) -> str:
+    """The display name of a ``path`` / ``config`` / ``noise`` axis value: the model's own
+    ``name`` (recorded by the sweep as ``<axis>_name``) when the spec named it by file, e.g.
+    ``rects/rect30.toml`` -> ``rect30``; else the value itself."""
+    col = f"{axis}_name"
+    if col in cells.columns and isinstance(value, str) and (value.endswith(".toml")
+                                                           or "/" in value):
+        names = cells.loc[cells[axis] == value, col].dropna()
+        if not names.empty and str(names.iloc[0]):
+            return str(names.iloc[0])
+    if isinstance(value, str) and value.endswith(".toml"):
+        return Path(value).stem
+    return str(value)
+
+
+def _vlabel(axis: str, value, cells: pd.DataFrame | None = None) -> str:
     """'config=rover_gps4'; overrides as their fields ('cruise_speed_mps=0.5', '{}' = as shipped)."""
+    if cells is not None and axis in ("config", "noise"):
+        return f"{axis}={model_name(cells, axis, value)}"
     if axis.endswith("_overrides"):
         import json
 
@@ -204,7 +240,7 @@ def variants(cells: pd.DataFrame) -> list[tuple[str, pd.DataFrame]]:
             mk &= ((col == v) | col.isin(list(_NA))).to_numpy()
         sub = cells[mk]
         if not sub.empty:
-            out.append((", ".join(_vlabel(a, v) for a, v in zip(multi, combo)), sub))
+            out.append((", ".join(_vlabel(a, v, cells) for a, v in zip(multi, combo)), sub))
     return out
 
 
@@ -245,7 +281,7 @@ def thesis_table(cells: pd.DataFrame, axis: str, path: str = "square100",
             row = {"path": path, "weighting": weighting, "window": int(w), "technique": label,
                    "thesis_row": label in THESIS_ROWS, "n_seeds": int(sub["seed"].nunique())}
             for s in STATS:
-                m, lo, hi, _ = seed_ci(sub[f"{pref}_{s}"])
+                m, lo, hi, _ = seed_ci(sub[f"{pref}_{s}"], lower=0.0)   # |error| >= 0
                 row[s], row[f"{s}_lo"], row[f"{s}_hi"] = m, lo, hi
                 row[f"{s}_thesis"] = published.get((int(w), label), {}).get(s, np.nan)
             out.append(row)
@@ -290,7 +326,8 @@ def _md(df: pd.DataFrame, cols: list[tuple[str, str]]) -> str:
 
 
 def _ci(prefix: str, digits: int = 3):
-    return lambda r: fmt_ci(r[prefix], r[f"{prefix}_lo"], r[f"{prefix}_hi"], digits)
+    return lambda r: fmt_ci(r[prefix], r[f"{prefix}_lo"], r[f"{prefix}_hi"], digits,
+                            r.get("n_seeds"))
 
 
 def _num(col: str, digits: int = 3):
@@ -316,8 +353,9 @@ def _variant_tables(cells: pd.DataFrame, out: Path, vlabel: str) -> list[str]:
             df = thesis_table(cells, axis, path=p)
             if df.empty:
                 continue
-            label = PATH_LABELS.get(p, p)
-            suffix = "" if p == "square100" else f"_{p}"
+            pname = model_name(cells, "path", p)
+            label = PATH_LABELS.get(p, pname)
+            suffix = "" if p == "square100" else f"_{pname}"
             atomic_write(out / f"table_{tno.replace('.', '_')}{suffix}{tag}.csv",
                          lambda f, df=df: df.to_csv(f, index=False))
             thesis = df[df["thesis_row"] & df["window"].isin(THESIS_WINDOWS)]
@@ -362,7 +400,11 @@ def write_tables(cells: pd.DataFrame, out_dir: str | Path) -> Path:
           (f"Every number is the mean over {n_seeds} seed(s) of the per-seed statistic, with "
           "its 95 % Student-t interval over seeds in brackets; \"thesis\" is the value "
           "published in the dissertation (000_8f82f8df647bf685.txt, Tables 4.1 and 4.2, "
-          f"Path 1, one run). Errors in metres (Eq. 4.1). Solver(s): {', '.join(solvers)}."),
+          f"Path 1, one run). Errors in metres (Eq. 4.1). Solver(s): {', '.join(solvers)}. "
+          "Intervals of non-negative statistics are cut at 0 (the mean cannot be negative)"
+          + (f"; with fewer than {MIN_RELIABLE_SEEDS} seeds they are marked † (unreliable: "
+             "a t-interval from so few values is wide and rests on normality)"
+             if n_seeds < MIN_RELIABLE_SEEDS else "") + "."),
           ""]
     for vlabel, vcells in variants(cells):
         if vlabel:

@@ -58,6 +58,25 @@ def test_seed_interval_matches_statsmodels():
     assert (m1, n1) == (2.0, 1) and math.isnan(lo1) and math.isnan(hi1)
 
 
+def test_interval_of_a_non_negative_mean_respects_the_support():
+    """Two seeds of an absolute error: the t-interval reaches below 0 (issue 13); cut at the
+    support bound the upper end is unchanged, and the table marks it unreliable."""
+    from statsmodels.stats.weightstats import DescrStatsW
+
+    v = np.array([0.1, 0.428])
+    raw_lo, raw_hi = DescrStatsW(v).tconfint_mean(alpha=0.05)
+    assert raw_lo < 0
+    m, lo, hi, n = tables.seed_ci(v, lower=0.0)
+    assert (lo, n) == (0.0, 2) and hi == pytest.approx(raw_hi, rel=1e-12)
+    assert tables.fmt_ci(m, lo, hi, 3, n).endswith("]†")
+    assert not tables.fmt_ci(m, lo, hi, 3, 10).endswith("†")
+    # signed statistics (along-track error) keep the plain interval
+    cells = pd.DataFrame({"g": ["a", "a"], "seed": [0, 1], "along_mean": [-1.0, 0.5],
+                          "ex_mean": [0.1, 0.428]})
+    agg = tables.aggregate(cells, ["g"], ["along_mean", "ex_mean"])
+    assert agg["along_mean_lo"].iloc[0] < -1.0 and agg["ex_mean_lo"].iloc[0] == 0.0
+
+
 def test_comparison_relations():
     cells = _cells({("square100", 5, "huff", "none", "full"): {"ex_mean": 1.0},
                     ("square100", 5, "huff", "lc", "full"): {"ex_mean": 0.5},

@@ -199,7 +199,9 @@ def test_sigkill_mid_run_loses_and_duplicates_nothing(real_run, tmp_path, truth_
     n_total = len(real_run.spec.expand())
     n_after_kill = len(list((out / "cells").glob("*.json")))
     assert n_before <= n_after_kill < n_total, "the kill did not land mid-run"
-    assert not list((out / "cells").glob(".*.tmp")) or True   # a torn temp file is ignored
+    # a torn write leaves at most a temp file whose name never matches the store's '*.json'
+    for p in (out / "cells").iterdir():
+        assert p.suffix in (".json", ".tmp"), p.name
     # finished cells are complete JSON documents (atomic writes)
     for p in (out / "cells").glob("*.json"):
         json.loads(p.read_text())
@@ -217,6 +219,25 @@ def test_readme_example_user_added_configuration(tmp_path, truth_cache):
     assert r.n_failed == 0, r.errors
     assert set(r.cells["config"]) == {"rover_gps8", "rover_gps4"}
     assert "config=rover_gps4" in (tmp_path / "REPORT.md").read_text()
+
+
+def test_models_named_by_file_are_shown_by_their_name(tmp_path, truth_cache):
+    """Tables and file names use a model's ``name``, not its file name (issue 13)."""
+    cfg = (REPO / "models" / "configs" / "rover_gps4.toml").read_text()
+    (tmp_path / "layouts").mkdir()
+    (tmp_path / "layouts" / "my_roof.toml").write_text(
+        cfg.replace('name = "rover_gps4"', 'name = "roof4"', 1))
+    spec = tmp_path / "s.toml"
+    spec.write_text('name = "named"\nseeds = 1\n[defaults]\nnoise = "none"\n[[grid]]\n'
+                    'path = "square20"\nwindow = 5\nweighting = "huff"\n'
+                    'technique = ["none", "lc"]\nconfig = ["rover_gps8", "layouts/my_roof.toml"]\n')
+    r = run(spec, out=tmp_path / "out", jobs=1, progress=False, figures=False,
+            cache_dir=truth_cache)
+    assert r.n_failed == 0, r.errors
+    names = {p.name for p in (tmp_path / "out").glob("table_4_1*.csv")}
+    assert "table_4_1_square20_config_roof4.csv" in names, names
+    assert not any("toml" in n for n in names)
+    assert "config=roof4" in (tmp_path / "out" / "tables.md").read_text()
 
 
 def test_figures_redraw_and_tum_export_from_saved_files(real_run, tmp_path):
@@ -444,3 +465,13 @@ def test_rerun_leaves_the_manifest_byte_identical(tmp_path):
     man = json.loads(first)
     assert not any(k in man for k in ("started_utc", "timings_s", "cpu_count"))
     assert not str(REPO) in first.decode()
+
+
+def test_spec_without_epochs_says_which_figures_it_cannot_draw(tmp_path, capsys, truth_cache):
+    spec = tmp_path / "s.toml"
+    spec.write_text('name = "noep"\nseeds = 1\n[defaults]\nnoise = "none"\n[[grid]]\n'
+                    'path = "square20"\nwindow = 5\nweighting = "huff"\n'
+                    'technique = ["none", "lc"]\n')
+    run(spec, out=tmp_path / "out", jobs=1, progress=False, cache_dir=truth_cache)
+    err = capsys.readouterr().err
+    assert "no cell kept per-epoch estimates" in err and "[epochs]" in err
