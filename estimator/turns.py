@@ -26,7 +26,7 @@ import math
 
 import numpy as np
 
-from estimator._checks import check_increasing_times
+from estimator._checks import check_increasing_times, check_real
 from estimator.orientation import unwrap_angle
 
 __all__ = ["course_heading", "detect_turns", "heading_rate", "hysteresis"]
@@ -46,8 +46,9 @@ def heading_rate(t: object, heading: object, span_s: float) -> np.ndarray:
     h = np.asarray(heading, dtype=float)
     if h.shape != tt.shape:
         raise ValueError(f"heading: expected shape {tt.shape}, got {h.shape}")
-    if not np.isfinite(span_s) or span_s <= 0:
-        raise ValueError(f"span_s: must be a positive number of seconds, got {span_s!r}")
+    span_s = check_real(span_s, "span_s", lo=0.0, lo_open=True)
+    if tt.size == 0:
+        return np.zeros(0)
     hu = unwrap_angle(h)
     ok = np.isfinite(hu)
     x = np.where(ok, tt - tt[0], 0.0)
@@ -75,7 +76,8 @@ def hysteresis(signal: object, on: float, off: float) -> np.ndarray:
     sig = np.asarray(signal, dtype=float)
     if sig.ndim != 1:
         raise ValueError(f"signal: expected shape (n,), got {sig.shape}")
-    if not (np.isfinite(on) and np.isfinite(off)) or off > on:
+    on, off = check_real(on, "on"), check_real(off, "off")
+    if off > on:
         raise ValueError(
             f"on/off: need finite thresholds with off <= on, got on={on!r}, off={off!r}")
     out = np.zeros(sig.shape, dtype=bool)
@@ -99,8 +101,8 @@ def course_heading(t: object, xy: object, span_s: float, min_speed: float = 0.1
     p = np.asarray(xy, dtype=float)
     if p.shape != (tt.size, 2):
         raise ValueError(f"xy: expected shape ({tt.size}, 2), got {p.shape}")
-    if not np.isfinite(span_s) or span_s <= 0:
-        raise ValueError(f"span_s: must be a positive number of seconds, got {span_s!r}")
+    span_s = check_real(span_s, "span_s", lo=0.0, lo_open=True)
+    min_speed = check_real(min_speed, "min_speed", lo=0.0)
     j = np.searchsorted(tt, tt - span_s, side="right") - 1
     ok = j >= 0
     js = np.where(ok, j, 0)

@@ -528,6 +528,12 @@ def receiver_errors(model: GpsNoiseModel, m: int, n: int, dt_s: float,
     return err, drawn
 
 
+#: Largest session :func:`synthesize_session` draws, in receiver-samples (n * m): 8 receivers
+#: for 46 days at 1 Hz or 7 days at 6.6 Hz; each (n, m, 2) float64 array is then 0.5 GB.
+#: Larger requests are typos (e.g. a length in ms), refused before any allocation.
+MAX_SESSION_VALUES = 3.2e7
+
+
 def synthesize_session(model: GpsNoiseModel, config: SensorConfig, duration_s: float,
                        rng: np.random.Generator, rate_hz: float = 1.0, *,
                        position: Sequence[float] = (0.0, 0.0), yaw: float = 0.0) -> StationarySession:
@@ -553,6 +559,10 @@ def synthesize_session(model: GpsNoiseModel, config: SensorConfig, duration_s: f
     n = round(float(duration_s) * float(rate_hz))
     if n < 1:
         raise ValueError(f"duration_s * rate_hz: gives {n} samples; need at least 1")
+    if n * config.m > MAX_SESSION_VALUES:
+        raise ValueError(f"duration_s * rate_hz: {duration_s!r} s at {rate_hz!r} Hz is {n} samples "
+                         f"x {config.m} receivers, more than {MAX_SESSION_VALUES:.0e} "
+                         "receiver-samples (about 0.5 GB per array); synthesize a shorter session")
     dt = 1.0 / rate_hz
     m = config.m
     c, s = math.cos(yaw), math.sin(yaw)

@@ -1,0 +1,103 @@
+"""Extreme inputs through the public functions not covered by a module's own property tests
+(issue 13): every call returns a documented result (NaN where undefined) or raises
+ValueError/TypeError naming the argument; nothing else escapes, memory stays bounded."""
+
+from __future__ import annotations
+
+import warnings
+
+import numpy as np
+import pytest
+from hypothesis import HealthCheck, given, settings
+from hypothesis import strategies as st
+
+from estimator import lag, metrics, orientation, turns
+from estimator.configuration import SensorConfig
+
+EXTREME = st.sampled_from([np.nan, np.inf, -np.inf, 1e300, -1e300, 0.0, 1e-300, -1e-300,
+                           5e7, 1.0])
+SETTINGS = settings(max_examples=60, deadline=None,
+                    suppress_health_check=[HealthCheck.too_slow])
+
+
+def _arr(n, extra_shape, special, pos, seed):
+    a = np.random.default_rng(seed).normal(size=(n, *extra_shape)) * 3.0
+    if a.size:
+        a.reshape(-1)[pos % a.size] = special
+    return a
+
+
+def _ok(fn, *args, **kw):
+    """Call; allowed outcomes: a result, or ValueError/TypeError with a message."""
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", RuntimeWarning)
+        try:
+            return fn(*args, **kw)
+        except (ValueError, TypeError) as exc:
+            assert str(exc), f"{fn.__name__}: empty error message"
+            return None
+
+
+@SETTINGS
+@given(n=st.integers(0, 40), special=EXTREME, pos=st.integers(0, 10**6),
+       seed=st.integers(0, 2**16))
+def test_orientation_and_metrics_survive_extremes(n, special, pos, seed):
+    a1 = _arr(n, (), special, pos, seed)
+    a2 = _arr(n, (2,), special, pos, seed)
+    b2 = _arr(n, (2,), 0.0, 0, seed + 1)
+    w = _ok(orientation.wrap_angle, a1)
+    if w is not None:
+        fin = np.isfinite(a1)
+        assert np.all((w[fin] > -np.pi) & (w[fin] <= np.pi))   # (-pi, pi] where defined
+    _ok(orientation.unwrap_angle, a1)
+    _ok(orientation.heading_from_points, a2, b2)
+    _ok(orientation.law_of_cosines_heading, a2, 0.3)
+    _ok(orientation.law_of_cosines_bearing, a2)
+    _ok(orientation.law_of_cosines_angle, np.abs(a1), np.abs(a1) + 1, np.abs(a1) + 2)
+    e = _ok(metrics.cg_errors, a2, b2)
+    if e is not None:
+        assert set(e) == {"x", "y", "euclid"}
+    h = _ok(metrics.heading_error, a1, np.zeros(n))
+    if h is not None:
+        fin = np.isfinite(a1)
+        assert np.all((h[fin] >= 0) & (h[fin] <= np.pi))
+    _ok(metrics.along_cross_errors, a2, b2, a1)
+    s = _ok(metrics.summarize, a1)
+    if s is not None:
+        assert s["n"] + s["n_nan"] == n or "n" not in s
+
+
+@SETTINGS
+@given(n=st.integers(0, 40), special=EXTREME, pos=st.integers(0, 10**6),
+       seed=st.integers(0, 2**16), span=st.sampled_from([1e-300, 0.5, 4.0, 1e300, np.inf,
+                                                         np.nan, -1.0]))
+def test_turn_detection_and_lag_survive_extremes(n, special, pos, seed, span):
+    t = np.arange(n, dtype=float)
+    h = _arr(n, (), special, pos, seed)
+    xy = _arr(n, (2,), special, pos, seed)
+    r = _ok(turns.heading_rate, t, h, span)
+    if r is not None:
+        assert r.shape == (n,)
+    _ok(turns.course_heading, t, xy, span)
+    f = _ok(turns.detect_turns, t, h, span_s=span)
+    if f is not None:
+        assert f.dtype == bool and f.shape == (n,)
+    _ok(turns.hysteresis, h, 0.05, 0.02)
+    _ok(lag.estimate_velocity, t, xy, 3)
+
+
+@pytest.mark.parametrize("bad", ["1", None, True, [1.0]])
+def test_turn_detector_numbers_name_the_argument(bad):
+    with pytest.raises((ValueError, TypeError), match="span_s"):
+        turns.heading_rate(np.arange(5.0), np.zeros(5), bad)
+
+
+def test_huge_session_is_refused_before_allocation():
+    from sim.gps import GpsNoiseModel, synthesize_session
+
+    cfg = SensorConfig.load("rover_gps8")
+    rng = np.random.default_rng(0)
+    with pytest.raises(ValueError, match="receiver-samples"):
+        synthesize_session(GpsNoiseModel.load("gps_stationary"), cfg, 1e15, rng)
+    with pytest.raises(ValueError, match="receiver-samples"):
+        synthesize_session(GpsNoiseModel.load("gps_stationary"), cfg, 100.0, rng, rate_hz=1e300)
