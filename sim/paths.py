@@ -59,6 +59,19 @@ PATHS_DIR = MODELS_DIR / "paths"
 _REQUIRED = ("name", "waypoints", "closed", "target_radius_m", "cruise_speed_mps")
 _POSITIVE_OPTIONAL = ("max_turn_rate_radps", "max_lateral_accel_mps2", "max_accel_mps2",
                       "lookahead_m")
+#: Physical ranges of the numeric fields (units in the names). A value outside is a typo
+#: (km/h for m/s, ms for s) and would make a simulation run for days or never move.
+_RANGES = {
+    "target_radius_m": (1e-3, 1e4),
+    "cruise_speed_mps": (1e-2, 100.0),          # 1 cm/s .. 360 km/h
+    "sample_rate_hz": (1e-2, 1e3),
+    "max_turn_rate_radps": (1e-3, 100.0),
+    "max_lateral_accel_mps2": (1e-3, 100.0),    # 10 g
+    "max_accel_mps2": (1e-3, 100.0),
+    "lookahead_m": (1e-2, 1e4),
+}
+#: Longest route a path may describe at its cruise speed (simulated time, s): 7 days.
+MAX_ROUTE_S = 7 * 86400.0
 _ALLOWED = set(_REQUIRED) | set(_POSITIVE_OPTIONAL) | {"description", "sample_rate_hz",
                                                         "altitude_m"}
 
@@ -129,6 +142,10 @@ class Path:
                 continue
             if not _is_number(v) or not math.isfinite(v) or v <= 0:
                 raise PathError(f"{src}: {key} must be a finite number > 0, got {v!r}")
+            lo, hi = _RANGES[key]
+            if not lo <= v <= hi:
+                raise PathError(f"{src}: {key} = {v!r} is outside its physical range "
+                                f"[{lo:g}, {hi:g}]")
             object.__setattr__(self, key, float(v))
         if self.altitude_m is not None:
             if not _is_number(self.altitude_m) or not math.isfinite(self.altitude_m):
@@ -145,6 +162,9 @@ class Path:
                 f"shortest segment ({seg.min():.6g} m), or neighbouring target areas overlap")
         if not isinstance(self.description, str):
             raise PathError(f"{src}: description must be a string, got {self.description!r}")
+        if seg.sum() / self.cruise_speed_mps > MAX_ROUTE_S:
+            raise PathError(f"{src}: the route is {seg.sum():.6g} m long at "
+                            f"{self.cruise_speed_mps:g} m/s, more than 7 days of simulation")
         wp.setflags(write=False)
         object.__setattr__(self, "waypoints", wp)
         object.__setattr__(self, "closed", closed)

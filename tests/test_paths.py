@@ -123,3 +123,27 @@ def test_path_errors_on_a_synthetic_trajectory():
     # the sample at x = 88 m sits on the zone boundary (rounding decides its side)
     assert abs(e.n_straight - np.sum(x < 100 - 12.0)) <= 1
     np.testing.assert_allclose(e.closure_m, np.linalg.norm(traj[-1]))
+
+
+@pytest.mark.parametrize("field, value", [
+    ("cruise_speed_mps", 1e-300), ("cruise_speed_mps", 1e9), ("sample_rate_hz", 1e300),
+    ("target_radius_m", 1e-300), ("max_accel_mps2", 1e12), ("lookahead_m", 1e-9)])
+def test_physical_ranges_of_path_fields(field, value):
+    """A value outside the physical range (a unit typo) would simulate for days or never
+    move; it is refused naming the field (issue 13)."""
+    from sim.paths import Path, load_path
+
+    d = load_path("square20").to_dict()
+    d[field] = value
+    with pytest.raises(ValueError, match=f"{field} = .* outside its physical range"):
+        Path.from_dict(d)
+
+
+def test_route_longer_than_a_week_is_refused():
+    from sim.paths import Path, load_path
+
+    d = load_path("square20").to_dict()
+    d["waypoints"] = [[0, 0], [1e6, 0], [1e6, 1e6]]
+    d["cruise_speed_mps"] = 0.05
+    with pytest.raises(ValueError, match="more than 7 days"):
+        Path.from_dict(d)
