@@ -11,9 +11,25 @@ from __future__ import annotations
 import tomllib
 from pathlib import Path
 
-__all__ = ["MODELS_DIR", "read_model_toml", "resolve_model_file"]
+__all__ = ["MODELS_DIR", "SOURCE_CHECKOUT", "read_model_toml", "resolve_model_file"]
 
-MODELS_DIR = Path(__file__).resolve().parents[1] / "models"
+_ROOT = Path(__file__).resolve().parents[1]
+#: Whether this code runs from a source checkout (pyproject.toml beside the packages) rather
+#: than from an installed wheel; results and caches go into the checkout only in that case.
+SOURCE_CHECKOUT = (_ROOT / "pyproject.toml").is_file() and (_ROOT / "models").is_dir()
+
+
+def _models_dir() -> Path:
+    """``models/`` of the checkout, or the installed package data ``configpose_models``
+    (pyproject maps the folder to that package, so a plain ``pip install .`` ships it)."""
+    if SOURCE_CHECKOUT:
+        return _ROOT / "models"
+    from importlib.resources import files
+
+    return Path(str(files("configpose_models")))
+
+
+MODELS_DIR = _models_dir()
 
 
 def resolve_model_file(name_or_path: str | Path, folder: Path, what: str, *,

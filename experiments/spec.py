@@ -68,6 +68,9 @@ from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
+from estimator.model_files import MODELS_DIR as MODELS
+from estimator.model_files import SOURCE_CHECKOUT
+
 __all__ = [
     "AXES",
     "MASKS",
@@ -83,7 +86,8 @@ __all__ = [
 ]
 
 REPO = Path(__file__).resolve().parents[1]
-MODELS = REPO / "models"
+#: Where results/ lives: the checkout's, or the working directory's for an installed wheel.
+RESULTS_ROOT = (REPO if SOURCE_CHECKOUT else Path.cwd()) / "results"
 PRESETS_DIR = Path(__file__).resolve().parent / "presets"
 
 #: Weighting schemes (Section 3.3). "huff:<t>" is Huff with residual threshold t (4.8.2 uses 3.5).

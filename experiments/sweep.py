@@ -53,7 +53,15 @@ import numpy as np
 import pandas as pd
 
 from experiments.provenance import code_version
-from experiments.spec import REPO, Cell, Spec, SpecError, available_presets, load_spec
+from experiments.spec import (
+    REPO,
+    RESULTS_ROOT,
+    Cell,
+    Spec,
+    SpecError,
+    available_presets,
+    load_spec,
+)
 from sim.atomic import atomic_write, atomic_write_text
 
 __all__ = [
@@ -67,7 +75,7 @@ __all__ = [
     "simulate_truth",
 ]
 
-RESULTS_DIR = REPO / "results"
+RESULTS_DIR = RESULTS_ROOT
 #: Random streams derived per (spec seed, cell seed).
 STREAM_NOISE, STREAM_ESTIMATOR = 0, 1
 

@@ -32,6 +32,7 @@ from typing import Any
 import numpy as np
 
 from estimator.configuration import MODELS_DIR, SensorConfig
+from estimator.model_files import SOURCE_CHECKOUT
 from sim.paths import Path
 from sim.truth import Truth
 
@@ -45,8 +46,9 @@ CODE_SALT = "truth-2026-11-22a"
 SIMULATOR_SOURCES = tuple(FsPath(__file__).resolve().parent / f for f in (
     "rover.py", "quadcopter.py", "controllers.py", "paths.py", "truth.py"))
 
-#: ``results/cache/truth`` in the repository.
-DEFAULT_CACHE_DIR = MODELS_DIR.parent / "results" / "cache" / "truth"
+#: ``results/cache/truth`` in a source checkout; ``~/.cache/configpose/truth`` for a wheel.
+DEFAULT_CACHE_DIR = (MODELS_DIR.parent / "results" / "cache" / "truth" if SOURCE_CHECKOUT
+                     else FsPath.home() / ".cache" / "configpose" / "truth")
 
 
 def canonical(obj: Any) -> Any:
