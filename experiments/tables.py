@@ -414,9 +414,14 @@ def write_tables(cells: pd.DataFrame, out_dir: str | Path) -> Path:
             "weighting", "technique", "window", "dyn_window", "turning", "mask"]
     by = aggregate(cells, [a for a in axes if a in cells.columns],
                    ["ex_mean", "ex_median", "ex_std", "ey_mean", "ey_median", "ey_std",
-                    "eu_mean", "eu_rmse", "eh_median", "along_mean", "jitter_rms",
-                    "t_track_s"])
+                    "eu_mean", "eu_rmse", "eh_median", "along_mean", "jitter_rms"])
     atomic_write(out / "by_cell.csv", lambda p: by.to_csv(p, index=False))
+    # wall times depend on the machine and its load: kept out of the tracked tables, in a
+    # git-ignored sidecar beside them
+    tcols = [c for c in ("t_noise_s", "t_track_s", "t_score_s", "t_cell_s") if c in cells]
+    if tcols:
+        tim = aggregate(cells, [a for a in axes if a in cells.columns], tcols)
+        atomic_write(out / "timings.local.csv", lambda p: tim.to_csv(p, index=False))
     md += [("All cells, aggregated over seeds: `by_cell.csv`; one row per cell x mask: "
            "`cells.parquet`."), ""]
     path = out / "tables.md"
