@@ -30,6 +30,7 @@ os.environ.setdefault("OMP_NUM_THREADS", "1")
 import argparse
 import time
 from collections.abc import Callable
+from pathlib import Path
 
 import numpy as np
 
@@ -267,6 +268,127 @@ def bench_sweep(quick: bool = False) -> list[dict]:
     print_table(rows, ["preset", "cells", "jobs", "wall s", "per cell"])
     print()
     return rows
+
+
+def _free_port() -> int:
+    import socket
+
+    with socket.socket() as sk:
+        sk.bind(("127.0.0.1", 0))
+        return int(sk.getsockname()[1])
+
+
+def _sweep_cli(args: list[str], env: dict | None = None) -> dict:
+    """Run ``python -m experiments.sweep ARGS`` in a fresh process; returns the run's
+    ``run.local.json`` (timings, counts) plus the wall time seen from outside."""
+    import json
+    import subprocess
+    import sys
+
+    out = args[args.index("--out") + 1]
+    t0 = time.perf_counter()
+    proc = subprocess.run([sys.executable, "-m", "experiments.sweep", *args], check=False,
+                          capture_output=True, text=True, env=env)
+    wall = time.perf_counter() - t0
+    if proc.returncode != 0:
+        raise RuntimeError(f"sweep {' '.join(args)} failed ({proc.returncode}):\n"
+                           f"{proc.stderr[-2000:]}")
+    info = json.loads((Path(out) / "run.local.json").read_text())
+    info["outside_wall_s"] = wall
+    return info
+
+
+def _numbers_equal(a_dir: str, b_dir: str) -> bool:
+    """Whether two runs' cells.parquet hold the same numbers (timings excluded)."""
+    import pandas as pd
+
+    a, b = (pd.read_parquet(Path(d) / "cells.parquet") for d in (a_dir, b_dir))
+    cols = sorted(c for c in a.columns if not c.startswith("t_"))
+    if set(cols) != {c for c in b.columns if not c.startswith("t_")}:
+        return False
+    a = a[cols].sort_values(["key", "mask"]).reset_index(drop=True)
+    b = b[cols].sort_values(["key", "mask"]).reset_index(drop=True)
+    return bool(a.equals(b))
+
+
+@section("dask")
+def bench_dask(quick: bool = False) -> list[dict]:
+    """The ``large`` preset on a Dask cluster started as separate processes (issue 16).
+
+    A ``dask scheduler`` and ``dask worker`` processes (1 thread each) are started exactly as
+    a user on a cluster would, then ``python -m experiments.sweep --preset large --backend
+    dask --scheduler ADDR`` runs with 1 and with 2 workers (the truth cache is warm, so the
+    cell phase is what is measured). Reported: cells per second of the cell phase, peak
+    resident memory per worker (``ru_maxrss`` read in the worker), the speed-up from 1 to 2
+    workers, and whether the numbers are identical to the loky backend's. ``--quick`` runs
+    10 seeds instead of 100.
+    """
+    import subprocess
+    import tempfile
+
+    from experiments.spec import load_spec
+
+    seeds = ["--seeds", "10"] if quick else []
+    spec = load_spec("large")
+    n_cells = len((spec.with_seeds(range(10)) if quick else spec).expand())
+    env = {**os.environ, "PYTHONPATH": str(Path(__file__).resolve().parents[1])}
+    rows = []
+    with tempfile.TemporaryDirectory(prefix="bench-dask-") as tmp:
+        base = ["--preset", "large", *seeds, "--no-figures", "--quiet"]
+        ref = os.path.join(tmp, "loky")
+        info = _sweep_cli([*base, "--out", ref], env)
+        rows.append({"backend": "loky (reference)", "workers": os.cpu_count(), "cells": n_cells,
+                     "cells s": f"{info['timings_s']['cells_s']:.1f}",
+                     "cells/s": f"{n_cells / info['timings_s']['cells_s']:.1f}",
+                     "peak RSS/worker": "-", "identical to loky": "-"})
+        rate = {}
+        for nw in (1, 2):
+            port = _free_port()
+            addr = f"tcp://127.0.0.1:{port}"
+            procs = [subprocess.Popen(["dask", "scheduler", "--host", "127.0.0.1", "--port",
+                                       str(port), "--no-dashboard"], env=env,
+                                      stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)]
+            try:
+                procs.append(subprocess.Popen(
+                    ["dask", "worker", addr, "--nworkers", str(nw), "--nthreads", "1",
+                     "--no-dashboard", "--memory-limit", "0"], env=env, cwd=tmp,
+                    stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL))
+                from distributed import Client
+
+                with Client(addr, timeout="30s") as client:
+                    client.wait_for_workers(nw, timeout=60)
+                out = os.path.join(tmp, f"dask{nw}")
+                info = _sweep_cli([*base, "--backend", "dask", "--scheduler", addr,
+                                   "--out", out], env)
+                with Client(addr, timeout="30s") as client:
+                    peaks = client.run(_peak_rss_bytes)
+                rate[nw] = n_cells / info["timings_s"]["cells_s"]
+                rows.append({"backend": "dask (separate processes)", "workers": nw,
+                             "cells": n_cells, "cells s": f"{info['timings_s']['cells_s']:.1f}",
+                             "cells/s": f"{rate[nw]:.1f}",
+                             "peak RSS/worker": f"{max(peaks.values()) / 2**20:.0f} MB",
+                             "identical to loky": "yes" if _numbers_equal(ref, out) else "NO"})
+            finally:
+                for p in reversed(procs):
+                    p.terminate()
+                for p in procs:
+                    try:
+                        p.wait(timeout=30)
+                    except subprocess.TimeoutExpired:
+                        p.kill()
+    print(f"### Large preset on Dask ({n_cells} cells, {10 if quick else 100} seeds), cell phase "
+          f"1 -> 2 workers: x{rate[2] / rate[1]:.2f} (linear = x2.00)\n")
+    print_table(rows, ["backend", "workers", "cells", "cells s", "cells/s", "peak RSS/worker",
+                       "identical to loky"])
+    print()
+    return rows
+
+
+def _peak_rss_bytes() -> int:
+    """Peak resident memory of the calling process, bytes (Linux ru_maxrss is in KiB)."""
+    import resource
+
+    return int(resource.getrusage(resource.RUSAGE_SELF).ru_maxrss) * 1024
 
 
 # ----------------------------------------------------------------------------- CLI
