@@ -528,6 +528,55 @@ def fit_percent(y: np.ndarray, y_hat: np.ndarray) -> float:
     return float(100.0 * (1.0 - np.linalg.norm(y - y_hat) / den))
 
 
+def _intervals(prob: _Problem, params: dict[str, float], sd: np.ndarray, tq: float,
+               rel_tol: float) -> tuple[dict, dict, dict]:
+    """Per model parameter: interval ``value +- tq sd``, identifiability flag, standard error
+    (``sd`` over ``prob.free``; fixed parameters: zero width, identifiable)."""
+    intervals: dict[str, tuple[float, float]] = {}
+    identifiable: dict[str, bool] = {}
+    stderr: dict[str, float] = {}
+    for k in prob.names:
+        if k in prob.fixed:
+            intervals[k], identifiable[k], stderr[k] = (params[k], params[k]), True, 0.0
+            continue
+        j = prob.free.index(k)
+        hw = tq * sd[j]
+        intervals[k] = (params[k] - hw, params[k] + hw)
+        stderr[k] = float(sd[j])
+        identifiable[k] = not np.isnan(hw) and is_identifiable(
+            params[k], hw, rel_tol=rel_tol, floor=prob.dt if k in _TIME_PARAMS else 0.0)
+    return intervals, identifiable, stderr
+
+
+def _correlations(free: tuple[str, ...], cov: np.ndarray) -> tuple[dict, list]:
+    """Correlation of each pair of free parameters, and the pairs with ``|rho| > 0.95``."""
+    with np.errstate(invalid="ignore", divide="ignore"):
+        corr = cov / np.sqrt(np.outer(np.diag(cov), np.diag(cov)))
+    correlation: dict[tuple[str, str], float] = {}
+    correlated = []
+    for i, a in enumerate(free):
+        for j in range(i + 1, len(free)):
+            rho = float(corr[i, j]) if np.isfinite(corr[i, j]) else float("nan")
+            correlation[(a, free[j])] = rho
+            if np.isfinite(rho) and abs(rho) > _CORRELATED:
+                correlated.append((a, free[j], rho))
+    return correlation, correlated
+
+
+def _swap_poles(names, per_param, correlation, correlated, at_bound, est_names):
+    """Exchange the names Tp1 and Tp2 everywhere (``per_param`` dicts in place)."""
+    ren = {"Tp1": "Tp2", "Tp2": "Tp1"}
+    for dct in per_param:
+        dct["Tp1"], dct["Tp2"] = dct["Tp2"], dct["Tp1"]
+
+    def pair(a, b):
+        return tuple(sorted((ren.get(a, a), ren.get(b, b)), key=names.index))
+
+    return ({pair(a, b): v for (a, b), v in correlation.items()},
+            [(*pair(a, b), v) for a, b, v in correlated],
+            [ren.get(k, k) for k in at_bound], [ren.get(k, k) for k in est_names])
+
+
 def fit_transfer_function(
     t: np.ndarray,
     u: np.ndarray,
@@ -582,56 +631,19 @@ def fit_transfer_function(
     yhat = r + prob.y
     J = _jacobian(prob, x, r, lo, hi)
     cov, var, s2 = _covariance(J, r)
-    sd = np.sqrt(var)
     tq = float(stats.t.ppf(0.5 + confidence / 2.0, n - x.size))
-    with np.errstate(invalid="ignore", divide="ignore"):
-        corr = cov / np.sqrt(np.outer(np.diag(cov), np.diag(cov)))
-
-    free = list(prob.free)
     params = {k: float(p_best[k]) for k in names}
-    intervals: dict[str, tuple[float, float]] = {}
-    identifiable: dict[str, bool] = {}
-    stderr: dict[str, float] = {}
-    for k in names:
-        if k in prob.fixed:
-            intervals[k] = (params[k], params[k])
-            identifiable[k] = True
-            stderr[k] = 0.0
-            continue
-        j = free.index(k)
-        hw = tq * sd[j]
-        intervals[k] = (params[k] - hw, params[k] + hw)
-        stderr[k] = float(sd[j])
-        identifiable[k] = not np.isnan(hw) and is_identifiable(
-            params[k], hw, rel_tol=rel_tol, floor=dt if k in _TIME_PARAMS else 0.0)
-    correlation: dict[tuple[str, str], float] = {}
-    correlated = []
-    for i, a in enumerate(free):
-        for j in range(i + 1, len(free)):
-            rho = float(corr[i, j]) if np.isfinite(corr[i, j]) else float("nan")
-            correlation[(a, free[j])] = rho
-            if np.isfinite(rho) and abs(rho) > _CORRELATED:
-                correlated.append((a, free[j], rho))
-
-    est_names = [*free, "offset"] if fit_offset else list(free)
-    bound_tol = 1e-9
-    at_bound = [k for j, k in enumerate(free)
-                if (np.isfinite(lo[j]) and x[j] - lo[j] <= bound_tol * max(1.0, abs(lo[j])))
-                or (np.isfinite(hi[j]) and hi[j] - x[j] <= bound_tol * max(1.0, abs(hi[j])))]
-
-    # two_poles is symmetric in (Tp1, Tp2): report Tp1 <= Tp2
+    intervals, identifiable, stderr = _intervals(prob, params, np.sqrt(var), tq, rel_tol)
+    correlation, correlated = _correlations(prob.free, cov)
+    at_bound = [k for j, k in enumerate(prob.free)
+                if (np.isfinite(lo[j]) and x[j] - lo[j] <= 1e-9 * max(1.0, abs(lo[j])))
+                or (np.isfinite(hi[j]) and hi[j] - x[j] <= 1e-9 * max(1.0, abs(hi[j])))]
+    est_names = [*prob.free, "offset"] if fit_offset else list(prob.free)
     if form == "two_poles" and params["Tp1"] > params["Tp2"]:
-        ren = {"Tp1": "Tp2", "Tp2": "Tp1"}
-        for dct in (params, intervals, identifiable, stderr):
-            dct["Tp1"], dct["Tp2"] = dct["Tp2"], dct["Tp1"]
-
-        def pair(a, b):
-            return tuple(sorted((ren.get(a, a), ren.get(b, b)), key=names.index))
-
-        correlation = {pair(a, b): v for (a, b), v in correlation.items()}
-        correlated = [(*pair(a, b), v) for a, b, v in correlated]
-        at_bound = [ren.get(k, k) for k in at_bound]
-        est_names = [ren.get(k, k) for k in est_names]
+        # the form is symmetric in (Tp1, Tp2): report Tp1 <= Tp2
+        correlation, correlated, at_bound, est_names = _swap_poles(
+            names, (params, intervals, identifiable, stderr), correlation, correlated,
+            at_bound, est_names)
     order = sorted(range(len(est_names)),
                    key=lambda i: (names + ("offset",)).index(est_names[i]))
     cov_out = cov[np.ix_(order, order)]
