@@ -522,10 +522,13 @@ def fit_percent(y: np.ndarray, y_hat: np.ndarray) -> float:
     y_hat = check_array(y_hat, "y_hat", shape=(y.size,))
     if y.size == 0:
         raise ValueError("y: needs at least one sample, got shape (0,)")
-    den = np.linalg.norm(y - y.mean())
-    if not den > 0:
+    d = y - y.mean()
+    scale = float(np.max(np.abs(d)))
+    if not scale > 0:
         return float("nan")
-    return float(100.0 * (1.0 - np.linalg.norm(y - y_hat) / den))
+    # both norms of scaled vectors, so squares of values near 1e300 do not overflow
+    return float(100.0 * (1.0 - np.linalg.norm((y - y_hat) / scale)
+                          / np.linalg.norm(d / scale)))
 
 
 def _intervals(prob: _Problem, params: dict[str, float], sd: np.ndarray, tq: float,

@@ -924,6 +924,9 @@ def pitch_chain(mode: str = "rate", *, mass_kg: float, inertia_yy: float, drag_x
         q' = alpha - (drag_xy h / I)(v + h q),   alpha' = (k_rate (q_cmd - q) - alpha) / T_m,
 
     with ``q_cmd`` = the stick (``mode="rate"``) or ``k_att (stick - theta)`` (``"angle"``).
+    Every argument is a real number within generous physical bounds (mass 1e-3..1e4 kg,
+    inertia 1e-6..1e4 kg m^2, drag 0..1e4 N s/m, |h| <= 10 m, gains 1e-3..1e4 1/s, motor lag
+    1e-6..10 s, delay 0..1e3 s); outside them ValueError names it.
     The actuator delay (12 ms) and the control period are left out (measured against MuJoCo:
     <= 1 % of the peak response, ``tests/test_quadcopter.py``). Without the motor lag the
     characteristic polynomial is ``s^3 + (k + c h^2/I + c/m) s^2 + k c/m s + g c h / I`` in
@@ -935,15 +938,16 @@ def pitch_chain(mode: str = "rate", *, mass_kg: float, inertia_yy: float, drag_x
     """
     if mode not in PITCH_MODES:
         raise ValueError(f"mode: expected one of {PITCH_MODES}, got {mode!r}")
-    m = check_real(mass_kg, "mass_kg", lo=0.0, lo_open=True)
-    iyy = check_real(inertia_yy, "inertia_yy", lo=0.0, lo_open=True)
-    c = check_real(drag_xy, "drag_xy", lo=0.0)
-    h = check_real(rotor_height_m, "rotor_height_m")
-    k = check_real(k_rate, "k_rate", lo=0.0, lo_open=True)
-    ka = check_real(k_att, "k_att", lo=0.0, lo_open=True)
-    tm = check_real(motor_lag_s, "motor_lag_s", lo=0.0, lo_open=True)
-    d = check_real(delay_s, "delay_s", lo=0.0)
-    g = check_real(g, "g", lo=0.0, lo_open=True)
+    # generous physical bounds (SI): beyond them the eigenvalues of A lose every digit
+    m = check_real(mass_kg, "mass_kg", lo=1e-3, hi=1e4)
+    iyy = check_real(inertia_yy, "inertia_yy", lo=1e-6, hi=1e4)
+    c = check_real(drag_xy, "drag_xy", lo=0.0, hi=1e4)
+    h = check_real(rotor_height_m, "rotor_height_m", lo=-10.0, hi=10.0)
+    k = check_real(k_rate, "k_rate", lo=1e-3, hi=1e4)
+    ka = check_real(k_att, "k_att", lo=1e-3, hi=1e4)
+    tm = check_real(motor_lag_s, "motor_lag_s", lo=1e-6, hi=10.0)
+    d = check_real(delay_s, "delay_s", lo=0.0, hi=1e3)
+    g = check_real(g, "g", lo=1e-3, hi=1e3)
     # x = [theta, q, alpha, v], input u (the stick after the link delay)
     A = np.array([[0.0, 1.0, 0.0, 0.0],
                   [0.0, -c * h * h / iyy, 1.0, -c * h / iyy],

@@ -438,6 +438,17 @@ def test_fit_percent_properties(y, scale):
         a, abs=1e-6)
 
 
+@settings(max_examples=30, deadline=None)
+@given(big=st.floats(1e100, 1e300), frac=st.floats(0.0, 1.0))
+def test_fit_percent_huge_values(big, frac):
+    # squares of 1e300 overflow; the scaled norms must not
+    y = np.array([0.0, big, -big, 0.5 * big])
+    assert fit_percent(y, y) == 100.0
+    assert fit_percent(y, np.full(4, y.mean())) == pytest.approx(0.0, abs=1e-9)
+    assert fit_percent(y, y.mean() + frac * (y - y.mean())) == pytest.approx(
+        100.0 * frac, abs=1e-9)
+
+
 @pytest.mark.parametrize("y,y_hat,field", [
     (np.array([1.0, np.nan]), np.zeros(2), "y"),
     (np.array([1.0, 2.0]), np.array([np.inf, 0.0]), "y_hat"),
