@@ -74,7 +74,9 @@ def test_model_geometry_and_physics(model):
     d = mujoco.MjData(m)
     mujoco.mj_forward(m, d)
     body = m.body("quad").id
-    assert m.body_subtreemass[body] == pytest.approx(1.2)
+    # the mass the XML header documents and derives the inertia from, all of it in the
+    # explicit <inertial> (no child body, no geom adds mass)
+    assert m.body_subtreemass[body] == m.body_mass[body] == pytest.approx(1.2)
     front, rear = d.site_xpos[m.site("tx_front").id], d.site_xpos[m.site("tx_rear").id]
     # thesis 003 Section 3.2.2: transmitters 0.5 m apart (1 mm requirement)
     assert abs(np.linalg.norm(front - rear) - 0.5) < 1e-3
