@@ -154,11 +154,16 @@ def test_whole_sample_delay_is_a_shift(d):
     assert np.all(yd[:d] == 0.0)
 
 
-def test_same_rng_same_fit():
+def noisy_pulse_data(form: str, p: dict, seed: int, sigma: float = 0.01) -> tuple:
+    """(t, u, y): a 5 s record of the pulse response of ``form`` plus white noise."""
     t = np.arange(0.0, 5.0 + 1e-9, DT)
     u = pulse(t)
-    y = simulate(t, u, "one_pole", {"K": 1.2, "Tp1": 0.5, "Td": 0.2})
-    y = y + 0.01 * np.random.default_rng(5).standard_normal(t.size)
+    y = simulate(t, u, form, p) + sigma * np.random.default_rng(seed).standard_normal(t.size)
+    return t, u, y
+
+
+def test_same_rng_same_fit():
+    t, u, y = noisy_pulse_data("one_pole", {"K": 1.2, "Tp1": 0.5, "Td": 0.2}, seed=5)
     a = fit_transfer_function(t, u, y, "one_pole", rng=np.random.default_rng(11))
     b = fit_transfer_function(t, u, y, "one_pole", rng=np.random.default_rng(11))
     assert a.params == b.params and a.intervals == b.intervals
@@ -486,10 +491,7 @@ def test_is_identifiable_monotone(v, hw, k):
 
 
 def test_fit_flags_follow_is_identifiable():
-    t = np.arange(0.0, 5.0 + 1e-9, DT)
-    u = pulse(t)
-    y = simulate(t, u, "one_pole", {"K": 1.0, "Tp1": 0.04, "Td": 0.03})
-    y = y + 0.01 * np.random.default_rng(1).standard_normal(t.size)
+    t, u, y = noisy_pulse_data("one_pole", {"K": 1.0, "Tp1": 0.04, "Td": 0.03}, seed=1)
     fit = fit_transfer_function(t, u, y, "one_pole", rng=np.random.default_rng(2))
     for k, (lo, hi) in fit.intervals.items():
         floor = DT if k != "K" else 0.0
