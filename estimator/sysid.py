@@ -38,7 +38,9 @@ Method (:func:`fit_transfer_function`)
   from ``n_starts`` starting points: one deterministic heuristic start plus ``n_starts - 1``
   drawn from ``rng`` (log-uniform time constants), each with ``K`` and ``offset`` initialised
   by linear least squares (they enter linearly). The lowest cost wins.
-* **Fit percent.** ``nrmse`` is MATLAB's "fit to estimation data",
+  The pieces are module-level functions of one ``_Problem`` (data, form, free and fixed
+  parameters): ``_residual``, ``_multistart``, ``_jacobian``, ``_covariance``.
+* **Fit percent.** ``nrmse`` is MATLAB's "fit to estimation data" (:func:`fit_percent`),
   ``100 (1 - ||y - y_hat|| / ||y - mean(y)||)`` (100 = perfect, 0 = no better than the mean,
   can be negative).
 * **Confidence intervals.** From the Jacobian ``J`` of the residuals at the optimum (central
@@ -49,9 +51,9 @@ Method (:func:`fit_transfer_function`)
   unidentifiable and every parameter with a visible component in them gets an infinite
   interval. The intervals assume white output noise; coloured noise (e.g. a Kalman-filtered
   position) makes them optimistic.
-* **Identifiability rule.** A free parameter ``p`` is flagged ``identifiable[p] = False``
-  when its interval is infinite (rank-deficient Jacobian) or its half-width exceeds
-  ``rel_tol * max(|p|, floor_p)`` with ``floor_p = dt`` for the time parameters
+* **Identifiability rule** (:func:`is_identifiable`). A free parameter ``p`` is flagged
+  ``identifiable[p] = False`` when its interval is infinite (rank-deficient Jacobian) or its
+  half-width exceeds ``rel_tol * max(|p|, floor_p)`` with ``floor_p = dt`` for the time parameters
   (``Tp1, Tp2, Tw, Td``) and 0 for ``K`` and ``zeta``. The floor means a delay known to
   within ``rel_tol * dt`` counts as identified even when it is near zero. Strongly
   correlated estimates (``|rho| > 0.95``) are listed in ``TransferFit.correlated``: a small
@@ -65,21 +67,25 @@ Method (:func:`fit_transfer_function`)
 
 from __future__ import annotations
 
+import math
 import time
 from dataclasses import dataclass, field
 
 import numpy as np
 from scipy import linalg, optimize, signal, stats
 
-from estimator._checks import check_increasing_times
+from estimator._checks import check_array, check_increasing_times, check_int, check_real
 
 __all__ = [
     "FORMS",
     "TransferFit",
     "equivalent_lag",
+    "fit_percent",
     "fit_transfer_function",
+    "is_identifiable",
     "simulate",
     "step_response",
+    "total_lag",
 ]
 
 #: Parameter names of each model form (order used in arrays).
@@ -368,6 +374,212 @@ def _starts(names_free, bnds, dt, span, n_starts, rng) -> list[dict[str, float]]
     return out
 
 
+@dataclass(frozen=True, eq=False)
+class _Problem:
+    """One fitting problem: data, form, which parameters are free, fixed or linear."""
+
+    form: str
+    names: tuple[str, ...]
+    dt: float
+    u: np.ndarray
+    y: np.ndarray
+    fixed: dict[str, float]
+    free: tuple[str, ...]      # estimated model parameters, "K" first when free
+    fit_offset: bool
+
+    @property
+    def k_free(self) -> bool:
+        return "K" not in self.fixed
+
+    @property
+    def free_nl(self) -> tuple[str, ...]:
+        """Free parameters other than K (the ones the residual is nonlinear in)."""
+        return self.free[1:] if self.k_free else self.free
+
+
+def _unpack(prob: _Problem, x: np.ndarray) -> tuple[dict[str, float], float]:
+    """Parameter vector ``x`` (free parameters in ``prob.free`` order, then the offset) ->
+    (all model parameters, offset)."""
+    p = dict(prob.fixed)
+    for i, k in enumerate(prob.free):
+        p[k] = x[i]
+    off = x[len(prob.free)] if prob.fit_offset else 0.0
+    return p, off
+
+
+def _residual(x: np.ndarray, prob: _Problem) -> np.ndarray:
+    """Model minus data, (n,): ``offset + K g(t; p) - y`` (g: unit-gain response)."""
+    p, off = _unpack(prob, x)
+    return off + p["K"] * _unit_response(prob.form, p, prob.dt, prob.u) - prob.y
+
+
+def _initial_vector(prob: _Problem, start: dict[str, float], lo: np.ndarray,
+                    hi: np.ndarray) -> np.ndarray:
+    """Start vector for the nonlinear parameters ``start``; K and the offset enter linearly,
+    so they are initialised by linear least squares at that start."""
+    n = prob.y.size
+    g = _unit_response(prob.form, {**prob.fixed, **start, "K": 1.0}, prob.dt, prob.u)
+    cols = []
+    if prob.k_free:
+        cols.append(g)
+    if prob.fit_offset:
+        cols.append(np.ones(n))
+    target = prob.y - (0.0 if prob.k_free else prob.fixed["K"] * g)
+    lin = np.linalg.lstsq(np.column_stack(cols), target, rcond=None)[0] if cols else []
+    x0 = []
+    if prob.k_free:
+        x0.append(lin[0] if np.isfinite(lin[0]) and lin[0] != 0 else 1.0)
+    x0 += [start[k] for k in prob.free_nl]
+    if prob.fit_offset:
+        x0.append(lin[-1])
+    return np.clip(np.array(x0, dtype=float), lo, hi)
+
+
+def _multistart(prob: _Problem, starts: list[dict[str, float]], lo: np.ndarray,
+                hi: np.ndarray, max_nfev: int) -> tuple[optimize.OptimizeResult, int]:
+    """Bounded trust-region least squares from each start; the lowest cost wins.
+
+    Returns (best result, total residual evaluations).
+    """
+    best = None
+    nfev = 0
+    for s in starts:
+        x0 = _initial_vector(prob, s, lo, hi)
+        res = optimize.least_squares(_residual, x0, bounds=(lo, hi), method="trf",
+                                     x_scale="jac", xtol=1e-12, ftol=1e-12, gtol=1e-12,
+                                     max_nfev=max_nfev, args=(prob,))
+        nfev += res.nfev
+        if best is None or res.cost < best.cost:
+            best = res
+    assert best is not None
+    return best, nfev
+
+
+def _jacobian(prob: _Problem, x: np.ndarray, r: np.ndarray, lo: np.ndarray,
+              hi: np.ndarray) -> np.ndarray:
+    """(n, p) Jacobian of the residual at ``x`` by central differences (one-sided at a
+    bound). Step ``1e-6 max(|x_j|, typical_j)`` with typical scale dt for time parameters,
+    1e-3 for zeta, 1 for K and the offset."""
+    typical = [prob.dt if k in _TIME_PARAMS else (1e-3 if k == "zeta" else 1.0)
+               for k in prob.free]
+    typical += [1.0] if prob.fit_offset else []
+    J = np.empty((r.size, x.size))
+    for j in range(x.size):
+        h = 1e-6 * max(abs(x[j]), typical[j])
+        xp, xm = x.copy(), x.copy()
+        if x[j] + h <= hi[j] and x[j] - h >= lo[j]:
+            xp[j] += h
+            xm[j] -= h
+            J[:, j] = (_residual(xp, prob) - _residual(xm, prob)) / (2 * h)
+        elif x[j] + h <= hi[j]:
+            xp[j] += h
+            J[:, j] = (_residual(xp, prob) - r) / h
+        else:
+            xm[j] -= h
+            J[:, j] = (r - _residual(xm, prob)) / h
+    return J
+
+
+def _covariance(J: np.ndarray, r: np.ndarray) -> tuple[np.ndarray, np.ndarray, float]:
+    """Parameter covariance ``s^2 (J^T J)^{-1}`` (``s^2 = ||r||^2 / (n - p)``).
+
+    The inverse comes from an SVD of the column-scaled Jacobian; directions with singular
+    value below ``_SVD_RTOL`` of the largest are dropped (a pseudo-inverse) and every
+    parameter with a visible component (> 1e-3) in them gets an infinite variance.
+    Returns (covariance (p, p), variances (p,) with those infinities, s^2).
+    """
+    dof = J.shape[0] - J.shape[1]
+    s2 = float(r @ r) / dof
+    scale = np.linalg.norm(J, axis=0)
+    scale[scale == 0] = 1.0
+    _, S, Vt = np.linalg.svd(J / scale, full_matrices=False)
+    ok = S > _SVD_RTOL * S[0]
+    cov = s2 * ((Vt[ok].T / S[ok] ** 2) @ Vt[ok]) / np.outer(scale, scale)
+    var = np.diag(cov).copy()
+    if not np.all(ok):
+        var[np.any(np.abs(Vt[~ok]) > 1e-3, axis=0)] = np.inf
+    return cov, var, s2
+
+
+def is_identifiable(value: float, half_width: float, *, floor: float = 0.0,
+                    rel_tol: float = 0.25) -> bool:
+    """The identifiability rule (module docstring): the interval's half-width is finite and
+    at most ``rel_tol * max(|value|, floor)``; ``floor`` is dt for time parameters."""
+    value = check_real(value, "value")
+    half_width = check_real(half_width, "half_width", lo=0.0, finite=False)
+    floor = check_real(floor, "floor", lo=0.0)
+    rel_tol = check_real(rel_tol, "rel_tol", lo=0.0, lo_open=True)
+    return bool(math.isfinite(half_width) and half_width <= rel_tol * max(abs(value), floor))
+
+
+def fit_percent(y: np.ndarray, y_hat: np.ndarray) -> float:
+    """MATLAB's "fit to estimation data", ``100 (1 - ||y - y_hat|| / ||y - mean y||)``.
+
+    y, y_hat : (n,) data and model output. 100 = perfect, 0 = no better than the mean, can be
+    negative; NaN when ``y`` is constant.
+    """
+    y = check_array(y, "y", shape=(None,))
+    y_hat = check_array(y_hat, "y_hat", shape=(y.size,))
+    if y.size == 0:
+        raise ValueError("y: needs at least one sample, got shape (0,)")
+    d = y - y.mean()
+    scale = float(np.max(np.abs(d)))
+    if not scale > 0:
+        return float("nan")
+    # both norms of scaled vectors, so squares of values near 1e300 do not overflow
+    return float(100.0 * (1.0 - np.linalg.norm((y - y_hat) / scale)
+                          / np.linalg.norm(d / scale)))
+
+
+def _intervals(prob: _Problem, params: dict[str, float], sd: np.ndarray, tq: float,
+               rel_tol: float) -> tuple[dict, dict, dict]:
+    """Per model parameter: interval ``value +- tq sd``, identifiability flag, standard error
+    (``sd`` over ``prob.free``; fixed parameters: zero width, identifiable)."""
+    intervals: dict[str, tuple[float, float]] = {}
+    identifiable: dict[str, bool] = {}
+    stderr: dict[str, float] = {}
+    for k in prob.names:
+        if k in prob.fixed:
+            intervals[k], identifiable[k], stderr[k] = (params[k], params[k]), True, 0.0
+            continue
+        j = prob.free.index(k)
+        hw = tq * sd[j]
+        intervals[k] = (params[k] - hw, params[k] + hw)
+        stderr[k] = float(sd[j])
+        identifiable[k] = not np.isnan(hw) and is_identifiable(
+            params[k], hw, rel_tol=rel_tol, floor=prob.dt if k in _TIME_PARAMS else 0.0)
+    return intervals, identifiable, stderr
+
+
+def _correlations(free: tuple[str, ...], cov: np.ndarray) -> tuple[dict, list]:
+    """Correlation of each pair of free parameters, and the pairs with ``|rho| > 0.95``."""
+    with np.errstate(invalid="ignore", divide="ignore"):
+        corr = cov / np.sqrt(np.outer(np.diag(cov), np.diag(cov)))
+    correlation: dict[tuple[str, str], float] = {}
+    correlated = []
+    for i, a in enumerate(free):
+        for j in range(i + 1, len(free)):
+            rho = float(corr[i, j]) if np.isfinite(corr[i, j]) else float("nan")
+            correlation[(a, free[j])] = rho
+            if np.isfinite(rho) and abs(rho) > _CORRELATED:
+                correlated.append((a, free[j], rho))
+    return correlation, correlated
+
+
+def _swap_poles(names, per_param, correlation, correlated, at_bound, est_names):
+    """Exchange the names Tp1 and Tp2 everywhere (``per_param`` dicts in place)."""
+    ren = {"Tp1": "Tp2", "Tp2": "Tp1"}
+    for dct in per_param:
+        dct["Tp1"], dct["Tp2"] = dct["Tp2"], dct["Tp1"]
+
+    def pair(a, b):
+        return tuple(sorted((ren.get(a, a), ren.get(b, b)), key=names.index))
+
+    return ({pair(a, b): v for (a, b), v in correlation.items()},
+            [(*pair(a, b), v) for a, b, v in correlated],
+            [ren.get(k, k) for k in at_bound], [ren.get(k, k) for k in est_names])
+
+
 def fit_transfer_function(
     t: np.ndarray,
     u: np.ndarray,
@@ -406,183 +618,35 @@ def fit_transfer_function(
     Returns a :class:`TransferFit`; method and rules in the module docstring.
     """
     t0 = time.perf_counter()
-    names = _check_form(form)
-    dt = _check_grid(t)
-    t = np.asarray(t, dtype=float)
-    n = t.size
-    u = _check_signal("u", u, n)
-    y = _check_signal("y", y, n)
-    if not np.any(u != 0):
-        raise ValueError("u: input is identically zero; nothing to identify")
-    if not (isinstance(n_starts, (int, np.integer)) and n_starts >= 1):
-        raise ValueError(f"n_starts: must be an integer >= 1, got {n_starts!r}")
-    if not 0.0 < confidence < 1.0:
-        raise ValueError(f"confidence: must be in (0, 1), got {confidence!r}")
-    if not rel_tol > 0:
-        raise ValueError(f"rel_tol: must be > 0, got {rel_tol!r}")
-    if rng is None:
-        rng = np.random.default_rng(0)
-    elif not isinstance(rng, np.random.Generator):
-        raise ValueError(f"rng: must be a numpy.random.Generator or None, got {type(rng).__name__}")
-    span = float(t[-1] - t[0])
-    bnds = _merge_bounds(names, _default_bounds(names, dt, span), bounds, dt, span)
+    prob, bnds, n_starts, rng = _check_fit_inputs(t, u, y, form, bounds, n_starts, fixed, rng,
+                                                  fit_offset, confidence, rel_tol, max_nfev)
+    names, dt, n = prob.names, prob.dt, prob.y.size
+    span = float(dt * (n - 1))
+    lo = np.array([bnds[k][0] for k in prob.free] + ([-np.inf] if fit_offset else []))
+    hi = np.array([bnds[k][1] for k in prob.free] + ([np.inf] if fit_offset else []))
 
-    fixed = dict(fixed or {})
-    for k, v in fixed.items():
-        if k not in names:
-            raise ValueError(f"fixed: unknown parameter {k!r} for form {form!r} (have {names})")
-        v = float(v)
-        lo, hi = bnds[k]
-        if not (np.isfinite(v) and lo <= v <= hi):
-            raise ValueError(f"fixed[{k!r}]: must be finite and within bounds {(lo, hi)}, "
-                             f"got {v!r}")
-        fixed[k] = v
-    free_nl = [k for k in names if k != "K" and k not in fixed]
-    k_free = "K" not in fixed
-    free = (["K"] if k_free else []) + free_nl
-    n_lin = int(k_free) + int(fit_offset)
-    n_par = len(free) + int(fit_offset)
-    if n - n_par < 1:
-        raise ValueError(f"t: {n} samples are too few for {n_par} parameters")
-
-    def unpack(x):
-        p = dict(fixed)
-        i = 0
-        if k_free:
-            p["K"] = x[0]
-            i = 1
-        for k in free_nl:
-            p[k] = x[i]
-            i += 1
-        off = x[i] if fit_offset else 0.0
-        return p, off
-
-    def model(x):
-        p, off = unpack(x)
-        return off + p["K"] * _unit_response(form, p, dt, u)
-
-    def resid(x):
-        return model(x) - y
-
-    lo_vec = np.array([bnds[k][0] for k in free] + ([-np.inf] if fit_offset else []))
-    hi_vec = np.array([bnds[k][1] for k in free] + ([np.inf] if fit_offset else []))
-
-    best = None
-    nfev = 0
-    for s in _starts(free_nl, bnds, dt, span, n_starts, rng):
-        p0 = dict(fixed)
-        p0.update(s)
-        g = _unit_response(form, {**p0, "K": 1.0}, dt, u)
-        # K and offset enter linearly: initialise them by linear least squares
-        cols = []
-        if k_free:
-            cols.append(g)
-        if fit_offset:
-            cols.append(np.ones(n))
-        target = y - (0.0 if k_free else fixed["K"] * g)
-        lin = np.linalg.lstsq(np.column_stack(cols), target, rcond=None)[0] if cols else []
-        x0 = []
-        if k_free:
-            x0.append(lin[0] if np.isfinite(lin[0]) and lin[0] != 0 else 1.0)
-        x0 += [s[k] for k in free_nl]
-        if fit_offset:
-            x0.append(lin[-1])
-        x0 = np.clip(np.array(x0, dtype=float), lo_vec, hi_vec)
-        res = optimize.least_squares(resid, x0, bounds=(lo_vec, hi_vec), method="trf",
-                                     x_scale="jac", xtol=1e-12, ftol=1e-12, gtol=1e-12,
-                                     max_nfev=max_nfev)
-        nfev += res.nfev
-        if best is None or res.cost < best.cost:
-            best = res
-    assert best is not None and n_lin >= 0
+    starts = [{**s} for s in _starts(prob.free_nl, bnds, dt, span, n_starts, rng)]
+    best, nfev = _multistart(prob, starts, lo, hi, max_nfev)
 
     x = best.x
-    p_best, offset = unpack(x)
-    r = resid(x)
-    yhat = r + y
-    denom = np.linalg.norm(y - y.mean())
-    nrmse = float(100.0 * (1.0 - np.linalg.norm(r) / denom)) if denom > 0 else float("nan")
-
-    # ---- Jacobian at the optimum (central differences, one-sided at a bound)
-    J = np.empty((n, x.size))
-    typical = [dt if k in _TIME_PARAMS else (1e-3 if k == "zeta" else 1.0) for k in free]
-    typical += [1.0] if fit_offset else []
-    for j in range(x.size):
-        h = 1e-6 * max(abs(x[j]), typical[j])
-        xp, xm = x.copy(), x.copy()
-        if x[j] + h <= hi_vec[j] and x[j] - h >= lo_vec[j]:
-            xp[j] += h
-            xm[j] -= h
-            J[:, j] = (resid(xp) - resid(xm)) / (2 * h)
-        elif x[j] + h <= hi_vec[j]:
-            xp[j] += h
-            J[:, j] = (resid(xp) - r) / h
-        else:
-            xm[j] -= h
-            J[:, j] = (r - resid(xm)) / h
-    dof = n - x.size
-    s2 = float(r @ r) / dof
-    scale = np.linalg.norm(J, axis=0)
-    scale[scale == 0] = 1.0
-    _, S, Vt = np.linalg.svd(J / scale, full_matrices=False)
-    ok = S > _SVD_RTOL * S[0]
-    cov_s = (Vt[ok].T / S[ok] ** 2) @ Vt[ok]
-    cov = s2 * cov_s / np.outer(scale, scale)
-    var = np.diag(cov).copy()
-    if not np.all(ok):
-        null = np.any(np.abs(Vt[~ok]) > 1e-3, axis=0)
-        var[null] = np.inf
-    sd = np.sqrt(var)
-    tq = float(stats.t.ppf(0.5 + confidence / 2.0, dof))
-    with np.errstate(invalid="ignore", divide="ignore"):
-        corr = cov / np.sqrt(np.outer(np.diag(cov), np.diag(cov)))
-
+    p_best, offset = _unpack(prob, x)
+    r = _residual(x, prob)
+    yhat = r + prob.y
+    J = _jacobian(prob, x, r, lo, hi)
+    cov, var, s2 = _covariance(J, r)
+    tq = float(stats.t.ppf(0.5 + confidence / 2.0, n - x.size))
     params = {k: float(p_best[k]) for k in names}
-    intervals: dict[str, tuple[float, float]] = {}
-    identifiable: dict[str, bool] = {}
-    stderr: dict[str, float] = {}
-    for k in names:
-        if k in fixed:
-            intervals[k] = (params[k], params[k])
-            identifiable[k] = True
-            stderr[k] = 0.0
-            continue
-        j = free.index(k)
-        hw = tq * sd[j]
-        intervals[k] = (params[k] - hw, params[k] + hw)
-        stderr[k] = float(sd[j])
-        floor = dt if k in _TIME_PARAMS else 0.0
-        identifiable[k] = bool(np.isfinite(hw) and hw <= rel_tol * max(abs(params[k]), floor))
-    correlation: dict[tuple[str, str], float] = {}
-    correlated = []
-    for i, a in enumerate(free):
-        for j in range(i + 1, len(free)):
-            rho = float(corr[i, j]) if np.isfinite(corr[i, j]) else float("nan")
-            correlation[(a, free[j])] = rho
-            if np.isfinite(rho) and abs(rho) > _CORRELATED:
-                correlated.append((a, free[j], rho))
-
-    est_names = [*free, "offset"] if fit_offset else list(free)
-    bound_tol = 1e-9
-    at_bound = [k for j, k in enumerate(free)
-                if (np.isfinite(lo_vec[j])
-                    and x[j] - lo_vec[j] <= bound_tol * max(1.0, abs(lo_vec[j])))
-                or (np.isfinite(hi_vec[j])
-                    and hi_vec[j] - x[j] <= bound_tol * max(1.0, abs(hi_vec[j])))]
-
-    # two_poles is symmetric in (Tp1, Tp2): report Tp1 <= Tp2
+    intervals, identifiable, stderr = _intervals(prob, params, np.sqrt(var), tq, rel_tol)
+    correlation, correlated = _correlations(prob.free, cov)
+    at_bound = [k for j, k in enumerate(prob.free)
+                if (np.isfinite(lo[j]) and x[j] - lo[j] <= 1e-9 * max(1.0, abs(lo[j])))
+                or (np.isfinite(hi[j]) and hi[j] - x[j] <= 1e-9 * max(1.0, abs(hi[j])))]
+    est_names = [*prob.free, "offset"] if fit_offset else list(prob.free)
     if form == "two_poles" and params["Tp1"] > params["Tp2"]:
-        ren = {"Tp1": "Tp2", "Tp2": "Tp1"}
-        for dct in (params, intervals, identifiable, stderr):
-            dct["Tp1"], dct["Tp2"] = dct["Tp2"], dct["Tp1"]
-
-        def pair(a, b):
-            return tuple(sorted((ren.get(a, a), ren.get(b, b)), key=names.index))
-
-        correlation = {pair(a, b): v for (a, b), v in correlation.items()}
-        correlated = [(*pair(a, b), v) for a, b, v in correlated]
-        at_bound = [ren.get(k, k) for k in at_bound]
-        est_names = [ren.get(k, k) for k in est_names]
+        # the form is symmetric in (Tp1, Tp2): report Tp1 <= Tp2
+        correlation, correlated, at_bound, est_names = _swap_poles(
+            names, (params, intervals, identifiable, stderr), correlation, correlated,
+            at_bound, est_names)
     order = sorted(range(len(est_names)),
                    key=lambda i: (names + ("offset",)).index(est_names[i]))
     cov_out = cov[np.ix_(order, order)]
@@ -595,36 +659,94 @@ def fit_transfer_function(
     else:
         status = "ok"
     return TransferFit(
-        form=form, params=params, nrmse=nrmse, intervals=intervals, identifiable=identifiable,
-        status=status, offset=float(offset), stderr=stderr, correlation=correlation,
-        covariance=cov_out, estimated=tuple(est_names), t_quantile=tq,
-        correlated=tuple(correlated), fixed=tuple(k for k in names if k in fixed),
-        at_bound=at_bound, confidence=float(confidence), dt=dt,
-        residual_std=float(np.sqrt(s2)), y_hat=yhat, n_starts=int(n_starts), nfev=int(nfev),
-        elapsed_s=time.perf_counter() - t0, message=str(best.message),
+        form=form, params=params, nrmse=fit_percent(prob.y, yhat), intervals=intervals,
+        identifiable=identifiable, status=status, offset=float(offset), stderr=stderr,
+        correlation=correlation, covariance=cov_out, estimated=tuple(est_names),
+        t_quantile=tq, correlated=tuple(correlated),
+        fixed=tuple(k for k in names if k in prob.fixed), at_bound=at_bound,
+        confidence=float(confidence), dt=dt, residual_std=float(np.sqrt(s2)), y_hat=yhat,
+        n_starts=int(n_starts), nfev=int(nfev), elapsed_s=time.perf_counter() - t0,
+        message=str(best.message),
     )
 
 
-def equivalent_lag(fit: TransferFit) -> tuple[float, tuple[float, float]]:
-    """Total lag of the fitted model and its confidence interval (same level as the fit).
+def _check_fit_inputs(t, u, y, form, bounds, n_starts, fixed, rng, fit_offset, confidence,
+                      rel_tol, max_nfev) -> tuple[_Problem, dict, int, np.random.Generator]:
+    """Every check of :func:`fit_transfer_function`, before any fitting."""
+    names = _check_form(form)
+    dt = _check_grid(t)
+    n = np.asarray(t).size
+    u = _check_signal("u", u, n)
+    y = _check_signal("y", y, n)
+    if not np.any(u != 0):
+        raise ValueError("u: input is identically zero; nothing to identify")
+    n_starts = check_int(n_starts, "n_starts", lo=1)
+    max_nfev = check_int(max_nfev, "max_nfev", lo=1)
+    check_real(confidence, "confidence", lo=0.0, hi=1.0, lo_open=True, hi_open=True)
+    check_real(rel_tol, "rel_tol", lo=0.0, lo_open=True)
+    if not isinstance(fit_offset, (bool, np.bool_)):
+        raise TypeError(f"fit_offset: must be a bool, got {type(fit_offset).__name__}")
+    if rng is None:
+        rng = np.random.default_rng(0)
+    elif not isinstance(rng, np.random.Generator):
+        raise ValueError(f"rng: must be a numpy.random.Generator or None, got {type(rng).__name__}")
+    span = float(dt * (n - 1))
+    bnds = _merge_bounds(names, _default_bounds(names, dt, span), bounds, dt, span)
+    fixed = dict(fixed or {})
+    for k, v in fixed.items():
+        if k not in names:
+            raise ValueError(f"fixed: unknown parameter {k!r} for form {form!r} (have {names})")
+        v = check_real(v, f"fixed[{k!r}]")
+        lo, hi = bnds[k]
+        if not lo <= v <= hi:
+            raise ValueError(f"fixed[{k!r}]: must be finite and within bounds {(lo, hi)}, "
+                             f"got {v!r}")
+        fixed[k] = v
+    free = tuple((["K"] if "K" not in fixed else []) + [k for k in names
+                                                          if k != "K" and k not in fixed])
+    n_par = len(free) + int(fit_offset)
+    if n - n_par < 1:
+        raise ValueError(f"t: {n} samples are too few for {n_par} parameters")
+    prob = _Problem(form=form, names=names, dt=dt, u=u, y=y, fixed=fixed, free=free,
+                    fit_offset=bool(fit_offset))
+    return prob, bnds, n_starts, rng
 
-    For ``K e^{-Td s} / (s D(s))`` with ``D(0) = 1`` the step response approaches the ramp
-    ``K (t - L)`` with ``L = Td + D'(0)``: ``Td + Tp1 + Tp2``, ``Td + 2 zeta Tw`` or
-    ``Td + Tp1``. ``L`` stays well determined when its parts trade off (a small delay against
-    a small pole, two near-equal poles), so it is the fair quantity to compare across fits.
-    The interval uses the delta method on ``TransferFit.covariance`` (the pseudo-inverse:
-    the gradient of ``L`` is orthogonal to those unidentifiable directions).
+
+def _lag_gradient(form: str, p: dict[str, float]) -> dict[str, float]:
+    """d(total lag) / d(parameter) for :func:`total_lag`."""
+    if form == "two_poles":
+        return {"Td": 1.0, "Tp1": 1.0, "Tp2": 1.0}
+    if form == "second_order":
+        return {"Td": 1.0, "zeta": 2.0 * p["Tw"], "Tw": 2.0 * p["zeta"]}
+    return {"Td": 1.0, "Tp1": 1.0}
+
+
+def total_lag(form: str, params: dict[str, float]) -> float:
+    """Total lag ``L = Td + D'(0)`` (seconds) of ``K e^{-Td s} / (s D(s))``, ``D(0) = 1``.
+
+    The step response approaches the ramp ``K (t - L)``: ``L = Td + Tp1 + Tp2``
+    (two_poles), ``Td + 2 zeta Tw`` (second_order) or ``Td + Tp1`` (one_pole). ``params``
+    needs the form's time parameters (``K`` is not used). Section 3.3 forms.
     """
-    p = fit.params
-    if fit.form == "two_poles":
-        lag = p["Td"] + p["Tp1"] + p["Tp2"]
-        grad = {"Td": 1.0, "Tp1": 1.0, "Tp2": 1.0}
-    elif fit.form == "second_order":
-        lag = p["Td"] + 2.0 * p["zeta"] * p["Tw"]
-        grad = {"Td": 1.0, "zeta": 2.0 * p["Tw"], "Tw": 2.0 * p["zeta"]}
-    else:
-        lag = p["Td"] + p["Tp1"]
-        grad = {"Td": 1.0, "Tp1": 1.0}
+    p = _check_params(form, {"K": 1.0, **params})
+    if form == "two_poles":
+        return p["Td"] + p["Tp1"] + p["Tp2"]
+    if form == "second_order":
+        return p["Td"] + 2.0 * p["zeta"] * p["Tw"]
+    return p["Td"] + p["Tp1"]
+
+
+def equivalent_lag(fit: TransferFit) -> tuple[float, tuple[float, float]]:
+    """Total lag of the fitted model (:func:`total_lag`) and its confidence interval (same
+    level as the fit).
+
+    ``L`` stays well determined when its parts trade off (a small delay against a small
+    pole, two near-equal poles), so it is the fair quantity to compare across fits. The
+    interval uses the delta method on ``TransferFit.covariance`` (the pseudo-inverse: the
+    gradient of ``L`` is orthogonal to those unidentifiable directions).
+    """
+    lag = total_lag(fit.form, fit.params)
+    grad = _lag_gradient(fit.form, fit.params)
     g = np.array([grad.get(k, 0.0) for k in fit.estimated])
     hw = fit.t_quantile * float(np.sqrt(max(g @ fit.covariance @ g, 0.0)))
     return float(lag), (float(lag - hw), float(lag + hw))

@@ -10,11 +10,13 @@ Controller (cascade, one update per ``1 / control_rate_hz``, ``mj_step(model, da
 in between):
 
 1. position -> acceleration: PD on the reference position/velocity plus the reference
-   acceleration, plus compensation of the (known) linear drag;
+   acceleration, plus compensation of the (known) linear drag (its moment is fed forward in
+   step 4);
 2. acceleration -> attitude and collective thrust: the desired body z axis is the desired
    force direction (tilt limited), heading from the yaw reference (Lee, Leok, McClamroch 2010);
 3. attitude -> body rates: proportional on the geometric attitude error;
-4. rates -> torques: proportional on the rate error times the inertia, plus omega x I omega;
+4. rates -> torques: proportional on the rate error times the inertia, plus omega x I omega,
+   minus the rotor drag's moment about the CG (path flights only);
 5. mixer: the 4 x 4 allocation matrix built from the rotor sites and actuator gears of the
    compiled model (thrust and reaction torque per rotor); thrusts outside the actuator range
    are saturated by MuJoCo's ctrlrange and *counted* (``meta["motor_saturation_fraction"]``).
@@ -57,31 +59,47 @@ channel). What each identified constant comes from in this simulator:
 - yaw rate: the yaw-rate loop is closed (time constant 1 / k_rate_yaw = 0.05 s) behind a
   1.80 s stick filter (chosen), so the fitted pole is the filter's (measured 1.80 s, thesis
   1.84 s) and the fitted delay is about the loop's 0.05 s (thesis 0.0044 s);
-- pitch: the stick sets the tilt angle (attitude loop closed, position and velocity loops
-  open); position then follows ``g / (s (s + drag_xy / m))`` behind the attitude loop and a
-  0.33 s link delay (chosen near the thesis's 0.365 s). This plant has only real poles
-  (drag 2.9 s, attitude loop ~0.05 s), so a ``second_order`` fit finds zeta > 1 (measured
-  noise-free: zeta 3.7, Tw 0.40 s, Td 0.40 s, i.e. 2 zeta Tw = 2.9 s = the drag pole): the
-  thesis's underdamped zeta = 0.40, Tw = 5.44 s is *not* reproduced. An underdamped
-  response would need a closed velocity loop in the flight controller, which the thesis
-  does not document; we keep the physical open loop instead.
+- pitch (``pitch_mode="rate"``, the default): the stick sets the pitch *rate* (the flight
+  controller's self-levelling is off on pitch; x position and velocity loops open) behind a
+  0.33 s link delay (chosen near the thesis's 0.365 s). The rotor drag acts in the rotor
+  plane, h = 4 cm above the CG (XML), so a forward speed v also pitches the nose up by the
+  moment ``-h drag_xy v``; the P rate loop lets it, and the speed feeds back into the tilt.
+  Linearised (:func:`pitch_chain`), the slow pair is to first order
+  ``s^2 + (drag_xy / m) s + g drag_xy h / (I k_rate)``: underdamped, with
+  ``2 zeta / Tw ~ drag_xy / m`` (the drag is its only damping). Measured noise-free fit: Tw 1.21 s, zeta 0.21, Td 0.378 s
+  (chain: 1.21 s, 0.20, 0.380 s). Rate mode is chosen because the thesis's fitted model
+  keeps accelerating for the whole 4 s after its 0.5 s impulse: a stick that sets the tilt
+  cannot do that (the tilt returns with the stick), a stick that sets the rate leaves the
+  tilt in place. The thesis's Tw = 5.44 s with zeta = 0.40 is *not* reproduced: it needs
+  ``drag_xy / m ~ 2 zeta / Tw = 0.15 1/s`` and h = 4.7 mm, outside the F450 ranges of
+  :data:`F450_RANGES` (which give Tw 0.59-2.9 s, zeta 0.09-0.44); with those values the
+  simulator reproduces the thesis's numbers (``experiments.identification``,
+  :func:`~experiments.identification.pitch_evidence`, which also shows that the thesis's
+  own 5 s window does not determine Tw and zeta).
+- pitch, ``pitch_mode="angle"``: the stick sets the tilt angle (attitude loop closed):
+  only real poles (drag, the drag moment against the attitude loop, attitude and rate
+  loops), so a ``second_order`` fit finds zeta > 1 (measured noise-free: zeta 3.3,
+  Tw 0.36 s, Td 0.40 s).
 
 Measured noise-free fits (:mod:`estimator.sysid`, 0.05 s grid, default impulses): thrust
 Tp1 = Tp2 = 0.416 s, Td = 0.657 s, K = 4.116 m/s = m g / drag_z (thesis 0.409, 0.423,
-0.659 s); yaw rate Tp1 = 1.80 s, Td = 0.046 s, K = 0.995. The thesis's gains (1856.4,
-3425.9, 91.258) are in millimetres (degrees) per normalised stick unit and are not
-comparable with ours (SI per fraction of hover thrust, rad, rad/s).
+0.659 s); yaw rate Tp1 = 1.80 s, Td = 0.046 s, K = 0.995; pitch (rate mode) as above,
+K = 14.30 m/s per rad/s (chain: k_rate I / (drag_xy h) = 14.29). The thesis's gains
+(1856.4, 3425.9, 91.258) are in millimetres (degrees) per normalised stick unit and are not
+comparable with ours (SI per fraction of hover thrust, rad/s).
 
-The chosen (non-physical) numbers are the stick-channel delays and filters; the physical
-ones (motor lag, actuator delay, drag, inertia) are justified in the XML. Measured fits are
-in ``tests/test_quadcopter.py`` and the README.
+The chosen (non-physical) numbers are the stick-channel delays and filters and the pitch
+stick's mode; the physical ones (motor lag, actuator delay, drag, rotor height, inertia) are
+justified in the XML. The path flights' autopilot feeds forward the rotor drag's force and
+moment (it knows the model); the stick experiments' hobby flight controller does not.
+:func:`simulator_constants` gives every chain constant that maps onto a thesis parameter.
 """
 
 from __future__ import annotations
 
 import hashlib
 import math
-from dataclasses import asdict, dataclass
+from dataclasses import asdict, dataclass, fields
 from pathlib import Path as FsPath
 from typing import NamedTuple
 
@@ -89,22 +107,30 @@ import mujoco
 import numpy as np
 from scipy.ndimage import gaussian_filter1d
 
+from estimator._checks import check_fields, check_real
 from estimator.configuration import MODELS_DIR
 from sim.paths import Path, load_path
 from sim.truth import Truth
 
 __all__ = [
     "AXES",
+    "F450_RANGES",
     "MODEL_PATH",
+    "PITCH_MODES",
     "SENSOR_NAMES",
     "STICK_CHANNELS",
     "Gains",
     "ImpulseResponse",
+    "PitchChain",
     "StickChannel",
     "impulse_response",
     "load_model",
+    "model_variant",
+    "pitch_chain",
+    "pitch_chain_of",
     "reference_trajectory",
     "simulate_quadcopter",
+    "simulator_constants",
 ]
 
 MODEL_PATH = MODELS_DIR / "quadcopter.xml"
@@ -112,6 +138,9 @@ MODEL_PATH = MODELS_DIR / "quadcopter.xml"
 SENSOR_NAMES = ("front", "rear")
 _TX_SITES = ("tx_front", "tx_rear")
 _MOTORS = ("motor_fl", "motor_fr", "motor_rr", "motor_rl")
+_DRAG_ACTUATORS = ("drag_x", "drag_y")
+_ROTOR_PLANE = "rotor_plane"
+_DRAG_NUMERICS = ("drag_xy", "drag_z", "drag_rot")
 _BODY = "quad"
 AXES = ("thrust", "pitch", "yaw_rate")
 _G = 9.81
@@ -142,9 +171,7 @@ class Gains:
     yaw_ref_smoothing_s: float = 0.3
 
     def __post_init__(self) -> None:
-        for k, v in asdict(self).items():
-            if not (isinstance(v, (int, float)) and math.isfinite(v) and v > 0):
-                raise ValueError(f"gains.{k}: must be a finite number > 0, got {v!r}")
+        check_fields(self, (f.name for f in fields(self)), prefix="gains.")
 
 
 @dataclass(frozen=True)
@@ -159,10 +186,7 @@ class StickChannel:
     tau_s: float
 
     def __post_init__(self) -> None:
-        for k in ("delay_s", "tau_s"):
-            v = getattr(self, k)
-            if not (isinstance(v, (int, float)) and math.isfinite(v) and v >= 0):
-                raise ValueError(f"channel.{k}: must be a finite number >= 0, got {v!r}")
+        check_fields(self, ("delay_s", "tau_s"), prefix="channel.", lo_open=False)
 
 
 #: Default stick channels, chosen so that identified constants are of the thesis's order
@@ -176,20 +200,45 @@ STICK_CHANNELS: dict[str, StickChannel] = {
 #: Default impulse per axis: (amplitude, pulse_s, units of u). Thrust: fraction of the hover
 #: thrust; pitch: tilt angle (rad, positive accelerates towards +x); yaw rate: rad/s.
 _IMPULSE_DEFAULTS = {"thrust": (0.2, 0.5), "pitch": (0.05, 0.5), "yaw_rate": (0.5, 1.0)}
+#: Flight-controller modes of the pitch stick: "rate" (the stick commands the pitch rate,
+#: self-levelling off) or "angle" (the stick commands the tilt angle).
+PITCH_MODES = ("rate", "angle")
+#: Ranges of the physical constants that shape the rate-mode pitch response, for an F450
+#: of this build (models/quadcopter.xml has the defaults and their reasoning):
+#: ``drag_xy_per_kg`` rotor drag / mass, 1/s (measured 0.3-0.5 1/s on small quadrotors,
+#: Faessler, Franchi, Scaramuzza 2018); ``rotor_height_m`` rotor hubs above the CG (props
+#: ~3.5 cm above the arms, CG 0.5-1.5 cm below them, battery / boom placement); ``inertia_yy``
+#: kg m^2 (the motors alone give 0.0091, frame and battery 0.001-0.003, the 0.5 m
+#: transmitter boom up to 0.003 more); ``k_rate`` 1/s, the rate loop's gain (crossover):
+#: with the 30 ms motor lag, the 12 ms delay and half the 4 ms control period its phase
+#: margin is 48 deg at 20 (the default), 24 deg at 40.
+F450_RANGES: dict[str, tuple[float, float]] = {
+    "drag_xy_per_kg": (0.3, 0.5),
+    "rotor_height_m": (0.02, 0.05),
+    "inertia_yy": (0.010, 0.015),
+    "k_rate": (10.0, 40.0),
+}
+#: Default pitch impulse per mode (amplitude, pulse_s): rate 0.1 rad/s for 0.5 s leaves the
+#: same 0.05 rad tilt as the angle impulse commands.
+_PITCH_DEFAULTS = {"rate": (0.1, 0.5), "angle": (0.05, 0.5)}
 
 
 # ------------------------------------------------------------------------------ model
 def load_model(path: str | FsPath = MODEL_PATH) -> mujoco.MjModel:
-    """Compile the quadcopter MJCF and apply its linear drag (custom numerics) as dof damping.
+    """Compile the quadcopter MJCF and apply its linear drag (custom numerics, see the XML).
 
-    The free joint's translational dofs are world-frame (damping ``drag_xy``, ``drag_xy``,
-    ``drag_z``), its rotational dofs body-frame (``drag_rot``); see the XML header.
+    ``drag_xy`` (N s/m) becomes the damping of the ``drag_x`` / ``drag_y`` site actuators: the
+    rotor drag, a force in the rotor plane at the ``rotor_plane`` site (body x and y), which
+    also pitches / rolls the body since that site is above the CG. ``drag_z`` (N s/m, world
+    z) and ``drag_rot`` (N m s/rad, body rotations) are free-joint dof damping.
     """
     model = mujoco.MjModel.from_xml_path(str(path))
-    drag = {n: float(model.numeric(n).data[0]) for n in ("drag_xy", "drag_z", "drag_rot")}
+    drag = {n: float(model.numeric(n).data[0]) for n in _DRAG_NUMERICS}
     adr = model.jnt_dofadr[model.joint("root").id]
-    model.dof_damping[adr:adr + 6] = [drag["drag_xy"], drag["drag_xy"], drag["drag_z"],
+    model.dof_damping[adr:adr + 6] = [0.0, 0.0, drag["drag_z"],
                                       drag["drag_rot"], drag["drag_rot"], drag["drag_rot"]]
+    for name in _DRAG_ACTUATORS:
+        model.actuator(name).biasprm[2] = -drag["drag_xy"]
     return model
 
 
@@ -207,7 +256,18 @@ class _Plant:
         self.dt = float(m.opt.timestep)
         self.qadr = m.jnt_qposadr[m.joint("root").id]
         self.vadr = m.jnt_dofadr[m.joint("root").id]
-        self.drag = np.array(m.dof_damping[self.vadr:self.vadr + 3], dtype=float)
+        # translational drag (N s/m) per world axis, for the controller's drag compensation:
+        # the rotor drag acts in the body's x-y plane, equal to world x-y for small tilts
+        self.c_xy = float(-m.actuator(_DRAG_ACTUATORS[0]).biasprm[2])
+        rp = m.site(_ROTOR_PLANE)
+        if rp.bodyid[0] != self.body or not np.allclose(rp.pos[:2], 0.0):
+            raise ValueError(f"model: site {_ROTOR_PLANE!r} must be on body {_BODY!r} on its "
+                             f"z axis, got position {rp.pos.tolist()}")
+        #: height (m) of the rotor plane's centre above the CG, where the rotor drag acts
+        self.rotor_height = float(rp.pos[2])
+        self.drag = np.array([-m.actuator(_DRAG_ACTUATORS[0]).biasprm[2],
+                              -m.actuator(_DRAG_ACTUATORS[1]).biasprm[2],
+                              m.dof_damping[self.vadr + 2]], dtype=float)
         self.tx = np.array([m.site(s).id for s in _TX_SITES])
         self.act = np.array([m.actuator(a).id for a in _MOTORS])
         # allocation: [thrust, tau_x, tau_y, tau_z] (body) = A @ f, f = rotor thrusts (N)
@@ -276,9 +336,13 @@ def _quat_to_R(q: np.ndarray) -> np.ndarray:
 class _Controller:
     """Cascade of Section-level loops (see module docstring); one call = one update."""
 
-    def __init__(self, plant: _Plant, gains: Gains) -> None:
+    def __init__(self, plant: _Plant, gains: Gains, *, drag_moment_ff: bool) -> None:
         self.p = plant
         self.g = gains
+        # feedforward of the rotor drag's moment about the CG (the autopilot of the path
+        # flights knows the model, as it knows the drag force); the stick experiments model
+        # the thesis's hobby flight controller, which does not
+        self.drag_moment_ff = drag_moment_ff
         I = plant.inertia
         self.k_rate_I = I * np.array([gains.k_rate, gains.k_rate, gains.k_rate_yaw])
         self.k_att = np.array([gains.k_att, gains.k_att, gains.k_att_yaw])
@@ -289,12 +353,15 @@ class _Controller:
         self.updates = 0
 
     def update(self, p_ref, v_ref, a_ref, yaw_ref, yaw_rate_ref, *, thrust_open=None,
-               tilt_x_open=None, yaw_rate_open=None) -> None:
+               tilt_x_open=None, pitch_rate_open=None, yaw_rate_open=None) -> None:
         """Compute and set the four rotor thrust commands.
 
         thrust_open : collective thrust as a fraction of hover *deviation* (altitude loop open).
         tilt_x_open : tilt (rad) about the heading's y axis replacing the x position/velocity
             loops (positive accelerates towards +x at heading 0).
+        pitch_rate_open : body pitch-rate command (rad/s, about body y; positive tilts the
+            thrust towards +x at heading 0) replacing the x position/velocity loops *and* the
+            pitch angle loop (rate mode, self-levelling off on pitch).
         yaw_rate_open : body yaw-rate command (rad/s) replacing the heading loop.
         """
         pl, d = self.p, self.p.data
@@ -312,6 +379,11 @@ class _Controller:
             # x loops open: the force's x component sets the commanded tilt; the physical drag
             # acts uncompensated on the x motion
             F[0] = F[2] * math.tan(tilt_x_open)
+        elif pitch_rate_open is not None:
+            # x loops open and no pitch angle loop: the desired attitude keeps the present
+            # x tilt of the thrust axis (so the pitch error is zero and only roll and heading
+            # are held); the pitch rate is commanded below
+            F[0] = F[2] * R[0, 2] / R[2, 2]
         # tilt limit (horizontal force magnitude vs vertical)
         fh = math.hypot(F[0], F[1])
         lim = self.tan_tilt * max(F[2], 0.1 * m * _G)
@@ -335,6 +407,8 @@ class _Controller:
         E = E - E.T
         eR = 0.5 * np.array([E[2, 1], E[0, 2], E[1, 0]])
         om_des = -self.k_att * eR
+        if pitch_rate_open is not None:
+            om_des[1] = pitch_rate_open
         if yaw_rate_open is None:
             om_des[2] += yaw_rate_ref * R[2, 2]
         else:
@@ -342,6 +416,14 @@ class _Controller:
         # 4. rate loop
         Iom = pl.inertia * om
         tau = self.k_rate_I * (om_des - om) + _cross(om, Iom)
+        if self.drag_moment_ff:
+            # the rotor drag -c_xy (u, w) at r = (0, 0, h), (u, w) the body x / y velocity of
+            # the rotor plane's centre, has the moment r x F = c_xy h (w, -u, 0); cancel it
+            h = pl.rotor_height
+            u = R[0, 0] * vel[0] + R[1, 0] * vel[1] + R[2, 0] * vel[2] + h * om[1]
+            w = R[0, 1] * vel[0] + R[1, 1] * vel[1] + R[2, 1] * vel[2] - h * om[0]
+            tau[0] -= pl.c_xy * h * w
+            tau[1] += pl.c_xy * h * u
         # 5. mixer
         f = pl.mixer @ np.array([T, tau[0], tau[1], tau[2]])
         if np.any(f > pl.fmax) or np.any(f < pl.fmin):
@@ -555,12 +637,10 @@ def simulate_quadcopter(path: Path | str = "quad_square6", *, seed: int = 0,
     gains = gains if gains is not None else Gains()
     if yaw_mode not in ("fixed", "along_path"):
         raise ValueError(f"yaw_mode: expected 'fixed' or 'along_path', got {yaw_mode!r}")
-    if not math.isfinite(yaw_rad):
-        raise ValueError(f"yaw_rad: must be finite, got {yaw_rad!r}")
-    if not (math.isfinite(hover_after_s) and hover_after_s >= 0):
-        raise ValueError(f"hover_after_s: must be a finite number >= 0, got {hover_after_s!r}")
-    if duration_s is not None and not (math.isfinite(duration_s) and duration_s > 0):
-        raise ValueError(f"duration_s: must be a finite number > 0, got {duration_s!r}")
+    check_real(yaw_rad, "yaw_rad")
+    check_real(hover_after_s, "hover_after_s", lo=0.0)
+    if duration_s is not None:
+        check_real(duration_s, "duration_s", lo=0.0, lo_open=True)
     interval = _check_interval(sample_interval_s, path)
     params = {"sample_interval_s": list(interval), "yaw_mode": yaw_mode, "yaw_rad": yaw_rad,
               "gains": asdict(gains), "hover_after_s": hover_after_s, "duration_s": duration_s}
@@ -609,7 +689,7 @@ def _simulate(path, rng, interval, yaw_mode, yaw_rad, gains, hover_after_s, dura
         yaw_ref = gaussian_filter1d(ref["yaw"], gains.yaw_ref_smoothing_s / h, mode="nearest")
         yaw_rate_ref = np.gradient(yaw_ref, h)
     plant.reset_hover(ref["p"][0], float(yaw_ref[0]))
-    ctrl = _Controller(plant, gains)
+    ctrl = _Controller(plant, gains, drag_moment_ff=True)
     steps = _sample_steps(rng, total_steps, dt, interval)
     ns = steps.shape[0]
     tx = np.empty((ns, 2, 3))
@@ -674,7 +754,7 @@ class ImpulseResponse(NamedTuple):
 
     t : (n,) s, starting at 0; the pulse starts at ``pre_s``.
     u : (n,) the stick input as sent (before the stick channel): thrust as a fraction of the
-        hover thrust, pitch tilt in rad, yaw-rate command in rad/s.
+        hover thrust, pitch rate in rad/s (or tilt in rad, angle mode), yaw rate in rad/s.
     y : (n,) output deviation from hover: altitude (m), x position (m), heading (rad,
         unwrapped).
     """
@@ -688,6 +768,7 @@ def impulse_response(axis: str, *, duration_s: float = 8.0, pre_s: float = 1.0,
                      amplitude: float | None = None, pulse_s: float | None = None,
                      sample_interval_s: float = 0.05, channel: StickChannel | None = None,
                      altitude_m: float = 2.5, gains: Gains | None = None,
+                     pitch_mode: str = "rate",
                      model_path: str | FsPath = MODEL_PATH) -> ImpulseResponse:
     """Open-loop impulse response of one command channel from hover (thesis 003 Section 3.3).
 
@@ -696,35 +777,36 @@ def impulse_response(axis: str, *, duration_s: float = 8.0, pre_s: float = 1.0,
     - ``"thrust"``: collective thrust = hover thrust * (1 + stick), altitude loop open;
       horizontal position and heading held. y = altitude change (m). Form
       ``K e^{-Td s} / (s (1 + Tp1 s)(1 + Tp2 s))`` (Section 3.3.1).
-    - ``"pitch"``: the stick sets the tilt about the body y axis (heading 0, positive
-      accelerates towards +x); x position and velocity loops open, attitude, y and altitude
-      held. y = x displacement (m). Form ``K e^{-Td s} / (s (1 + 2 zeta Tw s + (Tw s)^2))``
-      (Section 3.3.2); see the module docstring for why zeta >= 1 here.
+    - ``"pitch"``: ``pitch_mode="rate"`` (default): the stick sets the body pitch rate
+      (rad/s, positive tilts towards +x at heading 0), pitch angle loop off;
+      ``pitch_mode="angle"``: the stick sets the tilt (rad). Either way the x position and
+      velocity loops are open, roll, heading, y and altitude held. y = x displacement (m).
+      Form ``K e^{-Td s} / (s (1 + 2 zeta Tw s + (Tw s)^2))`` (Section 3.3.2); see the module
+      docstring for the poles of each mode.
     - ``"yaw_rate"``: the stick commands the body yaw rate, heading loop open. y = heading
       change (rad, unwrapped). Form ``K e^{-Td s} / (s (1 + Tp1 s))`` (Section 3.3.3).
 
     The stick passes through ``channel`` (default :data:`STICK_CHANNELS[axis]`). Defaults:
-    thrust 0.2 x hover for 0.5 s; pitch 0.05 rad for 0.5 s (Section 3.3.2: "impulse command
-    of duration 0.5s"); yaw rate 0.5 rad/s for 1.0 s (Section 3.3.3: "roughly 1s"). The grid
+    thrust 0.2 x hover for 0.5 s; pitch 0.1 rad/s (rate mode) or 0.05 rad (angle mode) for
+    0.5 s (Section 3.3.2: "impulse command of duration 0.5s"); yaw rate 0.5 rad/s for 1.0 s
+    (Section 3.3.3: "roughly 1s"). The grid
     interval 0.05 s is the thesis's resampling interval (Appendix C, ``Sampling Interval``);
     the thesis's window is 1 s before and 4 s after the impulse, the default 8 s lets the
     1.8 s yaw pole settle.
     """
     if axis not in AXES:
         raise ValueError(f"axis: expected one of {AXES}, got {axis!r}")
-    amp0, pulse0 = _IMPULSE_DEFAULTS[axis]
+    if pitch_mode not in PITCH_MODES:
+        raise ValueError(f"pitch_mode: expected one of {PITCH_MODES}, got {pitch_mode!r}")
+    amp0, pulse0 = _PITCH_DEFAULTS[pitch_mode] if axis == "pitch" else _IMPULSE_DEFAULTS[axis]
     amplitude = amp0 if amplitude is None else amplitude
     pulse_s = pulse0 if pulse_s is None else pulse_s
-    for name, v, lo in (("duration_s", duration_s, 0.0), ("pulse_s", pulse_s, 0.0),
-                        ("sample_interval_s", sample_interval_s, 0.0)):
-        if not (math.isfinite(v) and v > lo):
-            raise ValueError(f"{name}: must be a finite number > 0, got {v!r}")
-    if not (math.isfinite(pre_s) and pre_s >= 0):
-        raise ValueError(f"pre_s: must be a finite number >= 0, got {pre_s!r}")
-    if not math.isfinite(amplitude):
-        raise ValueError(f"amplitude: must be finite, got {amplitude!r}")
-    if not math.isfinite(altitude_m):
-        raise ValueError(f"altitude_m: must be finite, got {altitude_m!r}")
+    for name, v in (("duration_s", duration_s), ("pulse_s", pulse_s),
+                    ("sample_interval_s", sample_interval_s)):
+        check_real(v, name, lo=0.0, lo_open=True)
+    check_real(pre_s, "pre_s", lo=0.0)
+    check_real(amplitude, "amplitude")
+    check_real(altitude_m, "altitude_m")
     gains = gains if gains is not None else Gains()
     channel = channel if channel is not None else STICK_CHANNELS[axis]
     plant = _Plant(model_path)
@@ -750,7 +832,7 @@ def impulse_response(axis: str, *, duration_s: float = 8.0, pre_s: float = 1.0,
     n_ticks = math.ceil(total_steps / nctrl) + 1
     p0 = np.array([0.0, 0.0, altitude_m])
     plant.reset_hover(p0, 0.0)
-    ctrl = _Controller(plant, gains)
+    ctrl = _Controller(plant, gains, drag_moment_ff=False)
     stick = _Stick(channel, h)
     zero3 = np.zeros(3)
     t_tick = np.arange(n_ticks) * h
@@ -778,7 +860,8 @@ def impulse_response(axis: str, *, duration_s: float = 8.0, pre_s: float = 1.0,
     j = 0
     for tick in range(n_ticks):
         s = stick(float(u_tick[tick]))
-        kw = {"thrust": {"thrust_open": s}, "pitch": {"tilt_x_open": s},
+        pitch_kw = "pitch_rate_open" if pitch_mode == "rate" else "tilt_x_open"
+        kw = {"thrust": {"thrust_open": s}, "pitch": {pitch_kw: s},
               "yaw_rate": {"yaw_rate_open": s}}[axis]
         ctrl.update(p0, zero3, zero3, 0.0, 0.0, **kw)
         end = cur + nctrl
@@ -799,3 +882,188 @@ def impulse_response(axis: str, *, duration_s: float = 8.0, pre_s: float = 1.0,
     t = np.arange(n) * sample_interval_s
     u = np.where((t >= pre_s - 1e-9) & (t < pre_s + pulse_s - 1e-9), amplitude, 0.0)
     return ImpulseResponse(t=t, u=u, y=y)
+
+
+# ------------------------------------------------- linearised chains (Section 3.3 constants)
+class PitchChain(NamedTuple):
+    """The linearised pitch stick -> x position chain about hover (:func:`pitch_chain`).
+
+    poles : (4,) complex, 1/s, of x velocity (the position integrator left out), slowest first.
+    K : steady x velocity per unit stick: m/s per rad/s (rate mode) or per rad (angle mode);
+        ``inf`` if the chain has a second integrator (rate mode without a drag moment).
+    Tw, zeta : the second-order factor ``1 + 2 zeta Tw s + (Tw s)^2`` of the two slowest poles
+        (``Tw = 1 / sqrt(p1 p2)``, ``2 zeta Tw = -(1/p1 + 1/p2)``; zeta >= 1 for real poles).
+    Td : link delay plus ``-sum 1/p`` over the other (fast) poles, the delay the thesis's form
+        folds them into (first order).
+    lag : ``Td + 2 zeta Tw``, the ramp asymptote's lag of the whole chain.
+    A, B : (4, 4), (4,) the state-space model ``x' = A x + B u(t - delay_s)`` of the states
+        ``(theta, q, alpha, v)`` (see :func:`pitch_chain`), for simulating it.
+    """
+
+    poles: np.ndarray
+    K: float
+    Tw: float
+    zeta: float
+    Td: float
+    lag: float
+    A: np.ndarray
+    B: np.ndarray
+
+
+def pitch_chain(mode: str = "rate", *, mass_kg: float, inertia_yy: float, drag_xy: float,
+                rotor_height_m: float, k_rate: float, k_att: float, motor_lag_s: float,
+                delay_s: float, g: float = _G) -> PitchChain:
+    """Pitch stick -> x velocity of the simulated chain, linearised about hover (Section 3.3.2).
+
+    States: tilt theta (rad, positive accelerates towards +x), pitch rate q, the rate loop's
+    angular acceleration command after the first-order motor lag ``motor_lag_s``, x velocity
+    v. The rotor drag ``-drag_xy (v + h q)`` acts at the rotor plane, ``h = rotor_height_m``
+    above the CG (models/quadcopter.xml), so it also pitches the body by ``-h`` times itself:
+
+        theta' = q,   v' = g theta - (drag_xy / m)(v + h q),
+        q' = alpha - (drag_xy h / I)(v + h q),   alpha' = (k_rate (q_cmd - q) - alpha) / T_m,
+
+    with ``q_cmd`` = the stick (``mode="rate"``) or ``k_att (stick - theta)`` (``"angle"``).
+    Every argument is a real number within generous physical bounds (mass 1e-3..1e4 kg,
+    inertia 1e-6..1e4 kg m^2, drag 0..1e4 N s/m, |h| <= 10 m, gains 1e-3..1e4 1/s, motor lag
+    1e-6..10 s, delay 0..1e3 s); outside them ValueError names it.
+    The actuator delay (12 ms) and the control period are left out (measured against MuJoCo:
+    <= 1 % of the peak response, ``tests/test_quadcopter.py``). Without the motor lag the
+    characteristic polynomial is ``s^3 + (k + c h^2/I + c/m) s^2 + k c/m s + g c h / I`` in
+    rate mode (``c = drag_xy``, ``k = k_rate``; angle mode adds ``k k_att (s + c/m)``). For
+    ``k`` well above the slow frequency the rate-mode slow pair is
+    ``s^2 + (c/m - w^2/k) s + w^2`` with ``w^2 = g c h / (I k)``: underdamped, stiffened by
+    the drag's moment, damped by the drag alone (less the rate loop's finite gain; the motor
+    lag removes more).
+    """
+    if mode not in PITCH_MODES:
+        raise ValueError(f"mode: expected one of {PITCH_MODES}, got {mode!r}")
+    # generous physical bounds (SI): beyond them the eigenvalues of A lose every digit
+    m = check_real(mass_kg, "mass_kg", lo=1e-3, hi=1e4)
+    iyy = check_real(inertia_yy, "inertia_yy", lo=1e-6, hi=1e4)
+    c = check_real(drag_xy, "drag_xy", lo=0.0, hi=1e4)
+    h = check_real(rotor_height_m, "rotor_height_m", lo=-10.0, hi=10.0)
+    k = check_real(k_rate, "k_rate", lo=1e-3, hi=1e4)
+    ka = check_real(k_att, "k_att", lo=1e-3, hi=1e4)
+    tm = check_real(motor_lag_s, "motor_lag_s", lo=1e-6, hi=10.0)
+    d = check_real(delay_s, "delay_s", lo=0.0, hi=1e3)
+    g = check_real(g, "g", lo=1e-3, hi=1e3)
+    # x = [theta, q, alpha, v], input u (the stick after the link delay)
+    A = np.array([[0.0, 1.0, 0.0, 0.0],
+                  [0.0, -c * h * h / iyy, 1.0, -c * h / iyy],
+                  [0.0, -k / tm, -1.0 / tm, 0.0],
+                  [g, -c * h / m, 0.0, -c / m]])
+    B = np.array([0.0, 0.0, k / tm, 0.0])
+    if mode == "angle":
+        A[2, 0] -= k * ka / tm
+        B = B * ka
+    poles = np.linalg.eigvals(A)
+    poles = poles[np.argsort(np.abs(poles), kind="stable")]
+    if np.min(np.abs(poles)) < 1e-12 * max(1.0, np.max(np.abs(poles))):
+        K = math.inf
+    else:
+        K = float(-(np.linalg.solve(A, B))[3])
+    p1, p2 = poles[0], poles[1]
+    Tw = float(1.0 / np.sqrt((p1 * p2).real)) if (p1 * p2).real > 0 else math.nan
+    two_zeta_tw = float(-(1.0 / p1 + 1.0 / p2).real) if math.isfinite(Tw) else math.nan
+    Td = d + float(np.sum(-1.0 / poles[2:]).real)
+    return PitchChain(poles=poles, K=K, Tw=Tw, zeta=two_zeta_tw / (2.0 * Tw), Td=Td,
+                      lag=Td + two_zeta_tw, A=A, B=B)
+
+
+def pitch_chain_of(model: mujoco.MjModel, *, mode: str = "rate", gains: Gains | None = None,
+                   channel: StickChannel | None = None) -> PitchChain:
+    """:func:`pitch_chain` with every constant read by name from a compiled ``model``
+    (:func:`load_model`: mass and inertia of body ``quad``, ``drag_xy``, the ``rotor_plane``
+    site's height, the motors' lag) and from ``gains`` / ``channel`` (defaults
+    :class:`Gains`, :data:`STICK_CHANNELS` ``["pitch"]``)."""
+    gains = gains if gains is not None else Gains()
+    channel = channel if channel is not None else STICK_CHANNELS["pitch"]
+    body = model.body(_BODY)
+    return pitch_chain(mode, mass_kg=float(body.mass[0]), inertia_yy=float(body.inertia[1]),
+                       drag_xy=float(model.numeric("drag_xy").data[0]),
+                       rotor_height_m=float(model.site(_ROTOR_PLANE).pos[2]),
+                       k_rate=gains.k_rate, k_att=gains.k_att,
+                       motor_lag_s=float(model.actuator(_MOTORS[0]).dynprm[0]),
+                       delay_s=channel.delay_s, g=-float(model.opt.gravity[2]))
+
+
+def simulator_constants(*, pitch_mode: str = "rate", gains: Gains | None = None,
+                        model_path: str | FsPath = MODEL_PATH
+                        ) -> dict[str, dict[str, tuple[float, str]]]:
+    """The simulated chain's own constants that map onto the thesis's parameters (3.3).
+
+    ``{axis: {param: (value, how)}}`` for the forms of :data:`AXES` (``K``, the time
+    constants, ``Td`` and the total ``lag``), read from the compiled model by name (mass,
+    inertia, drag, rotor height, motor lag, actuator delay), :class:`Gains` and
+    :data:`STICK_CHANNELS`. Parameters with no single counterpart in the chain are left out.
+
+    Thrust and yaw: the total lag (ramp asymptote ``K (t - lag)``) adds up along the chain:
+    the open thrust path adds the motor lag and actuator delay; a closed proportional loop
+    adds only its own ``D'(0)`` (rate loop ``I / (k I + d)``), the motor lag and actuator
+    delay inside it do not add (to first order; their effect in the yaw loop is
+    ``d (tau_m + tau_a) / (k I + d)`` ~ 2e-4 s). Pitch: :func:`pitch_chain_of`.
+    """
+    if pitch_mode not in PITCH_MODES:
+        raise ValueError(f"pitch_mode: expected one of {PITCH_MODES}, got {pitch_mode!r}")
+    gains = gains if gains is not None else Gains()
+    m = load_model(model_path)
+    body = m.body(_BODY)
+    mass, izz = float(body.mass[0]), float(body.inertia[2])
+    drag_z = float(m.numeric("drag_z").data[0])
+    drag_rot = float(m.numeric("drag_rot").data[0])
+    motor = float(m.actuator(_MOTORS[0]).dynprm[0])
+    # the actuator delay has no named view: index by the motor's id; effective = setting +
+    # one physics step (MuJoCo notes)
+    act_delay = float(m.actuator_delay[m.actuator(_MOTORS[0]).id]) + float(m.opt.timestep)
+    g = -float(m.opt.gravity[2])
+    th, pi, yw = STICK_CHANNELS["thrust"], STICK_CHANNELS["pitch"], STICK_CHANNELS["yaw_rate"]
+    tz = mass / drag_z
+    k_i = gains.k_rate_yaw * izz
+    rate_lag = (izz + drag_rot * (motor + act_delay)) / (k_i + drag_rot)
+    poles = sorted((th.tau_s, tz))
+    pc = pitch_chain_of(m, mode=pitch_mode, gains=gains, channel=pi)
+    how = f"pitch chain ({pitch_mode} mode), linearised: slow pair"
+    pitch = {"K": (pc.K, f"pitch chain ({pitch_mode} mode): steady velocity per stick unit")}
+    if pitch_mode == "rate":
+        pitch["Tw"] = (pc.Tw, f"{how}, ~ sqrt(I k_rate / (g drag_xy h))")
+        pitch["zeta"] = (pc.zeta, f"{how}, ~ (drag_xy / m) Tw / 2")
+    pitch["Td"] = (pc.Td, f"link {pi.delay_s:g} s + fast poles' lags")
+    pair = "slow pair" if pitch_mode == "rate" else "two slowest (real) poles"
+    pitch["lag"] = (pc.lag, f"Td + 2 zeta Tw of the {pair}")
+    return {
+        "thrust": {
+            "K": (g * tz, "g m / drag_z"),
+            "Tp1": (poles[0], "smaller of stick filter and m / drag_z"),
+            "Tp2": (poles[1], "larger of stick filter and m / drag_z"),
+            "Td": (th.delay_s + motor + act_delay,
+                   (f"link {th.delay_s:g} s + motor lag {motor:g} s + actuator delay "
+                   f"{act_delay:g} s (open path; the lag folded into the delay)")),
+            "lag": (th.delay_s + motor + act_delay + th.tau_s + tz, "sum of the above"),
+        },
+        "pitch": pitch,
+        "yaw_rate": {
+            "K": (k_i / (k_i + drag_rot), "closed rate loop k I / (k I + drag_rot)"),
+            "Tp1": (yw.tau_s, "stick filter"),
+            "Td": (yw.delay_s + rate_lag,
+                   f"link {yw.delay_s:g} s + closed rate loop's lag {rate_lag:.4g} s"),
+            "lag": (yw.delay_s + yw.tau_s + rate_lag, "sum of the above"),
+        },
+    }
+
+
+def model_variant(*, drag_xy: float | None = None, rotor_height_m: float | None = None,
+                  path: str | FsPath = MODEL_PATH) -> str:
+    """MJCF text of the quadcopter model with other physical values (``None`` keeps one):
+    ``drag_xy`` (N s/m, the custom numeric) and ``rotor_height_m`` (the rotor plane's and the
+    rotor sites' height above the CG). For parameter studies; pass the text, written to a
+    file, as ``model_path``."""
+    spec = mujoco.MjSpec.from_file(str(path))
+    if drag_xy is not None:
+        spec.numeric("drag_xy").data = [check_real(drag_xy, "drag_xy", lo=0.0)]
+    if rotor_height_m is not None:
+        h = check_real(rotor_height_m, "rotor_height_m")
+        for name in (_ROTOR_PLANE, *(f"rotor_{c}" for c in ("fl", "fr", "rr", "rl"))):
+            site = spec.site(name)
+            site.pos = [site.pos[0], site.pos[1], h]
+    return spec.to_xml()
