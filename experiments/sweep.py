@@ -18,6 +18,14 @@ Pipeline per cell (one point of the grid, one seed):
    and solver;
 4. score: Eq. 4.1 / 4.2 errors per evaluation mask (full path, no turns), summarised.
 
+A cell naming a ``recording`` (:mod:`sim.recording`) takes its observations from the
+recording (or, for a recording with ``[replay]``, its reference plus the error replayed
+for the cell's seed) instead of steps 1-2, and is scored against the recording's reference
+with the same statistics; a recording without a reference gives coverage rows (epochs,
+estimates, NaN estimates, status counts) only. Every recording cell also records the
+layout check of :func:`estimator.layout_check.check_layout` (mirror and forward-axis
+verdicts, ``layout_*`` columns).
+
 Randomness: every stream is a ``numpy.random.Generator`` seeded from
 ``SeedSequence([spec.seed, cell.seed, stream])``; the same spec and seed give bit-identical
 numbers in any order, on any number of workers.
@@ -179,7 +187,9 @@ def _observations(cell: Cell, truth, config, ctx: CellContext) -> np.ndarray:
         return ctx.memo[key]
     from sim.gps import StationarySession, observe
 
-    if cell.noise == "none":
+    if cell.recording != "-":      # truth is the Recording (drawn per seed for a replay)
+        obs = truth.observations(cell_rng(ctx.spec_seed, cell.seed, STREAM_NOISE))
+    elif cell.noise == "none":
         obs = observe(truth, config, None)
     else:
         rng = cell_rng(ctx.spec_seed, cell.seed, STREAM_NOISE)
@@ -290,6 +300,8 @@ def evaluate_cell(cell: Cell, truth, ctx: CellContext) -> CellOutput:
     from estimator.configuration import SensorConfig
     from estimator.tracking import track
 
+    if cell.recording != "-":
+        return evaluate_recording_cell(cell, truth, ctx)
     t0 = time.perf_counter()
     ckey = ("config", cell.file("config"))
     if ckey not in ctx.memo:
@@ -309,7 +321,8 @@ def evaluate_cell(cell: Cell, truth, ctx: CellContext) -> CellOutput:
         weighting, extra = "huff", {"huff_threshold": float(weighting[5:])}
     df = track(truth.t, obs, config, window=cell.window, weighting=weighting, turning=turning,
                solver="procrustes" if cell.solver == "-" else cell.solver, **extra,
-               rng=cell_rng(ctx.spec_seed, cell.seed, STREAM_ESTIMATOR), **kw)
+               rng=cell_rng(ctx.spec_seed, cell.seed, STREAM_ESTIMATOR), layout_check=False,
+               **kw)
     t2 = time.perf_counter()
     rows, ep = score_track(df, truth, obs, config, ctx.masks, epochs=ctx.want_epochs)
     t3 = time.perf_counter()
@@ -320,6 +333,79 @@ def evaluate_cell(cell: Cell, truth, ctx: CellContext) -> CellOutput:
         epochs = pd.concat([df.reset_index(drop=True), ep], axis=1)
     return CellOutput(rows=rows, epochs=epochs, status_counts=counts,
                       timings={"t_noise_s": t1 - t0, "t_track_s": t2 - t1, "t_score_s": t3 - t2})
+
+
+def evaluate_recording_cell(cell: Cell, rec, ctx: CellContext) -> CellOutput:
+    """A recording cell (module docstring): the recording's observations -> track -> scores
+    against its reference (:func:`score_track` on :meth:`sim.recording.Recording.truth`), or
+    coverage rows when it has none; plus the layout check's verdicts."""
+    import warnings
+
+    from estimator.configuration import LayoutWarning, SensorConfig
+    from estimator.tracking import track
+
+    t0 = time.perf_counter()
+    config = rec.config.planar()
+    cfile = cell.file("config")
+    if cfile and Path(cfile).resolve() != Path(rec.meta.get("config_file", cfile)).resolve():
+        config = SensorConfig.load(cfile).planar()      # the block's layout (spec docstring)
+        if config.names != rec.config.names:
+            raise ValueError(f"config: {cell.config!r} names antennas {list(config.names)}, "
+                             f"recording {cell.recording!r} has {list(rec.config.names)}")
+    obs = _observations(cell, rec, config, ctx)
+    truth = rec.truth() if rec.reference is not None else None
+    t1 = time.perf_counter()
+    kw = dict(_TECHNIQUE_KW[cell.technique])
+    turning = None
+    if kw.pop("dynamic", False):
+        kw["dynamic_window"] = cell.dyn_window
+        turning = (truth.turning.astype(bool) if cell.turning == "controller"
+                   and truth is not None else "detect")
+    weighting, extra = cell.weighting, {}
+    if weighting == "-":
+        weighting = "none"
+    elif weighting.startswith("huff:"):
+        weighting, extra = "huff", {"huff_threshold": float(weighting[5:])}
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", LayoutWarning)     # recorded in the rows instead
+        df = track(rec.t, obs, config, window=cell.window, weighting=weighting,
+                   turning=turning, solver="procrustes" if cell.solver == "-" else cell.solver,
+                   rng=cell_rng(ctx.spec_seed, cell.seed, STREAM_ESTIMATOR), **extra, **kw)
+    t2 = time.perf_counter()
+    if truth is not None:
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", RuntimeWarning)   # all-NaN reference epochs
+            rows, ep = score_track(df, truth, obs, config, ctx.masks, epochs=ctx.want_epochs)
+        n_ref = int(np.isfinite(truth.cg[:, 0]).sum())
+    else:
+        rows, ep = _coverage_rows(df), None
+        n_ref = 0
+    lc = df.attrs.get("layout_check", {})
+    for row in rows:
+        row.update({"n_reference": n_ref,
+                    "layout_mirror_fraction": lc.get("mirror_fraction", float("nan")),
+                    "layout_mirror_ratio": lc.get("mirror_objective_ratio", float("nan")),
+                    "layout_mirror_verdict": lc.get("mirror_verdict", "-"),
+                    "layout_forward_offset_deg": math.degrees(
+                        lc.get("forward_offset_rad", float("nan"))),
+                    "layout_forward_verdict": lc.get("forward_verdict", "-")})
+    t3 = time.perf_counter()
+    counts = {str(k): int(v) for k, v in df["solver_status"].value_counts().items()}
+    epochs = None
+    if ctx.want_epochs:
+        epochs = df.reset_index(drop=True) if ep is None else \
+            pd.concat([df.reset_index(drop=True), ep], axis=1)
+    return CellOutput(rows=rows, epochs=epochs, status_counts=counts,
+                      timings={"t_noise_s": t1 - t0, "t_track_s": t2 - t1, "t_score_s": t3 - t2})
+
+
+def _coverage_rows(df: pd.DataFrame) -> list[dict]:
+    """Rows of a cell without a reference: mask "full" with the epoch and estimate counts
+    (``n_epochs``, ``n_valid`` finite CG estimates, ``n_nan``); error statistics absent."""
+    cg = df[["cg_x", "cg_y"]].to_numpy(dtype=float)
+    ok = np.isfinite(cg).all(axis=1)
+    return [{"mask": "full", "n_epochs": len(df), "n_valid": int(ok.sum()),
+             "n_nan": int((~ok).sum())}]
 
 
 # --------------------------------------------------------------------------- workers
@@ -522,6 +608,15 @@ def _iter_dask(batches, truths, spec, wants, jobs, cell_fn, scheduler, run_id):
 
 def _simulate_all(cells: list[Cell], spec: Spec, jobs: int, truth_fn, cache_dir) -> dict:
     keys = list(OrderedDict.fromkeys(c.truth_key for c in cells))
+    out: dict = {}
+    if any(k[0] == "recording" for k in keys):
+        from sim.recording import load_recording
+
+        for k in [k for k in keys if k[0] == "recording"]:
+            out[k] = load_recording(k[1])           # its logs, once, in the parent
+        keys = [k for k in keys if k[0] != "recording"]
+        if not keys:
+            return out
     fn = truth_fn or simulate_truth
     args = [(pf, po, cf, spec.sim_seed, cache_dir) for (pf, po, cf) in keys]
     if jobs > 1 and len(keys) > 1:
@@ -531,7 +626,7 @@ def _simulate_all(cells: list[Cell], spec: Spec, jobs: int, truth_fn, cache_dir)
             delayed(fn)(*a) for a in args)
     else:
         truths = [fn(*a) for a in args]
-    return dict(zip(keys, truths))
+    return {**out, **dict(zip(keys, truths))}
 
 
 # --------------------------------------------------------------------------- run
