@@ -52,7 +52,7 @@ from dataclasses import asdict, dataclass
 
 import numpy as np
 
-from estimator._checks import check_increasing_times, check_int, check_real
+from estimator._checks import check_array, check_increasing_times, check_int, check_real
 from estimator.configuration import SensorConfig
 from estimator.orientation import wrap_angle
 from estimator.turns import course_heading
@@ -65,6 +65,9 @@ __all__ = ["FORWARD_LIMIT_RAD", "MIRROR_RATIO", "LayoutCheck", "check_layout"]
 FORWARD_LIMIT_RAD = math.pi / 4
 #: Objective ratio beyond which one hand is taken to explain the data (module docstring).
 MIRROR_RATIO = 2.0
+#: Largest accepted |coordinate| of an observation, metres: 25 times the Earth's
+#: circumference, so any local or UTM frame passes and squared sums stay far from overflow.
+MAX_COORD_M = 1e9
 
 
 @dataclass(frozen=True)
@@ -115,7 +118,7 @@ def check_layout(t: object, obs: object, config: SensorConfig, *, window: int = 
     """Mirror and forward-axis checks of ``config`` against observations (module docstring).
 
     t : (n,) s, strictly increasing. obs : (n, m, 2) metres (x east, y north), NaN =
-    missing. config : m sensors (a 3-D layout is projected). window : epochs per window
+    missing, |value| <= :data:`MAX_COORD_M`. config : m sensors (a 3-D layout is projected). window : epochs per window
     (1..n). span_s : course span, s (> 0). min_speed_mps : speed (>= 0) below which no
     course is taken. min_moving : moving windows (>= 1) needed for the forward verdict.
     """
@@ -123,11 +126,8 @@ def check_layout(t: object, obs: object, config: SensorConfig, *, window: int = 
         raise TypeError(f"config: expected a SensorConfig, got {type(config).__name__}")
     cfg = config.planar()
     tt = check_increasing_times(t, "t", min_size=1)
-    o = np.asarray(obs, dtype=float)
-    if o.shape != (tt.size, cfg.m, 2):
-        raise ValueError(f"obs: expected shape ({tt.size}, {cfg.m}, 2), got {o.shape}")
-    if np.isinf(o).any():
-        raise ValueError("obs: contains infinite values (use NaN for missing samples)")
+    o = check_array(obs, "obs", shape=(tt.size, cfg.m, 2), allow_nan=True,
+                    max_abs=MAX_COORD_M)
     w = check_int(window, "window", 1, tt.size)
     span_s = check_real(span_s, "span_s", lo=0.0, lo_open=True)
     min_speed_mps = check_real(min_speed_mps, "min_speed_mps", lo=0.0)

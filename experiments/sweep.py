@@ -401,11 +401,20 @@ def evaluate_recording_cell(cell: Cell, rec, ctx: CellContext) -> CellOutput:
 
 def _coverage_rows(df: pd.DataFrame) -> list[dict]:
     """Rows of a cell without a reference: mask "full" with the epoch and estimate counts
-    (``n_epochs``, ``n_valid`` finite CG estimates, ``n_nan``); error statistics absent."""
+    (``n_epochs``, ``n_valid`` finite CG estimates, ``n_nan``); every error statistic of
+    :func:`score_track` is NaN (nothing to score against), so the tables keep their shape."""
+    from estimator.metrics import STATISTICS
+
     cg = df[["cg_x", "cg_y"]].to_numpy(dtype=float)
     ok = np.isfinite(cg).all(axis=1)
-    return [{"mask": "full", "n_epochs": len(df), "n_valid": int(ok.sum()),
-             "n_nan": int((~ok).sum())}]
+    row: dict[str, Any] = {"mask": "full", "n_epochs": len(df), "n_valid": int(ok.sum()),
+                           "n_nan": int((~ok).sum())}
+    nan = float("nan")
+    for sname in ("ex", "ey", "eu", "eh"):
+        row.update({f"{sname}_{k}": nan for k in (*STATISTICS, "outliers")})
+    row.update(dict.fromkeys(("along_mean", "along_median", "jitter_rms", "obs_ex_mean",
+                              "obs_ey_mean"), nan))
+    return [row]
 
 
 # --------------------------------------------------------------------------- workers

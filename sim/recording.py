@@ -31,9 +31,11 @@ what happened to every valid fix: ``aligned`` + ``off_grid`` (further than max_o
 any grid time) + ``outside_grid`` (before the first or after the last antenna fix: reference
 logs) + ``duplicate_on_grid`` (a second fix for one grid time; the nearer one is kept) = the
 log's valid fixes; the reader's own skip counts are beside them. Grid times without a fix
-are NaN. ``interpolate=True`` (an explicit option) instead fills each grid time between two
-consecutive fixes at most 1.5 intervals apart by linear interpolation of the projected
-positions (counted as ``interpolated``); it never bridges a gap. A grid longer than
+are NaN. ``interpolate=True`` (an explicit option) then fills each grid time that has no fix
+within ``max_offset_s`` but lies between two consecutive fixes at most 1.5 intervals apart,
+by linear interpolation of the projected positions (counted as ``interpolated`` grid
+times); it never bridges a gap. For receivers whose fixes are not on a common phase, pass
+``max_offset_s=0`` with it. A grid longer than
 :data:`MAX_GRID_DAYS` is an error naming the logs' spans (a bogus date in one log), as is a
 set of antenna logs that never overlap in time, or dated and undated logs mixed.
 
@@ -365,52 +367,37 @@ def _fmt_spans(spans: Mapping[str, tuple[float, float]]) -> str:
 
 def _place(t: np.ndarray, values: np.ndarray, grid: _Grid, max_offset_s: float,
            interpolate: bool) -> tuple[np.ndarray, dict]:
-    """Values (k, c) of valid fixes at times t (k,) onto the grid: (n, c) NaN-filled, counts."""
+    """Values (k, c) of valid fixes at increasing times t (k,) onto the grid: (n, c),
+    NaN-filled, and the counts of the module docstring."""
     n = grid.n
     out = np.full((n, values.shape[1]), np.nan)
     u = (t - grid.t0_utc) / grid.dt
-    if not interpolate:
-        k = np.rint(u).astype(np.int64)
-        off = np.abs(u - k) * grid.dt
-        on = off <= max_offset_s
-        inside = on & (k >= 0) & (k < n)
-        idx = np.flatnonzero(inside)
-        order = np.lexsort((off[idx], k[idx]))           # by grid point, nearest first
-        idx = idx[order]
-        first = np.ones(idx.size, dtype=bool)
-        first[1:] = k[idx][1:] != k[idx][:-1]
-        keep = idx[first]
-        out[k[keep]] = values[keep]
-        counts = {"aligned": int(keep.size), "off_grid": int((~on).sum()),
-                  "outside_grid": int((on & ~inside).sum()),
-                  "duplicate_on_grid": int(idx.size - keep.size), "interpolated": 0}
-        return out, counts
-    g = grid.t0_utc + grid.t
-    eps = 1e-6
-    b = np.searchsorted(t, g, side="left")               # t[b] >= g
-    a = b - 1
-    has_b = b < t.size
-    has_a = a >= 0
-    tb = np.where(has_b, t[np.minimum(b, t.size - 1)], np.inf)
-    ta = np.where(has_a, t[np.maximum(a, 0)], -np.inf)
-    exact_b = has_b & (tb - g <= eps)
-    exact_a = has_a & (g - ta <= eps) & ~exact_b
-    bridge = has_a & has_b & ~exact_a & ~exact_b & (tb - ta <= 1.5 * grid.dt)
-    used = np.zeros(t.size, dtype=bool)
-    sel = np.flatnonzero(exact_b)
-    out[sel] = values[b[sel]]
-    used[b[sel]] = True
-    sel = np.flatnonzero(exact_a)
-    out[sel] = values[a[sel]]
-    used[a[sel]] = True
-    sel = np.flatnonzero(bridge)
-    w = ((g[sel] - ta[sel]) / (tb[sel] - ta[sel]))[:, None]
-    out[sel] = (1.0 - w) * values[a[sel]] + w * values[b[sel]]
-    used[a[sel]] = True
-    used[b[sel]] = True
-    outside = (t < g[0] - eps) | (t > g[-1] + eps)
-    counts = {"aligned": int(exact_a.sum() + exact_b.sum()), "interpolated": int(bridge.sum()),
-              "unused": int((~used & ~outside).sum()), "outside_grid": int(outside.sum())}
+    k = np.rint(u).astype(np.int64)
+    off = np.abs(u - k) * grid.dt
+    on = off <= max_offset_s
+    inside = on & (k >= 0) & (k < n)
+    idx = np.flatnonzero(inside)
+    idx = idx[np.lexsort((off[idx], k[idx]))]            # by grid time, nearest first
+    first = np.ones(idx.size, dtype=bool)
+    first[1:] = k[idx][1:] != k[idx][:-1]
+    keep = idx[first]
+    out[k[keep]] = values[keep]
+    counts = {"aligned": int(keep.size), "off_grid": int((~on).sum()),
+              "outside_grid": int((on & ~inside).sum()),
+              "duplicate_on_grid": int(idx.size - keep.size), "interpolated": 0}
+    if interpolate and t.size > 1:
+        # grid times without a fix, strictly between two consecutive fixes at most 1.5
+        # intervals apart: linear interpolation (never across a gap)
+        g = grid.t0_utc + grid.t
+        b = np.searchsorted(t, g, side="right")          # t[b - 1] <= g < t[b]
+        a = b - 1
+        ok = (a >= 0) & (b < t.size)
+        ai, bi = np.where(ok, a, 0), np.where(ok, b, 0)
+        ta, tb = t[ai], t[bi]
+        fill = ok & np.isnan(out[:, 0]) & (ta < g) & (tb - ta <= 1.5 * grid.dt)
+        w = np.where(fill, (g - ta) / np.where(fill, tb - ta, 1.0), 0.0)[:, None]
+        out[fill] = ((1.0 - w) * values[ai] + w * values[bi])[fill]
+        counts["interpolated"] = int(fill.sum())
     return out, counts
 
 
