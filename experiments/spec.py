@@ -53,9 +53,11 @@ Axes (scalar or list; the dict-valued ones take a table or a list of tables):
   error drawn per seed) and are scored against its reference where it has one (cells
   without a reference get coverage and status counts only). ``path``, ``noise`` and their
   overrides do not apply and are recorded as ``recording-<name>`` / ``recording`` (or
-  ``replay:<mode>``); ``config`` defaults to the recording's own and may be replaced in the
-  block (same antenna names, e.g. a layout from measured distances to compare); turning
-  "controller" means the reference's turn flags.
+  ``replay:<mode>``), except that ``noise_overrides`` of a recording with ``[replay]``
+  replace its replay options (the session keys above, e.g. ``{replay = "identical"}``);
+  ``config`` defaults to the recording's own and may be replaced in the block (same
+  antenna names, e.g. a layout from measured distances to compare); turning "controller"
+  means the reference's turn flags.
 - ``window`` (positive int), ``weighting`` (:data:`WEIGHTINGS`), ``technique``
   (:data:`TECHNIQUES`), ``solver`` (:data:`SOLVERS`), ``dyn_window`` (small window of the
   dynamic technique, default 1), ``turning`` ("controller" flag or estimate-based "detector").
@@ -462,9 +464,9 @@ class Spec:
         overrides, the recording's configuration unless the block names one."""
         from sim.recording import recording_digest, recording_summary
 
-        if v["path_overrides"] or v["noise_overrides"]:
-            raise SpecError(f"{where}: path_overrides / noise_overrides do not apply to "
-                            f"recording {v['recording']!r}")
+        if v["path_overrides"]:
+            raise SpecError(f"{where}: path_overrides do not apply to recording "
+                            f"{v['recording']!r}")
         rfile = _resolve_recording(v["recording"], self.base_dir, f"{where}.recording")
         k = ("recordings", str(rfile))
         try:
@@ -476,6 +478,12 @@ class Spec:
         v["_recording_file"] = (str(rfile), hashes[k])
         v["path"] = f"recording-{Path(v['recording']).stem}"
         mode = summary["replay_mode"]
+        if v["noise_overrides"]:
+            if mode is None:
+                raise SpecError(f"{where}.noise_overrides: recording {v['recording']!r} has "
+                                f"measured observations (no [replay] to override)")
+            _check_session_overrides(v["noise_overrides"], f"{where}.noise_overrides")
+            mode = v["noise_overrides"].get("replay", "by_receiver")
         v["noise"] = "recording" if mode is None else f"replay:{mode}"
         if not explicit_config:
             v["config"] = summary["config_name"]

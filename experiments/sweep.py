@@ -188,7 +188,8 @@ def _observations(cell: Cell, truth, config, ctx: CellContext) -> np.ndarray:
     from sim.gps import StationarySession, observe
 
     if cell.recording != "-":      # truth is the Recording (drawn per seed for a replay)
-        obs = truth.observations(cell_rng(ctx.spec_seed, cell.seed, STREAM_NOISE))
+        obs = truth.observations(cell_rng(ctx.spec_seed, cell.seed, STREAM_NOISE),
+                                 noise_overrides=json.loads(cell.noise_overrides) or None)
     elif cell.noise == "none":
         obs = observe(truth, config, None)
     else:

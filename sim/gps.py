@@ -693,17 +693,34 @@ REPLAY_MODES = {
                  "duplicating one log gives): a pure translation, so the fitted heading is "
                  "exact and the CG error is the log's error; an optimistic bound for heading",
     "shifted": "antenna j gets the receiver's error at circular lag j * L samples (default "
-               "L = n_session // m, the largest equal spacing): decorrelated when L exceeds "
-               "the error's correlation time, so no common-mode part; heading as poor as "
-               "for independent receivers of this quality, a pessimistic bound (co-located "
-               "receivers share part of their error); the measured correlation of "
-               "neighbouring antennas' errors is reported",
+               "L = n_session // m, the largest equal spacing): no common-mode part, so "
+               "heading as poor as for independent receivers of this quality, a pessimistic "
+               "bound (co-located receivers share part of their error). Independent only if "
+               "the session is many correlation times long: the replayed error is zero-mean "
+               "over the session, so m phases of a session a few correlation times long are "
+               "anti-correlated and their mean (the CG error) is too small; the measured "
+               "mean pair correlation is reported (info['pair_correlation'])",
     "common_plus_model": "the receiver's error moves every antenna together (real CG error, "
                          "invisible to the heading) plus, per antenna, the per-receiver part "
                          "of a noise model (its Gauss-Markov part sigma_m sqrt(1 - "
                          "common_fraction), biases, plateaus, outliers, dropouts): heading "
                          "error comes from the model alone",
 }
+def _mean_pair_correlation(err: np.ndarray) -> float:
+    """Mean over antenna pairs and both axes of the sample correlation of the errors
+    (n, m, 2) over time (pairwise complete samples; NaN if no pair has variance)."""
+    m = err.shape[1]
+    out = []
+    for i in range(m):
+        for j in range(i + 1, m):
+            for k in range(2):
+                a, b = err[:, i, k], err[:, j, k]
+                ok = ~np.isnan(a) & ~np.isnan(b)
+                if ok.sum() > 2 and np.std(a[ok]) > 0 and np.std(b[ok]) > 0:
+                    out.append(float(np.corrcoef(a[ok], b[ok])[0, 1]))
+    return float(np.mean(out)) if out else math.nan
+
+
 #: Keys of ``noise_overrides`` that :func:`observe` accepts with a session.
 SESSION_REPLAY_KEYS = ("replay", "receiver", "shift_s", "model")
 
@@ -737,9 +754,10 @@ def replay_one(truth: Truth, session: StationarySession, *, mode: str,
         starts) and the model's draws. config : if given, its dead antennas stay NaN.
     Missing session samples are missing for every antenna that reads them.
     Returns ``(obs (n, m, 2) float64 metres, NaN = missing; info dict)`` with the mode,
-    receiver, start, lag (samples, s), seams and, for "shifted", the measured correlation
-    of the receiver's deviation at lag L (per axis, averaged), i.e. between neighbouring
-    antennas' errors.
+    receiver, start, lag (samples, s), seams and ``pair_correlation``: the sample
+    correlation of the replayed errors of every antenna pair over the run, averaged over
+    pairs and axes (1 for "identical"; near 0 when "shifted" decorrelates, negative when
+    the session is too short for m independent segments, see :data:`REPLAY_MODES`).
     """
     if mode not in REPLAY_MODES or mode == "by_receiver":
         raise ValueError(f"mode: must be one of {[k for k in REPLAY_MODES if k != 'by_receiver']} "
@@ -793,14 +811,8 @@ def replay_one(truth: Truth, session: StationarySession, *, mode: str,
         first = start + lag * np.arange(m)
         rows = (first[None, :] + np.arange(n)[:, None]) % ns        # (n, m)
         err = dev[rows]                                              # (n, m, 2)
-        a, b = dev[:-lag], dev[lag:]
-        both = ~np.isnan(a[:, 0]) & ~np.isnan(b[:, 0])
-        corr = [float(np.corrcoef(a[both, k], b[both, k])[0, 1]) if both.sum() > 2
-                and np.std(a[both, k]) > 0 and np.std(b[both, k]) > 0 else math.nan
-                for k in range(2)]
         info.update({"lag_samples": int(lag), "lag_s": lag * dt,
-                     "seams": int(((first % ns) + n > ns).sum()),
-                     "neighbour_correlation": float(np.mean(corr))})
+                     "seams": int(((first % ns) + n > ns).sum())})
     else:
         if start is None:
             start = int(rng.integers(0, ns - n + 1))
@@ -823,6 +835,7 @@ def replay_one(truth: Truth, session: StationarySession, *, mode: str,
             err[missing] = np.nan
             info.update({"model": mdl.name, "drawn": drawn})
     info["start"] = int(start)
+    info["pair_correlation"] = _mean_pair_correlation(err)
     obs = truth.sensor_positions[:, :, :2] + err
     if config is not None:
         obs[:, ~config.alive_mask] = np.nan

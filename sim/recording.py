@@ -579,17 +579,23 @@ class Recording:
         """Number of antennas."""
         return self.config.m
 
-    def observations(self, rng: np.random.Generator | None = None) -> np.ndarray:
+    def observations(self, rng: np.random.Generator | None = None, *,
+                     noise_overrides: Mapping[str, object] | None = None) -> np.ndarray:
         """(n, m, 2) metres, NaN = missing, read-only: the measured observations, or for a
         replay recording the reference antennas plus the replayed error drawn from ``rng``
-        (:func:`sim.gps.observe` with the replay's ``noise_overrides``)."""
+        (:func:`sim.gps.observe` with the replay's ``noise_overrides``, or with
+        ``noise_overrides`` given here in their place, e.g. ``{"replay": "identical"}``)."""
         if self.replay is None:
+            if noise_overrides:
+                raise RecordingError(f"noise_overrides: recording {self.name!r} has measured "
+                                     f"observations, nothing is replayed")
             return self.obs  # type: ignore[return-value]
         if not isinstance(rng, np.random.Generator):
             raise TypeError(f"rng: a replay recording needs a numpy.random.Generator, got "
                             f"{type(rng).__name__}")
+        nov = dict(noise_overrides) if noise_overrides else self.replay["noise_overrides"]
         return observe(self.truth(), self.config.planar(), self.replay["session"], rng=rng,
-                       noise_overrides=self.replay["noise_overrides"])
+                       noise_overrides=nov)
 
     def truth(self) -> Truth:
         """The reference as a :class:`sim.truth.Truth` (scored by the sweep like a
