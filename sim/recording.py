@@ -407,7 +407,10 @@ class _Frame:
     def __init__(self, lat: np.ndarray, lon: np.ndarray):
         from pyproj import Transformer
 
-        self.epsg = utm_epsg(float(np.mean(lat)), float(np.mean(lon)))
+        try:
+            self.epsg = utm_epsg(float(np.mean(lat)), float(np.mean(lon)))
+        except ValueError as exc:
+            raise RecordingError(f"frame: {exc}") from None
         self._tr = Transformer.from_crs("EPSG:4326", f"EPSG:{self.epsg}", always_xy=True)
         e, nn = self._tr.transform(np.asarray(lon, float), np.asarray(lat, float))
         self.e0, self.n0 = float(np.mean(e)), float(np.mean(nn))
@@ -775,6 +778,16 @@ def _read_one(value: object, name: str, fmt: str, what: str) -> LogFixes:
                                                             not np.all(np.diff(tv) > 0)):
             raise RecordingError(f"{what}[{name!r}]: LogFixes.t_utc must be finite and "
                                  f"strictly increasing")
+        la, lo = np.asarray(value.lat, float), np.asarray(value.lon, float)
+        if la.shape != tv.shape or lo.shape != tv.shape:
+            raise RecordingError(f"{what}[{name!r}]: LogFixes lat/lon must have the shape of "
+                                 f"t_utc {tv.shape}")
+        with np.errstate(invalid="ignore"):
+            bad = (np.isfinite(la) & np.isfinite(lo)) & ((np.abs(la) > 90) | (np.abs(lo) > 180))
+        if bad.any():
+            k = int(np.argmax(bad))
+            raise RecordingError(f"{what}[{name!r}]: fix {k} at latitude {la[k]!r}, longitude "
+                                 f"{lo[k]!r} is outside [-90, 90] x [-180, 180] degrees")
         return LogFixes(name=name, t_utc=value.t_utc, lat=value.lat, lon=value.lon,
                         quality=value.quality, date_known=value.date_known,
                         skipped=dict(value.skipped), meta=dict(value.meta),
