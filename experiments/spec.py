@@ -379,6 +379,11 @@ class Spec:
             for combo in itertools.product(*(axes[k] for k in names)):
                 v = dict(zip(names, combo))
                 if v["recording"] != "-":
+                    for key in ("path", "noise", "path_overrides"):
+                        if key in block:
+                            raise SpecError(f"{self.source}: grid[{gi}].{key}: does not apply "
+                                            f"to a block with a recording (the recording "
+                                            f"replaces path and noise)")
                     self._recording_axes(v, "config" in block, hashes,
                                          f"{self.source}: grid[{gi}]")
                 tech = v["technique"]

@@ -520,3 +520,13 @@ def test_worked_example_on_real_logs(realdata_dir, tmp_path):
     assert right["eh_mean"] < math.radians(1.0) and right["layout_mirror_verdict"] == "consistent"
     wrong = df.loc[("wrong_left.toml", "replay:shifted")]
     assert wrong["eh_mean"] > math.radians(90.0) and wrong["layout_mirror_verdict"] == "mirrored"
+
+
+def test_spec_rejects_path_or_noise_beside_a_recording():
+    from experiments.spec import Spec, SpecError
+
+    for extra in ({"path": "square20"}, {"noise": "gps_stationary"},
+                  {"noise_overrides": {"replay": "identical"}}):
+        with pytest.raises(SpecError, match="path|noise"):
+            Spec.from_dict({"name": "x", "grid": [{"recording": "synthetic_rig", "window": 1,
+                                                   **extra}]}, source="t")
