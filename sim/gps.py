@@ -600,6 +600,18 @@ def synthesize_session(model: GpsNoiseModel, config: SensorConfig, duration_s: f
 
 
 # --------------------------------------------------------------------------- replay
+def _check_rate(truth: Truth, session: StationarySession) -> None:
+    """ValueError if the median sample intervals of truth and session differ by > 1 %
+    (replay aligns by sample: a different rate would stretch time)."""
+    if truth.n > 1 and session.n > 1:
+        dt_truth = float(np.median(np.diff(truth.t)))
+        dt_sess = float(np.median(np.diff(session.t)))
+        if abs(dt_truth - dt_sess) > 0.01 * dt_sess:
+            raise ValueError(f"session: sample interval {dt_sess:.6g} s differs from the truth's "
+                             f"{dt_truth:.6g} s; replay aligns by sample (pass "
+                             f"check_rate=False to accept)")
+
+
 ReplayMode = Literal["error", "wrap", "random_offset"]
 
 
@@ -654,12 +666,8 @@ def replay(truth: Truth, session: StationarySession, *, rng: np.random.Generator
         if session.m < m:
             raise ValueError(f"session: {session.m} receivers for {m} truth sensors (matching by order)")
         idx = np.arange(m, dtype=np.int64)
-    if check_rate and n > 1 and ns > 1:
-        dt_truth = float(np.median(np.diff(truth.t)))
-        dt_sess = float(np.median(np.diff(session.t)))
-        if abs(dt_truth - dt_sess) > 0.01 * dt_sess:
-            raise ValueError(f"session: sample interval {dt_sess:.6g} s differs from the truth's "
-                             f"{dt_truth:.6g} s; replay aligns by sample (pass check_rate=False to accept)")
+    if check_rate:
+        _check_rate(truth, session)
     # session sample per truth sample
     if start is None:
         if mode == "random_offset":
@@ -782,12 +790,8 @@ def replay_one(truth: Truth, session: StationarySession, *, mode: str,
             raise ValueError(f"receiver: {receiver!r} is not in the session "
                              f"(receivers {list(session.names)})")
         r = session.names.index(str(receiver))
-    if check_rate and n > 1 and ns > 1:
-        dt_truth = float(np.median(np.diff(truth.t)))
-        dt_sess = float(np.median(np.diff(session.t)))
-        if abs(dt_truth - dt_sess) > 0.01 * dt_sess:
-            raise ValueError(f"session: sample interval {dt_sess:.6g} s differs from the truth's "
-                             f"{dt_truth:.6g} s; replay aligns by sample")
+    if check_rate:
+        _check_rate(truth, session)
     dt = float(np.median(np.diff(session.t))) if ns > 1 else 1.0
     if ns < n:
         raise ValueError(f"session: {ns} samples of receiver {session.names[r]!r} cannot cover "
