@@ -62,14 +62,15 @@ CONFIGS_DIR = MODELS_DIR / "configs"
 MAX_BODY_M = 1e6
 
 #: Default tolerance of :meth:`SensorConfig.from_distances`, metres: the largest accepted
-#: asymmetry, diagonal entry, triangle-inequality excess and embedding residual. Measured
-#: antenna distances carry centimetre errors: a tape reads to ~0.5 cm over a few metres, and
-#: distances between RTK-fixed positions (~1.4 cm per axis, e.g. the u-blox ZED-F9P's
-#: 0.0141 m in ../shared/realdata/hazer/tumbleweed) have a standard deviation of ~1.4-2 cm,
-#: so their least-squares embedding residuals stay below ~3 sigma = 4-6 cm only in the
-#: worst pair of a large layout, and below 5 cm for the layouts here (tests/
-#: test_configuration.py draws them). A wrong entry (swapped pair, a typo, a centimetre /
-#: inch mix-up) is usually decimetres. 0.05 m separates the two; pass ``tol_m`` for other
+#: asymmetry, diagonal entry and embedding residual (triangle excess: 3x). Measured antenna
+#: distances carry centimetre errors: distances between RTK-fixed positions (the u-blox
+#: ZED-F9P reports 0.0141 m horizontal accuracy in ../shared/realdata/hazer/tumbleweed, and
+#: its repeat fixes of one surveyed corner differ by 5-10 mm, HOME/20200526/notes.txt) have
+#: a standard deviation of about 1-1.5 cm. With 1.0 / 1.5 / 2.0 cm independent errors on every distance of
+#: rover_gps8, the least-squares embedding residual exceeded 0.05 m in 0 / 0 / 11 of 500
+#: draws (largest accepted 0.029 / 0.044 / 0.049 m); rover_gps4 (fewer redundant distances)
+#: never did. A wrong entry (swapped pair, a typo, a centimetre / inch mix-up) is usually
+#: decimetres: one rover_gps8 distance 0.1 m off is rejected. Pass ``tol_m`` for other
 #: instruments (e.g. 0.005 for a total station).
 DISTANCE_TOL_M = 0.05
 

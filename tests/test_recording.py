@@ -536,3 +536,40 @@ def test_spec_rejects_path_or_noise_beside_a_recording():
         with pytest.raises(SpecError, match="path|noise"):
             Spec.from_dict({"name": "x", "grid": [{"recording": "synthetic_rig", "window": 1,
                                                    **extra}]}, source="t")
+
+
+def test_sweep_replays_one_session_onto_every_antenna(tmp_path):
+    """``noise = "session:<file>"`` with a one-receiver session: by receiver it fails naming
+    the modes (recorded as the cell's error); ``noise_overrides = {replay = ...}`` runs."""
+    from experiments.spec import Spec, SpecError
+    from experiments.sweep import run
+    from sim.gps import StationarySession
+    from sim.truth import Truth
+
+    cfg = SensorConfig.load("rover_gps4")
+    n = 60
+
+    def truth_fn(path_file, path_overrides, config_file, sim_seed, cache_dir=None):
+        t = np.arange(float(n))
+        sp = np.zeros((n, 4, 3))
+        sp[..., :2] = cfg.body_positions[None] + np.c_[t, 0 * t][:, None, :]
+        return Truth(t=t, sensor_positions=sp, sensor_names=cfg.names, cg=sp.mean(axis=1),
+                     yaw=np.zeros(n), speed=np.ones(n), yaw_rate=np.zeros(n),
+                     turning=np.zeros(n, bool))
+
+    rng = np.random.default_rng(0)
+    sess = StationarySession(np.arange(400.0), rng.normal(0, 1.0, (400, 1, 2)), ("rx",))
+    sess.save(tmp_path / "one.npz")
+    grid = {"path": "square20", "config": "rover_gps4", "noise": "session:one.npz",
+            "window": 1}
+    spec = Spec.from_dict({"name": "one", "seeds": 1, "masks": ["full"], "grid": [
+        dict(grid, noise_overrides=[{}, {"replay": "shifted"}, {"replay": "identical"}])]},
+        source="t", base_dir=tmp_path)
+    res = run(spec, out=tmp_path / "out", jobs=1, progress=False, outputs=False,
+              truth_fn=truth_fn)
+    assert res.n_failed == 1 and "1 receiver(s) for 4 antennas" in res.errors[0]["error"]
+    eh = res.cells.set_index("noise_overrides")["eh_mean"]
+    assert eh['{"replay":"identical"}'] < 1e-9 < eh['{"replay":"shifted"}']
+    with pytest.raises(SpecError, match="noise_overrides.replay"):
+        Spec.from_dict({"name": "one", "grid": [dict(grid, noise_overrides={"replay": "x"})]},
+                       source="t", base_dir=tmp_path)
