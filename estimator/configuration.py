@@ -198,7 +198,7 @@ def _refine_embedding(X0: np.ndarray, D: np.ndarray) -> np.ndarray:
     return X - X.mean(axis=0)
 
 
-def _name_index(cfg: "SensorConfig", value: object, field_name: str) -> int:
+def _name_index(cfg: SensorConfig, value: object, field_name: str) -> int:
     if not isinstance(value, (str, int, np.integer)) or isinstance(value, bool):
         raise TypeError(f"{field_name}: must be a sensor name, got {type(value).__name__} "
                         f"{value!r}")
@@ -208,7 +208,7 @@ def _name_index(cfg: "SensorConfig", value: object, field_name: str) -> int:
         raise ConfigError(f"{field_name}: {exc}") from None
 
 
-def _frame_from_names(cfg: "SensorConfig", forward: object, left: object, tol_m: float
+def _frame_from_names(cfg: SensorConfig, forward: object, left: object, tol_m: float
                       ) -> tuple[np.ndarray, str]:
     """Body positions with +x along ``forward`` and ``left`` at y > 0 (d = 2), CG origin."""
     if forward is None:
@@ -263,7 +263,7 @@ def _rigid_fit(X: np.ndarray, P: np.ndarray, proper: bool) -> tuple[np.ndarray, 
     return R, pc - R @ xc
 
 
-def _frame_from_observed(cfg: "SensorConfig", observed: object, heading: object
+def _frame_from_observed(cfg: SensorConfig, observed: object, heading: object
                          ) -> tuple[np.ndarray, str]:
     """Body positions from the hand that fits ``observed`` world positions better, rotated
     so that ``heading`` (rad, CCW from east) is body +x; CG origin."""
@@ -493,7 +493,7 @@ class SensorConfig:
         positions = np.asarray(positions, dtype=float)
         return positions[..., self.cg_mask, :].mean(axis=-2)
 
-    def planar(self) -> "SensorConfig":
+    def planar(self) -> SensorConfig:
         """The same layout projected to the xy-plane (d = 2); a 2-D config returns itself."""
         if self.d == 2:
             return self
@@ -533,7 +533,7 @@ class SensorConfig:
         observed: object = None,
         heading: float | None = None,
         **kwargs: object,
-    ) -> "SensorConfig":
+    ) -> SensorConfig:
         """A body frame from measured pairwise distances (Section 3.1.1: the fit needs only
         the distances a_ij; the frame matters for heading, lag correction and the EKF).
 
@@ -615,7 +615,7 @@ class SensorConfig:
                    **kw)  # type: ignore[arg-type]
 
     @classmethod
-    def load(cls, path_or_name: str | Path) -> "SensorConfig":
+    def load(cls, path_or_name: str | Path) -> SensorConfig:
         """Load a configuration TOML: a path, or a name looked up in ``models/configs/``.
 
         Every field is validated; unknown keys are rejected. Errors name the file and field.
@@ -624,7 +624,7 @@ class SensorConfig:
         return cls.from_dict(data, source=str(path))
 
     @classmethod
-    def from_dict(cls, data: dict, *, source: str = "<dict>") -> "SensorConfig":
+    def from_dict(cls, data: dict, *, source: str = "<dict>") -> SensorConfig:
         """Build from the TOML table structure documented in the module docstring."""
         allowed = {"name", "description", "mount_height_m", "cg_sensors", "dead", "sensor"}
         unknown = sorted(set(data) - allowed)

@@ -61,10 +61,10 @@ from sim.truth import Truth
 
 __all__ = [
     "NOISE_DIR",
-    "GpsModelError",
-    "GpsNoiseModel",
     "REPLAY_MODES",
     "SESSION_REPLAY_KEYS",
+    "GpsModelError",
+    "GpsNoiseModel",
     "StationarySession",
     "gauss_markov",
     "markov_dropouts",

@@ -355,7 +355,7 @@ def _grid_from(logs: Sequence[LogFixes], rate_hz: float | None, what: str) -> _G
     phase = float(np.mod(np.arctan2(np.sin(ang).mean(), np.cos(ang).mean()), 2 * np.pi)) \
         * dt / (2 * np.pi)
     t0 = first + phase - dt * round(phase / dt)          # the grid time nearest the first fix
-    n = int(round((last - t0) / dt)) + 1
+    n = round((last - t0) / dt) + 1
     return _Grid(t0_utc=float(t0), dt=dt, n=n)
 
 
@@ -563,10 +563,9 @@ class Recording:
             if not isinstance(self.replay.get("session"), StationarySession):
                 raise RecordingError("replay.session: expected a StationarySession")
         ref = self.reference
-        if ref is not None:
-            if ref.cg.shape != (n, 2) or ref.yaw.shape != (n,) or (
-                    ref.positions is not None and ref.positions.shape != (n, m, 2)):
-                raise RecordingError(f"reference: arrays do not match n = {n}, m = {m}")
+        if ref is not None and (ref.cg.shape != (n, 2) or ref.yaw.shape != (n,) or (
+                ref.positions is not None and ref.positions.shape != (n, m, 2))):
+            raise RecordingError(f"reference: arrays do not match n = {n}, m = {m}")
         if self.height_m is not None and np.asarray(self.height_m).shape != (n, m):
             raise RecordingError(f"height_m: expected shape ({n}, {m})")
         object.__setattr__(self, "t", t)
@@ -723,7 +722,7 @@ class Recording:
         else:
             dur = session.n * dt if duration_s is None else check_real(
                 duration_s, "duration_s", lo=0.0, lo_open=True)
-            n = int(round(dur / dt))
+            n = round(dur / dt)
             if n < 1 or n > MAX_GRID_DAYS * 86400.0 / dt:
                 raise RecordingError(f"duration_s: gives {n} epochs at {dt:g} s; need 1 .. "
                                      f"{MAX_GRID_DAYS:g} days")

@@ -134,8 +134,8 @@ def write_rig(folder: str | Path, *, seed: int = 0, noise_m: float = 0.1, n: int
     files["1"] = "ant1.nmea"
     # antenna 2: tumbleweed CSV (TIME whole seconds, CLOCK 50 ms later)
     la, lo = latlon(obs[:, 1])
-    rows = ["HOSTNAME, OBSERVATION, CLOCK, TIME, LATITUDE, LONGITUDE, HORIZONTAL, MSL, WGS84, "
-            "VERTICAL, SPEED, COURSE"]
+    rows = [("HOSTNAME, OBSERVATION, CLOCK, TIME, LATITUDE, LONGITUDE, HORIZONTAL, MSL, "
+             "WGS84, VERTICAL, SPEED, COURSE")]
     for i, k in enumerate(np.flatnonzero(logged[:, 1])):
         rows.append(f'"synth", {i + 1}, {tu[k] + 0.05:.9f}, {tu[k]:.9f}, {la[k]:.9f}, '
                     f"{lo[k]:.9f}, 0.1000, {HEIGHT_M:.4f}, {HEIGHT_M:.4f}, 0.1500, 1.000000, "
@@ -162,14 +162,12 @@ def write_rig(folder: str | Path, *, seed: int = 0, noise_m: float = 0.1, n: int
         rows = ["time,lat,lon"] + [f"{tu[k]:.3f},{la[k]:.10f},{lo[k]:.10f}" for k in range(n)]
         (folder / f"rtk{name}.csv").write_text("\n".join(rows) + "\n")
         files[f"rtk{name}"] = f"rtk{name}.csv"
-    lines_t = [
-        'name = "synthetic_rig"',
-        'description = "Synthetic 4-antenna rig (rover_gps4) driving 30 s east, a 10 s left '
-        'turn, then north at 1 m/s; 0.1 m errors per axis; one log per antenna in four '
-        'formats, RTK reference per antenna. Written by tests/synth_recording.py."',
-        'config = "rover_gps4"',
-        "",
-    ]
+    description = ("Synthetic 4-antenna rig (rover_gps4) driving 30 s east, a 10 s left "
+                   "turn, then north at 1 m/s; 0.1 m errors per axis; one log per antenna in "
+                   "four formats, RTK reference per antenna. Written by "
+                   "tests/synth_recording.py.")
+    lines_t = ['name = "synthetic_rig"', f'description = "{description}"',
+               'config = "rover_gps4"', ""]
     for name in LAYOUT:
         lines_t += ["[[antenna]]", f'name = "{name}"', f'log = "{(rel / files[name]).as_posix()}"',
                     ""]

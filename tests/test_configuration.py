@@ -336,8 +336,8 @@ def test_frame_errors_and_warnings():
     tet = np.ones((4, 4)) - np.eye(4)
     with pytest.raises(ConfigError, match="d = 2 layout only|2-D layout only"):
         SensorConfig.from_distances(list("abcd"), tet, d=3, forward="a", left="b")
+    noisy = cfg.body_positions + np.random.default_rng(0).normal(0, 3.0, (5, 2))
     with pytest.warns(LayoutWarning, match="barely prefer"):
-        noisy = cfg.body_positions + np.random.default_rng(0).normal(0, 3.0, (5, 2))
         SensorConfig.from_distances(cfg.names, D, observed=noisy, heading=0.0)
 
 
@@ -415,7 +415,7 @@ def test_layout_check_verdicts_on_a_known_track():
     from estimator.layout_check import check_layout
     from synth_tracks import corner_path
 
-    cfg, t, cg, yaw, turning, obs = corner_path()
+    cfg, t, _cg, _yaw, _turning, obs = corner_path()
     rng = np.random.default_rng(0)
     noisy = obs + rng.normal(0.0, 0.05, obs.shape)
     ok = check_layout(t, noisy, cfg, window=5)
@@ -443,7 +443,7 @@ def test_layout_check_with_metre_errors_is_undetermined_not_alarmed():
     from estimator.layout_check import check_layout
     from synth_tracks import straight
 
-    cfg, t, cg, yaw, obs = straight(n=400)
+    cfg, t, _cg, _yaw, obs = straight(n=400)
     rng = np.random.default_rng(1)
     noisy = obs + rng.normal(0.0, 2.0, obs.shape)
     for c in (cfg, SensorConfig(cfg.names, cfg.body_positions * [1, -1], cfg.cg_members,
@@ -459,7 +459,7 @@ def test_layout_check_extremes(window, fill, span):
     from estimator.layout_check import check_layout
     from synth_tracks import straight
 
-    cfg, t, cg, yaw, obs = straight(n=30)
+    cfg, t, _cg, _yaw, obs = straight(n=30)
     obs = obs.copy()
     obs[3] = fill
     try:

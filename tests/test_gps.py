@@ -466,7 +466,7 @@ def test_shifted_mode_reads_the_log_at_lags_and_decorrelates():
     # the heading is no longer exact: independent 1 m errors on a 1.5 m platform
     assert np.median(_heading_error(truth, obs)) > 0.1
     # a short lag keeps the errors correlated, and the report says so
-    obs2, info2 = replay_one(truth, s, mode="shifted", shift_s=1.0, rng=np.random.default_rng(2))
+    _, info2 = replay_one(truth, s, mode="shifted", shift_s=1.0, rng=np.random.default_rng(2))
     # pairs at lags 1..7 s: mean of exp(-k / 10) over the 28 pairs' lags = 0.80
     lags = [j - i for i in range(8) for j in range(i + 1, 8)]
     expect = float(np.mean(np.exp(-np.array(lags) / 10.0)))
@@ -550,7 +550,7 @@ def test_replay_one_extremes_raise_or_return_finite(mode, shift, start, receiver
 
     truth, s = _truth(50), _one_receiver(200)
     try:
-        obs, info = replay_one(truth, s, mode=mode, shift_s=shift, start=start,
+        obs, _ = replay_one(truth, s, mode=mode, shift_s=shift, start=start,
                                receiver=receiver,
                                model=QUIET if mode == "common_plus_model" else None,
                                rng=np.random.default_rng(0))

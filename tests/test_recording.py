@@ -14,6 +14,7 @@ import numpy as np
 import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
+from synth_recording import EPSG, LAYOUT, T0_UTC, write_rig
 
 from estimator.configuration import LayoutWarning, SensorConfig
 from estimator.metrics import evaluate_track
@@ -27,7 +28,6 @@ from sim.recording import (
     read_text_log,
     recording_files,
 )
-from synth_recording import EPSG, LAYOUT, T0_UTC, write_rig
 
 REPO = Path(__file__).resolve().parents[1]
 
