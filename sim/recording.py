@@ -37,7 +37,8 @@ by linear interpolation of the projected positions (counted as ``interpolated`` 
 times); it never bridges a gap. For receivers whose fixes are not on a common phase, pass
 ``max_offset_s=0`` with it. A grid longer than
 :data:`MAX_GRID_DAYS` is an error naming the logs' spans (a bogus date in one log), as is a
-set of antenna logs that never overlap in time, or dated and undated logs mixed.
+set of antenna logs that never overlap in time, or dated and undated logs mixed; so is a grid
+whose observation array would exceed :data:`MAX_GRID_BYTES` (memory stays bounded).
 
 Logs: NMEA 0183, tumbleweed CSV (:mod:`sim.nmea`) or a plain text / CSV of time, latitude,
 longitude and optionally height (:func:`read_text_log`); :func:`read_antenna_log` tells
@@ -72,6 +73,7 @@ from sim.truth import Truth
 
 __all__ = [
     "FORMATS",
+    "MAX_GRID_BYTES",
     "MAX_GRID_DAYS",
     "RECORDINGS_DIR",
     "Recording",
@@ -91,9 +93,13 @@ REPO = MODELS_DIR.parent
 #: Log formats understood by :func:`read_antenna_log`.
 FORMATS = ("auto", "nmea", "tumbleweed", "text")
 
-#: Longest grid accepted, days (at any rate): longer means a bogus date in some log, and the
-#: arrays would not fit in memory (7 days at 10 Hz and 8 antennas is 0.8 GB of float64).
+#: Longest grid accepted, days: longer means a bogus date in some log (issue 11: a 1980
+#: default date before the first fix laid a 40-year grid).
 MAX_GRID_DAYS = 7.0
+#: Largest observation array accepted, bytes ((n, m, 2) float64): 1 GiB, e.g. 7 days at
+#: 10 Hz for 8 antennas is 0.77 GiB; a higher rate or a longer span is an error naming both
+#: instead of an allocation attempt.
+MAX_GRID_BYTES = 2**30
 
 #: Earliest plausible fix time: the GPS epoch, 1980-01-06 UTC, in seconds since 1970.
 GPS_EPOCH_UTC = 315964800.0
@@ -316,8 +322,11 @@ class _Grid:
         return np.arange(self.n) * self.dt
 
 
-def _grid_from(logs: Sequence[LogFixes], rate_hz: float | None, what: str) -> _Grid:
-    """The UTC grid spanned by the valid fixes of ``logs`` (module docstring)."""
+def _grid_from(logs: Sequence[LogFixes], rate_hz: float | None, what: str,
+               m_arrays: int | None = None) -> _Grid:
+    """The UTC grid spanned by the valid fixes of ``logs`` (module docstring); ``m_arrays``
+    antennas (default the number of logs) size the memory check."""
+    m_arrays = len(logs) if m_arrays is None else m_arrays
     dated = {lg.date_known for lg in logs}
     if len(dated) > 1:
         undated = [lg.name for lg in logs if not lg.date_known]
@@ -356,7 +365,17 @@ def _grid_from(logs: Sequence[LogFixes], rate_hz: float | None, what: str) -> _G
         * dt / (2 * np.pi)
     t0 = first + phase - dt * round(phase / dt)          # the grid time nearest the first fix
     n = round((last - t0) / dt) + 1
+    _check_grid_size(n, m_arrays, dt, what)
     return _Grid(t0_utc=float(t0), dt=dt, n=n)
+
+
+def _check_grid_size(n: int, m: int, dt: float, what: str) -> None:
+    """RecordingError when an (n, m, 2) float64 array would exceed MAX_GRID_BYTES."""
+    if n * max(m, 1) * 16 > MAX_GRID_BYTES:
+        raise RecordingError(
+            f"{what}: {n} epochs at {dt:.6g} s for {m} antennas would need "
+            f"{n * max(m, 1) * 16 / 2**30:.1f} GiB (> MAX_GRID_BYTES = 1 GiB); lower rate_hz "
+            f"or shorten the logs")
 
 
 def _fmt_spans(spans: Mapping[str, tuple[float, float]]) -> str:
@@ -665,7 +684,7 @@ class Recording:
         """
         cfg = _check_config(config)
         logs = _read_logs(antennas, cfg, formats or {}, "antennas")
-        grid = _grid_from(logs, rate_hz, "antennas")
+        grid = _grid_from(logs, rate_hz, "antennas", cfg.m)
         off = _max_offset(max_offset_s, grid.dt)
         ref_logs, ref_kind = _reference_logs(reference, cfg, formats or {})
         frame = _Frame(np.concatenate([lg.lat[lg.valid] for lg in logs]),
@@ -716,16 +735,17 @@ class Recording:
             raise RecordingError("reference: a replay needs reference logs per antenna or "
                                  "surveyed reference_positions")
         if ref_logs is not None:
-            grid = _grid_from(ref_logs, 1.0 / dt, "reference")
+            grid = _grid_from(ref_logs, 1.0 / dt, "reference", cfg.m)
             frame = _Frame(np.concatenate([lg.lat[lg.valid] for lg in ref_logs]),
                            np.concatenate([lg.lon[lg.valid] for lg in ref_logs]))
         else:
             dur = session.n * dt if duration_s is None else check_real(
                 duration_s, "duration_s", lo=0.0, lo_open=True)
             n = round(dur / dt)
-            if n < 1 or n > MAX_GRID_DAYS * 86400.0 / dt:
+            if n < 1 or n * dt > MAX_GRID_DAYS * 86400.0:
                 raise RecordingError(f"duration_s: gives {n} epochs at {dt:g} s; need 1 .. "
                                      f"{MAX_GRID_DAYS:g} days")
+            _check_grid_size(n, cfg.m, dt, "duration_s")
             grid = _Grid(t0_utc=0.0, dt=dt, n=n)
             if not isinstance(reference_positions, Mapping):
                 raise TypeError("reference_positions: expected a mapping antenna name -> "

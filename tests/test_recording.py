@@ -314,6 +314,7 @@ def test_alignment_counts_off_grid_duplicates_and_gaps():
     (1.7e9 + np.arange(5.0), 1.7e9 + np.r_[0.0, 1.0, 9e5], {}, "MAX_GRID_DAYS"),
     (1.7e9 + np.arange(5.0), 1.7e9 + np.arange(5.0), {"max_offset_s": 0.6}, "max_offset_s"),
     (1.7e9 + np.arange(5.0), 1.7e9 + np.arange(5.0), {"rate_hz": 0.0}, "rate_hz"),
+    (1.7e9 + np.arange(5.0), 1.7e9 + np.arange(5.0), {"rate_hz": 1e9}, "MAX_GRID_BYTES"),
 ])
 def test_alignment_errors_name_the_cause(t1, t2, kw, match):
     with pytest.raises((RecordingError, ValueError), match=match):
