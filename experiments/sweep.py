@@ -299,7 +299,6 @@ def score_track(df: pd.DataFrame, truth, obs: np.ndarray, config, masks: Iterabl
 def evaluate_cell(cell: Cell, truth, ctx: CellContext) -> CellOutput:
     """The real cell function: observations -> track -> scores (see the module docstring)."""
     from estimator.configuration import SensorConfig
-    from estimator.tracking import track
 
     if cell.recording != "-":
         return evaluate_recording_cell(cell, truth, ctx)
@@ -310,20 +309,8 @@ def evaluate_cell(cell: Cell, truth, ctx: CellContext) -> CellOutput:
     config = ctx.memo[ckey]
     obs = _observations(cell, truth, config, ctx)
     t1 = time.perf_counter()
-    kw = dict(_TECHNIQUE_KW[cell.technique])
-    turning = None
-    if kw.pop("dynamic", False):
-        kw["dynamic_window"] = cell.dyn_window
-        turning = truth.turning.astype(bool) if cell.turning == "controller" else "detect"
-    weighting, extra = cell.weighting, {}
-    if weighting == "-":
-        weighting = "none"
-    elif weighting.startswith("huff:"):
-        weighting, extra = "huff", {"huff_threshold": float(weighting[5:])}
-    df = track(truth.t, obs, config, window=cell.window, weighting=weighting, turning=turning,
-               solver="procrustes" if cell.solver == "-" else cell.solver, **extra,
-               rng=cell_rng(ctx.spec_seed, cell.seed, STREAM_ESTIMATOR), layout_check=False,
-               **kw)
+    df = _track_cell(cell, truth.t, obs, config, truth.turning.astype(bool), ctx,
+                     layout_check=False)
     t2 = time.perf_counter()
     rows, ep = score_track(df, truth, obs, config, ctx.masks, epochs=ctx.want_epochs)
     t3 = time.perf_counter()
@@ -336,6 +323,28 @@ def evaluate_cell(cell: Cell, truth, ctx: CellContext) -> CellOutput:
                       timings={"t_noise_s": t1 - t0, "t_track_s": t2 - t1, "t_score_s": t3 - t2})
 
 
+def _track_cell(cell: Cell, t: np.ndarray, obs: np.ndarray, config, turning, ctx: CellContext,
+                **kw_extra: Any) -> pd.DataFrame:
+    """:func:`estimator.tracking.track` with the cell's window, weighting, technique and
+    solver; ``turning`` is the "controller" flag (n,) bool (None: none available, the
+    dynamic window then uses the detector)."""
+    from estimator.tracking import track
+
+    kw = dict(_TECHNIQUE_KW[cell.technique])
+    flags = None
+    if kw.pop("dynamic", False):
+        kw["dynamic_window"] = cell.dyn_window
+        flags = turning if cell.turning == "controller" and turning is not None else "detect"
+    weighting, extra = cell.weighting, {}
+    if weighting == "-":
+        weighting = "none"
+    elif weighting.startswith("huff:"):
+        weighting, extra = "huff", {"huff_threshold": float(weighting[5:])}
+    return track(t, obs, config, window=cell.window, weighting=weighting, turning=flags,
+                 solver="procrustes" if cell.solver == "-" else cell.solver, **extra,
+                 rng=cell_rng(ctx.spec_seed, cell.seed, STREAM_ESTIMATOR), **kw, **kw_extra)
+
+
 def evaluate_recording_cell(cell: Cell, rec, ctx: CellContext) -> CellOutput:
     """A recording cell (module docstring): the recording's observations -> track -> scores
     against its reference (:func:`score_track` on :meth:`sim.recording.Recording.truth`), or
@@ -343,7 +352,6 @@ def evaluate_recording_cell(cell: Cell, rec, ctx: CellContext) -> CellOutput:
     import warnings
 
     from estimator.configuration import LayoutWarning, SensorConfig
-    from estimator.tracking import track
 
     t0 = time.perf_counter()
     config = rec.config.planar()
@@ -356,22 +364,10 @@ def evaluate_recording_cell(cell: Cell, rec, ctx: CellContext) -> CellOutput:
     obs = _observations(cell, rec, config, ctx)
     truth = rec.truth() if rec.reference is not None else None
     t1 = time.perf_counter()
-    kw = dict(_TECHNIQUE_KW[cell.technique])
-    turning = None
-    if kw.pop("dynamic", False):
-        kw["dynamic_window"] = cell.dyn_window
-        turning = (truth.turning.astype(bool) if cell.turning == "controller"
-                   and truth is not None else "detect")
-    weighting, extra = cell.weighting, {}
-    if weighting == "-":
-        weighting = "none"
-    elif weighting.startswith("huff:"):
-        weighting, extra = "huff", {"huff_threshold": float(weighting[5:])}
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", LayoutWarning)     # recorded in the rows instead
-        df = track(rec.t, obs, config, window=cell.window, weighting=weighting,
-                   turning=turning, solver="procrustes" if cell.solver == "-" else cell.solver,
-                   rng=cell_rng(ctx.spec_seed, cell.seed, STREAM_ESTIMATOR), **extra, **kw)
+        df = _track_cell(cell, rec.t, obs, config,
+                         None if truth is None else truth.turning.astype(bool), ctx)
     t2 = time.perf_counter()
     if truth is not None:
         with warnings.catch_warnings():
