@@ -22,7 +22,8 @@ A cell naming a ``recording`` (:mod:`sim.recording`) takes its observations from
 recording (or, for a recording with ``[replay]``, its reference plus the error replayed
 for the cell's seed) instead of steps 1-2, and is scored against the recording's reference
 with the same statistics; a recording without a reference gives coverage rows (epochs,
-estimates, NaN estimates, status counts) only. Every recording cell also records the
+estimates, NaN estimates, status counts) only, and no per-epoch file (the figures drawn
+from those need a reference; run ``track`` on the recording for its estimates). Every recording cell also records the
 layout check of :func:`estimator.layout_check.check_layout` (mirror and forward-axis
 verdicts, ``layout_*`` columns).
 
@@ -374,9 +375,8 @@ def evaluate_recording_cell(cell: Cell, rec, ctx: CellContext) -> CellOutput:
             warnings.simplefilter("ignore", RuntimeWarning)   # all-NaN reference epochs
             rows, ep = score_track(df, truth, obs, config, ctx.masks, epochs=ctx.want_epochs)
         n_ref = int(np.isfinite(truth.cg[:, 0]).sum())
-    else:
-        rows, ep = _coverage_rows(df), None
-        n_ref = 0
+    else:           # no per-epoch file: the figures drawn from them need a reference
+        rows, ep, n_ref = _coverage_rows(df), None, 0
     lc = df.attrs.get("layout_check", {})
     for row in rows:
         row.update({"n_reference": n_ref,
@@ -389,9 +389,8 @@ def evaluate_recording_cell(cell: Cell, rec, ctx: CellContext) -> CellOutput:
     t3 = time.perf_counter()
     counts = {str(k): int(v) for k, v in df["solver_status"].value_counts().items()}
     epochs = None
-    if ctx.want_epochs:
-        epochs = df.reset_index(drop=True) if ep is None else \
-            pd.concat([df.reset_index(drop=True), ep], axis=1)
+    if ctx.want_epochs and ep is not None:
+        epochs = pd.concat([df.reset_index(drop=True), ep], axis=1)
     return CellOutput(rows=rows, epochs=epochs, status_counts=counts,
                       timings={"t_noise_s": t1 - t0, "t_track_s": t2 - t1, "t_score_s": t3 - t2})
 

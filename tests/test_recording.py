@@ -163,7 +163,8 @@ def test_recording_without_reference_gets_coverage_rows(rig, tmp_path):
     with pytest.raises(RecordingError, match="no reference"):
         rec.truth()
     spec = Spec.from_dict({"name": "noref", "seeds": 1, "masks": ["full"], "grid": [
-        {"recording": str(noref), "window": 3, "technique": ["none", "naive"]}]}, source="t")
+        {"recording": str(noref), "window": 3, "technique": ["none", "naive"]}],
+        "epochs": {"seeds": [0]}}, source="t")
     res = run(spec, out=tmp_path / "out", jobs=1, progress=False, outputs=False)
     assert res.n_failed == 0, res.errors
     df = res.cells
@@ -174,6 +175,7 @@ def test_recording_without_reference_gets_coverage_rows(rig, tmp_path):
     assert (df["n_epochs"] == 88).all() and (df["n_reference"] == 0).all()
     assert df["ex_mean"].isna().all() and df["eh_p95"].isna().all()
     assert (df["n_valid"] + df["n_nan"] == df["n_epochs"]).all()
+    assert not df["has_epochs"].any()      # per-epoch files need a reference (figures)
 
 
 # --------------------------------------------------------------------------- mirror / handedness
