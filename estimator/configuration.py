@@ -338,14 +338,15 @@ class SensorConfig:
     names : sequence of str, length m
         Sensor names (unique). The dissertation numbers its antennas "1".."8".
     body_positions : array_like, shape (m, d), d in {2, 3}, metres
-        Mounting positions in the body frame (x forward, y left, z up).
+        Mounting positions in the body frame (x forward, y left, z up), finite, at most
+        :data:`MAX_BODY_M` from the origin, no two coinciding (m >= 2).
     cg_members : sequence of str or int, optional
         Sensors whose mean defines the centre of gravity (Eq. 3.8). Default: all sensors.
     dead : sequence of str or int, optional
         Sensors that never report (the dissertation's sensor 4). They stay in the layout
         (their distances still constrain nothing, because they have no observations).
     mount_height_m : float, optional
-        Height of a 2-D layout above the ground, used only by the simulator.
+        Height (>= 0, metres) of a 2-D layout above the ground, used only by the simulator.
     name, description : str
         Free text for reports.
     """
