@@ -46,6 +46,7 @@ Observations are planar ``(n, m, 2)``; a 3-D configuration is projected (``confi
 
 from __future__ import annotations
 
+import warnings
 from typing import Any
 
 import numpy as np
@@ -55,7 +56,8 @@ from estimator import lag as _lag
 from estimator import turns as _turns
 from estimator import weights as _weights
 from estimator._checks import check_increasing_times
-from estimator.configuration import SensorConfig
+from estimator.configuration import LayoutWarning, SensorConfig
+from estimator.layout_check import check_layout
 from estimator.motion import motion_compensated_batch, motion_compensated_series
 from estimator.orientation import law_of_cosines_heading, wrap_angle
 from estimator.pose_filter import PoseFilterParams, run_pose_filter
@@ -379,7 +381,7 @@ def track(t: Any, obs: Any, config: SensorConfig, window: int = 10, weighting: s
           warm_start: bool = False, velocity_span: int | None = None,
           detector: dict | None = None, yaw_rate: bool = False, omega_max: float = 1.0,
           filter_params: PoseFilterParams | None = None, fit_options: dict | None = None,
-          ) -> pd.DataFrame:
+          layout_check: bool = True) -> pd.DataFrame:
     """Track the platform over a recording; one row per estimate.
 
     t : (n,) seconds, strictly increasing. obs : (n, m, 2) metres (world x east, y north),
@@ -409,10 +411,18 @@ def track(t: Any, obs: Any, config: SensorConfig, window: int = 10, weighting: s
     law-of-cosines heading (Section 3.2); ``lag_dx/lag_dy`` the applied lag shift (0 when
     off, NaN where it could not be computed and the estimate is left uncorrected).
     ``df.attrs["settings"]`` records the arguments.
+
+    layout_check : run :func:`estimator.layout_check.check_layout` on the observations
+        with window s (about the cost of one procrustes track): ``df.attrs["layout_check"]``
+        holds its result (mirror fraction and verdict, forward-axis offset and verdict),
+        ``df.attrs["warnings"]`` its findings (e.g. "layout may be mirrored ..."), each also
+        issued as a :class:`estimator.configuration.LayoutWarning`.
     """
     tt, o, cfg = _check_inputs(t, obs, config)
     n, m = o.shape[:2]
     s = _check_int(window, "window", 1, n)
+    if not isinstance(layout_check, (bool, np.bool_)):
+        raise TypeError(f"layout_check: must be True or False, got {layout_check!r}")
     if method not in METHODS:
         raise ValueError(f"method: unknown {method!r}; choose one of {list(METHODS)}")
     if weighting not in WEIGHTINGS:
@@ -549,6 +559,12 @@ def track(t: Any, obs: Any, config: SensorConfig, window: int = 10, weighting: s
         "solver": solver, "eps": eps, "huff_threshold": huff_threshold, "huber_c": huber_c,
         "warm_start": warm_start, "config": cfg.name,
     }
+    if layout_check:
+        lc = check_layout(tt, o, cfg, window=s)
+        df.attrs["layout_check"] = lc.to_dict()
+        df.attrs["warnings"] = list(lc.warnings)
+        for msg in lc.warnings:
+            warnings.warn(msg, LayoutWarning, stacklevel=2)
     return df
 
 

@@ -42,7 +42,22 @@ Axes (scalar or list; the dict-valued ones take a table or a list of tables):
 - ``config``: sensor configuration, name in ``models/configs/`` or a ``.toml`` file.
 - ``noise``: noise model name in ``models/noise/`` or a ``.toml`` file; ``"none"`` for
   noise-free observations; ``"session:<file>"`` replays a saved stationary session.
-- ``noise_overrides``: table of noise-model fields (e.g. the common-mode split).
+- ``noise_overrides``: table of noise-model fields (e.g. the common-mode split); with
+  ``noise = "session:<file>"``, how the session drives the antennas (``replay`` = a mode of
+  :data:`sim.gps.REPLAY_MODES`, ``receiver``, ``shift_s``, ``model``), e.g. one real log
+  replayed onto every antenna as decorrelated segments: ``{replay = "shifted"}``.
+- ``recording``: a real (or synthetic) multi-antenna recording instead of a path + noise
+  model: a name in ``models/recordings/`` or a recording ``.toml`` file (format in
+  :func:`sim.recording.load_recording`). Its cells run the estimators on the recording's
+  observations (or, for a recording with ``[replay]``, on its reference + the replayed
+  error drawn per seed) and are scored against its reference where it has one (cells
+  without a reference get coverage and status counts only). ``path``, ``noise`` and their
+  overrides do not apply and are recorded as ``recording-<name>`` / ``recording`` (or
+  ``replay:<mode>``), except that ``noise_overrides`` of a recording with ``[replay]``
+  replace its replay options (the session keys above, e.g. ``{replay = "identical"}``);
+  ``config`` defaults to the recording's own and may be replaced in the block (same
+  antenna names, e.g. a layout from measured distances to compare); turning "controller"
+  means the reference's turn flags.
 - ``window`` (positive int), ``weighting`` (:data:`WEIGHTINGS`), ``technique``
   (:data:`TECHNIQUES`), ``solver`` (:data:`SOLVERS`), ``dyn_window`` (small window of the
   dynamic technique, default 1), ``turning`` ("controller" flag or estimate-based "detector").
@@ -122,6 +137,7 @@ AXES: dict[str, Any] = {
     "solver": "procrustes",
     "dyn_window": 1,
     "turning": "controller",
+    "recording": "-",         # "-" = none: simulated path + noise model
 }
 _DICT_AXES = ("path_overrides", "noise_overrides")
 
@@ -175,6 +191,38 @@ def _resolve(kind: str, value: str, base: Path, where: str) -> Path:
     return cand
 
 
+def _resolve_recording(value: str, base: Path, where: str) -> Path:
+    """A recording name in ``models/recordings/`` or a ``.toml`` file (relative to the spec)."""
+    return _resolve("recordings", value, base, where)
+
+
+def _check_session_overrides(ov: dict, where: str) -> None:
+    """noise_overrides of a ``session:`` noise: the replay keys of :func:`sim.gps.observe`."""
+    from sim.gps import REPLAY_MODES, SESSION_REPLAY_KEYS, GpsModelError, GpsNoiseModel
+
+    mode = ov.get("replay", "by_receiver")
+    if mode not in REPLAY_MODES:
+        raise SpecError(f"{where}.replay: unknown mode {mode!r}; allowed: {list(REPLAY_MODES)}")
+    rest = sorted(set(ov) - set(SESSION_REPLAY_KEYS))
+    if mode == "common_plus_model":
+        if not isinstance(ov.get("model"), str):
+            raise SpecError(f"{where}.model: mode 'common_plus_model' needs a noise-model name")
+        try:
+            GpsNoiseModel.load(ov["model"]).with_overrides(**{k: ov[k] for k in rest})
+        except (GpsModelError, TypeError, ValueError) as exc:
+            raise SpecError(f"{where}: {exc}") from None
+    elif rest or "model" in ov:
+        raise SpecError(f"{where}: {rest or ['model']} do not apply to replay mode {mode!r} "
+                        f"(keys {list(SESSION_REPLAY_KEYS)})")
+    if mode == "by_receiver" and ("receiver" in ov or "shift_s" in ov):
+        raise SpecError(f"{where}: receiver / shift_s apply to the one-receiver modes only")
+    if "shift_s" in ov and (mode != "shifted" or isinstance(ov["shift_s"], bool)
+                            or not isinstance(ov["shift_s"], (int, float))
+                            or not 0 < ov["shift_s"] < float("inf")):
+        raise SpecError(f"{where}.shift_s: a positive number of seconds with mode 'shifted', "
+                        f"got {ov['shift_s']!r}")
+
+
 # --------------------------------------------------------------------------- cells
 @dataclass(frozen=True)
 class Cell:
@@ -196,6 +244,7 @@ class Cell:
     turning: str = "-"
     path_overrides: str = "{}"     # canonical JSON (hashable)
     noise_overrides: str = "{}"
+    recording: str = "-"           # "-" = a simulated path; else a recording (spec docstring)
     key: str = field(default="", compare=False)
     files: tuple[tuple[str, str], ...] = field(default=(), compare=False, repr=False)
 
@@ -205,15 +254,18 @@ class Cell:
                 "noise_overrides": self.noise_overrides, "path_overrides": self.path_overrides,
                 "window": self.window, "weighting": self.weighting, "technique": self.technique,
                 "solver": self.solver, "dyn_window": self.dyn_window, "turning": self.turning,
-                "seed": self.seed}
+                "recording": self.recording, "seed": self.seed}
 
     def file(self, kind: str) -> str | None:
-        """Resolved file for ``kind`` in {"path", "config", "noise"} (None for noise "none")."""
+        """Resolved file for ``kind`` in {"path", "config", "noise", "recording"} (None when
+        the cell has none, e.g. noise "none")."""
         return dict(self.files).get(kind)
 
     @property
     def truth_key(self) -> tuple:
-        """Cells sharing this key share one simulated Truth."""
+        """Cells sharing this key share one simulated Truth (or one loaded recording)."""
+        if self.recording != "-":
+            return ("recording", self.file("recording"))
         return (self.file("path"), self.path_overrides, self.file("config"))
 
     @property
@@ -323,7 +375,10 @@ class Spec:
                 out[k] = [_check_axis(k, x, f"{where}.{k}" + (f"[{i}]" if isinstance(v, list)
                                                                else ""), base, scalar=True)
                           for i, x in enumerate(vals)]
+            has_rec = any(r != "-" for r in out.get("recording", [defaults.get("recording", "-")]))
             for req in ("path", "window"):
+                if req == "path" and has_rec:
+                    continue       # a recording replaces the path (spec docstring)
                 if req not in out and req not in defaults:
                     raise SpecError(f"{where}.{req}: required (in the block or in [defaults])")
             grid.append(out)
@@ -352,6 +407,14 @@ class Spec:
             names = list(axes)
             for combo in itertools.product(*(axes[k] for k in names)):
                 v = dict(zip(names, combo))
+                if v["recording"] != "-":
+                    for key in ("path", "noise", "path_overrides"):
+                        if key in block:
+                            raise SpecError(f"{self.source}: grid[{gi}].{key}: does not apply "
+                                            f"to a block with a recording (the recording "
+                                            f"replaces path and noise)")
+                    self._recording_axes(v, "config" in block, hashes,
+                                         f"{self.source}: grid[{gi}]")
                 tech = v["technique"]
                 if tech in NO_SOLVER:
                     v["solver"] = "-"
@@ -372,10 +435,14 @@ class Spec:
                                 dyn_window=int(v["dyn_window"]), turning=v["turning"],
                                 path_overrides=_canon(v["path_overrides"]),
                                 noise_overrides=_canon(v["noise_overrides"]),
+                                recording=v["recording"],
                                 files=tuple(sorted((k, p) for k, (p, _) in files.items())))
+                    params = cell.params()
+                    if params["recording"] == "-":
+                        del params["recording"]     # keys of simulated cells as before
                     ident = {"v": 1, "spec_seed": self.seed, "sim_seed": self.sim_seed,
                              "session_s": self.session_s,
-                             **cell.params(),
+                             **params,
                              "files": {k: h for k, (_, h) in sorted(files.items())}}
                     key = hashlib.sha256(_canon(ident).encode()).hexdigest()[:20]
                     cells.setdefault(key, replace(cell, key=key))
@@ -384,6 +451,8 @@ class Spec:
     @staticmethod
     def _check_overrides(v: dict, files: dict, checked: set, where: str) -> None:
         """Apply path / noise overrides once per combination so bad fields fail at load."""
+        if v["recording"] != "-":
+            return             # checked by _recording_axes: no overrides on recordings
         if v["path_overrides"]:
             k = ("path", files["path"][0], _canon(v["path_overrides"]))
             if k not in checked:
@@ -408,10 +477,12 @@ class Spec:
                     raise SpecError(f"{where}.noise: {v['noise']!r} is not a GPS noise model: "
                                     f"{exc}") from None
                 checked.add(k)
-        if v["noise_overrides"]:
-            if "noise" not in files or v["noise"].startswith("session:"):
-                raise SpecError(f"{where}.noise_overrides: only applies to a noise model, "
-                                f"not to noise {v['noise']!r}")
+        if v["noise_overrides"] and v["noise"].startswith("session:"):
+            _check_session_overrides(v["noise_overrides"], f"{where}.noise_overrides")
+        elif v["noise_overrides"]:
+            if "noise" not in files:
+                raise SpecError(f"{where}.noise_overrides: only applies to a noise model or "
+                                f"a session, not to noise {v['noise']!r}")
             k = ("noise", files["noise"][0], _canon(v["noise_overrides"]))
             if k not in checked:
                 from sim.gps import GpsNoiseModel
@@ -422,8 +493,47 @@ class Spec:
                     raise SpecError(f"{where}.noise_overrides: {exc}") from None
                 checked.add(k)
 
+    def _recording_axes(self, v: dict, explicit_config: bool, hashes: dict, where: str) -> None:
+        """Fill a recording cell's axes (spec docstring): path / noise labels, no
+        overrides, the recording's configuration unless the block names one."""
+        from sim.recording import recording_digest, recording_summary
+
+        if v["path_overrides"]:
+            raise SpecError(f"{where}: path_overrides do not apply to recording "
+                            f"{v['recording']!r}")
+        rfile = _resolve_recording(v["recording"], self.base_dir, f"{where}.recording")
+        k = ("recordings", str(rfile))
+        try:
+            if k not in hashes:
+                hashes[k] = recording_digest(rfile)
+            summary = recording_summary(rfile)
+        except (ValueError, TypeError) as exc:      # RecordingError, ConfigError, ...
+            raise SpecError(f"{where}.recording: {exc}") from None
+        v["_recording_file"] = (str(rfile), hashes[k])
+        v["path"] = f"recording-{Path(v['recording']).stem}"
+        mode = summary["replay_mode"]
+        if v["noise_overrides"]:
+            if mode is None:
+                raise SpecError(f"{where}.noise_overrides: recording {v['recording']!r} has "
+                                f"measured observations (no [replay] to override)")
+            _check_session_overrides(v["noise_overrides"], f"{where}.noise_overrides")
+            mode = v["noise_overrides"].get("replay", "by_receiver")
+        v["noise"] = "recording" if mode is None else f"replay:{mode}"
+        if not explicit_config:
+            v["config"] = summary["config_name"]
+            v["_config_file"] = summary["config_file"]
+
     def _files(self, v: dict, hashes: dict, where: str) -> dict[str, tuple[str, str]]:
         out: dict[str, tuple[str, str]] = {}
+        if v["recording"] != "-":
+            out["recording"] = v["_recording_file"]
+            cpath = Path(v["_config_file"]) if "_config_file" in v else \
+                _resolve("configs", v["config"], self.base_dir, f"{where}.config")
+            k = ("configs", str(cpath))
+            if k not in hashes:
+                hashes[k] = _sha(cpath)
+            out["config"] = (str(cpath), hashes[k])
+            return out
         for kind, axis in (("paths", "path"), ("configs", "config"), ("noise", "noise")):
             val = v[axis]
             if axis == "noise" and val == "none":
@@ -567,6 +677,9 @@ def _check_axis(axis: str, v: object, where: str, base: Path, *, scalar: bool) -
     elif axis == "turning":
         if v not in TURNING:
             raise SpecError(f"{where}: unknown turning source {v!r}; allowed: {list(TURNING)}")
+    elif axis == "recording":
+        if v != "-":
+            _resolve_recording(v, base, where)
     elif axis == "path":
         _resolve("paths", v, base, where)
     elif axis == "config":

@@ -18,6 +18,15 @@ Pipeline per cell (one point of the grid, one seed):
    and solver;
 4. score: Eq. 4.1 / 4.2 errors per evaluation mask (full path, no turns), summarised.
 
+A cell naming a ``recording`` (:mod:`sim.recording`) takes its observations from the
+recording (or, for a recording with ``[replay]``, its reference plus the error replayed
+for the cell's seed) instead of steps 1-2, and is scored against the recording's reference
+with the same statistics; a recording without a reference gives coverage rows (epochs,
+estimates, NaN estimates, status counts) only, and no per-epoch file (the figures drawn
+from those need a reference; run ``track`` on the recording for its estimates). Every recording cell also records the
+layout check of :func:`estimator.layout_check.check_layout` (mirror and forward-axis
+verdicts, ``layout_*`` columns).
+
 Randomness: every stream is a ``numpy.random.Generator`` seeded from
 ``SeedSequence([spec.seed, cell.seed, stream])``; the same spec and seed give bit-identical
 numbers in any order, on any number of workers.
@@ -193,7 +202,10 @@ def _observations(cell: Cell, truth, config, ctx: CellContext) -> np.ndarray:
         return ctx.memo[key]
     from sim.gps import StationarySession, observe
 
-    if cell.noise == "none":
+    if cell.recording != "-":      # truth is the Recording (drawn per seed for a replay)
+        obs = truth.observations(cell_rng(ctx.spec_seed, cell.seed, STREAM_NOISE),
+                                 noise_overrides=json.loads(cell.noise_overrides) or None)
+    elif cell.noise == "none":
         obs = observe(truth, config, None)
     else:
         rng = cell_rng(ctx.spec_seed, cell.seed, STREAM_NOISE)
@@ -302,8 +314,9 @@ def score_track(df: pd.DataFrame, truth, obs: np.ndarray, config, masks: Iterabl
 def evaluate_cell(cell: Cell, truth, ctx: CellContext) -> CellOutput:
     """The real cell function: observations -> track -> scores (see the module docstring)."""
     from estimator.configuration import SensorConfig
-    from estimator.tracking import track
 
+    if cell.recording != "-":
+        return evaluate_recording_cell(cell, truth, ctx)
     t0 = time.perf_counter()
     ckey = ("config", cell.file("config"))
     if ckey not in ctx.memo:
@@ -311,19 +324,8 @@ def evaluate_cell(cell: Cell, truth, ctx: CellContext) -> CellOutput:
     config = ctx.memo[ckey]
     obs = _observations(cell, truth, config, ctx)
     t1 = time.perf_counter()
-    kw = dict(_TECHNIQUE_KW[cell.technique])
-    turning = None
-    if kw.pop("dynamic", False):
-        kw["dynamic_window"] = cell.dyn_window
-        turning = truth.turning.astype(bool) if cell.turning == "controller" else "detect"
-    weighting, extra = cell.weighting, {}
-    if weighting == "-":
-        weighting = "none"
-    elif weighting.startswith("huff:"):
-        weighting, extra = "huff", {"huff_threshold": float(weighting[5:])}
-    df = track(truth.t, obs, config, window=cell.window, weighting=weighting, turning=turning,
-               solver="procrustes" if cell.solver == "-" else cell.solver, **extra,
-               rng=cell_rng(ctx.spec_seed, cell.seed, STREAM_ESTIMATOR), **kw)
+    df = _track_cell(cell, truth.t, obs, config, truth.turning.astype(bool), ctx,
+                     layout_check=False)
     t2 = time.perf_counter()
     rows, ep = score_track(df, truth, obs, config, ctx.masks, epochs=ctx.want_epochs)
     # the models' own names (a spec may name them by file, e.g. "rects/rect30.toml"): tables
@@ -357,6 +359,97 @@ def _noise_name(cell: Cell) -> str:
         return str(tomllib.loads(Path(f).read_text(encoding="utf-8")).get("name") or Path(f).stem)
     except (OSError, ValueError):
         return Path(f).stem
+
+
+def _track_cell(cell: Cell, t: np.ndarray, obs: np.ndarray, config, turning, ctx: CellContext,
+                **kw_extra: Any) -> pd.DataFrame:
+    """:func:`estimator.tracking.track` with the cell's window, weighting, technique and
+    solver; ``turning`` is the "controller" flag (n,) bool (None: none available, the
+    dynamic window then uses the detector)."""
+    from estimator.tracking import track
+
+    kw = dict(_TECHNIQUE_KW[cell.technique])
+    flags = None
+    if kw.pop("dynamic", False):
+        kw["dynamic_window"] = cell.dyn_window
+        flags = turning if cell.turning == "controller" and turning is not None else "detect"
+    weighting, extra = cell.weighting, {}
+    if weighting == "-":
+        weighting = "none"
+    elif weighting.startswith("huff:"):
+        weighting, extra = "huff", {"huff_threshold": float(weighting[5:])}
+    return track(t, obs, config, window=cell.window, weighting=weighting, turning=flags,
+                 solver="procrustes" if cell.solver == "-" else cell.solver, **extra,
+                 rng=cell_rng(ctx.spec_seed, cell.seed, STREAM_ESTIMATOR), **kw, **kw_extra)
+
+
+def evaluate_recording_cell(cell: Cell, rec, ctx: CellContext) -> CellOutput:
+    """A recording cell (module docstring): the recording's observations -> track -> scores
+    against its reference (:func:`score_track` on :meth:`sim.recording.Recording.truth`), or
+    coverage rows when it has none; plus the layout check's verdicts."""
+    import warnings
+
+    from estimator.configuration import LayoutWarning, SensorConfig
+
+    t0 = time.perf_counter()
+    config = rec.config.planar()
+    cfile = cell.file("config")
+    if cfile and Path(cfile).resolve() != Path(rec.meta.get("config_file", cfile)).resolve():
+        config = SensorConfig.load(cfile).planar()      # the block's layout (spec docstring)
+        if config.names != rec.config.names:
+            raise ValueError(f"config: {cell.config!r} names antennas {list(config.names)}, "
+                             f"recording {cell.recording!r} has {list(rec.config.names)}")
+    obs = _observations(cell, rec, config, ctx)
+    truth = rec.truth() if rec.reference is not None else None
+    t1 = time.perf_counter()
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", LayoutWarning)     # recorded in the rows instead
+        df = _track_cell(cell, rec.t, obs, config,
+                         None if truth is None else truth.turning.astype(bool), ctx)
+    t2 = time.perf_counter()
+    if truth is not None:
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", RuntimeWarning)   # all-NaN reference epochs
+            rows, ep = score_track(df, truth, obs, config, ctx.masks, epochs=ctx.want_epochs)
+        n_ref = int(np.isfinite(truth.cg[:, 0]).sum())
+    else:           # no per-epoch file: the figures drawn from them need a reference
+        rows, ep, n_ref = _coverage_rows(df), None, 0
+    lc = df.attrs.get("layout_check", {})
+    for row in rows:
+        row.update({"config_name": config.name, "path_name": str(cell.path),
+                    "noise_name": _noise_name(cell)})
+        row.update({"n_reference": n_ref,
+                    "layout_mirror_fraction": lc.get("mirror_fraction", float("nan")),
+                    "layout_mirror_ratio": lc.get("mirror_objective_ratio", float("nan")),
+                    "layout_mirror_verdict": lc.get("mirror_verdict", "-"),
+                    "layout_forward_offset_deg": math.degrees(
+                        lc.get("forward_offset_rad", float("nan"))),
+                    "layout_forward_verdict": lc.get("forward_verdict", "-")})
+    t3 = time.perf_counter()
+    counts = {str(k): int(v) for k, v in df["solver_status"].value_counts().items()}
+    epochs = None
+    if ctx.want_epochs and ep is not None:
+        epochs = pd.concat([df.reset_index(drop=True), ep], axis=1)
+    return CellOutput(rows=rows, epochs=epochs, status_counts=counts,
+                      timings={"t_noise_s": t1 - t0, "t_track_s": t2 - t1, "t_score_s": t3 - t2})
+
+
+def _coverage_rows(df: pd.DataFrame) -> list[dict]:
+    """Rows of a cell without a reference: mask "full" with the epoch and estimate counts
+    (``n_epochs``, ``n_valid`` finite CG estimates, ``n_nan``); every error statistic of
+    :func:`score_track` is NaN (nothing to score against), so the tables keep their shape."""
+    from estimator.metrics import STATISTICS
+
+    cg = df[["cg_x", "cg_y"]].to_numpy(dtype=float)
+    ok = np.isfinite(cg).all(axis=1)
+    row: dict[str, Any] = {"mask": "full", "n_epochs": len(df), "n_valid": int(ok.sum()),
+                           "n_nan": int((~ok).sum())}
+    nan = float("nan")
+    for sname in ("ex", "ey", "eu", "eh"):
+        row.update({f"{sname}_{k}": nan for k in (*STATISTICS, "outliers")})
+    row.update(dict.fromkeys(("along_mean", "along_median", "jitter_rms", "obs_ex_mean",
+                              "obs_ey_mean"), nan))
+    return [row]
 
 
 # --------------------------------------------------------------------------- workers
@@ -620,6 +713,15 @@ def _simulate_all(cells: list[Cell], spec: Spec, jobs: int, truth_fn, cache_dir,
     from tqdm import tqdm
 
     keys = list(OrderedDict.fromkeys(c.truth_key for c in cells))
+    out: dict = {}
+    if any(k[0] == "recording" for k in keys):
+        from sim.recording import load_recording
+
+        for k in [k for k in keys if k[0] == "recording"]:
+            out[k] = load_recording(k[1])           # its logs, once, in the parent
+        keys = [k for k in keys if k[0] != "recording"]
+        if not keys:
+            return out
     fn = truth_fn or simulate_truth
     args = [(pf, po, cf, spec.sim_seed, cache_dir) for (pf, po, cf) in keys]
     bar = tqdm(total=len(keys), unit="truth", desc=f"{spec.name}: simulate",
@@ -640,7 +742,7 @@ def _simulate_all(cells: list[Cell], spec: Spec, jobs: int, truth_fn, cache_dir,
                 bar.update()
     finally:
         bar.close()
-    return dict(zip(keys, truths))
+    return {**out, **dict(zip(keys, truths))}
 
 
 # --------------------------------------------------------------------------- run

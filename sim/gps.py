@@ -16,6 +16,9 @@ to the simulated truth (Section 4.1.2). This module provides
   (``models/noise/*.toml``; every parameter is documented there with unit and source).
 - :func:`synthesize_session`: draw a session for a sensor configuration at a fixed pose.
 - :func:`replay`: the dissertation's construction, truth + (observation - receiver mean).
+- :func:`replay_one`: one receiver's session driving all m antennas, in one of the named
+  modes of :data:`REPLAY_MODES` (what each implies for heading is stated there).
+- :func:`observe`: a cell's observations from a model, a session or nothing.
 
 Error model (per axis, per receiver i, sample k; all components independent)::
 
@@ -50,6 +53,7 @@ from typing import Literal
 import numpy as np
 from scipy.signal import lfilter
 
+from estimator._checks import check_int, check_real
 from estimator.configuration import SensorConfig
 from estimator.model_files import MODELS_DIR, read_model_toml
 from sim.atomic import atomic_write
@@ -57,13 +61,17 @@ from sim.truth import Truth
 
 __all__ = [
     "NOISE_DIR",
+    "REPLAY_MODES",
+    "SESSION_REPLAY_KEYS",
     "GpsModelError",
     "GpsNoiseModel",
     "StationarySession",
     "gauss_markov",
     "markov_dropouts",
+    "observe",
     "receiver_errors",
     "replay",
+    "replay_one",
     "synthesize_session",
 ]
 
@@ -602,6 +610,18 @@ def synthesize_session(model: GpsNoiseModel, config: SensorConfig, duration_s: f
 
 
 # --------------------------------------------------------------------------- replay
+def _check_rate(truth: Truth, session: StationarySession) -> None:
+    """ValueError if the median sample intervals of truth and session differ by > 1 %
+    (replay aligns by sample: a different rate would stretch time)."""
+    if truth.n > 1 and session.n > 1:
+        dt_truth = float(np.median(np.diff(truth.t)))
+        dt_sess = float(np.median(np.diff(session.t)))
+        if abs(dt_truth - dt_sess) > 0.01 * dt_sess:
+            raise ValueError(f"session: sample interval {dt_sess:.6g} s differs from the truth's "
+                             f"{dt_truth:.6g} s; replay aligns by sample (pass "
+                             f"check_rate=False to accept)")
+
+
 ReplayMode = Literal["error", "wrap", "random_offset"]
 
 
@@ -656,12 +676,8 @@ def replay(truth: Truth, session: StationarySession, *, rng: np.random.Generator
         if session.m < m:
             raise ValueError(f"session: {session.m} receivers for {m} truth sensors (matching by order)")
         idx = np.arange(m, dtype=np.int64)
-    if check_rate and n > 1 and ns > 1:
-        dt_truth = float(np.median(np.diff(truth.t)))
-        dt_sess = float(np.median(np.diff(session.t)))
-        if abs(dt_truth - dt_sess) > 0.01 * dt_sess:
-            raise ValueError(f"session: sample interval {dt_sess:.6g} s differs from the truth's "
-                             f"{dt_truth:.6g} s; replay aligns by sample (pass check_rate=False to accept)")
+    if check_rate:
+        _check_rate(truth, session)
     # session sample per truth sample
     if start is None:
         if mode == "random_offset":
@@ -684,6 +700,162 @@ def replay(truth: Truth, session: StationarySession, *, rng: np.random.Generator
     return truth.sensor_positions[:, :, :2] + dev[rows]
 
 
+#: How a stationary session drives the m antennas of a truth, and what it implies for the
+#: heading (whose error comes only from the part of the antennas' errors they do NOT share:
+#: a shift common to every antenna moves the fitted pose without rotating it).
+REPLAY_MODES = {
+    "by_receiver": "one session receiver per antenna (by name or order, :func:`replay`): "
+                   "the receivers' own common-mode and independent parts; heading as "
+                   "observable as it was for those receivers recorded together",
+    "identical": "every antenna gets the same receiver's error at the same time (what "
+                 "duplicating one log gives): a pure translation, so the fitted heading is "
+                 "exact and the CG error is the log's error; an optimistic bound for heading",
+    "shifted": "antenna j gets the receiver's error at circular lag j * L samples (default "
+               "L = n_session // m, the largest equal spacing): no common-mode part, so "
+               "heading as poor as for independent receivers of this quality, a pessimistic "
+               "bound (co-located receivers share part of their error). Independent only if "
+               "the session is many correlation times long: the replayed error is zero-mean "
+               "over the session, so m phases of a session a few correlation times long are "
+               "anti-correlated and their mean (the CG error) is too small; the measured "
+               "mean pair correlation is reported (info['pair_correlation'])",
+    "common_plus_model": "the receiver's error moves every antenna together (real CG error, "
+                         "invisible to the heading) plus, per antenna, the per-receiver part "
+                         "of a noise model (its Gauss-Markov part sigma_m sqrt(1 - "
+                         "common_fraction), biases, plateaus, outliers, dropouts): heading "
+                         "error comes from the model alone",
+}
+def _mean_pair_correlation(err: np.ndarray) -> float:
+    """Mean over antenna pairs and both axes of the sample correlation of the errors
+    (n, m, 2) over time (pairwise complete samples; NaN if no pair has variance)."""
+    m = err.shape[1]
+    out = []
+    for i in range(m):
+        for j in range(i + 1, m):
+            for k in range(2):
+                a, b = err[:, i, k], err[:, j, k]
+                ok = ~np.isnan(a) & ~np.isnan(b)
+                if ok.sum() > 2 and np.std(a[ok]) > 0 and np.std(b[ok]) > 0:
+                    out.append(float(np.corrcoef(a[ok], b[ok])[0, 1]))
+    return float(np.mean(out)) if out else math.nan
+
+
+#: Keys of ``noise_overrides`` that :func:`observe` accepts with a session.
+SESSION_REPLAY_KEYS = ("replay", "receiver", "shift_s", "model")
+
+
+def replay_one(truth: Truth, session: StationarySession, *, mode: str,
+               rng: np.random.Generator, receiver: str | None = None,
+               shift_s: float | None = None, model: str | Path | GpsNoiseModel | None = None,
+               config: SensorConfig | None = None, start: int | None = None,
+               check_rate: bool = True) -> tuple[np.ndarray, dict]:
+    """Observations of all m antennas of ``truth`` from ONE receiver of ``session``.
+
+    Each antenna gets that receiver's deviation from its session mean (the dissertation's
+    error, Section 4.1.2) added to its true position, arranged by ``mode`` (one of
+    :data:`REPLAY_MODES` except "by_receiver", which is :func:`replay`):
+
+    - ``"identical"``: rows ``start .. start + n - 1`` for every antenna.
+    - ``"shifted"``: antenna j reads rows ``(start + j L + k) mod n_session``, L =
+      ``round(shift_s / dt)`` or ``n_session // m``; needs ``n_session >= n`` (no antenna
+      repeats its own samples) and ``(m - 1) L < n_session`` (distinct lags). An antenna
+      whose rows pass the session's end has a seam there (a jump, as ``replay(mode="wrap")``);
+      ``info["seams"]`` counts them.
+    - ``"common_plus_model"``: rows ``start .. start + n - 1`` for every antenna plus, per
+      antenna, :func:`receiver_errors` of ``model`` with the common part removed
+      (``sigma_m -> sigma_receiver_m``, ``common_fraction -> 0``) and its dropouts
+      (:func:`markov_dropouts`) and dead receivers.
+
+    truth : Truth, sensor positions (n, m, 3) metres at the session's sample interval
+        (``check_rate``: within 1 %). session : StationarySession. receiver : the name of
+        the session receiver to use (required when the session has more than one).
+    rng : Generator: the start (when ``start`` is None, uniform over the admissible
+        starts) and the model's draws. config : if given, its dead antennas stay NaN.
+    Missing session samples are missing for every antenna that reads them.
+    Returns ``(obs (n, m, 2) float64 metres, NaN = missing; info dict)`` with the mode,
+    receiver, start, lag (samples, s), seams and ``pair_correlation``: the sample
+    correlation of the replayed errors of every antenna pair over the run, averaged over
+    pairs and axes (1 for "identical"; near 0 when "shifted" decorrelates, negative when
+    the session is too short for m independent segments, see :data:`REPLAY_MODES`).
+    """
+    if mode not in REPLAY_MODES or mode == "by_receiver":
+        raise ValueError(f"mode: must be one of {[k for k in REPLAY_MODES if k != 'by_receiver']} "
+                         f"(by_receiver is sim.gps.replay), got {mode!r}")
+    if not isinstance(rng, np.random.Generator):
+        raise TypeError(f"rng: must be a numpy.random.Generator, got {type(rng).__name__}")
+    if not isinstance(truth, Truth) or not isinstance(session, StationarySession):
+        raise TypeError("truth, session: expected a sim.truth.Truth and a StationarySession, "
+                        f"got {type(truth).__name__} and {type(session).__name__}")
+    n, m, ns = truth.n, truth.m, session.n
+    if shift_s is not None and mode != "shifted":
+        raise ValueError(f"shift_s: applies to mode 'shifted' only (mode {mode!r})")
+    if model is not None and mode != "common_plus_model":
+        raise ValueError(f"model: applies to mode 'common_plus_model' only (mode {mode!r})")
+    if receiver is None:
+        if session.m != 1:
+            raise ValueError(f"receiver: the session has {session.m} receivers "
+                             f"{list(session.names)}; name the one to replay")
+        r = 0
+    else:
+        if str(receiver) not in session.names:
+            raise ValueError(f"receiver: {receiver!r} is not in the session "
+                             f"(receivers {list(session.names)})")
+        r = session.names.index(str(receiver))
+    if check_rate:
+        _check_rate(truth, session)
+    dt = float(np.median(np.diff(session.t))) if ns > 1 else 1.0
+    if ns < n:
+        raise ValueError(f"session: {ns} samples of receiver {session.names[r]!r} cannot cover "
+                         f"the truth's {n} samples (mode {mode!r})")
+    dev = _centre(session.obs[:, [r]])[0][:, 0]            # (ns, 2), zero-mean
+    info: dict = {"mode": mode, "receiver": session.names[r], "n_session": ns}
+    if start is not None:
+        start = int(check_int(start, "start", 0, ns - 1 if mode == "shifted" else ns - n))
+    if mode == "shifted":
+        if m < 2:
+            raise ValueError("mode 'shifted': needs at least 2 antennas")
+        if shift_s is None:
+            lag = ns // m
+        else:
+            lag = round(check_real(shift_s, "shift_s", lo=0.0, lo_open=True) / dt)
+        if lag < 1 or (m - 1) * lag >= ns:
+            raise ValueError(f"shift_s: a lag of {lag} samples for {m} antennas needs "
+                             f"1 <= lag and (m - 1) * lag < {ns} session samples")
+        if start is None:
+            start = int(rng.integers(0, ns))
+        first = start + lag * np.arange(m)
+        rows = (first[None, :] + np.arange(n)[:, None]) % ns        # (n, m)
+        err = dev[rows]                                              # (n, m, 2)
+        info.update({"lag_samples": int(lag), "lag_s": lag * dt,
+                     "seams": int(((first % ns) + n > ns).sum())})
+    else:
+        if start is None:
+            start = int(rng.integers(0, ns - n + 1))
+        common = dev[start:start + n]                                # (n, 2)
+        err = np.repeat(common[:, None, :], m, axis=1)
+        info.update({"lag_samples": 0, "lag_s": 0.0, "seams": 0})
+        if mode == "common_plus_model":
+            if model is None:
+                raise ValueError("model: mode 'common_plus_model' needs a noise model "
+                                 "(a GpsNoiseModel or a name in models/noise/)")
+            mdl = model if isinstance(model, GpsNoiseModel) else GpsNoiseModel.load(model)
+            per_model = mdl.with_overrides(sigma_m=mdl.sigma_receiver_m, common_fraction=0.0)
+            per, drawn = receiver_errors(per_model, m, n, dt, rng)
+            missing = markov_dropouts(n, m, mdl.missing_fraction, mdl.mean_burst_s / dt, rng)
+            names = truth.sensor_names
+            for d in mdl.dead:
+                if d in names:
+                    missing[:, names.index(d)] = True
+            err = err + per
+            err[missing] = np.nan
+            info.update({"model": mdl.name, "drawn": drawn})
+    info["start"] = int(start)
+    info["pair_correlation"] = _mean_pair_correlation(err)
+    obs = truth.sensor_positions[:, :, :2] + err
+    if config is not None:
+        obs[:, ~config.alive_mask] = np.nan
+    return obs, info
+
+
 # --------------------------------------------------------------------------- observe
 def observe(truth: Truth, config: SensorConfig,
             noise: str | Path | GpsNoiseModel | StationarySession | None, *,
@@ -700,12 +872,18 @@ def observe(truth: Truth, config: SensorConfig,
     rng : the noise stream (required unless noise-free).
     session_s : length of the synthesized stationary session, s (the dissertation's
         recording lasted ~4000 s, Section 4.1.1); at least the run's length is used.
-    noise_overrides : model fields replaced before synthesis (e.g. ``common_fraction``).
+    noise_overrides : with a model, model fields replaced before synthesis (e.g.
+        ``common_fraction``). With a session, how it drives the antennas
+        (:data:`SESSION_REPLAY_KEYS`): ``replay`` = a mode of :data:`REPLAY_MODES`
+        (default "by_receiver"), ``receiver`` (which one, for the one-receiver modes),
+        ``shift_s`` ("shifted"), ``model`` (a noise-model name, "common_plus_model", whose
+        fields may be overridden by the remaining keys).
 
     A model synthesizes a session of ``session_s`` seconds (plus the power failure), cut
     after its power failure as the dissertation did; a session is cut the same way. The
     run replays a random stretch of it (start drawn from ``rng``): truth + (observation -
-    that receiver's mean over the whole session), :func:`replay` with ``mode="error"``.
+    that receiver's mean over the whole session), :func:`replay` with ``mode="error"``, or
+    :func:`replay_one` for the one-receiver modes.
     Returns obs (n, m, 2) float64 metres, NaN = missing, read-only.
     """
     if noise is None or (isinstance(noise, str) and noise == "none"):
@@ -717,6 +895,36 @@ def observe(truth: Truth, config: SensorConfig,
         raise ValueError(f"rng: noisy observations need a numpy.random.Generator, got {rng!r}")
     if isinstance(noise, StationarySession):
         session = noise.after_power_failure()
+        opts = dict(noise_overrides or {})
+        mode = opts.pop("replay", "by_receiver")
+        if mode not in REPLAY_MODES:
+            raise ValueError(f"noise_overrides.replay: unknown mode {mode!r}; choose one of "
+                             f"{list(REPLAY_MODES)}")
+        if mode == "by_receiver":
+            if opts:
+                raise ValueError(f"noise_overrides: {sorted(opts)} do not apply to a session "
+                                 f"replayed by receiver (keys {list(SESSION_REPLAY_KEYS)})")
+            if session.m < truth.m:
+                raise ValueError(
+                    f"noise: the session has {session.m} receiver(s) for {truth.m} antennas; "
+                    f"drive them from one receiver with noise_overrides={{'replay': MODE}}, "
+                    f"MODE one of 'shifted' (decorrelated segments), 'common_plus_model' "
+                    f"(+ a model's per-receiver part) or 'identical' (common-mode only); "
+                    f"see sim.gps.REPLAY_MODES")
+        else:
+            receiver, shift_s, mdl = (opts.pop(k, None) for k in ("receiver", "shift_s", "model"))
+            if opts and mode != "common_plus_model":
+                raise ValueError(f"noise_overrides: {sorted(opts)} do not apply to replay "
+                                 f"mode {mode!r} (keys {list(SESSION_REPLAY_KEYS)})")
+            if mode == "common_plus_model" and mdl is not None and opts:
+                mdl = (mdl if isinstance(mdl, GpsNoiseModel)
+                       else GpsNoiseModel.load(mdl)).with_overrides(**opts)
+            elif opts:
+                raise ValueError(f"noise_overrides: {sorted(opts)} need a 'model' to override")
+            obs, _ = replay_one(truth, session, mode=mode, rng=rng, receiver=receiver,
+                                shift_s=shift_s, model=mdl, config=config)
+            obs.setflags(write=False)
+            return obs
     else:
         model = noise if isinstance(noise, GpsNoiseModel) else GpsNoiseModel.load(noise)
         if noise_overrides:

@@ -1,11 +1,15 @@
-"""SensorConfig: distances, MDS recovery, TOML loading and validation."""
+"""SensorConfig: distances, MDS recovery, TOML loading and validation, handedness and the
+layout check."""
+
+import math
+import warnings
 
 import numpy as np
 import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from estimator.configuration import CONFIGS_DIR, ConfigError, SensorConfig
+from estimator.configuration import CONFIGS_DIR, ConfigError, LayoutWarning, SensorConfig
 
 
 def test_default_rover_config_matches_dissertation_layout():
@@ -155,3 +159,313 @@ def test_model_files_resolution_and_errors(tmp_path):
     bad.write_text("[[sensor\n")
     with pytest.raises(ValueError, match=r"bad\.toml: not valid TOML"):
         read_model_toml(bad, folder, "config")
+
+
+# --------------------------------------------------------------------------- issue 13 classes
+@pytest.mark.parametrize("kwargs, exc, match", [
+    (dict(names=["a", "b"], body_positions=[[0, 0], [1e200, 0]]), ConfigError, "MAX_BODY_M"),
+    (dict(names=[], body_positions=np.zeros((0, 2))), ConfigError, "at least 2 sensors"),
+    (dict(names=["a", "b"], body_positions=[[0, 0], [1, 0]], mount_height_m=-1), ConfigError,
+     "mount_height_m"),
+    (dict(names=["a", "b"], body_positions=[[0, 0], [1, 0]], mount_height_m="1"), TypeError,
+     "mount_height_m"),
+    (dict(names=["a", "b"], body_positions=[["x", 0], [1, 0]]), TypeError, "body_positions"),
+    (dict(names="ab", body_positions=[[0, 0], [1, 0]]), TypeError, "names"),
+    (dict(names=["a", "b"], body_positions=[[0, 0], [1, 0]], dead="a"), TypeError, "dead"),
+])
+def test_constructor_rejects_the_issue_13_classes(kwargs, exc, match):
+    with pytest.raises(exc, match=match):
+        SensorConfig(**kwargs)
+
+
+def _square():
+    return _pairwise(np.array([[0.0, 0.0], [1.0, 0.0], [1.0, 1.0], [0.0, 1.0]]))
+
+
+@pytest.mark.parametrize("kwargs, exc, match", [
+    (dict(D=_square() * 1e200), ConfigError, "MAX_BODY_M"),
+    (dict(D=_square(), tol_m=math.nan), ValueError, "tol_m"),
+    (dict(D=_square(), tol_m=math.inf), ValueError, "tol_m"),
+    (dict(D=_square(), tol_m=-0.1), ValueError, "tol_m"),
+    (dict(D=_square(), d=2.0), TypeError, "d: must be an integer"),
+    (dict(D=_square(), d=4), ConfigError, "d: must be 2 or 3"),
+    (dict(D=_square(), rtol=1e-6), TypeError, "rtol"),
+    (dict(D=np.ones((4, 4)) - np.eye(4), tol_m=math.inf), ValueError, "tol_m"),
+    (dict(D=[["a"] * 4] * 4), TypeError, "D: must be a numeric array"),
+])
+def test_from_distances_rejects_the_issue_13_classes(kwargs, exc, match):
+    with pytest.raises(exc, match=match):
+        SensorConfig.from_distances(list("abcd"), forward="b", left="d", **kwargs)
+
+
+def test_from_distances_needs_two_names():
+    with pytest.raises(ConfigError, match="at least 2 sensors"):
+        SensorConfig.from_distances([], np.zeros((0, 0)))
+
+
+# --------------------------------------------------------------------------- tolerance
+@pytest.mark.parametrize("name", ["rover_gps8", "rover_gps4"])
+def test_cm_level_measured_distances_pass_the_default_tolerance(name):
+    """Distances with 1 cm (std) independent errors, 50 draws: all accepted by the default
+    tol_m (DISTANCE_TOL_M = 0.05 m), and the embedding reproduces them within it. (1.5 cm
+    errors also all passed in 500 draws; 2 cm failed 2 % of rover_gps8 draws: the default
+    is for cm-level instruments, see its comment.)"""
+    from estimator.configuration import DISTANCE_TOL_M
+
+    cfg = SensorConfig.load(name)
+    D = cfg.distances()
+    rng = np.random.default_rng(11)
+    for _ in range(50):
+        E = np.triu(rng.normal(0.0, 0.01, D.shape), 1)
+        Dn = D + E + E.T
+        got = SensorConfig.from_distances(cfg.names, Dn, forward=cfg.names[1], left=cfg.names[0])
+        assert np.abs(got.distances() - Dn).max() <= DISTANCE_TOL_M
+
+
+def test_a_gross_distance_error_is_rejected_naming_the_pair():
+    cfg = SensorConfig.load("rover_gps8")
+    D = cfg.distances()
+    D[0, 7] += 0.2
+    D[7, 0] += 0.2
+    with pytest.raises(ConfigError, match=r"worst pair \('1', '8'\)"):
+        SensorConfig.from_distances(cfg.names, D, forward="2", left="1")
+
+
+def test_least_squares_embedding_beats_classical_mds():
+    """With noisy distances the refined embedding's stress is at most MDS's (independent
+    reference: scipy's generic minimizer on the same stress from the MDS start)."""
+    from scipy.optimize import minimize
+
+    from estimator.configuration import _embed, _refine_embedding
+
+    cfg = SensorConfig.load("rover_gps8")
+    rng = np.random.default_rng(3)
+    E = np.triu(rng.normal(0.0, 0.02, (8, 8)), 1)
+    D = cfg.distances() + E + E.T
+    iu = np.triu_indices(8, 1)
+
+    def stress(x):
+        X = x.reshape(8, 2)
+        return float(((_pairwise(X)[iu] - D[iu]) ** 2).sum())
+
+    X0 = _embed(D, 2)
+    X1 = _refine_embedding(X0, D)
+    ref = minimize(stress, X0.ravel(), method="BFGS", options={"gtol": 1e-12})
+    assert stress(X1.ravel()) <= stress(X0.ravel())
+    # both reach the same minimum to 1e-9 m^2 (BFGS's stopping tolerance)
+    assert stress(X1.ravel()) == pytest.approx(ref.fun, abs=1e-9)
+
+
+# --------------------------------------------------------------------------- handedness
+def _random_layout(seed: int, m: int = 5) -> SensorConfig:
+    """Sensors 'r' and 'f' on a line along body x (rear, front), others anywhere, CG = all
+    at the origin; sensor 's2' at least 0.3 m left of the CG (body y > 0.3)."""
+    rng = np.random.default_rng(seed)
+    B = np.vstack([[-1.0, 0.0], [1.0, 0.0], rng.uniform(-2, 2, (m - 2, 2))])
+    B -= B.mean(axis=0)
+    if B[2, 1] < 0.3:        # raise s2 so that it sits at y = 0.3 after re-centring
+        B[2, 1] += (0.3 - B[2, 1]) * m / (m - 1)
+        B -= B.mean(axis=0)
+    return SensorConfig(["r", "f", *[f"s{k}" for k in range(2, m)]], B)
+
+
+@settings(max_examples=40, deadline=None)
+@given(seed=st.integers(0, 2**32 - 1), m=st.integers(3, 8))
+def test_forward_and_left_fix_the_frame_exactly(seed, m):
+    """Noise-free distances: the named rear/front pair and left sensor give back the body
+    layout itself, whichever hand the embedding came out in (1e-8 m: eigen round-off)."""
+    cfg = _random_layout(seed, m)
+    got = SensorConfig.from_distances(cfg.names, cfg.distances(), forward=("r", "f"),
+                                      left="s2")
+    np.testing.assert_allclose(got.body_positions, cfg.body_positions, atol=1e-8)
+    # a single name: +x from the CG to it (no left: the hand stays open, and says so)
+    with pytest.warns(LayoutWarning, match="handedness"):
+        one = SensorConfig.from_distances(cfg.names, cfg.distances(), forward="f")
+    v = one.body_positions[1]
+    assert abs(v[1]) < 1e-8 and v[0] > 0
+
+
+@settings(max_examples=40, deadline=None)
+@given(seed=st.integers(0, 2**32 - 1), heading=st.floats(-math.pi, math.pi),
+       mirror=st.booleans())
+def test_observed_positions_and_heading_fix_the_frame(seed, heading, mirror):
+    """World positions = R(heading) b + c (+ 1 cm noise): the recovered layout is b (the
+    observation decides the hand: a mirrored world gives the mirrored layout)."""
+    cfg = _random_layout(seed)
+    B = cfg.body_positions.copy()
+    if mirror:
+        B[:, 1] = -B[:, 1]
+    rng = np.random.default_rng(seed)
+    c, s = math.cos(heading), math.sin(heading)
+    W = B @ np.array([[c, -s], [s, c]]).T + [512000.0, 4400000.0] + rng.normal(0, 0.01, B.shape)
+    got = SensorConfig.from_distances(cfg.names, cfg.distances(), observed=W, heading=heading)
+    # 1 cm observation noise moves the fitted rotation by ~1e-2 / 2 m; the layout (exact
+    # distances) is rotated by at most that: < 0.05 m at 3 m from the CG
+    assert np.abs(got.body_positions - B).max() < 0.05
+    assert "observed positions" in got.description
+
+
+def test_frame_errors_and_warnings():
+    cfg = _random_layout(1)
+    D = cfg.distances()
+    with pytest.warns(LayoutWarning, match="arbitrary"):
+        SensorConfig.from_distances(cfg.names, D)
+    with pytest.warns(LayoutWarning, match="handedness"):
+        SensorConfig.from_distances(cfg.names, D, forward=("r", "f"))
+    with pytest.raises(ConfigError, match="left: needs forward"):
+        SensorConfig.from_distances(cfg.names, D, left="s2")
+    r8 = SensorConfig.load("rover_gps8")
+    with pytest.raises(ConfigError, match="left: sensor '2' lies"):     # on the centre line
+        SensorConfig.from_distances(r8.names, r8.distances(), forward=("7", "2"), left="2",
+                                    cg_members=r8.cg_members)
+    with pytest.raises(ConfigError, match="unknown sensor 'zz'"):
+        SensorConfig.from_distances(cfg.names, D, forward="zz", left="s2")
+    with pytest.raises(ConfigError, match="not both"):
+        SensorConfig.from_distances(cfg.names, D, forward="f", observed=np.zeros((5, 2)),
+                                    heading=0.0)
+    with pytest.raises(ConfigError, match="observed and heading"):
+        SensorConfig.from_distances(cfg.names, D, observed=cfg.body_positions)
+    with pytest.raises(ValueError, match="heading"):
+        SensorConfig.from_distances(cfg.names, D, observed=cfg.body_positions, heading=math.nan)
+    with pytest.raises(ConfigError, match="observed: expected shape"):
+        SensorConfig.from_distances(cfg.names, D, observed=np.zeros((4, 2)), heading=0.0)
+    two = np.full((5, 2), np.nan)
+    two[:2] = cfg.body_positions[:2]
+    with pytest.raises(ConfigError, match="at least 3"):
+        SensorConfig.from_distances(cfg.names, D, observed=two, heading=0.0)
+    tet = np.ones((4, 4)) - np.eye(4)
+    with pytest.raises(ConfigError, match="d = 2 layout only|2-D layout only"):
+        SensorConfig.from_distances(list("abcd"), tet, d=3, forward="a", left="b")
+    noisy = cfg.body_positions + np.random.default_rng(0).normal(0, 3.0, (5, 2))
+    with pytest.warns(LayoutWarning, match="barely prefer"):
+        SensorConfig.from_distances(cfg.names, D, observed=noisy, heading=0.0)
+
+
+def test_to_dict_round_trips():
+    cfg = SensorConfig.load("rover_gps8")
+    back = SensorConfig.from_dict(cfg.to_dict())
+    assert back.names == cfg.names and back.dead == cfg.dead
+    assert back.cg_members == cfg.cg_members and back.mount_height_m == cfg.mount_height_m
+    np.testing.assert_array_equal(back.body_positions, cfg.body_positions)
+
+
+# --------------------------------------------------------------------------- extremes
+_EXTREME = st.one_of(st.floats(allow_nan=True, allow_infinity=True),
+                     st.sampled_from([0.0, -0.0, 1e-300, 1e300, -1e300, 1e6, 1e7, math.nan]))
+
+
+@settings(max_examples=80, deadline=None)
+@given(st.lists(st.tuples(_EXTREME, _EXTREME), min_size=0, max_size=6),
+       _EXTREME)
+def test_constructor_extremes_raise_or_give_finite_distances(pts, height):
+    names = [f"s{k}" for k in range(len(pts))]
+    try:
+        cfg = SensorConfig(names, np.array(pts, dtype=float).reshape(-1, 2),
+                           mount_height_m=height)
+    except (ConfigError, TypeError, ValueError) as exc:
+        assert any(k in str(exc) for k in ("body_positions", "names", "mount_height_m"))
+        return
+    assert np.isfinite(cfg.distances()).all() and cfg.mount_height_m >= 0
+
+
+@settings(max_examples=80, deadline=None)
+@given(m=st.integers(0, 6), fill=_EXTREME, tol=_EXTREME, seed=st.integers(0, 1000))
+def test_from_distances_extremes_raise_or_embed_within_tolerance(m, fill, tol, seed):
+    rng = np.random.default_rng(seed)
+    X = rng.uniform(-3, 3, (m, 2))
+    D = _pairwise(X)
+    if m >= 2 and rng.random() < 0.5:
+        i, j = rng.choice(m, 2, replace=False)
+        D[i, j] = D[j, i] = fill
+    try:
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", LayoutWarning)
+            cfg = SensorConfig.from_distances([f"s{k}" for k in range(m)], D, tol_m=tol)
+    except (ConfigError, TypeError, ValueError) as exc:
+        assert any(k in str(exc) for k in ("D:", "tol_m", "names", "body_positions"))
+        return
+    assert np.abs(cfg.distances() - D).max() <= tol + 1e-6
+
+
+_VALUES = st.one_of(st.none(), st.booleans(), st.integers(-10, 10), _EXTREME, st.text(max_size=3),
+                    st.lists(_EXTREME, max_size=4))
+
+
+@settings(max_examples=80, deadline=None)
+@given(st.dictionaries(st.sampled_from(["name", "description", "mount_height_m", "cg_sensors",
+                                        "dead", "sensor", "colour"]), _VALUES, max_size=5),
+       st.lists(st.dictionaries(st.sampled_from(["name", "position_m", "height"]), _VALUES,
+                                max_size=3), max_size=4))
+def test_from_dict_extremes_raise_config_errors(data, sensors):
+    if sensors:
+        data = {**data, "sensor": sensors}
+    try:
+        cfg = SensorConfig.from_dict(data)
+    except (ConfigError, TypeError) as exc:
+        assert str(exc)
+        return
+    assert np.isfinite(cfg.body_positions).all()
+
+
+# --------------------------------------------------------------------------- layout check
+def test_layout_check_verdicts_on_a_known_track():
+    """A straight run with a turn (rover_gps8, 0.05 m errors): the right layout is
+    consistent, its mirror image is "mirrored", a layout rotated by 90 degrees or reversed
+    is "not forward"; standing still the forward check does not apply."""
+    from estimator.layout_check import check_layout
+    from synth_tracks import corner_path
+
+    cfg, t, _cg, _yaw, _turning, obs = corner_path()
+    rng = np.random.default_rng(0)
+    noisy = obs + rng.normal(0.0, 0.05, obs.shape)
+    ok = check_layout(t, noisy, cfg, window=5)
+    assert (ok.mirror_verdict, ok.forward_verdict) == ("consistent", "consistent")
+    assert ok.warnings == () and abs(ok.forward_offset_rad) < 0.1
+    B = cfg.body_positions
+    mir = SensorConfig(cfg.names, B * [1, -1], cfg.cg_members, cfg.dead)
+    rot = SensorConfig(cfg.names, B @ np.array([[0, -1], [1, 0]]).T, cfg.cg_members, cfg.dead)
+    back = SensorConfig(cfg.names, -B, cfg.cg_members, cfg.dead)
+    lm = check_layout(t, noisy, mir, window=5)
+    assert lm.mirror_verdict == "mirrored" and lm.warnings[0].startswith("layout may be mirrored")
+    lr = check_layout(t, noisy, rot, window=5)
+    assert lr.forward_verdict == "not_forward"
+    assert math.degrees(lr.forward_offset_rad) == pytest.approx(-90, abs=5)
+    lb = check_layout(t, noisy, back, window=5)
+    assert lb.forward_verdict == "not_forward" and abs(lb.forward_offset_rad) > 3.0
+    still = np.broadcast_to(noisy[:1], noisy.shape) + rng.normal(0, 0.05, noisy.shape)
+    ls = check_layout(t, still, cfg, window=5)
+    assert ls.forward_verdict == "not_applicable" and ls.n_moving == 0
+
+
+def test_layout_check_with_metre_errors_is_undetermined_not_alarmed():
+    """Errors much larger than the platform (2 m independent): neither hand explains the
+    data better by the factor 2 (module docstring), so no "mirrored" claim either way."""
+    from estimator.layout_check import check_layout
+    from synth_tracks import straight
+
+    cfg, t, _cg, _yaw, obs = straight(n=400)
+    rng = np.random.default_rng(1)
+    noisy = obs + rng.normal(0.0, 2.0, obs.shape)
+    for c in (cfg, SensorConfig(cfg.names, cfg.body_positions * [1, -1], cfg.cg_members,
+                                cfg.dead)):
+        assert check_layout(t, noisy, c, window=10).mirror_verdict == "undetermined"
+
+
+@settings(max_examples=40, deadline=None)
+@given(window=st.sampled_from([0, 1, 5, 10**9, 2.0, None]),
+       fill=st.sampled_from([math.nan, math.inf, 1e300, 0.0]),
+       span=st.sampled_from([8.0, 0.0, -1.0, math.nan, math.inf]))
+def test_layout_check_extremes(window, fill, span):
+    from estimator.layout_check import check_layout
+    from synth_tracks import straight
+
+    cfg, t, _cg, _yaw, obs = straight(n=30)
+    obs = obs.copy()
+    obs[3] = fill
+    try:
+        out = check_layout(t, obs, cfg, window=window, span_s=span)
+    except (ValueError, TypeError) as exc:
+        assert any(k in str(exc) for k in ("window", "obs", "span_s"))
+        return
+    assert out.mirror_verdict in ("consistent", "mirrored", "undetermined", "not_applicable")
+    assert out.to_dict()["warnings"] == list(out.warnings)

@@ -392,3 +392,170 @@ def test_observe_is_the_sweeps_composition_and_noise_free_is_truth():
     assert np.array_equal(a, b, equal_nan=True)
     with pytest.raises(ValueError, match="rng"):
         observe(truth, cfg, model)
+
+
+# --------------------------------------------------------------------------- one receiver, m antennas
+def _one_receiver(n: int, seed: int = 0, tau_s: float = 10.0, sigma: float = 1.0,
+                  missing: tuple[int, int] | None = None) -> StationarySession:
+    """One receiver: an AR(1) error of std ``sigma`` and correlation time ``tau_s`` at a
+    UTM-sized position (the replay must use only its deviation from the mean)."""
+    rng = np.random.default_rng(seed)
+    err = gauss_markov(n, (2,), sigma, tau_s, 1.0, rng, order=1)
+    obs = (np.array([512000.0, 4400000.0]) + err)[:, None, :]
+    if missing:
+        obs[missing[0]:missing[1]] = np.nan
+    return StationarySession(np.arange(n, dtype=float), obs, ("rx",))
+
+
+def _heading_error(truth: Truth, obs: np.ndarray) -> np.ndarray:
+    from estimator.window import procrustes_batch
+
+    cfg = CFG.planar()
+    present = ~np.isnan(obs[..., 0]) & cfg.alive_mask[None]
+    bf = procrustes_batch(np.where(present[..., None], obs, 0.0), present.astype(float), cfg)
+    return np.abs(np.angle(np.exp(1j * (bf.yaw - truth.yaw))))
+
+
+def test_one_receiver_by_receiver_names_the_modes():
+    from sim.gps import observe
+
+    with pytest.raises(ValueError, match=r"1 receiver\(s\) for 8 antennas.*shifted.*"
+                                         r"common_plus_model.*identical"):
+        observe(_truth(100), CFG, _one_receiver(300), rng=np.random.default_rng(0))
+
+
+def test_identical_mode_is_common_mode_only_and_heading_exact():
+    """Every antenna carries the same error at the same time: a translation, so the rigid
+    fit's heading equals the truth to round-off (1e-9 rad at 1e6 m coordinates)."""
+    from sim.gps import replay_one
+
+    truth, s = _truth(200), _one_receiver(500, missing=(100, 110))
+    obs, info = replay_one(truth, s, mode="identical", rng=np.random.default_rng(1), config=CFG)
+    assert info["pair_correlation"] == pytest.approx(1.0)
+    err = obs - truth.sensor_positions[..., :2]
+    alive = CFG.alive_mask
+    assert np.allclose(err[:, alive], err[:, alive][:, :1], equal_nan=True, atol=1e-9)
+    assert np.isnan(obs[:, ~alive]).all()
+    dev = s.obs[:, 0] - np.nanmean(s.obs[:, 0], axis=0)
+    assert np.allclose(err[:, 0], dev[info["start"]:info["start"] + 200], equal_nan=True,
+                       atol=1e-6)
+    he = _heading_error(truth, obs)
+    assert np.nanmax(he) < 1e-9
+
+
+def test_shifted_mode_reads_the_log_at_lags_and_decorrelates():
+    """Antenna j gets the log at circular lag j L; with L >> tau the antennas' errors are
+    uncorrelated (sample correlation over 2000 samples: |r| < 0.1, about 4.5 sigma for
+    independent AR(1) series with tau 10 s, effective n ~ 100), and so is the reported mean
+    pair correlation; a short lag keeps them correlated (AR(1): exp(-L / tau))."""
+    from sim.gps import replay_one
+
+    n, ns = 2000, 16000
+    truth, s = _truth(n), _one_receiver(ns, tau_s=10.0)
+    obs, info = replay_one(truth, s, mode="shifted", rng=np.random.default_rng(2))
+    L = ns // CFG.m
+    assert info["lag_samples"] == L and info["lag_s"] == pytest.approx(L)
+    dev = s.obs[:, 0] - s.obs[:, 0].mean(axis=0)
+    err = obs - truth.sensor_positions[..., :2]
+    for j in range(CFG.m):
+        rows = (info["start"] + j * L + np.arange(n)) % ns
+        assert np.allclose(err[:, j], dev[rows], atol=1e-6)
+    r = np.corrcoef(err[:, 0, 0], err[:, 1, 0])[0, 1]
+    assert abs(r) < 0.1
+    assert abs(info["pair_correlation"]) < 0.1
+    # the heading is no longer exact: independent 1 m errors on a 1.5 m platform
+    assert np.median(_heading_error(truth, obs)) > 0.1
+    # a short lag keeps the errors correlated, and the report says so
+    _, info2 = replay_one(truth, s, mode="shifted", shift_s=1.0, rng=np.random.default_rng(2))
+    # pairs at lags 1..7 s: mean of exp(-k / 10) over the 28 pairs' lags = 0.80
+    lags = [j - i for i in range(8) for j in range(i + 1, 8)]
+    expect = float(np.mean(np.exp(-np.array(lags) / 10.0)))
+    assert info2["pair_correlation"] == pytest.approx(expect, abs=0.08)
+    with pytest.raises(ValueError, match="shift_s"):
+        replay_one(truth, s, mode="shifted", shift_s=ns, rng=np.random.default_rng(2))
+    with pytest.raises(ValueError, match="cannot cover"):
+        replay_one(_truth(ns + 1), s, mode="shifted", rng=np.random.default_rng(2))
+
+
+def test_shifted_mode_reports_anticorrelation_of_a_short_session():
+    """The documented limit of "shifted": a session only two correlation times long (400 s,
+    tau 200 s) cannot give 8 independent segments; its deviation is zero-mean over the
+    session, so the phases are anti-correlated (for n = n_session the mean pair correlation
+    tends to -1/(m - 1) = -0.14 as tau grows). The report shows it: < -0.05 in each of these
+    seeds (-0.10 to -0.13 measured)."""
+    from sim.gps import replay_one
+
+    for seed in range(5):
+        s = _one_receiver(400, seed=seed, tau_s=200.0)
+        _, info = replay_one(_truth(400), s, mode="shifted", rng=np.random.default_rng(seed))
+        assert info["pair_correlation"] < -0.05
+
+
+def test_common_plus_model_adds_only_the_models_per_receiver_part():
+    """Differences between antennas come from the model's per-receiver part alone: with a
+    model whose per-receiver part is zero the mode equals 'identical' exactly; with
+    gps_stationary the antenna-to-antenna spread matches its per-receiver Gauss-Markov
+    std sigma sqrt(1 - common_fraction) (plus biases and plateaus)."""
+    from sim.gps import replay_one
+
+    truth, s = _truth(300), _one_receiver(600)
+    a, ia = replay_one(truth, s, mode="common_plus_model", model=QUIET,
+                       rng=np.random.default_rng(3))
+    b, _ = replay_one(truth, s, mode="identical", start=ia["start"],
+                      rng=np.random.default_rng(3))
+    assert np.array_equal(a, b, equal_nan=True)
+    model = GpsNoiseModel.load("gps_stationary").with_overrides(missing_fraction=0.0)
+    c, ic = replay_one(truth, s, mode="common_plus_model", model=model,
+                       rng=np.random.default_rng(4))
+    err = c - truth.sensor_positions[..., :2]
+    dev = s.obs[:, 0] - s.obs[:, 0].mean(axis=0)
+    common = dev[ic["start"]:ic["start"] + 300]
+    per = err - common[:, None, :]
+    # per-receiver part: GM std 2 sqrt(0.5) = 1.41 m, times a lognormal scale, + 0.5 m bias
+    # + 0.5 m plateaus per axis: its spread over 8 receivers lies within [0.5, 5] m
+    spread = np.std(per, axis=(0, 1)).mean()
+    assert 0.5 < spread < 5.0
+    with pytest.raises(ValueError, match="model"):
+        replay_one(truth, s, mode="common_plus_model", rng=np.random.default_rng(4))
+
+
+def test_observe_passes_replay_modes_and_validates_them():
+    from sim.gps import observe, replay_one
+
+    truth, s = _truth(100), _one_receiver(400)
+    a = observe(truth, CFG, s, rng=np.random.default_rng(7), noise_overrides={"replay": "shifted"})
+    b, _ = replay_one(truth, s, mode="shifted", rng=np.random.default_rng(7), config=CFG)
+    assert np.array_equal(a, b, equal_nan=True) and not a.flags.writeable
+    c = observe(truth, CFG, s, rng=np.random.default_rng(7),
+                noise_overrides={"replay": "common_plus_model", "model": "gps_stationary",
+                                 "common_fraction": 0.9})
+    assert c.shape == (100, CFG.m, 2)
+    for bad, match in [({"replay": "mirror"}, "unknown mode"),
+                       ({"replay": "shifted", "sigma_m": 1.0}, "do not apply"),
+                       ({"replay": "by_receiver", "shift_s": 3.0}, "do not apply"),
+                       ({"replay": "identical", "common_fraction": 0.5}, "do not apply")]:
+        with pytest.raises(ValueError, match=match):
+            observe(truth, CFG, s, rng=np.random.default_rng(7), noise_overrides=bad)
+
+
+@settings(max_examples=40, deadline=None)
+@given(mode=st.sampled_from(["identical", "shifted", "common_plus_model"]),
+       shift=st.one_of(st.none(), st.sampled_from([math.nan, math.inf, -1.0, 0.0, 1e300, 1.0, 5.0])),
+       start=st.one_of(st.none(), st.integers(-5, 500)),
+       receiver=st.sampled_from([None, "rx", "other"]))
+def test_replay_one_extremes_raise_or_return_finite(mode, shift, start, receiver):
+    """Any argument combination either raises ValueError/TypeError naming an argument or
+    returns finite observations where the log has data."""
+    from sim.gps import replay_one
+
+    truth, s = _truth(50), _one_receiver(200)
+    try:
+        obs, _ = replay_one(truth, s, mode=mode, shift_s=shift, start=start,
+                               receiver=receiver,
+                               model=QUIET if mode == "common_plus_model" else None,
+                               rng=np.random.default_rng(0))
+    except (ValueError, TypeError) as exc:
+        assert any(k in str(exc) for k in ("shift_s", "start", "receiver", "mode", "session"))
+        return
+    assert obs.shape == (50, CFG.m, 2)
+    assert np.isfinite(obs).all()
