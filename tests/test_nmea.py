@@ -167,8 +167,9 @@ def test_tumbleweed_csv_stale_time(tmp_path):
     rows = ["HOSTNAME, OBSERVATION, CLOCK, TIME, LATITUDE, LONGITUDE, HORIZONTAL, MSL, WGS84, "
             "VERTICAL, SPEED, COURSE"]
     times = [100, 101, 101, 103, 104]
+    t0 = 1589900000                      # 2020-05-19, as the hazer runs (1970 is implausible)
     for k, tt in enumerate(times):
-        rows.append(f'"gold", {k + 1}, {1000.0 + 100 + k + 0.05:.6f}, {1000 + tt}.000000000, '
+        rows.append(f'"gold", {k + 1}, {t0 + 100 + k + 0.05:.6f}, {t0 + tt}.000000000, '
                     f"{39.79 + k * 1e-6:.9f}, -105.15, 1.1, 1702.6, 1681.1, 2.0, 0.0, 0.0")
     p = tmp_path / "benchmark.csv"
     p.write_text("\n".join(rows) + "\n")
