@@ -96,12 +96,40 @@ def plausible_bounds(latest: date | None) -> tuple[float, float]:
     return _days(EARLIEST_PLAUSIBLE_DATE) * DAY_S, (_days(hi) + 1.0) * DAY_S
 
 
-def continuous_tod(tod: np.ndarray) -> np.ndarray:
-    """Time of day (s) in log order -> continuous time: +1 day at each step back > 12 h."""
+def _chain(tod: np.ndarray) -> np.ndarray:
+    """+1 day at each step back by more than 12 h (midnight rollover)."""
     if tod.size == 0:
         return tod.astype(float)
-    roll = np.r_[0, np.cumsum(np.diff(tod) < -DAY_S / 2)]
-    return tod + DAY_S * roll
+    return tod + DAY_S * np.r_[0, np.cumsum(np.diff(tod) < -DAY_S / 2)]
+
+
+def continuous_tod(tod: np.ndarray, fix: np.ndarray | None = None) -> np.ndarray:
+    """Time of day (s) in log order -> continuous time ``c`` (step 1).
+
+    The rollover chain runs over the epochs with a position fix only (a fix implies a
+    known time; no-fix epochs may carry default times, and a default time after a restart
+    would otherwise count as a midnight); every other epoch takes the day that puts it
+    nearest (within 12 h) to the nearer of the previous and the next fix epoch. Without
+    any fix the chain runs over all epochs.
+    """
+    if fix is None or not fix.any() or fix.all():
+        return _chain(tod)
+    n = tod.size
+    c = np.empty(n)
+    fi = np.flatnonzero(fix)
+    c[fi] = _chain(tod[fi])
+    prev = np.maximum.accumulate(np.where(fix, np.arange(n), -1))
+    nxt = np.minimum.accumulate(np.where(fix, np.arange(n), n)[::-1])[::-1]
+    best = np.full(n, np.inf)
+    for ref in (prev, nxt):
+        okr = (ref >= 0) & (ref < n) & ~fix
+        r = np.clip(ref, 0, n - 1)
+        cand = tod + DAY_S * np.round((c[r] - tod) / DAY_S)
+        d = np.abs(cand - c[r])
+        take = okr & (d < best)
+        c = np.where(take, cand, c)
+        best = np.where(take, d, best)
+    return c
 
 
 def _nearest_source(c: np.ndarray, src: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -159,7 +187,7 @@ def assemble_times(tod: np.ndarray, day: np.ndarray, host: np.ndarray, fix: np.n
     back = np.zeros(G, dtype=bool)
     notes: list[str] = []
     lo, hi = plausible_bounds(latest)
-    c = continuous_tod(tod)
+    c = continuous_tod(tod, fix)
     host_ok = np.isfinite(host) & (host >= lo) & (host < hi)
     if np.isfinite(host).any() and not host_ok.all() and host_ok.any():
         notes.append(f"{int((np.isfinite(host) & ~host_ok).sum())} epochs with an implausible "

@@ -105,6 +105,7 @@ import pynmea2
 
 from sim.gps import StationarySession
 from sim.log_timeline import (
+    DAY_S,
     FATES,
     MAX_SPAN_S,
     absolute_times,
@@ -118,9 +119,9 @@ __all__ = [
     "DROP_CLASSES",
     "MAX_RATE_HZ",
     "MAX_SPAN_S",
-    "REACQ_SIGMAS",
     "REACQ_FLOOR_M",
     "REACQ_LOOKAHEAD",
+    "REACQ_SIGMAS",
     "SKIP_CLASSES",
     "LogFixes",
     "find_logs",
@@ -160,14 +161,14 @@ _FIX_TYPES = {"GGA", "RMC"}
 _WS = " \t\r\n\x0b\x0c"   # ASCII whitespace only: latin-1 bytes such as 0x85 or 0xa0 are binary
 _HOST_TS = re.compile(
     r"[ \t]*\[?(\d{4})-(\d{2})-(\d{2})[T ](\d{2}):(\d{2}):(\d{2})(?:[.,](\d{1,9}))?"
-    r"(Z|[+-]\d{2}:?\d{2})?\]?[ \t:|>=,;\-]*")
+    r"(Z|[+-]\d{2}:?\d{2})?\]?[ \t:|>=,;\-]*", re.ASCII)
 # strict field formats: unsigned ddmm.mmmm / dddmm.mmmm, hhmmss(.s), ddmmyy, one-digit
 # fix quality, signed decimal metres (no exponent, no nan/inf)
-_COORD = re.compile(r"\d{1,5}(?:\.\d{0,12})?")
-_TOD = re.compile(r"(\d{2})(\d{2})(\d{2}(?:\.\d{1,9})?)")
-_DATE = re.compile(r"(\d{2})(\d{2})(\d{2})")
-_QUAL = re.compile(r"\d")
-_METRES = re.compile(r"[+-]?\d{1,9}(?:\.\d{0,9})?")
+_COORD = re.compile(r"\d{1,5}(?:\.\d{0,12})?", re.ASCII)
+_TOD = re.compile(r"(\d{2})(\d{2})(\d{2}(?:\.\d{1,9})?)", re.ASCII)
+_DATE = re.compile(r"(\d{2})(\d{2})(\d{2})", re.ASCII)
+_QUAL = re.compile(r"\d", re.ASCII)
+_METRES = re.compile(r"[+-]?\d{1,9}(?:\.\d{0,9})?", re.ASCII)
 #: |GGA altitude| above this is malformed: COCOM limits civil receivers to 18 km; 100 km
 #: keeps any platform a NMEA log can come from.
 _MAX_ALTITUDE_M = 1e5
@@ -279,9 +280,9 @@ def _host_seconds(m: re.Match) -> float | None:
             hh, mm = int(tz[1:3]), int(tz[-2:])
             tzinfo = timezone(sign * timedelta(hours=hh, minutes=mm))
         dt = datetime(int(y), int(mo), int(d), int(h), int(mi), int(se), tzinfo=tzinfo)
-    except ValueError:
+        return dt.timestamp() + (float("0." + frac) if frac else 0.0)
+    except (ValueError, OverflowError):
         return None
-    return dt.timestamp() + (float("0." + frac) if frac else 0.0)
 
 
 # --------------------------------------------------------------------------- NMEA
@@ -745,7 +746,7 @@ def _check_span(names: list[str], t0: float, t1: float, dt: float, max_span_s: f
             f"max_span_s={max_span_s:.0f} s ({max_span_s / DAY_S:g} days): a time jump the "
             f"importer kept, logs recorded far apart aligned on UTC (alignment='utc'), or a "
             f"recording longer than the limit; split it or pass a larger max_span_s")
-    return int(math.floor(span / dt + 0.25)) + 1
+    return math.floor(span / dt + 0.25) + 1
 
 
 def session_from_fixes(
