@@ -236,15 +236,23 @@ def _eras(t: np.ndarray, max_span_s: float) -> np.ndarray:
     return lab
 
 
-def _main_era(lab: np.ndarray, fix: np.ndarray) -> int:
+def _era_stats(lab: np.ndarray, t: np.ndarray, fix: np.ndarray) -> tuple[np.ndarray, ...]:
+    """Per era label: fixes, epochs, first index in log order, min and max time."""
+    E = int(lab.max()) + 1
+    fixes = np.bincount(lab, weights=fix.astype(float), minlength=E)
+    sizes = np.bincount(lab, minlength=E)
+    first = np.full(E, lab.size)
+    np.minimum.at(first, lab, np.arange(lab.size))
+    lo = np.full(E, np.inf)
+    hi = np.full(E, -np.inf)
+    np.minimum.at(lo, lab, t)
+    np.maximum.at(hi, lab, t)
+    return fixes, sizes, first, lo, hi
+
+
+def _main_era(fixes: np.ndarray, sizes: np.ndarray, first: np.ndarray) -> int:
     """The era with the most fixes, then the most epochs, then the first in log order."""
-    best, key = 0, None
-    for e in np.unique(lab):
-        sel = lab == e
-        k = (int(fix[sel].sum()), int(sel.sum()), -int(np.argmax(sel)))
-        if key is None or k > key:
-            best, key = int(e), k
-    return best
+    return int(np.lexsort((first, -sizes, -fixes))[0])
 
 
 def heaviest_increasing(t: np.ndarray, weight: np.ndarray) -> np.ndarray:
@@ -317,21 +325,21 @@ def resolve_times(times: Times, fix: np.ndarray, host: np.ndarray | None = None,
                 wr[live] = True
                 times.notes.append(f"receiver dates {k} x 1024 weeks behind the host clock "
                                    f"(GPS week rollover): corrected")
-    # week-rollover merging of dated eras (step 4); at most one shift per era
+    # week-rollover merging of dated eras (step 4): an era with fixes that lands within
+    # max_span_s of the main era when shifted by k x 1024 weeks; one merge per pass
     for _ in range(8 if dated else 0):
         lab = _eras(t[live], max_span_s)
-        sel = lab == _main_era(lab, fix[live])
-        lo_m, hi_m = t[live][sel].min(), t[live][sel].max()
+        fixes, sizes, first, lo_e, hi_e = _era_stats(lab, t[live], fix[live])
+        main = _main_era(fixes, sizes, first)
         moved = False
-        for e in np.unique(lab[~sel]):
-            te = t[live][lab == e]
-            if not fix[live][lab == e].any():
+        for e in np.flatnonzero(fixes > 0):
+            if e == main:
                 continue
             for k in (1, -1, 2, -2, 3, -3):
                 s = k * WEEK_ROLLOVER_S
-                if te.min() + s <= hi_m + max_span_s and te.max() + s >= lo_m - max_span_s:
+                if lo_e[e] + s <= hi_e[main] + max_span_s and hi_e[e] + s >= lo_e[main] - max_span_s:
                     # the bug only goes back in time: move the earlier of the two forward
-                    grp = live[lab == e] if k > 0 else live[sel]
+                    grp = live[lab == (e if k > 0 else main)]
                     t[grp] += abs(s)
                     wr[grp] = True
                     times.notes.append(f"{grp.size} epochs shifted by {abs(k)} x 1024 weeks "
@@ -344,7 +352,7 @@ def resolve_times(times: Times, fix: np.ndarray, host: np.ndarray | None = None,
             break
     # eras (step 5)
     lab = _eras(t[live], max_span_s)
-    sel = lab == _main_era(lab, fix[live])
+    sel = lab == _main_era(*_era_stats(lab, t[live], fix[live])[:3])
     fate[live[~sel]] = _JUMP
     live = live[sel]
     # repeats (step 6): same time as an earlier epoch

@@ -103,6 +103,7 @@ from typing import Literal
 import numpy as np
 import pynmea2
 
+from estimator._checks import check_array, check_int, check_real
 from sim.gps import StationarySession
 from sim.log_timeline import (
     DAY_S,
@@ -300,6 +301,12 @@ def parse_nmea(lines: Iterable[bytes | str], name: str = "receiver", *,
     """
     if time_base not in ("auto", "receiver", "host"):
         raise ValueError(f"time_base: must be 'auto', 'receiver' or 'host', got {time_base!r}")
+    max_span_s = check_real(max_span_s, "max_span_s", lo=0.0, lo_open=True)
+    if latest_date is not None and not isinstance(latest_date, date):
+        raise TypeError(f"latest_date: must be a datetime.date or None, got {latest_date!r}")
+    if isinstance(lines, (str, bytes)):
+        raise TypeError("lines: expected an iterable of lines (bytes or str), got one "
+                        f"{type(lines).__name__}; split it first (e.g. text.splitlines())")
     skipped = _zero_skips()
     acct = {"fix_sentences": 0, "untimed_sentences": 0}
     talkers: dict[str, int] = {}
@@ -307,6 +314,8 @@ def parse_nmea(lines: Iterable[bytes | str], name: str = "receiver", *,
     host_now = math.nan
     host_naive = False
     for raw in lines:
+        if not isinstance(raw, (bytes, str)):
+            raise TypeError(f"lines: each line must be bytes or str, got {type(raw).__name__}")
         text = raw.decode("latin-1") if isinstance(raw, bytes) else raw
         text = text.rstrip("\r\n")
         # some captures store the line end as the literal characters "\r\n"
@@ -529,7 +538,15 @@ def flag_reacquisitions(t: np.ndarray, lat: np.ndarray, lon: np.ndarray, *,
     larger than the path are flagged: the rule is built for stationary logs. Distances use
     a local equirectangular approximation (relative error < 1e-3 over a few km).
     """
+    t = check_array(t, "t", shape=(None,))
     k = t.size
+    lat = check_array(lat, "lat", shape=(k,), allow_nan=True, max_abs=90.0)
+    lon = check_array(lon, "lon", shape=(k,), allow_nan=True, max_abs=180.0)
+    if k > 1 and not np.all(np.diff(t) > 0):
+        raise ValueError("t: must be strictly increasing")
+    sigmas = check_real(sigmas, "sigmas", lo=0.0, lo_open=True)
+    floor_m = check_real(floor_m, "floor_m", lo=0.0)
+    lookahead = check_int(lookahead, "lookahead", 3, 1000)
     flags = np.zeros(k, dtype=bool)
     offset = np.full(k, np.nan)
     idx = np.flatnonzero(np.isfinite(lat) & np.isfinite(lon))
@@ -780,17 +797,18 @@ def session_from_fixes(
     time of day with each other), else "independent".
     Origin ``"auto"``: common for "utc", per receiver for "independent".
     """
-    if not logs:
-        raise ValueError("logs: need at least one receiver log")
+    if isinstance(logs, LogFixes) or not logs:
+        raise ValueError("logs: need a non-empty sequence of LogFixes (one per receiver)")
+    bad = [type(lg).__name__ for lg in logs if not isinstance(lg, LogFixes)]
+    if bad:
+        raise TypeError(f"logs: every element must be a LogFixes, got {bad}")
     names = [lg.name for lg in logs]
     if len(set(names)) != len(names):
         raise ValueError(f"logs: duplicate receiver names {names!r}; pass distinct names")
     if reacquisition not in ("drop", "keep"):
         raise ValueError(f"reacquisition: must be 'drop' or 'keep', got {reacquisition!r}")
-    if not (isinstance(max_span_s, (int, float)) and max_span_s > 0):
-        raise ValueError(f"max_span_s: must be a positive number of seconds, got {max_span_s!r}")
-    if not (isinstance(max_rate_hz, (int, float)) and 0 < max_rate_hz < math.inf):
-        raise ValueError(f"max_rate_hz: must be a positive finite number, got {max_rate_hz!r}")
+    max_span_s = check_real(max_span_s, "max_span_s", lo=0.0, lo_open=True)
+    max_rate_hz = check_real(max_rate_hz, "max_rate_hz", lo=0.0, lo_open=True)
     use = []
     for lg in logs:
         if not lg.valid.any():
@@ -815,11 +833,7 @@ def session_from_fixes(
                              f"({1.0 / dt:.3g} Hz) is faster than max_rate_hz={max_rate_hz:g}; "
                              f"pass rate_hz")
     else:
-        if not (isinstance(rate_hz, (int, float)) and not isinstance(rate_hz, bool)
-                and 0 < rate_hz <= max_rate_hz):
-            raise ValueError(f"rate_hz: must be a number in (0, max_rate_hz={max_rate_hz:g}], "
-                             f"got {rate_hz!r}")
-        dt = 1.0 / float(rate_hz)
+        dt = 1.0 / check_real(rate_hz, "rate_hz", lo=0.0, lo_open=True, hi=max_rate_hz)
     # alignment
     starts = np.array([lg.t_utc[u][0] for lg, u in zip(logs, use)])
     stops = np.array([lg.t_utc[u][-1] for lg, u in zip(logs, use)])

@@ -23,6 +23,7 @@ from sim.nmea import (
     DROP_CLASSES,
     SKIP_CLASSES,
     find_logs,
+    flag_reacquisitions,
     import_session,
     log_format,
     parse_nmea,
@@ -485,3 +486,57 @@ def test_property_arbitrary_time_lines(epochs, time_base):
             assert "max_span_s" in str(exc) or "rate" in str(exc) or "reacquisition" in str(exc)
         else:
             assert s.t[-1] - s.t[0] <= 7 * 86400
+
+
+# --------------------------------------------------------------------------- bad arguments
+def test_bad_arguments_name_the_argument():
+    fx = parse_nmea(run(T0, 5))
+    with pytest.raises(TypeError, match="lines"):
+        parse_nmea("$GPGGA,...")
+    with pytest.raises(TypeError, match="lines"):
+        parse_nmea([1, 2])
+    with pytest.raises(ValueError, match="time_base"):
+        parse_nmea([], time_base="gps")
+    with pytest.raises(ValueError, match="max_span_s"):
+        parse_nmea([], max_span_s=math.nan)
+    with pytest.raises(TypeError, match="latest_date"):
+        parse_nmea([], latest_date="2021-01-01")
+    with pytest.raises(TypeError, match="logs"):
+        session_from_fixes([fx, "rx2"])
+    with pytest.raises(ValueError, match="logs"):
+        session_from_fixes(fx)
+    with pytest.raises(ValueError, match="max_span_s"):
+        session_from_fixes([fx], max_span_s=-1.0)
+    with pytest.raises(ValueError, match="max_span_s"):
+        session_from_fixes([fx], max_span_s=math.inf)      # memory must stay bounded
+    with pytest.raises(TypeError, match="rate_hz"):
+        session_from_fixes([fx], rate_hz="1")
+    with pytest.raises(ValueError, match="reacquisition"):
+        session_from_fixes([fx], reacquisition="maybe")
+
+
+@settings(max_examples=60, deadline=None)
+@given(st.lists(st.tuples(st.floats(-90, 90) | st.just(math.nan),
+                          st.floats(-180, 180) | st.just(math.nan)), max_size=40),
+       st.floats(1e-3, 1e3), st.floats(0, 1e6))
+def test_property_flag_reacquisitions_never_raises(points, sigmas, floor_m):
+    """Any positions in range (and NaN), any positive threshold: flags only fixes, offsets
+    only where flagged and above the threshold's floor."""
+    t = np.arange(len(points), dtype=float)
+    lat = np.array([p[0] for p in points]) if points else np.zeros(0)
+    lon = np.array([p[1] for p in points]) if points else np.zeros(0)
+    flags, off = flag_reacquisitions(t, lat, lon, sigmas=sigmas, floor_m=floor_m)
+    assert flags.shape == t.shape and not flags[~(np.isfinite(lat) & np.isfinite(lon))].any()
+    assert np.all(off[flags] > floor_m) and np.isnan(off[~flags]).all()
+
+
+def test_flag_reacquisitions_bad_inputs():
+    t = np.arange(5.0)
+    with pytest.raises(ValueError, match="lat"):
+        flag_reacquisitions(t, np.full(5, 95.0), np.zeros(5))
+    with pytest.raises(ValueError, match="lon"):
+        flag_reacquisitions(t, np.zeros(5), np.zeros(4))
+    with pytest.raises(ValueError, match="t"):
+        flag_reacquisitions(t[::-1], np.zeros(5), np.zeros(5))
+    with pytest.raises(ValueError, match="lookahead"):
+        flag_reacquisitions(t, np.zeros(5), np.zeros(5), lookahead=1)
