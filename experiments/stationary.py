@@ -1,6 +1,10 @@
 """Stationary analysis report: the GPS dissertation's Chapter 4.2-4.8 on any session.
 
-``python -m experiments.stationary [--synthetic | --session PATH [PATH ...]] [--out DIR]``
+``python -m experiments.stationary [--synthetic | --session PATH [PATH ...]] [--out DIR]
+[--real-logs DIR]``, and ``python -m experiments.stationary --reference`` to regenerate the
+committed reference ``results/stationary`` (synthetic session, seed 0, plus the real logs of
+``../shared/realdata``). Other runs write to ``--out`` (default ``results/local/stationary``,
+ignored by git) and never into ``results/stationary``.
 
 Regenerates, for a :class:`sim.gps.StationarySession` (synthetic by default, or a saved
 ``.npz`` session, or NMEA / tumbleweed CSV logs, one per receiver):
@@ -18,13 +22,18 @@ Regenerates, for a :class:`sim.gps.StationarySession` (synthetic by default, or 
   and the spread of the estimates per window size;
 
 each scored against the true antenna positions when the session has them (synthetic; the
-dissertation could not, Section 4.6). Figures (PNG) and ``summary.md`` / ``summary.json``
-go to ``--out`` (default ``results/stationary``); tables are saved as CSV first and the
-figures drawn from them and from the saved session, so re-plotting never re-simulates.
-Like the dissertation (Section 4.1), data before the power failure are discarded.
+dissertation could not, Section 4.6). Per sensor and axis the std comes with robust
+statistics (MAD, p95 of |deviation|) and the outliers that drive it (modified z-score > 3.5,
+:mod:`estimator.noise_stats`), with std and AR(1) phi recomputed without them. Figures (PNG)
+and ``summary.md`` / ``summary.json`` go to the output folder; tables are saved as CSV first
+and the figures drawn from them and from the saved session, so re-plotting never
+re-simulates. Like the dissertation (Section 4.1), data before the power failure are
+discarded. Provenance (code version, command, paths, wall time) goes to ``run_info.json``
+beside them, which git ignores, so a rerun of the reference leaves git clean.
 
-``--real-logs DIR`` additionally writes ``real_logs.md``: per-log statistics of every real
-receiver log under DIR (e.g. ../shared/realdata), the evidence behind the default noise model.
+``--real-logs DIR`` additionally writes ``real_logs.md`` / ``real_logs.csv``: import counts
+and per-axis statistics of every NMEA or tumbleweed CSV log found under DIR (recursive; any
+folder layout), the evidence behind the default noise model.
 """
 
 from __future__ import annotations
@@ -33,6 +42,7 @@ import argparse
 import json
 import math
 import sys
+import time
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -40,6 +50,7 @@ import numpy as np
 import pandas as pd
 
 from estimator.configuration import SensorConfig
+from estimator.noise_stats import acf, ar1_fit, noise_summary, tau_from_phi
 from estimator.orientation import wrap_angle
 from estimator.weights import (
     deleted_residual_mask,
@@ -48,85 +59,48 @@ from estimator.weights import (
     huff_weights,
     random_weights,
 )
-from estimator.window import fit_stationary, procrustes_batch, window_means
-from experiments.provenance import git_describe
+from estimator.window import fit_stationary, procrustes_batch, sliding_window_means
+from experiments import stationary_figures as figs
+from experiments.provenance import code_version
 from sim.gps import GpsNoiseModel, StationarySession, synthesize_session
 
 __all__ = [
-    "acf",
+    "REFERENCE_OUT",
+    "WINDOW_SCHEMES",
     "analyse",
-    "ar1_fit",
     "main",
-    "npp_r",
-    "real_log_table",
+    "real_log_tables",
+    "sensor_table",
+    "split_sensitivity",
     "weighting_estimates",
+    "window_estimates",
     "window_spreads",
 ]
 
 REPO = Path(__file__).resolve().parents[1]
-DEFAULT_OUT = REPO / "results" / "stationary"
-WINDOW_SCHEMES = ("none", "huff", "huff3.5")
-
-
-# --------------------------------------------------------------------------- statistics
-def acf(x: np.ndarray, nlags: int) -> np.ndarray:
-    """Sample autocorrelation r_0..r_nlags of a series with NaN = missing.
-
-    ``r_k = sum_t d_t d_{t+k} / sum_t d_t^2`` with ``d = x - mean(x)`` over present samples
-    and products only where both samples are present (Box-Jenkins estimator; for a series
-    without gaps it equals statsmodels ``acf(x, adjusted=False)``). x (n,) -> (nlags+1,).
-    """
-    x = np.asarray(x, dtype=float)
-    ok = np.isfinite(x)
-    if ok.sum() < 2:
-        return np.full(nlags + 1, np.nan)
-    d = np.where(ok, x - x[ok].mean(), 0.0)
-    den = float((d * d).sum())
-    if den == 0.0:
-        return np.full(nlags + 1, np.nan)
-    n = x.size
-    nl = min(nlags, n - 1)
-    # all lags at once via FFT of the zero-filled deviations (missing contribute 0)
-    nfft = 1 << math.ceil(math.log2(2 * n))
-    f = np.fft.rfft(d, nfft)
-    r = np.fft.irfft(f * np.conj(f), nfft)[: nl + 1] / den
-    out = np.full(nlags + 1, np.nan)
-    out[: nl + 1] = r
-    return out
-
-
-def ar1_fit(x: np.ndarray) -> tuple[float, float, float, np.ndarray]:
-    """AR(1) of Eq. 2.2, x_t = delta + phi x_{t-1} + w_t, by least squares on present pairs.
-
-    Returns ``(delta, phi, sigma_w, residuals (n,))`` with residuals NaN where x_t or
-    x_{t-1} is missing (and at t = 0). Equals statsmodels ``AutoReg(x, 1, trend="c")``
-    (conditional least squares) for a series without gaps.
-    """
-    x = np.asarray(x, dtype=float)
-    prev, cur = x[:-1], x[1:]
-    ok = np.isfinite(prev) & np.isfinite(cur)
-    res = np.full(x.shape, np.nan)
-    if ok.sum() < 3:
-        return math.nan, math.nan, math.nan, res
-    A = np.column_stack([np.ones(ok.sum()), prev[ok]])
-    (delta, phi), *_ = np.linalg.lstsq(A, cur[ok], rcond=None)
-    r = cur[ok] - (delta + phi * prev[ok])
-    res[1:][ok] = r
-    sigma = float(np.sqrt((r * r).sum() / max(ok.sum() - 2, 1)))
-    return float(delta), float(phi), sigma, res
-
-
-def npp_r(x: np.ndarray) -> float:
-    """Correlation coefficient of the normal probability plot (scipy.stats.probplot's r);
-    1 for a perfect normal sample (Figs 4.7-4.8)."""
-    from scipy import stats
-
-    v = np.asarray(x, dtype=float)
-    v = v[np.isfinite(v)]
-    if v.size < 3 or np.ptp(v) == 0:
-        return math.nan
-    (_, _), (_, _, r) = stats.probplot(v, dist="norm")
-    return float(r)
+#: The committed reference; written only by ``--reference``.
+REFERENCE_OUT = REPO / "results" / "stationary"
+#: Default output of every other run (``results/local/`` is ignored by git).
+DEFAULT_OUT = REPO / "results" / "local" / "stationary"
+#: Real logs of the reference run, where CI has them.
+REFERENCE_REAL_LOGS = REPO.parent / "shared" / "realdata"
+#: Sliding-window schemes of Figs 4.25-4.33 -> Huff threshold in metres (None: no Huff
+#: weights; "huff": Huff without threshold).
+WINDOW_SCHEMES = {"none": None, "huff": math.inf, "huff3.5": 3.5}
+#: Tables and summary.json keep 12 significant digits: far below any effect, and above the
+#: last-bit differences of reductions (BLAS, summation order) that would otherwise make a
+#: rerun of the reference differ in the 16th digit.
+FLOAT_FORMAT = "%.12g"
+#: Columns of the robust-statistics tables and their legend.
+ROBUST_COLUMNS = ("std_m", "mad_sigma_m", "p95_m", "outliers", "std_inliers_m", "worst_m",
+                  "worst_t_s", "ar1_phi", "ar1_phi_inliers")
+ROBUST_LEGEND = (
+    "mad_sigma_m = 1.4826 x median |x - median| (the std of a normal sample); p95_m = 95th "
+    "percentile of |x - median|; outliers = samples with modified z-score "
+    "0.6745 |x - median| / MAD > 3.5 (Iglewicz & Hoaglin); std_inliers_m and "
+    "ar1_phi_inliers = std and AR(1) phi with them set missing; worst_m / worst_t_s = the "
+    "largest |x - median| and when (s from the start). A std far above std_inliers, or a "
+    "phi far from phi_inliers, is driven by the flagged samples.")
 
 
 # --------------------------------------------------------------------------- estimates
@@ -196,35 +170,29 @@ def weighting_estimates(session: StationarySession, config: SensorConfig,
     return out
 
 
-def _window_weights(scheme: str, win: np.ndarray, config: SensorConfig) -> np.ndarray | None:
-    if scheme == "none":
-        return None
-    if scheme == "huff":
-        return huff_weights(win, config)
-    if scheme == "huff3.5":
-        return huff_weights(win, config, threshold=3.5)
-    raise ValueError(f"scheme: unknown {scheme!r}; choose one of {list(WINDOW_SCHEMES)}")
-
-
-def window_estimates(obs: np.ndarray, config: SensorConfig, s: int, scheme: str) -> tuple[np.ndarray, np.ndarray]:
+def window_estimates(obs: np.ndarray, config: SensorConfig, s: int, scheme: str
+                     ) -> tuple[np.ndarray, np.ndarray]:
     """Sliding-window estimates (Section 3.4.1): window k holds samples k-s+1..k, k >= s-1.
 
     Closed-form procrustes per window on the weighted window means (exact distances; the
-    eps slack changes positions by about 1.3 eps, ../shared/notes/window-solvers.md).
+    eps slack changes positions by about 1.3 eps, ../shared/notes/window-solvers.md). Huff
+    weights (Section 3.3.3) depend on their own sample only, so they are computed once on
+    the recording and the windows summed by :func:`estimator.window.sliding_window_means`.
     Returns positions (n-s+1, m, 2) (NaN where a window has insufficient data) and the
     status array.
     """
-    win = np.lib.stride_tricks.sliding_window_view(obs, s, axis=0)   # (N, m, 2, s)
-    win = np.moveaxis(win, -1, 1)                                    # (N, s, m, 2)
-    w = _window_weights(scheme, win, config)
-    means, sw = window_means(win, w)
+    if scheme not in WINDOW_SCHEMES:
+        raise ValueError(f"scheme: unknown {scheme!r}; choose one of {list(WINDOW_SCHEMES)}")
+    thr = WINDOW_SCHEMES[scheme]
+    w = None if thr is None else huff_weights(obs, config, None if thr == math.inf else thr)
+    means, sw = sliding_window_means(obs, s, w)
     fit = procrustes_batch(means, sw, config)
     return fit.positions, fit.status
 
 
 def window_spreads(session: StationarySession, config: SensorConfig,
                    sizes: tuple[int, ...] = tuple(range(1, 11)),
-                   schemes: tuple[str, ...] = WINDOW_SCHEMES) -> tuple[pd.DataFrame, dict]:
+                   schemes: tuple[str, ...] = tuple(WINDOW_SCHEMES)) -> tuple[pd.DataFrame, dict]:
     """Spread and accuracy of sliding-window estimates per window size and scheme.
 
     Per row: ``spread_m`` = RMS over alive sensors and windows of the distance of each
@@ -289,13 +257,28 @@ def _pairs(names: tuple[str, ...], alive: np.ndarray) -> list[tuple[int, int]]:
     return [(a, b) for k, a in enumerate(idx) for b in idx[k + 1:]]
 
 
+def _axis_stats(v: np.ndarray, t: np.ndarray, dt: float) -> dict:
+    """Spread, robust spread, outliers and AR(1) of one coordinate series (n,) on times t."""
+    ns = noise_summary(v)
+    return {"n": ns.n, "std_m": ns.std, "mad_sigma_m": ns.mad_sigma, "p95_m": ns.p95,
+            "outliers": ns.outliers, "std_inliers_m": ns.std_inliers,
+            "worst_m": ns.worst_abs_dev,
+            "worst_t_s": float(t[ns.worst_index] - t[0]) if ns.worst_index >= 0 else math.nan,
+            "npp_r": ns.npp_r, "ar1_phi": ns.ar1_phi, "ar1_phi_inliers": ns.ar1_phi_inliers,
+            "tau_s": tau_from_phi(ns.ar1_phi, dt),
+            "tau_inliers_s": tau_from_phi(ns.ar1_phi_inliers, dt)}
+
+
 def sensor_table(session: StationarySession, nlags: int = 50) -> pd.DataFrame:
-    """Per receiver and axis: std, NPP r, excess kurtosis, lag-1 ACF, AR(1) phi and implied
-    correlation time, share of ACF lags 1..nlags outside +-1.96/sqrt(n) for the series and
-    for its AR(1) residuals (Section 4.3), missing fraction."""
+    """Per receiver and axis: std beside its robust counterparts (1.4826 MAD, p95 of
+    |deviation|), the flagged outliers (modified z > 3.5) and std / AR(1) phi without them,
+    NPP r, excess kurtosis, lag-1 ACF, AR(1) phi, sigma and correlation time, share of ACF
+    lags 1..nlags outside +-1.96/sqrt(n) for the series and for its AR(1) residuals
+    (Section 4.3), missing fraction."""
     from scipy import stats
 
     dt = float(np.median(np.diff(session.t))) if session.n > 1 else 1.0
+    lags = min(nlags, session.n - 1)
     rows = []
     for j, name in enumerate(session.names):
         x = session.obs[:, j]
@@ -307,15 +290,14 @@ def sensor_table(session: StationarySession, nlags: int = 50) -> pd.DataFrame:
             v = x[:, a]
             n = int(ok.sum())
             bound = 1.96 / math.sqrt(n)
-            r = acf(v, nlags)
-            _, phi, sw, res = ar1_fit(v)
-            rr = acf(res, nlags)
+            r = acf(v, lags)
+            _, _, sw, res = ar1_fit(v)
+            rr = acf(res, lags)
             rows.append({
                 "sensor": name, "axis": ax, "n": n, "missing": float(1 - ok.mean()),
-                "std_m": float(np.nanstd(v)), "npp_r": npp_r(v),
+                **_axis_stats(v, session.t, dt),
                 "excess_kurtosis": float(stats.kurtosis(v[ok])),
-                "acf1": float(r[1]), "ar1_phi": phi, "ar1_sigma_m": sw,
-                "tau_s": float(-dt / math.log(phi)) if 0 < phi < 1 else math.nan,
+                "acf1": float(r[1]), "ar1_sigma_m": sw,
                 "acf_outside": float((np.abs(r[1:]) > bound).mean()),
                 "resid_acf_outside": float((np.abs(rr[1:]) > bound).mean()),
             })
@@ -343,24 +325,22 @@ def analyse(session: StationarySession, config: SensorConfig | None, out: Path,
     out.mkdir(parents=True, exist_ok=True)
     session.save(out / "session.npz")
     s_tab = sensor_table(session, nlags=50)
-    s_tab.to_csv(out / "sensors.csv", index=False)
+    s_tab.to_csv(out / "sensors.csv", index=False, float_format=FLOAT_FORMAT)
     match = config is not None and set(session.names) <= set(config.names) \
         and tuple(session.names) == tuple(config.names)
     # pairwise distances only mean something for co-located receivers of a known layout
     p_tab = pair_table(session, config) if match else pd.DataFrame()
     if match:
-        p_tab.to_csv(out / "pairs.csv", index=False)
+        p_tab.to_csv(out / "pairs.csv", index=False, float_format=FLOAT_FORMAT)
     w_est = win_tab = None
     if match:
         w_est = weighting_estimates(session, config, rng)
         pd.DataFrame([{"scheme": e.scheme, "status": e.status, "pos_rmse_m": e.pos_rmse_m,
                        "cg_err_m": e.cg_err_m, "yaw_err_deg": e.yaw_err_deg} for e in w_est]
-                     ).to_csv(out / "weighting.csv", index=False)
+                     ).to_csv(out / "weighting.csv", index=False, float_format=FLOAT_FORMAT)
         win_tab, win_est = window_spreads(session, config)
-        win_tab.to_csv(out / "windows.csv", index=False)
+        win_tab.to_csv(out / "windows.csv", index=False, float_format=FLOAT_FORMAT)
     # figures (drawn from the saved session and tables)
-    from experiments import stationary_figures as figs
-
     figs.plot_all(out, session, config if match else None, nlags=nlags,
                   weighting=w_est, windows=win_est if match else None)
     summary = _write_summary(out, session, config if match else None, s_tab, p_tab, w_est, win_tab)
@@ -384,7 +364,7 @@ def _write_summary(out: Path, session: StationarySession, config: SensorConfig |
                    win_tab: pd.DataFrame | None) -> dict:
     meta = session.meta
     lines = [f"# Stationary analysis ({meta.get('source', 'session')})", ""]
-    lines.append(f"Code version {git_describe()}. Session: {session.n} samples "
+    lines.append(f"Session: {session.n} samples "
                  f"({session.t[-1] - session.t[0] + (session.t[1] - session.t[0] if session.n > 1 else 0):.0f} s), "
                  f"{session.m} receivers {list(session.names)}, dead {list(session.dead)}, "
                  f"missing {1 - session.present.mean():.1%} of all samples, "
@@ -401,11 +381,18 @@ def _write_summary(out: Path, session: StationarySession, config: SensorConfig |
     lines += ["", "## Per sensor (Figs 4.2, 4.3, 4.7-4.15)", "",
               "std: per-axis standard deviation; npp_r: normal-probability-plot correlation (1 = "
               "normal); tau_s: correlation time implied by the AR(1) phi (Eq. 2.2); acf_outside / "
-              "resid_acf_outside: share of lags 1-50 whose ACF exceeds +-1.96/sqrt(n) for the "
+              f"resid_acf_outside: share of lags 1-{min(50, session.n - 1)} whose ACF exceeds "
+              "+-1.96/sqrt(n) for the "
               "coordinates / the AR(1) residuals (the dissertation found both mostly outside).", ""]
     cols = [c for c in ["sensor", "axis", "missing", "std_m", "npp_r", "excess_kurtosis", "ar1_phi",
                         "tau_s", "acf_outside", "resid_acf_outside"] if c in s_tab.columns]
-    lines.append(_md(s_tab[cols].dropna(subset=["axis"]) if "axis" in s_tab else s_tab[cols]))
+    per_axis = s_tab.dropna(subset=["axis"]) if "axis" in s_tab else s_tab
+    per_axis = per_axis.astype({c: int for c in ("n", "outliers") if c in per_axis})
+    lines.append(_md(per_axis[cols]))
+    rob = [c for c in ROBUST_COLUMNS if c in per_axis.columns]
+    if len(rob) > 2:
+        lines += ["", "Robust spread and outliers: " + ROBUST_LEGEND, ""]
+        lines.append(_md(per_axis[["sensor", "axis", *rob]]))
     if len(p_tab):
         lines += ["", "## Pairwise distances (Figs 4.4-4.6)", ""]
         lines.append(_md(p_tab))
@@ -430,14 +417,15 @@ def _write_summary(out: Path, session: StationarySession, config: SensorConfig |
     for p in sorted(out.glob("*.png")):
         lines.append(f"- [{p.name}]({p.name})")
     (out / "summary.md").write_text("\n".join(lines) + "\n")
-    summary = {"code_version": git_describe(), "n": session.n, "m": session.m,
+    summary = {"n": session.n, "m": session.m,
                "names": list(session.names), "meta": meta,
                "sensors": s_tab.to_dict(orient="records"), "pairs": p_tab.to_dict(orient="records"),
                "weighting": None if w_est is None else [
                    {"scheme": e.scheme, "status": e.status, "pos_rmse_m": e.pos_rmse_m,
                     "cg_err_m": e.cg_err_m, "yaw_err_deg": e.yaw_err_deg} for e in w_est],
                "windows": None if win_tab is None else win_tab.to_dict(orient="records")}
-    (out / "summary.json").write_text(json.dumps(summary, indent=1, default=_json_default) + "\n")
+    (out / "summary.json").write_text(json.dumps(_rounded(summary), indent=1,
+                                                 default=_json_default) + "\n")
     return summary
 
 
@@ -450,9 +438,15 @@ def _reading(session: StationarySession, s_tab: pd.DataFrame, w_est: list[Scored
         if len(t):
             out.append(f"Per-axis std {t.std_m.min():.2f}-{t.std_m.max():.2f} m; NPP r "
                        f"{t.npp_r.min():.3f}-{t.npp_r.max():.3f} (1 = normal); ACF beyond the bounds "
-                       f"at {t.acf_outside.min():.0%}-{t.acf_outside.max():.0%} of lags 1-50, AR(1) "
+                       f"at {t.acf_outside.min():.0%}-{t.acf_outside.max():.0%} of lags 1-{min(50, session.n - 1)}, AR(1) "
                        f"residual ACF at {t.resid_acf_outside.min():.0%}-{t.resid_acf_outside.max():.0%} "
                        f"(Section 4.3 reports both mostly beyond).")
+            for r in _outlier_driven(t).itertuples():
+                out.append(f"Sensor {r.sensor} {r.axis}: {_driven_text(r)}.")
+            for r in _heavy(t).itertuples():
+                out.append(f"Sensor {r.sensor} {r.axis}: {r.outliers / r.n:.0%} of the samples "
+                           f"beyond the outlier cut-off (heavy tails or plateaus, not a few "
+                           f"outliers).")
     if w_est is not None and session.truth_positions is not None:
         fits = [e for e in w_est if e.scheme != "means" and np.isfinite(e.pos_rmse_m)]
         best = min(fits, key=lambda e: e.pos_rmse_m)
@@ -474,6 +468,20 @@ def _reading(session: StationarySession, s_tab: pd.DataFrame, w_est: list[Scored
     return out
 
 
+def _rounded(o: object) -> object:
+    """Floats (also in nested dicts / lists / numpy scalars) to FLOAT_FORMAT's 12 digits."""
+    if isinstance(o, dict):
+        return {k: _rounded(v) for k, v in o.items()}
+    if isinstance(o, (list, tuple)):
+        return [_rounded(v) for v in o]
+    if isinstance(o, (float, np.floating)):
+        v = float(o)
+        return float(FLOAT_FORMAT % v) if math.isfinite(v) else v
+    if isinstance(o, np.integer):
+        return int(o)
+    return o
+
+
 def _json_default(o: object) -> object:
     if isinstance(o, (np.floating, np.integer)):
         return o.item()
@@ -482,38 +490,131 @@ def _json_default(o: object) -> object:
     return str(o)
 
 
-# --------------------------------------------------------------------------- real logs
-def real_log_table(root: Path) -> pd.DataFrame:
-    """Per real log under ``root`` (gpsd/*.log, hazer/nmea/*, hazer/tumbleweed/**/*.csv):
-    fixes, grid epochs, missing share, std east/north, AR(1) correlation time (from the lag-1
-    coefficient of each axis), and the skip counts."""
-    from sim.nmea import read_log, session_from_fixes
+#: When a statistic counts as driven by the flagged outliers (a reporting cut, stated in the
+#: reports): the flagged samples are a small minority (at most 5 % of the series; a normal
+#: sample has 0.05 % beyond the cut-off) and leaving them out moves the std by more than a
+#: sixth (std > 1.2 x std without them) or AR(1) phi by more than 0.1. More than 5 % beyond
+#: the cut-off is not a few outliers but a heavy-tailed or multimodal series (plateaus),
+#: listed separately.
+OUTLIER_SHARE_MAX = 0.05
+DRIVEN_RULE = ("Series where at most 5 % of the samples are flagged and leaving them out "
+               "moves the std by more than a sixth (std > 1.2 std_inliers) or the AR(1) phi "
+               "by more than 0.1")
+HEAVY_RULE = ("Series with more than 5 % of the samples beyond the cut-off (a normal sample "
+              "has 0.05 %): heavy tails or plateaus, where the robust and the classical "
+              "spread describe different things")
 
-    files = (sorted((root / "gpsd").glob("*.log")) + sorted((root / "hazer/nmea").glob("*.dat"))
-             + sorted((root / "hazer/nmea").glob("*.lst"))
-             + sorted((root / "hazer/tumbleweed").glob("**/*.csv")))
-    rows = []
-    for f in files:
-        fx = read_log(f)
-        skips = {k: v for k, v in fx.skipped.items() if v and k != "other_sentences"}
-        row = {"log": str(f.relative_to(root)), "fixes": int(fx.valid.sum()), "epochs": pd.NA,
-               "duration_s": math.nan, "missing": math.nan, "std_east_m": math.nan,
-               "std_north_m": math.nan, "tau_east_s": math.nan, "tau_north_s": math.nan,
-               "skipped": ", ".join(f"{k} {v}" for k, v in skips.items())}
-        if fx.valid.sum() >= 3:
+
+def _outlier_driven(tab: pd.DataFrame) -> pd.DataFrame:
+    """Rows (series) whose std or AR(1) phi is driven by a few flagged outliers (DRIVEN_RULE)."""
+    if "outliers" not in tab or not len(tab):
+        return tab.iloc[:0]
+    few = (tab.outliers > 0) & (tab.outliers <= OUTLIER_SHARE_MAX * tab.n)
+    return tab[few & ((tab.std_m > 1.2 * tab.std_inliers_m)
+                      | ((tab.ar1_phi - tab.ar1_phi_inliers).abs() > 0.1))]
+
+
+def _heavy(tab: pd.DataFrame) -> pd.DataFrame:
+    """Rows with more than OUTLIER_SHARE_MAX of their samples flagged (HEAVY_RULE)."""
+    if "outliers" not in tab or not len(tab):
+        return tab.iloc[:0]
+    return tab[tab.outliers > OUTLIER_SHARE_MAX * tab.n]
+
+
+def _driven_text(r) -> str:
+    return (f"std {r.std_m:.2f} m -> {r.std_inliers_m:.2f} m and AR(1) phi {r.ar1_phi:.2f} -> "
+            f"{r.ar1_phi_inliers:.2f} without {int(r.outliers)} flagged sample(s); the worst is "
+            f"{r.worst_m:.1f} m from the median at t = {r.worst_t_s:.0f} s")
+
+
+# --------------------------------------------------------------------------- real logs
+def real_log_tables(root: Path) -> tuple[pd.DataFrame, pd.DataFrame, list[str]]:
+    """Every NMEA / tumbleweed CSV log under ``root`` (recursive, any layout; see
+    :func:`sim.nmea.find_logs`), each imported alone and gridded at its own rate.
+
+    Returns ``(imports, stats, other)``: ``imports`` one row per log (format, time base,
+    fixes, grid epochs, duration, missing share, reacquisition fixes dropped, an error if
+    it could not be gridded, and one column per skip class); ``stats`` one row per log and
+    axis (east, north in the local UTM frame) with the columns of :data:`ROBUST_COLUMNS`
+    and the AR(1) correlation times; ``other`` the files under root that are not logs
+    (relative paths).
+    """
+    from sim.nmea import SKIP_CLASSES, find_logs, read_log, session_from_fixes
+
+    logs, other = find_logs(root)
+    imports, stats = [], []
+    for f in logs:
+        rel = f.relative_to(root).as_posix()
+        row: dict = {"log": rel, "format": None, "time_base": None, "fixes": 0, "epochs": 0,
+                     "duration_s": math.nan, "missing": math.nan, "reacquired": 0, "error": ""}
+        try:
+            fx = read_log(f)
+        except ValueError as exc:
+            imports.append({**row, "error": str(exc).replace(str(f), rel)})
+            continue
+        row.update({"format": fx.meta.get("format"), "time_base": fx.meta.get("time_base"),
+                    "fixes": int(fx.valid.sum()), "reacquired": fx.skipped["reacquisition"],
+                    **{c: fx.skipped[c] for c in SKIP_CLASSES}})
+        try:
             s = session_from_fixes([fx])
-            x = s.obs[:, 0]
-            dt = 1.0 / s.meta["rate_hz"]
-            row.update({"epochs": s.n, "duration_s": float(s.t[-1] - s.t[0] + dt),
-                        "missing": float(1 - s.present.mean()),
-                        "std_east_m": float(np.nanstd(x[:, 0])), "std_north_m": float(np.nanstd(x[:, 1]))})
-            for a, ax in enumerate(("east", "north")):
-                phi = ar1_fit(x[:, a])[1]
-                row[f"tau_{ax}_s"] = float(-dt / math.log(phi)) if 0 < phi < 1 else math.nan
-        rows.append(row)
-    tab = pd.DataFrame(rows)
-    tab["epochs"] = tab["epochs"].astype("Int64")
-    return tab
+        except ValueError as exc:
+            # first clause only, and no machine path in a table that may be committed
+            imports.append({**row, "error": str(exc).split(";")[0].replace(str(f), rel)})
+            continue
+        dt = 1.0 / s.meta["rate_hz"]
+        row.update({"epochs": s.n, "duration_s": float(s.t[-1] - s.t[0] + dt),
+                    "missing": float(1 - s.present.mean()),
+                    "off_grid": s.meta["skipped"]["off_grid"],
+                    "duplicate_epochs": s.meta["skipped"]["duplicate_epochs"]})
+        imports.append(row)
+        for a, ax in enumerate(("east", "north")):
+            stats.append({"log": rel, "axis": ax, **_axis_stats(s.obs[:, 0, a], s.t, dt)})
+    imp = pd.DataFrame(imports)
+    for c in SKIP_CLASSES:
+        imp[c] = imp[c].fillna(0).astype(int) if c in imp else 0
+    return imp, pd.DataFrame(stats), [p.relative_to(root).as_posix() for p in other]
+
+
+def _real_logs_md(label: str, imp: pd.DataFrame, st: pd.DataFrame, other: list[str]) -> str:
+    """real_logs.md from the tables of :func:`real_log_tables`."""
+    from sim.nmea import SKIP_CLASSES
+
+    def skips(r: pd.Series) -> str:
+        return ", ".join(f"{c} {int(r[c])}" for c in SKIP_CLASSES
+                         if r[c] and c not in ("other_sentences", "reacquisition"))
+
+    cols = ["log", "format", "time_base", "fixes", "epochs", "duration_s", "missing",
+            "reacquired"]
+    show = imp[cols].copy()
+    show["skipped / error"] = [r["error"] or skips(r) for _, r in imp.iterrows()]
+    totals = pd.DataFrame({"class": list(SKIP_CLASSES),
+                           "count": [int(imp[c].sum()) for c in SKIP_CLASSES],
+                           "logs": [int((imp[c] > 0).sum()) for c in SKIP_CLASSES]})
+    text = [f"# Real receiver logs under `{label}`, imported with sim.nmea", "",
+            (f"{len(imp)} logs (NMEA or tumbleweed CSV, found recursively), each imported alone "
+             "and gridded at its own median fix interval from its first to its last fix; "
+             "reacquisition transients dropped (`reacquired`); `missing` = grid epochs without "
+             "a fix. Skip classes: `sim/nmea.py` module docstring."), "",
+            "## Import", "", _md(show, ".2f"), "",
+            "## Skip classes over all logs", "",
+            "`count` summed over the logs, `logs` = how many logs have the class.", "",
+            _md(totals), "",
+            "## Spread, robust spread and outliers per axis", "",
+            ("East / north in the log's local UTM frame, metres. " + ROBUST_LEGEND + " tau_s = "
+             "AR(1) correlation time -dt / ln(phi) (short logs bias it low and cannot show "
+             "slower components)."), "",
+            _md(st[["log", "axis", "n", *ROBUST_COLUMNS, "tau_s", "tau_inliers_s"]], ".2f")]
+    text += ["", "## Statistics driven by outliers", "", DRIVEN_RULE + ":", ""]
+    text += [f"- {r.log} {r.axis}: {_driven_text(r)}" for r in _outlier_driven(st).itertuples()] \
+        or ["- none"]
+    text += ["", "## Heavy tails and plateaus", "", HEAVY_RULE + ":", ""]
+    text += [f"- {r.log} {r.axis}: {int(r.outliers)} of {int(r.n)} samples "
+             f"({r.outliers / r.n:.0%}); std {r.std_m:.2f} m, 1.4826 MAD {r.mad_sigma_m:.2f} m, "
+             f"p95 {r.p95_m:.2f} m" for r in _heavy(st).itertuples()] or ["- none"]
+    if other:
+        text += ["", f"## Other files under `{label}` (not NMEA or tumbleweed CSV): {len(other)}",
+                 "", ", ".join(f"`{o}`" for o in other)]
+    return "\n".join(text) + "\n"
 
 
 # --------------------------------------------------------------------------- CLI
@@ -526,8 +627,22 @@ def load_session(paths: list[str]) -> StationarySession:
     return import_session(paths)
 
 
+def _rel(p: Path) -> str:
+    """``p`` relative to the repository when inside it (for messages)."""
+    try:
+        return str(p.resolve().relative_to(REPO))
+    except ValueError:
+        return str(p)
+
+
 def main(argv: list[str] | None = None) -> int:
-    ap = argparse.ArgumentParser(prog="python -m experiments.stationary", description=__doc__.split("\n\n")[0])
+    raw = sys.argv[1:] if argv is None else list(argv)
+    ap = argparse.ArgumentParser(prog="python -m experiments.stationary",
+                                 description=__doc__.split("\n\n")[0])
+    ap.add_argument("--reference", action="store_true",
+                    help=f"regenerate the committed reference {_rel(REFERENCE_OUT)}: the synthetic "
+                         "session with every default below and the real logs of "
+                         "../shared/realdata; takes no other option")
     src = ap.add_mutually_exclusive_group()
     src.add_argument("--synthetic", action="store_true", help="synthetic session (default)")
     src.add_argument("--session", nargs="+", metavar="PATH",
@@ -537,19 +652,48 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--duration", type=float, default=4300.0,
                     help="synthetic session length in s, before discarding the power failure")
     ap.add_argument("--seed", type=int, default=0)
-    ap.add_argument("--out", type=Path, default=DEFAULT_OUT)
+    ap.add_argument("--out", type=Path, default=None,
+                    help=f"output folder (default {_rel(DEFAULT_OUT)}, ignored by git; "
+                         f"{_rel(REFERENCE_OUT)} only through --reference)")
     ap.add_argument("--keep-before-power-failure", action="store_true",
                     help="analyse the whole recording (default: discard up to the power failure's end)")
     ap.add_argument("--no-split", action="store_true",
                     help="skip the common_fraction sensitivity table (synthetic sessions only)")
     ap.add_argument("--real-logs", type=Path, metavar="DIR",
-                    help="also write real_logs.md with statistics of every log under DIR")
-    args = ap.parse_args(argv)
+                    help="also write real_logs.md / real_logs.csv: every NMEA or tumbleweed CSV "
+                         "log found under DIR (recursive, any layout)")
+    args = ap.parse_args(raw)
+    if args.reference:
+        if len(raw) > 1:
+            ap.error("--reference takes no other option (it regenerates the committed "
+                     "reference exactly); write custom runs with --out")
+        if not REFERENCE_REAL_LOGS.is_dir():
+            ap.error(f"--reference needs the real logs at {REFERENCE_REAL_LOGS} "
+                     f"(../shared/realdata beside the checkout)")
+        out, real_logs, label = REFERENCE_OUT, REFERENCE_REAL_LOGS, "../shared/realdata"
+    else:
+        out = args.out if args.out is not None else DEFAULT_OUT
+        ref = REFERENCE_OUT.resolve()
+        if out.resolve() == ref or ref in out.resolve().parents:
+            ap.error(f"--out {args.out}: {_rel(REFERENCE_OUT)} is the committed reference; "
+                     "regenerate it with --reference, write other runs elsewhere")
+        real_logs, label = args.real_logs, str(args.real_logs)
+    if real_logs is not None:
+        from sim.nmea import find_logs
+
+        if not real_logs.is_dir():
+            ap.error(f"--real-logs {real_logs}: not a folder")
+        if not find_logs(real_logs)[0]:
+            ap.error(f"--real-logs {real_logs}: no NMEA or tumbleweed CSV log found (recursive)")
+    t_start = time.time()
     rng = np.random.default_rng(args.seed)
     config = SensorConfig.load(args.config)
     if args.session:
+        print(f"importing {len(args.session)} file(s)", flush=True)
         session = load_session(args.session)
     else:
+        print(f"synthesizing a {args.duration:g} s session ({args.model}, seed {args.seed})",
+              flush=True)
         model = GpsNoiseModel.load(args.model)
         session = synthesize_session(model, config, args.duration, rng)
         session.meta["seed"] = args.seed
@@ -559,25 +703,30 @@ def main(argv: list[str] | None = None) -> int:
     if not match:
         print(f"receivers {list(session.names)} do not match configuration {config.name!r} "
               f"{list(config.names)}: configuration sections (distances, fits) skipped", file=sys.stderr)
-    analyse(session, config if match else None, args.out, rng)
+    print("statistics, fits and figures", flush=True)
+    analyse(session, config if match else None, out, rng)
     if not args.session and not args.no_split:
+        print("common-mode split sensitivity", flush=True)
         split = split_sensitivity(GpsNoiseModel.load(args.model), config, args.duration, args.seed)
-        split.to_csv(args.out / "split.csv", index=False)
-        with open(args.out / "summary.md", "a") as fh:
+        split.to_csv(out / "split.csv", index=False, float_format=FLOAT_FORMAT)
+        with open(out / "summary.md", "a") as fh:
             fh.write("\n## Common-mode share vs heading (model sweep, same seed)\n\n"
                      "Unweighted sliding windows, procrustes, scored against the truth; "
                      "`common_fraction` overridden on the model above, total sigma fixed.\n\n"
                      + _md(split) + "\n")
-    if args.real_logs:
-        tab = real_log_table(args.real_logs)
-        tab.to_csv(args.out / "real_logs.csv", index=False)
-        text = ["# Real receiver logs (../shared/realdata), imported with sim.nmea", "",
-                "One row per log: valid fixes, grid epochs (missing = no-fix or absent epochs), "
-                "per-axis std in the local UTM frame, AR(1) correlation time from the lag-1 "
-                "coefficient (short logs bias it low and cannot show slower components), and the "
-                "skip counts (other sentence types omitted).", "", _md(tab, ".2f")]
-        (args.out / "real_logs.md").write_text("\n".join(text) + "\n")
-    print(f"wrote {args.out}/summary.md")
+    if real_logs is not None:
+        print(f"real logs under {label}", flush=True)
+        imp, st, other = real_log_tables(real_logs)
+        imp.to_csv(out / "real_logs.csv", index=False, float_format=FLOAT_FORMAT)
+        st.to_csv(out / "real_logs_stats.csv", index=False, float_format=FLOAT_FORMAT)
+        (out / "real_logs.md").write_text(_real_logs_md(label, imp, st, other))
+    # provenance: machine paths and wall time stay out of the tracked files
+    info = {"code": code_version(), "argv": raw, "out": str(out.resolve()),
+            "real_logs": None if real_logs is None else str(real_logs.resolve()),
+            "started_utc": time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime(t_start)),
+            "wall_s": round(time.time() - t_start, 1)}
+    (out / "run_info.json").write_text(json.dumps(info, indent=1) + "\n")
+    print(f"wrote {_rel(out)}/summary.md ({info['wall_s']:.0f} s)")
     return 0
 
 

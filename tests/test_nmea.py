@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import functools
 import operator
+import re
 from pathlib import Path
 
 import numpy as np
@@ -13,7 +14,9 @@ from hypothesis import strategies as st
 from pyproj import Geod
 
 from sim.nmea import (
+    DROP_CLASSES,
     SKIP_CLASSES,
+    find_logs,
     import_session,
     parse_nmea,
     read_log,
@@ -167,8 +170,9 @@ def test_tumbleweed_csv_stale_time(tmp_path):
     rows = ["HOSTNAME, OBSERVATION, CLOCK, TIME, LATITUDE, LONGITUDE, HORIZONTAL, MSL, WGS84, "
             "VERTICAL, SPEED, COURSE"]
     times = [100, 101, 101, 103, 104]
+    t0 = 1589900000                      # 2020-05-19, as the hazer runs (1970 is implausible)
     for k, tt in enumerate(times):
-        rows.append(f'"gold", {k + 1}, {1000.0 + 100 + k + 0.05:.6f}, {1000 + tt}.000000000, '
+        rows.append(f'"gold", {k + 1}, {t0 + 100 + k + 0.05:.6f}, {t0 + tt}.000000000, '
                     f"{39.79 + k * 1e-6:.9f}, -105.15, 1.1, 1702.6, 1681.1, 2.0, 0.0, 0.0")
     p = tmp_path / "benchmark.csv"
     p.write_text("\n".join(rows) + "\n")
@@ -181,9 +185,40 @@ def test_tumbleweed_csv_stale_time(tmp_path):
 
 # --------------------------------------------------------------------------- real logs
 def _real_logs(root: Path) -> list[Path]:
-    return (sorted((root / "gpsd").glob("*.log")) + sorted((root / "hazer/nmea").glob("*.dat"))
-            + sorted((root / "hazer/nmea").glob("*.lst"))
-            + sorted((root / "hazer/tumbleweed").glob("**/*.csv")))
+    return find_logs(root)[0]
+
+
+def _fix_times_by_regex(path: Path) -> set[str]:
+    """Independent count: times of checksum-valid GGA/RMC sentences that report a fix with a
+    position, read with a plain regex and XOR (no sim.nmea code)."""
+    text = path.read_bytes().decode("latin-1")
+    times = set()
+    for m in re.finditer(r"\$[A-Z]{2}(GGA|RMC),([\x20-\x7e]*?)\*([0-9A-Fa-f]{2})", text):
+        body = m.group(0)[1:-3]
+        if functools.reduce(operator.xor, body.encode("latin-1"), 0) != int(m.group(3), 16):
+            continue
+        f = m.group(2).split(",")
+        fix = (len(f) > 5 and f[5] not in ("", "0") and f[1] and f[3]) if m.group(1) == "GGA" \
+            else (len(f) > 4 and f[1] == "A" and f[2] and f[4])
+        if fix:
+            times.add(f[0])
+    return times
+
+
+def test_real_nmea_fixes_match_an_independent_count(realdata_dir):
+    """Every fix epoch of every real NMEA log is imported, or dropped under a named class;
+    and every GGA/RMC sentence is accounted for (module docstring identity)."""
+    for path in _real_logs(realdata_dir):
+        if path.suffix == ".csv":
+            continue
+        fx = read_log(path)
+        lost = sum(fx.skipped[c] for c in ("time_reversals", "reversed_segments",
+                                            "implausible_date", "time_jump", "duplicate_epochs"))
+        n = len(_fix_times_by_regex(path))
+        assert fx.valid.sum() <= n <= fx.valid.sum() + lost, (path.name, n, fx.skipped)
+        total = len(fx.t_utc) + fx.meta["merged_sentences"] + fx.meta["untimed_sentences"] + \
+            sum(fx.skipped[c] for c in DROP_CLASSES)
+        assert total == fx.meta["fix_sentences"], path.name
 
 
 def test_real_logs_import(realdata_dir):

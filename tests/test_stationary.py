@@ -1,63 +1,32 @@
-"""experiments.stationary: ACF / AR(1) against statsmodels, exact recovery on noise-free
-sessions, and an end-to-end run of the CLI on a short synthetic session."""
+"""experiments.stationary: exact recovery on noise-free sessions, the sliding windows against
+a direct per-window computation, the CLI end to end (synthetic, a real log, any folder of
+real logs), and the reference/output-folder rules. (ACF, AR(1), NPP and the robust
+statistics are tested in test_noise_stats.py.)"""
 
 from __future__ import annotations
 
+import functools
 import json
+import operator
+import subprocess
 
 import numpy as np
 import pytest
 
 from estimator.configuration import SensorConfig
-from experiments.stationary import acf, ar1_fit, main, npp_r, weighting_estimates, window_spreads
-from sim.gps import GpsNoiseModel, gauss_markov, synthesize_session
+from estimator.weights import huff_weights
+from estimator.window import procrustes_batch, window_means
+from experiments.stationary import (
+    REFERENCE_OUT,
+    main,
+    real_log_tables,
+    weighting_estimates,
+    window_estimates,
+    window_spreads,
+)
+from sim.gps import GpsNoiseModel, synthesize_session
 
 CFG = SensorConfig.load("rover_gps8")
-
-
-def _series(n=3000, seed=0):
-    rng = np.random.default_rng(seed)
-    return 3.0 + gauss_markov(n, (), 1.0, 20.0, 1.0, rng) + 0.1 * rng.standard_normal(n)
-
-
-def test_acf_matches_statsmodels():
-    from statsmodels.tsa.stattools import acf as sm_acf
-
-    x = _series()
-    # identical estimator (unadjusted Box-Jenkins); differences are FFT rounding only
-    assert np.allclose(acf(x, 60), sm_acf(x, nlags=60, adjusted=False, fft=False), atol=1e-10)
-
-
-def test_acf_with_gaps_matches_statsmodels_conservative():
-    from statsmodels.tsa.stattools import acf as sm_acf
-
-    x = _series(seed=1)
-    x[np.random.default_rng(2).random(x.size) < 0.1] = np.nan
-    # statsmodels' missing="conservative": nan-aware mean and cross-products, same normalisation
-    ref = sm_acf(x, nlags=40, adjusted=False, fft=False, missing="conservative")
-    assert np.allclose(acf(x, 40), ref, atol=1e-10)
-
-
-def test_ar1_matches_statsmodels_autoreg():
-    from statsmodels.tsa.ar_model import AutoReg
-
-    x = _series(seed=3)
-    delta, phi, _, res = ar1_fit(x)
-    fit = AutoReg(x, lags=1, trend="c").fit()
-    # both are conditional least squares on the same pairs: agreement to rounding
-    assert np.allclose([delta, phi], fit.params, atol=1e-10)
-    assert np.allclose(res[1:], fit.resid, atol=1e-10)
-    assert np.isnan(res[0])
-
-
-def test_npp_r_matches_scipy_and_detects_heavy_tails():
-    from scipy import stats
-
-    rng = np.random.default_rng(4)
-    g = rng.standard_normal(4000)
-    assert npp_r(g) == pytest.approx(stats.probplot(g)[1][2], abs=1e-12)
-    assert npp_r(g) > 0.999
-    assert npp_r(rng.standard_t(2, 4000)) < 0.95
 
 
 QUIET = GpsNoiseModel(sigma_m=0.0, common_fraction=0.0, receiver_sigma_spread=0.0,
@@ -93,18 +62,61 @@ def test_split_sensitivity_heading_improves_with_common_share():
     assert yaw[0.0] > 20.0
 
 
+def _nmea(body: str) -> str:
+    return f"${body}*{functools.reduce(operator.xor, body.encode(), 0):02X}"
+
+
+def _any_folder(root):
+    """A folder not laid out like ../shared/realdata: nested folders with spaces, a
+    host-prefixed GGA-only log, a log without a fix, a non-log file."""
+    logs = root / "my logs" / "day 1"
+    logs.mkdir(parents=True)
+    rng = np.random.default_rng(9)
+    lines = []
+    for k in range(120):
+        mm, ss = 49 + (26 + k) // 60, (26 + k) % 60
+        lat = 3947.65338 + rng.normal(0, 1e-4)
+        lines.append(f"2021-08-20T18:{mm:02d}:{ss:02d} -->> " + _nmea(
+            f"GNGGA,18{mm:02d}{ss:02d}.00,{lat:.5f},N,10509.20216,W,1,12,0.67,1708.6,M,-21.5,M,,"))
+    (logs / "rx.txt").write_text("\n".join(lines) + "\n")
+    (logs / "nofix.nmea").write_text(_nmea("GPGGA,,,,,,0,,,,,,,,") + "\n")
+    (root / "my logs" / "readme.md").write_text("notes\n")
+    return root / "my logs"
+
+
 def test_cli_end_to_end(tmp_path):
+    """Synthetic session plus --real-logs on an arbitrary folder (which raised KeyError
+    'epochs' before): every section, figure and table written; provenance in the sidecar."""
     out = tmp_path / "st"
+    folder = _any_folder(tmp_path)
+    # four antennas keep the figure count (and the test's time) small
     assert main(["--synthetic", "--duration", "400", "--seed", "1", "--out", str(out),
-                 "--no-split"]) == 0
+                 "--config", "rover_gps4", "--no-split", "--real-logs", str(folder)]) == 0
     summary = json.loads((out / "summary.json").read_text())
     assert summary["n"] == 400 - 300             # everything up to the power failure's end (300 s) discarded
     assert {r["scheme"] for r in summary["weighting"]} >= {"none", "huber", "huff", "random"}
+    assert "code_version" not in summary         # provenance lives in run_info.json
     for name in ("fig4_02_xy_vs_time.png", "fig4_03_scatter.png", "fig4_04_06_pairwise_distances.png",
-                 "fig4_07_npp_x.png", "fig4_17_23_weighting.png", "fig4_25_33_windows.png"):
+                 "fig4_07_npp_x.png", "fig4_17_23_weighting.png", "fig4_24_weighting_summary.png",
+                 "fig4_25_33_windows.png"):
         assert (out / name).stat().st_size > 1000
     text = (out / "summary.md").read_text()
-    assert "Sliding windows" in text and "Pairwise distances" in text
+    assert "Sliding windows" in text and "Pairwise distances" in text and "mad_sigma_m" in text
+    sensors = [r for r in summary["sensors"] if r.get("axis") == "x"]
+    assert all(r["mad_sigma_m"] > 0 and r["outliers"] >= 0 for r in sensors)
+    md = (out / "real_logs.md").read_text()
+    assert "day 1/rx.txt" in md and "host_prefixes" in md and "readme.md" in md
+    info = json.loads((out / "run_info.json").read_text())
+    assert info["wall_s"] >= 0 and info["code"]["python"]
+
+
+def test_real_log_tables_on_any_folder(tmp_path):
+    imp, st, other = real_log_tables(_any_folder(tmp_path))
+    row = imp.set_index("log").loc["day 1/rx.txt"]
+    assert row.fixes == 120 and row.host_prefixes == 120 and row.binary_segments == 0
+    assert row.time_base == "host_date" and row.epochs == 120
+    assert "no valid fix" in imp.set_index("log").loc["day 1/nofix.nmea"].error
+    assert set(st.axis) == {"east", "north"} and other == ["readme.md"]
 
 
 def test_cli_on_a_real_log(tmp_path, realdata_dir):
@@ -118,3 +130,56 @@ def test_cli_on_a_real_log(tmp_path, realdata_dir):
     sensors = [r for r in summary["sensors"] if r.get("axis") == "x"]
     assert len(sensors) == 1 and 0.05 < sensors[0]["std_m"] < 5.0
     assert (out / "fig4_09_timeseries_sensorbenchmark.png").stat().st_size > 1000
+
+
+def test_window_estimates_match_a_direct_per_window_fit():
+    """The sliding sums of estimator.window.sliding_window_means with per-sample Huff weights
+    equal stacking every window and weighting it on its own (Huff weights depend on their
+    own sample only, Section 3.3.3). Tolerance: cumulative sums round to ~1e-16 x n x the
+    extent of the data (metres), 1e-9 m is far above that and far below any effect."""
+    s = synthesize_session(GpsNoiseModel.load(), CFG, 600.0, np.random.default_rng(8))
+    s = s.after_power_failure()
+    for scheme, thr in (("none", None), ("huff", None), ("huff3.5", 3.5)):
+        pos, status = window_estimates(s.obs, CFG, 5, scheme)
+        win = np.moveaxis(np.lib.stride_tricks.sliding_window_view(s.obs, 5, axis=0), -1, 1)
+        w = None if scheme == "none" else huff_weights(win, CFG, thr)
+        ref = procrustes_batch(*window_means(win, w), CFG)
+        assert np.array_equal(status, ref.status)
+        ok = status == "ok"
+        assert np.allclose(pos[ok], ref.positions[ok], atol=1e-9, rtol=0)
+
+
+def test_cli_refuses_the_reference_folder_and_mixed_reference_options(tmp_path, capsys):
+    with pytest.raises(SystemExit):
+        main(["--synthetic", "--duration", "400", "--out", str(REFERENCE_OUT)])
+    assert "--reference" in capsys.readouterr().err
+    with pytest.raises(SystemExit):
+        main(["--synthetic", "--out", str(REFERENCE_OUT / "sub")])
+    with pytest.raises(SystemExit):
+        main(["--reference", "--seed", "3"])
+    assert "no other option" in capsys.readouterr().err
+
+
+def test_cli_default_output_is_not_tracked():
+    """A run without --out writes to results/local/stationary, which git ignores."""
+    from experiments.stationary import DEFAULT_OUT
+
+    assert DEFAULT_OUT != REFERENCE_OUT
+    probe = DEFAULT_OUT / "summary.md"
+    proc = subprocess.run(["git", "check-ignore", "-q", str(probe)], cwd=DEFAULT_OUT.parents[2],
+                          check=False)
+    assert proc.returncode == 0, "results/local/ must be ignored by git"
+    sidecar = REFERENCE_OUT / "run_info.json"
+    proc = subprocess.run(["git", "check-ignore", "-q", str(sidecar)], cwd=DEFAULT_OUT.parents[2],
+                          check=False)
+    assert proc.returncode == 0, "the provenance sidecar of the reference must be ignored"
+
+
+def test_real_logs_of_the_shared_folder(realdata_dir):
+    """Every log of ../shared/realdata is found by the recursive scan and imported; the
+    worst real reacquisition (Quectel, ~190 m after a 9 s gap) is dropped and listed."""
+    imp, st, other = real_log_tables(realdata_dir)
+    assert len(imp) >= 30 and "README.md" in other
+    q = imp.set_index("log").loc["gpsd/quectel-eg25-g.log"]
+    assert q.reacquired == 1
+    assert (imp.error == "").sum() >= 30
