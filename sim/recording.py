@@ -29,8 +29,10 @@ last antenna fix. Each valid fix is placed at the nearest grid time when within
 ``max_offset_s`` (default a quarter interval); per log ``meta["logs"][name]["counts"]`` says
 what happened to every valid fix: ``aligned`` + ``off_grid`` (further than max_offset_s from
 any grid time) + ``outside_grid`` (before the first or after the last antenna fix: reference
-logs) + ``duplicate_on_grid`` (a second fix for one grid time; the nearer one is kept) = the
-log's valid fixes; the reader's own skip counts are beside them. Grid times without a fix
+logs) + ``duplicate_on_grid`` (a second fix for one grid time; the nearer one is kept) +
+``reacquired`` (a reacquisition transient flagged by the reader, :mod:`sim.nmea`, left out
+as stationary sessions leave it out) = the log's valid fixes; the reader's own skip counts
+are beside them. Grid times without a fix
 are NaN. ``interpolate=True`` (an explicit option) then fills each grid time that has no fix
 within ``max_offset_s`` but lies between two consecutive fixes at most 1.5 intervals apart,
 by linear interpolation of the projected positions (counted as ``interpolated`` grid
@@ -460,14 +462,18 @@ def _align(logs: Sequence[LogFixes], grid: _Grid, frame: _Frame, max_offset_s: f
     hgt = np.full((grid.n, len(logs)), np.nan)
     info = {}
     for j, lg in enumerate(logs):
-        v = lg.valid
+        # reacquisition transients (flagged by the reader, sim.nmea.flag_reacquisitions) are
+        # left out as sessions leave them out, and counted
+        flagged = (lg.reacquired if lg.reacquired is not None
+                   else np.zeros(lg.t_utc.shape, dtype=bool))
+        v = lg.valid & ~flagged
         xy = frame.xy(lg.lat[v], lg.lon[v])
         h = lg.height_m[v] if lg.height_m is not None else np.full(int(v.sum()), np.nan)
         vals = np.column_stack([xy, h])
         out, counts = _place(lg.t_utc[v], vals, grid, max_offset_s, interpolate)
         pos[:, j] = out[:, :2]
         hgt[:, j] = np.where(np.isnan(out[:, 0]), np.nan, out[:, 2])
-        info[lg.name] = _log_info(lg, counts)
+        info[lg.name] = _log_info(lg, {**counts, "reacquired": int((lg.valid & flagged).sum())})
     return pos, hgt, info
 
 
@@ -810,7 +816,7 @@ def _read_one(value: object, name: str, fmt: str, what: str) -> LogFixes:
         return LogFixes(name=name, t_utc=value.t_utc, lat=value.lat, lon=value.lon,
                         quality=value.quality, date_known=value.date_known,
                         skipped=dict(value.skipped), meta=dict(value.meta),
-                        height_m=value.height_m)
+                        height_m=value.height_m, reacquired=value.reacquired)
     if not isinstance(value, (str, Path)):
         raise TypeError(f"{what}[{name!r}]: expected a log file path or LogFixes, got "
                         f"{type(value).__name__}")

@@ -76,7 +76,7 @@ def test_recording_reads_back_what_was_written(rig, rec):
     for name, info in rec.meta["logs"].items():
         c = info["counts"]
         assert c["aligned"] + c["off_grid"] + c["outside_grid"] + c["duplicate_on_grid"] \
-            == info["fixes"], name
+            + c["reacquired"] == info["fixes"], name
         assert c["interpolated"] == 0
     assert rec.meta["logs"]["1"]["skipped"]["bad_checksum"] == 1
     assert rec.meta["logs"]["1"]["skipped"]["truncated"] == 1
@@ -300,7 +300,7 @@ def test_alignment_counts_off_grid_duplicates_and_gaps():
     rec = _two(base, t2)
     c = rec.meta["logs"]["b"]["counts"]
     assert c == {"aligned": 15, "off_grid": 1, "outside_grid": 0, "duplicate_on_grid": 1,
-                 "interpolated": 0}
+                 "interpolated": 0, "reacquired": 0}
     assert rec.meta["logs"]["b"]["fixes"] == sum(c.values())
     present = ~np.isnan(rec.obs[:, 1, 0])
     assert not present[5] and present[6] and not present[10:14].any()
@@ -576,3 +576,27 @@ def test_sweep_replays_one_session_onto_every_antenna(tmp_path):
     with pytest.raises(SpecError, match="noise_overrides.replay"):
         Spec.from_dict({"name": "one", "grid": [dict(grid, noise_overrides={"replay": "x"})]},
                        source="t", base_dir=tmp_path)
+
+
+def test_reacquisition_transients_are_left_out_and_counted():
+    """A fix the reader flags as a reacquisition transient (sim.nmea.flag_reacquisitions) is
+    not placed on the grid; it is counted, so every valid fix is still accounted for."""
+    from estimator.configuration import SensorConfig
+    from sim.nmea import LogFixes
+    from sim.recording import Recording
+
+    t = 1.7e9 + np.arange(30.0)
+    lat = np.full(30, 40.0) + 1e-7 * np.arange(30)
+    lon = np.full(30, -105.0)
+    flags = np.zeros(30, bool)
+    flags[10] = True
+    lat_b = lat.copy()
+    lat_b[10] += 0.002                                   # ~220 m off: the transient
+    logs = {"a": LogFixes("a", t, lat, lon, np.ones(30, np.int64), True),
+            "b": LogFixes("b", t, lat_b, lon, np.ones(30, np.int64), True, reacquired=flags)}
+    cfg = SensorConfig(("a", "b"), np.array([[0.5, 0.0], [-0.5, 0.0]]))
+    rec = Recording.from_logs(logs, cfg)
+    c = rec.meta["logs"]["b"]["counts"]
+    assert c["reacquired"] == 1 and c["aligned"] == 29
+    assert rec.meta["logs"]["b"]["fixes"] == sum(v for k, v in c.items() if k != "interpolated")
+    assert np.isnan(rec.obs[10, 1]).all() and np.isfinite(rec.obs[10, 0]).all()
