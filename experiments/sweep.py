@@ -168,6 +168,9 @@ _TECHNIQUE_KW = {
     "motion_compensated": {"method": "motion_compensated"},
     "ekf": {"method": "ekf"},
     "naive": {"method": "naive"},
+    # oracles (experiments.spec.ORACLE_TECHNIQUES): the truth's heading in step 5 of 3.4.2
+    "lc_sim_heading": {"lag_correction": True, "heading": "truth"},
+    "lc_sim_heading+dyn": {"lag_correction": True, "heading": "truth", "dynamic": True},
 }
 
 
@@ -242,7 +245,10 @@ def score_track(df: pd.DataFrame, truth, obs: np.ndarray, config, masks: Iterabl
     ob = obs[idx] - truth.sensor_positions[idx, :, :2]            # (k, m, 2)
     obs_ex = np.nanmean(np.abs(ob[..., 0]), axis=1) if ob.size else np.array([])
     obs_ey = np.nanmean(np.abs(ob[..., 1]), axis=1) if ob.size else np.array([])
-    mk_all = evaluation_masks(truth.turning[idx].astype(bool))
+    win = np.zeros(truth.n, dtype=np.int64)
+    win[idx] = df["window"].to_numpy(dtype=np.int64)
+    mk_all = {k: v[idx] for k, v in evaluation_masks(truth.turning.astype(bool),
+                                                      window=win).items()}
     series = {"ex": errs["x"], "ey": errs["y"], "eu": errs["euclid"], "eh": eh}
     rows = []
     for mname in masks:
@@ -274,7 +280,7 @@ def score_track(df: pd.DataFrame, truth, obs: np.ndarray, config, masks: Iterabl
         "truth_cg_x": tru[:, 0], "truth_cg_y": tru[:, 1], "truth_yaw": truth.yaw[idx],
         "truth_turning": truth.turning[idx].astype(bool), "err_x": d[:, 0], "err_y": d[:, 1],
         "err_yaw": wrap_angle(df["yaw"].to_numpy(float) - truth.yaw[idx]),
-        "along": along, "cross": cross}
+        "along": along, "cross": cross, "no_turns_window": mk_all["no_turns_window"]}
     # per-antenna truth and observations for plots: float32 (1e-5 m resolution at 200 m)
     # halves the files; the estimates, CG truth and errors stay float64
     for j, nm in enumerate(truth.sensor_names):
@@ -301,7 +307,10 @@ def evaluate_cell(cell: Cell, truth, ctx: CellContext) -> CellOutput:
     turning = None
     if kw.pop("dynamic", False):
         kw["dynamic_window"] = cell.dyn_window
+        kw["window_growth"] = cell.dyn_growth
         turning = truth.turning.astype(bool) if cell.turning == "controller" else "detect"
+    if kw.pop("heading", None) == "truth":
+        kw["lag_heading"] = np.asarray(truth.yaw, dtype=float)
     weighting, extra = cell.weighting, {}
     if weighting == "-":
         weighting = "none"

@@ -36,8 +36,11 @@ def test_presets_load_and_have_the_thesis_axes():
     assert {c.window for c in cells} == {1, 5, 10, 100}
     assert {"none", "random", "huff"} <= {c.weighting for c in cells}
     assert {"none", "lc", "dyn", "lc+dyn", "lc_course", "lc_course+dyn", "motion_compensated",
-            "ekf", "naive"} == {c.technique for c in cells}
-    assert thesis.masks == ("full", "no_turns")
+            "ekf", "naive", "lc_sim_heading", "lc_sim_heading+dyn"} == {c.technique for c in cells}
+    assert thesis.masks == ("full", "no_turns", "no_turns_window")
+    # the faithful growth rule for the tables, the other one beside it (issue 15)
+    assert {c.dyn_growth for c in cells if c.technique == "dyn"} == {"refill", "jump"}
+    assert {c.dyn_growth for c in cells if c.technique == "none"} == {"-"}
     quick = load_spec("quick")
     assert len(quick.seeds) == 2 and {c.path for c in quick.expand()} == {"square100"}
 
