@@ -21,6 +21,7 @@ from __future__ import annotations
 
 import itertools
 import math
+import weakref
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -30,6 +31,7 @@ import pandas as pd
 
 from experiments.tables import (
     MASK_FALLBACK,
+    _t975,
     PATH_LABELS,
     THESIS_TABLES,
     faithful,
@@ -111,21 +113,49 @@ class ClaimResult:
 
 
 # --------------------------------------------------------------------------- evaluation
+_COLUMNS: dict[int, tuple[weakref.ref, dict[str, np.ndarray]]] = {}
+
+
+def _column(cells: pd.DataFrame, name: str) -> np.ndarray:
+    """``cells[name]`` as a numpy array, converted once per table (a weak reference keeps
+    the cache from outliving it or answering for another table at the same address). The
+    public entry points (:func:`evaluate_claims`, :func:`write_report`) clear it, so a
+    table changed in place between two calls is read afresh."""
+    ref, cols = _COLUMNS.get(id(cells), (None, None))
+    if ref is None or ref() is not cells:
+        for k in [k for k, (r, _) in _COLUMNS.items() if r() is None]:
+            del _COLUMNS[k]
+        cols = {}
+        _COLUMNS[id(cells)] = (weakref.ref(cells), cols)
+    if name not in cols:
+        cols[name] = cells[name].to_numpy()
+    return cols[name]
+
+
 def _per_seed(cells: pd.DataFrame, cond: dict, metric: str) -> pd.Series:
-    sub = select(cells, **cond)
-    if sub.empty or metric not in sub.columns:
+    if metric not in cells.columns:
         return pd.Series(dtype=float)
+    # the matching rows by numpy masks on the condition's columns only: taking whole rows
+    # of a 60-column table for each of the report's ~1000 conditions dominated its time
+    mk = np.ones(len(cells), dtype=bool)
+    for k, v in cond.items():
+        if v is None:
+            continue
+        if k not in cells.columns:
+            return pd.Series(dtype=float)
+        col = _column(cells, k)
+        mk &= np.isin(col, list(v)) if isinstance(v, (list, tuple, set)) else (col == v)
+    if not mk.any():
+        return pd.Series(dtype=float)
+    vals = pd.Series(_column(cells, metric)[mk], index=_column(cells, "seed")[mk])
     # one value per seed; several matching cells (e.g. other solvers) would be ambiguous
-    g = sub.groupby("seed")[metric]
-    if (g.size() > 1).any():
+    if vals.index.has_duplicates:
         raise ValueError(f"condition {cond} matches several cells per seed; add axis values")
-    return g.first().astype(float)
+    return vals.sort_index().astype(float)
 
 
 def compare(cells: pd.DataFrame, c: Comparison) -> Outcome:
     """Evaluate one elementary comparison (see the module docstring)."""
-    from scipy import stats
-
     a = _per_seed(cells, c.a, c.metric)
     if isinstance(c.b, dict):
         b = _per_seed(cells, c.b, c.metric)
@@ -145,7 +175,7 @@ def compare(cells: pd.DataFrame, c: Comparison) -> Outcome:
     d = (a - b).to_numpy()
     m = float(d.mean())
     if n > 1:
-        h = float(stats.t.ppf(0.975, n - 1) * d.std(ddof=1) / math.sqrt(n))
+        h = float(_t975(n - 1) * d.std(ddof=1) / math.sqrt(n))
     else:
         h = math.inf
     res = _relation(c.rel, m, m - h, m + h, float(b.mean()), c.tol)
@@ -181,6 +211,7 @@ def verdict(results: list[str]) -> str:
 
 def evaluate_claims(cells: pd.DataFrame, claims: list[Claim] | None = None) -> list[ClaimResult]:
     """Evaluate every claim on a cell table (one row per cell x mask)."""
+    _COLUMNS.clear()
     out = []
     for cl in claims or CLAIMS:
         comps = cl.comparisons(cells)
@@ -669,6 +700,7 @@ def write_report(cells: pd.DataFrame, out_dir: str | Path, spec=None) -> Path:
     from experiments import causes
     from experiments.tables import side_studies, variants
 
+    _COLUMNS.clear()
     out = Path(out_dir)
     studies = side_studies(cells)
     per_variant, evidence = [], {}

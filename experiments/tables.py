@@ -367,9 +367,13 @@ def thesis_table(cells: pd.DataFrame, axis: str, path: str = "square100",
     weighting = weighting or _default_weighting(cells, path)
     pref = "ex" if axis == "x" else "ey"
     rows_def = _row_defs(cells, beyond)
+    # only the columns used below: each select() takes whole rows
+    cells = select(cells, path=path, weighting=[weighting, "-"])
+    cells = cells[[c for c in (*_LAYOUT, "dyn_growth", "seed", *(f"{pref}_{s}" for s in STATS))
+                   if c in cells.columns]]
     best = faithful(cells)
     published = THESIS_TABLES[axis] if path == "square100" else {}
-    windows = sorted(select(cells, path=path, weighting=[weighting, "-"])["window"].unique())
+    windows = sorted(cells["window"].unique())
     out = []
     for w in windows:
         if w == 1 and not beyond:
