@@ -49,11 +49,11 @@ from experiments.report import (
     swap_techniques,
 )
 from experiments.tables import (
-    GROWTH_ORDER,
     THESIS_TABLES,
     THESIS_WINDOWS,
-    select,
+    faithful,
     seed_ci,
+    select,
 )
 
 __all__ = ["ORACLE_SWAP", "Evidence", "cause_line", "evidence", "observability_section",
@@ -128,7 +128,7 @@ def _oracle_text(ev: Evidence, r: ClaimResult, windows: list[int] | None = None
     """'fed the simulator's heading ... k/n' for a claim on the lag correction."""
     oracle_cells = _derived(pd.concat([ev.main, select(ev.cells, technique=list(
         ORACLE_SWAP.values()))]).drop_duplicates(["key", "mask"]))
-    pr = _probe(ev, r, ORACLE_SWAP, _best_growth(oracle_cells), windows)
+    pr = _probe(ev, r, ORACLE_SWAP, faithful(oracle_cells), windows)
     if pr is None:
         return None
     k, n, v = pr
@@ -136,12 +136,6 @@ def _oracle_text(ev: Evidence, r: ClaimResult, windows: list[int] | None = None
     return (f"fed the simulator's heading instead (oracle rows \"Oracle: LC (simulator "
             f"heading)\" in Tables 4.1/4.2), the same comparisons{at} give {k}/{n} supports "
             f"(**{v}**)")
-
-
-def _best_growth(cells: pd.DataFrame) -> pd.DataFrame:
-    from experiments.tables import faithful
-
-    return faithful(cells)
 
 
 def _turn_share(ev: Evidence, windows: list[int], technique: str = "none") -> str | None:
@@ -478,10 +472,10 @@ def _shared_noise_text(ev: Evidence, windows: list[int]) -> str | None:
         return None
     w8 = _tw(ev.main)
     w = windows[0]
-    d = (_per_seed(ev.main, dict(path=P1, window=w, weighting=w8, technique="dyn",
-                                 mask="full"), "ex_mean")
-         - _per_seed(ev.main, dict(path=P1, window=w, weighting=w8, technique="none",
-                                   mask="full"), "ex_mean")).dropna()
+    d = (_per_seed(ev.main, {"path": P1, "window": w, "weighting": w8, "technique": "dyn",
+                                 "mask": "full"}, "ex_mean")
+         - _per_seed(ev.main, {"path": P1, "window": w, "weighting": w8, "technique": "none",
+                                   "mask": "full"}, "ex_mean")).dropna()
     pub = THESIS_TABLES["x"].get((w, "Dyn SW"), {}).get("mean", math.nan) \
         - THESIS_TABLES["x"].get((w, "None"), {}).get("mean", math.nan)
     if d.empty or not np.isfinite(pub):
@@ -625,15 +619,15 @@ def seed_spread_section(cells: pd.DataFrame) -> list[str]:
               "per-seed value beside the published one. Two rows computed on the same noise "
               "(common random numbers) differ only where their estimates differ (Dyn SW and "
               "None below: only where a turn is in the window)."), "",
-             "| Window | Axis | Statistic | Published (one run) | Ours: mean [95 % CI] | "
-             "Ours: per-seed min - max | Published inside? |",
+             ("| Window | Axis | Statistic | Published (one run) | Ours: mean [95 % CI] | "
+             "Ours: per-seed min - max | Published inside? |"),
              "|---|---|---|---|---|---|---|"]
     n_rows = 0
     for w in THESIS_WINDOWS:
         for ax in ("x", "y"):
             for st in ("mean", "median", "std"):
-                v = _per_seed(cells, dict(path=P1, window=w, weighting=w8, technique="none",
-                                          mask="full"), f"e{ax}_{st}").dropna()
+                v = _per_seed(cells, {"path": P1, "window": w, "weighting": w8, "technique": "none",
+                                          "mask": "full"}, f"e{ax}_{st}").dropna()
                 if v.empty:
                     continue
                 pub = THESIS_TABLES[ax][(w, "None")][st]
@@ -647,10 +641,10 @@ def seed_spread_section(cells: pd.DataFrame) -> list[str]:
     lines.append("")
     d_lines = []
     for w in THESIS_WINDOWS:
-        d = (_per_seed(cells, dict(path=P1, window=w, weighting=w8, technique="dyn",
-                                   mask="full"), "ex_mean")
-             - _per_seed(cells, dict(path=P1, window=w, weighting=w8, technique="none",
-                                     mask="full"), "ex_mean")).dropna()
+        d = (_per_seed(cells, {"path": P1, "window": w, "weighting": w8, "technique": "dyn",
+                                   "mask": "full"}, "ex_mean")
+             - _per_seed(cells, {"path": P1, "window": w, "weighting": w8, "technique": "none",
+                                     "mask": "full"}, "ex_mean")).dropna()
         if d.empty:
             continue
         pub = THESIS_TABLES["x"][(w, "Dyn SW")]["mean"] - THESIS_TABLES["x"][(w, "None")]["mean"]
@@ -684,16 +678,16 @@ def observability_section(main: pd.DataFrame, studies: pd.DataFrame) -> list[str
               "heading is observed. The lag correction of Section 3.4.2 shifts each estimate "
               "along that heading. Mean |x| / |y| CG error (m) at window 100; median "
               "heading error (deg, Eq. 4.2) technique None."), "",
-             "| common_fraction | per-receiver Gauss-Markov sigma (m) | heading error "
+             ("| common_fraction | per-receiver Gauss-Markov sigma (m) | heading error "
              "w=1 / 10 / 100 (deg) "
-             "| LC Full Path | LC + Dyn SW | Oracle: LC (simulator heading) |",
+             "| LC Full Path | LC + Dyn SW | Oracle: LC (simulator heading) |"),
              "|---|---|---|---|---|---|"]
     res = []
     for ov, src in settings:
         cf = json.loads(ov).get("common_fraction", model.common_fraction if model else None)
         mdl = _noise_model(main, ov)
         sig = f"{mdl.sigma_m * math.sqrt(1 - mdl.common_fraction):.2f}" if mdl else "n/a"
-        where = dict(path=P1, weighting="huff", noise_overrides=ov, mask="full")
+        where = {"path": P1, "weighting": "huff", "noise_overrides": ov, "mask": "full"}
         eh = [_deg(_m(src, "eh_median", window=w, technique="none", **where))
               for w in (1, 10, 100)]
         row = {t: (_m(src, "ex_mean", window=100, technique=t, **where),
@@ -709,8 +703,8 @@ def observability_section(main: pd.DataFrame, studies: pd.DataFrame) -> list[str
            THESIS_TABLES["y"][(100, "LC Full Path")]["mean"])
     pub_dyn = (THESIS_TABLES["x"][(100, "LC + Dyn SW")]["mean"],
                THESIS_TABLES["y"][(100, "LC + Dyn SW")]["mean"])
-    lines += [f"| published (one run) | | | {pub[0]:.3f} / {pub[1]:.3f} | "
-              f"{pub_dyn[0]:.3f} / {pub_dyn[1]:.3f} | |", ""]
+    lines += [(f"| published (one run) | | | {pub[0]:.3f} / {pub[1]:.3f} | "
+              f"{pub_dyn[0]:.3f} / {pub_dyn[1]:.3f} | |"), ""]
     lines += [_implied_setting(res, pub), ""]
     return lines
 

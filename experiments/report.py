@@ -31,9 +31,9 @@ import pandas as pd
 
 from experiments.tables import (
     MASK_FALLBACK,
-    _t975,
     PATH_LABELS,
     THESIS_TABLES,
+    _t975,
     faithful,
     select,
     thesis_row,
@@ -752,9 +752,9 @@ def write_report(cells: pd.DataFrame, out_dir: str | Path, spec=None) -> Path:
         lines += ["", (f"Totals ({lab}): " if lab else "Totals: ")
                   + ", ".join(f"{k}: {v}" for k, v in sorted(counts.items()))]
     lines.append("")
-    lines += ["Every mixed or not-reproduced claim has a line beginning `Cause:` in its "
+    lines += [("Every mixed or not-reproduced claim has a line beginning `Cause:` in its "
               "section: the measured cause and the rows or study that show it "
-              "(`experiments/causes.py`).", ""]
+              "(`experiments/causes.py`)."), ""]
     first = per_variant[0][0]
     lines += causes.seed_spread_section(evidence[first].main)
     lines += causes.observability_section(evidence[first].main, studies)
