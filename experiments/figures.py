@@ -245,18 +245,20 @@ def _technique_fig(E: _Epochs, out: Path, written: list[Path], name: str, title:
                      if w > 1)
     if not windows:
         return
-    fig, axes = _subplots(2, len(masks), figsize=(6.5 * len(masks) + 1.5, 8), squeeze=False)
+    # (window, technique) pairs the sweep ran (e.g. an oracle only at window 100)
+    pairs = [(w, t) for w in windows for t in present
+             if not E.find(path=path, technique=t, window=w, weighting=[wt, "-"]).empty]
+    width = max(6.5, 0.6 * len(pairs))
+    fig, axes = _subplots(2, len(masks), figsize=(width * len(masks) + 1.5, 8), squeeze=False)
     seeds: list[int] = []
     for r, axis in enumerate(("x", "y")):
         for c, mask in enumerate(masks):
             groups = []
-            for w in windows:
-                for t in present:
-                    kw = {"weighting": [wt, "-"]}
-                    v, s = E.pooled(f"err_{axis}", mask=mask, path=path, technique=t, window=w,
-                                    **kw)
-                    seeds += s
-                    groups.append((f"w={w}\n{TECH_LABELS[t]}", v, TECH_COLORS[t]))
+            for w, t in pairs:
+                v, s = E.pooled(f"err_{axis}", mask=mask, path=path, technique=t, window=w,
+                                weighting=[wt, "-"])
+                seeds += s
+                groups.append((f"w={w}\n{TECH_LABELS[t]}", v, TECH_COLORS[t]))
             _boxes(axes[r, c], groups, f"|{axis}| CG error (m)")
             where = {"full": "full path", "no_turns": "no turns (epochs not turning)",
                      "no_turns_window": "no turns (no turning epoch in the window)"}[mask]
@@ -353,11 +355,13 @@ def _tables_fig(out: Path, written: list[Path]) -> None:
     files = [(ax, out / f"table_4_{n}.csv") for ax, n in (("x", 1), ("y", 2))]
     if not all(f.exists() for _, f in files):
         return
-    fig, axes = _subplots(1, 2, figsize=(14, 5.5))
-    for ax_plot, (axis, f) in zip(axes, files):
-        df = pd.read_csv(f, keep_default_na=False, na_values=[""])   # "None" is a row label
+    frames = [pd.read_csv(f, keep_default_na=False, na_values=[""])   # "None" is a label
+              for _, f in files]
+    n = max(int((df["window"] > 1).sum()) for df in frames)
+    fig, axes = _subplots(1, 2, figsize=(max(14.0, 0.36 * n), 6.5))
+    for ax_plot, (axis, _), df in zip(axes, files, frames):
         df = df[df["window"] > 1]
-        labels = [f"w={w}\n{t}" for w, t in zip(df["window"], df["technique"])]
+        labels = [f"w={w} {t}" for w, t in zip(df["window"], df["technique"])]
         xs = np.arange(len(df))
         yerr = np.vstack([df["mean"] - df["mean_lo"], df["mean_hi"] - df["mean"]])
         yerr = np.where(np.isfinite(yerr), yerr, 0)
