@@ -439,9 +439,11 @@ def _lc_claim(step2: bool, heading: bool) -> Callable[[Evidence, ClaimResult], s
     return f
 
 
-def _turns_and_heading(what: str) -> Callable[[Evidence, ClaimResult], str | None]:
+def _turns_and_heading(what: str, heading: str
+                       ) -> Callable[[Evidence, ClaimResult], str | None]:
     """Cause of a claim about the turns: few turn estimates at small windows, the heading at
-    window 100. ``what``: what differs only on those estimates."""
+    window 100. ``what``: what differs only on those estimates; ``heading``: how the heading
+    error hides the claimed effect at window 100."""
 
     def f(ev: Evidence, r: ClaimResult) -> str | None:
         bad = _failing(r)
@@ -459,8 +461,7 @@ def _turns_and_heading(what: str) -> Callable[[Evidence, ClaimResult], str | Non
             o = _oracle_text(ev, r, large)
             if o is None:
                 return None
-            parts.append("at window 100, heading observability: with the estimated heading the "
-                         "corrected error is as large on the straights as in the turns; " + o)
+            parts.append(f"at window 100, heading observability: {heading}; " + o)
         return ("; ".join(parts) + "." + _published_too(bad)) if parts else None
     return f
 
@@ -582,10 +583,19 @@ def _course_turns(ev: Evidence, r: ClaimResult) -> str | None:
 _CAUSES: dict[str, Callable[[Evidence, ClaimResult], str | None]] = {
     "C1": _c1, "C2": _c2, "C3": _c3, "C4": _c4, "C8": _c8, "C9": _c9, "C10": _c10,
     "C13": _lc_claim(step2=True, heading=True),
-    "C14": _turns_and_heading("the full path and the no-turns mask differ"),
-    "C17": _turns_and_heading("LC and LC + Dyn SW differ"),
+    "C14": _turns_and_heading(
+        "the full path and the no-turns mask differ",
+        "with the estimated heading the corrected error is as large on the straights as in "
+        "the turns"),
+    "C17": _turns_and_heading(
+        "LC and LC + Dyn SW differ",
+        "with the estimated heading the corrected error is large on the straights too, where "
+        "the dynamic window changes nothing"),
     "C18": _c18,
-    "C19": _turns_and_heading("LC and LC + Dyn SW differ"),
+    "C19": _turns_and_heading(
+        "LC and LC + Dyn SW differ",
+        "with the estimated heading the corrected error is large on the straights too, where "
+        "the dynamic window changes nothing"),
     "C21": _lc_claim(step2=False, heading=True),
     "C22": _lc_claim(step2=True, heading=True),
     "C13c": _course_small, "C18c": _course_small, "C22c": _course_small, "C21c": _course_small,
