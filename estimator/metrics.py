@@ -8,7 +8,12 @@
   dissertation's Figure 4.118 shows why: a heading near +/-pi must not score 2 pi).
 - Summaries: mean, median and standard deviation (Tables 4.1/4.2; sample standard deviation,
   ddof = 1, as MATLAB's ``std``), plus rmse, p95 and max, each over an evaluation mask:
-  the full path and "no turns" (the dissertation's "LC No Turns" column, Section 4.12.2).
+  the full path, "no turns" (estimates dated at an epoch that is not turning) and "no turns
+  in the window" (estimates whose whole window is free of turning epochs). The
+  dissertation's "LC No Turns" column (Section 4.12.2) was made by "manually selecting
+  sections of time-steps around which turning occurs": a window estimate still carries a
+  turn for as long as the turn's samples are in its window, so "no_turns_window" is the
+  faithful reading and "no_turns" the lenient one.
 
 Everything takes plain arrays, so estimates from any source (this package, a log, another
 tool) can be scored; :func:`align_to_truth` pairs a track's rows with truth samples by time.
@@ -23,7 +28,7 @@ from collections.abc import Mapping
 import numpy as np
 import pandas as pd
 
-from estimator._checks import check_increasing_times
+from estimator._checks import check_increasing_times, check_real
 from estimator.orientation import wrap_angle
 
 __all__ = [
@@ -124,22 +129,38 @@ def summarize(errors: object, mask: object | None = None) -> dict[str, float]:
     return out
 
 
-def evaluation_masks(turning: object, t: object | None = None, margin_s: float = 0.0
-                     ) -> dict[str, np.ndarray]:
-    """Masks for "full path" and "no turns" (Section 4.12.2, "LC No Turns").
+def evaluation_masks(turning: object, t: object | None = None, margin_s: float = 0.0,
+                     window: object | None = None) -> dict[str, np.ndarray]:
+    """Masks for "full path", "no turns" and "no turns in the window" (Section 4.12.2).
 
     turning : (n,) bool, True on turning epochs (controller flag or a detector).
     t : (n,) seconds, needed when ``margin_s > 0``.
-    margin_s : epochs within this many seconds of a turning epoch are also excluded from
-        "no_turns" (the dissertation removed "sections of time-steps around which turning
-        occurs"; a window that still holds turn data is such a section).
-    Returns {"full": all True, "no_turns": not turning (dilated by the margin)}.
+    margin_s : epochs within this many seconds of a turning epoch count as turning too
+        (the dissertation removed "sections of time-steps around which turning occurs").
+    window : None, or (n,) int >= 0: the size of the window of the estimate dated at each
+        epoch (the estimate at epoch k fits epochs ``k - window[k] + 1 .. k``; 0 = no
+        estimate at that epoch). Adds "no_turns_window".
+    Returns {"full": all True, "no_turns": not turning (dilated by the margin)} and, with
+    ``window``, "no_turns_window": an estimate is there and no epoch of its window is
+    turning (dilated by the margin) -- every estimate that a turn's samples reach is
+    dropped, however long after the turn.
     """
     tr = np.asarray(turning)
     if tr.ndim != 1 or tr.dtype != bool:
         raise ValueError(f"turning: expected a 1-D bool array, got {tr.dtype} {tr.shape}")
-    if not np.isfinite(margin_s) or margin_s < 0:
-        raise ValueError(f"margin_s: must be a finite number >= 0, got {margin_s!r}")
+    margin_s = check_real(margin_s, "margin_s", lo=0.0)
+    win = None
+    if window is not None:
+        win = np.asarray(window)
+        if win.shape != tr.shape or not np.issubdtype(win.dtype, np.integer):
+            raise ValueError(f"window: expected an integer array of shape {tr.shape}, got "
+                             f"{win.dtype} {win.shape}")
+        k = np.arange(tr.size)
+        bad = (win < 0) | (win > k + 1)
+        if bad.any():
+            j = int(np.argmax(bad))
+            raise ValueError(f"window: window[{j}] = {win[j]} must be in [0, {j + 1}] (a "
+                             "window cannot reach before the first epoch)")
     near = tr.copy()
     if margin_s > 0 and tr.any():
         if t is None:
@@ -153,7 +174,14 @@ def evaluation_masks(turning: object, t: object | None = None, margin_s: float =
         lo = np.abs(tt - tt_turn[np.clip(idx - 1, 0, tt_turn.size - 1)])
         hi = np.abs(tt_turn[np.clip(idx, 0, tt_turn.size - 1)] - tt)
         near = np.minimum(lo, hi) <= margin_s
-    return {"full": np.ones(tr.shape, dtype=bool), "no_turns": ~near}
+    out = {"full": np.ones(tr.shape, dtype=bool), "no_turns": ~near}
+    if win is not None:
+        # turning epochs inside each window, by a cumulative count
+        c = np.concatenate([[0], np.cumsum(near, dtype=np.int64)])
+        k = np.arange(tr.size)
+        inside = c[k + 1] - c[k + 1 - win]
+        out["no_turns_window"] = (win > 0) & (inside == 0)
+    return out
 
 
 def align_to_truth(est_t: object, truth_t: object, *, tol: float = 1e-6) -> np.ndarray:
@@ -191,7 +219,9 @@ def evaluate_track(track: pd.DataFrame, truth_t: object, truth_cg: object,
 
     track : DataFrame with columns t, cg_x, cg_y and the heading columns present.
     truth_t (n,), truth_cg (n, 2|3), truth_yaw (n,) : the truth, any superset of the track's
-        times. turning : (n,) bool truth turning flags for the "no_turns" mask (optional).
+        times. turning : (n,) bool truth turning flags for the "no_turns" mask (optional;
+        with a ``window`` column in ``track`` whose rows are consecutive truth epochs, also
+        "no_turns_window", see :func:`evaluation_masks`).
     masks : extra masks over the track's rows, name -> (k,) bool.
     Returns a long DataFrame, one row per (mask, quantity) with columns
     ``mask, quantity, n, n_nan`` and :data:`STATISTICS`; quantities are ``x``, ``y``
@@ -224,7 +254,16 @@ def evaluate_track(track: pd.DataFrame, truth_t: object, truth_cg: object,
         tr = np.asarray(turning)
         if tr.shape != tt.shape:
             raise ValueError(f"turning: expected shape {tt.shape}, got {tr.shape}")
-        all_masks["no_turns"] = evaluation_masks(tr, tt, margin_s)["no_turns"][idx]
+        win = None
+        # the window mask counts truth epochs: only when the track's rows are consecutive
+        # truth epochs (one estimate per epoch, the truth sampled like the observations)
+        if "window" in track.columns and np.all(np.diff(idx) == 1):
+            win = np.zeros(tt.shape, dtype=np.int64)
+            win[idx] = track["window"].to_numpy(dtype=np.int64)
+        em = evaluation_masks(tr, tt, margin_s, window=win)
+        all_masks["no_turns"] = em["no_turns"][idx]
+        if win is not None:
+            all_masks["no_turns_window"] = em["no_turns_window"][idx]
     for name, mk in (masks or {}).items():
         mk = np.asarray(mk)
         if mk.shape != (len(track),) or mk.dtype != bool:

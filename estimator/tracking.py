@@ -23,7 +23,23 @@ Source: 000_8f82f8df647bf685.txt (GPS dissertation), Sections 3.1.2, 3.2, 3.4 an
 - Dynamic window (3.4.2.1): ``dynamic_window=w_small`` with ``turning`` either a (n,) bool
   array (the simulator's controller flag: the dissertation's "control information") or
   ``"detect"`` (a detector on the estimates alone, :mod:`estimator.turns`, so it runs on
-  real logs). Row k uses the small window when ``turning[k]`` is True, else ``window``.
+  real logs). Row k uses the small window when ``turning[k]`` is True. After a turn the
+  window grows back by one of two rules (``window_growth``, :data:`GROWTH_RULES`):
+
+  - ``"jump"``: back to ``window`` at the first epoch that is not turning;
+  - ``"refill"``: the first-in-first-out queue of Section 3.4.1 ("refreshed ... by deleting
+    the oldest member of the queue and adding the ... newly observed data") keeps only the
+    small window's samples when the turn ends and adds one sample per epoch without
+    deleting any until it holds ``window`` again: row k uses
+    ``min(window, small + (k - j))`` epochs, j the last turning row. Section 4.12.4 traces
+    the outliers of LC + Dyn SW "back to the use of sliding window = 1 during the turning
+    sections", which fits a window that is short for a while after each turn; the jump rule
+    has no such stretch. :func:`dynamic_window_sizes` gives the sizes.
+- ``lag_heading``: a (n,) heading (rad) used by the lag correction in place of the
+  estimated law-of-cosines heading; row k uses ``lag_heading[k]`` of its newest epoch. It
+  separates the method from the heading it is fed: with the simulator's heading it is the
+  oracle "LC (simulator heading)" (is Section 3.4.2 right when the heading is right?); with
+  a smoothed heading series, an estimator of its own.
 
 Beyond the dissertation (each selectable, each a row in tables):
 
@@ -64,10 +80,12 @@ from estimator.pose_filter import PoseFilterParams, run_pose_filter
 from estimator.window import SOLVERS, fit_window, procrustes_batch, window_means
 
 __all__ = [
+    "GROWTH_RULES",
     "LAG_OPTIONS",
     "METHODS",
     "WEIGHTINGS",
     "detect_turning",
+    "dynamic_window_sizes",
     "heading_pair",
     "track",
 ]
@@ -75,6 +93,8 @@ __all__ = [
 METHODS = ("window", "motion_compensated", "ekf", "naive")
 WEIGHTINGS = ("none", "random", "huff", "huber", "huff_huber")
 LAG_OPTIONS = (False, True, "pose", "course")
+#: How a dynamic window grows back after a turn (module docstring).
+GROWTH_RULES = ("jump", "refill")
 
 #: Windows stacked per weight/solver call: keeps memory ~ this many samples x m x 2 floats.
 _CHUNK_SAMPLES = 200_000
@@ -147,6 +167,35 @@ def heading_pair(config: SensorConfig) -> tuple[int, int, float]:
     return i, j, float(np.arctan2(d[1], d[0]))
 
 
+def dynamic_window_sizes(turning: Any, window: int, small: int, growth: str = "jump"
+                         ) -> np.ndarray:
+    """Window size of every row of a dynamic-window track (Section 3.4.2.1, 3.4.1).
+
+    turning : (N,) bool, True on the rows whose newest epoch is turning. window : the large
+    window s >= 1 (epochs); small : the window while turning, 1 <= small <= window.
+    growth : "jump" (back to ``window`` on the first row that is not turning) or "refill"
+    (one more epoch per row after a turn: ``min(window, small + k - j)``, j the last turning
+    row; the first-in-first-out queue of Section 3.4.1; see the module docstring).
+    Returns (N,) int64 sizes; rows before the first turn use ``window``.
+    """
+    fl = np.asarray(turning)
+    if fl.ndim != 1 or fl.dtype != bool:
+        raise ValueError(f"turning: expected a 1-D bool array, got {fl.dtype} {fl.shape}")
+    s = _check_int(window, "window", 1, np.iinfo(np.int64).max // 2)
+    w_small = _check_int(small, "dynamic_window", 1, s)
+    if growth not in GROWTH_RULES:
+        raise ValueError(f"window_growth: must be one of {list(GROWTH_RULES)}, got {growth!r}")
+    sizes = np.full(fl.size, s, dtype=np.int64)
+    if growth == "jump":
+        sizes[fl] = w_small
+        return sizes
+    k = np.arange(fl.size)
+    last = np.maximum.accumulate(np.where(fl, k, -1)) if fl.size else k
+    after = last >= 0
+    sizes[after] = np.minimum(s, w_small + (k[after] - last[after]))
+    return sizes
+
+
 # ----------------------------------------------------------------------------- windows
 def _stack(obs: np.ndarray, ends: np.ndarray, w: int) -> np.ndarray:
     """(len(ends), w, m, 2) windows ending at ``ends`` (inclusive)."""
@@ -191,6 +240,7 @@ def _cumsum_means(obs: np.ndarray, ends: np.ndarray, w: int,
                   weights: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
     """Window means (N, m, 2) and total weights (N, m) by cumulative sums: O(n).
 
+    w : window size, an int or (N,) ints (one per window).
     weights : None (counts) or per-sample (n, m) >= 0, used when a weight depends on its
     own sample only (Huff weights, Section 3.3.3), so every window shares it.
     """
@@ -241,7 +291,8 @@ def _weighted_window_means(obs: np.ndarray, ends: np.ndarray, w: int, wts: np.nd
 
 def _fit_windows(obs, cfg, ends, w, *, weighting, rng, huff_threshold, huber_c, solver, eps,
                  warm_start, fit_kw, prev=None):
-    """Window fits for rows ending at ``ends`` with window size w.
+    """Window fits for rows ending at ``ends`` with window size w (an int, or with
+    procrustes and no / Huff weights also an (N,) int array of per-row sizes).
 
     ``prev``: with ``warm_start``, the x0 of the first row (the last fit before ``ends[0]``,
     or None); each later row starts from the previous row's fit.
@@ -346,8 +397,9 @@ def detect_turning(t: np.ndarray, obs: np.ndarray, config: SensorConfig,
     per epoch; the heading is either the course of the CG over ``span_s`` seconds
     (``source="course"``, default) or the fitted yaw (``source="pose"``); then
     :func:`estimator.turns.detect_turns` with ``rate_on``/``rate_off`` (rad/s) and
-    ``span_s``. Defaults in :data:`DETECTOR_DEFAULTS`. Epochs before the first estimate are
-    not turning.
+    ``span_s``. Defaults in :data:`DETECTOR_DEFAULTS`; a recording shorter than the default
+    window uses all its epochs (a window the user sets must fit). Epochs before the first
+    estimate are not turning.
     """
     unknown = sorted(set(options) - set(DETECTOR_DEFAULTS))
     if unknown:
@@ -355,6 +407,8 @@ def detect_turning(t: np.ndarray, obs: np.ndarray, config: SensorConfig,
             f"detector: unknown option(s) {unknown}; known: {sorted(DETECTOR_DEFAULTS)}")
     opt = {**DETECTOR_DEFAULTS, **options}
     tt, o, cfg = _check_inputs(t, obs, config)
+    if "window" not in options:
+        opt["window"] = min(DETECTOR_DEFAULTS["window"], tt.size)
     w = _check_int(opt["window"], "detector.window", 1, tt.size)
     if opt["source"] not in ("course", "pose"):
         raise ValueError(f"detector.source: must be 'course' or 'pose', got {opt['source']!r}")
@@ -381,6 +435,7 @@ def track(t: Any, obs: Any, config: SensorConfig, window: int = 10, weighting: s
           warm_start: bool = False, velocity_span: int | None = None,
           detector: dict | None = None, yaw_rate: bool = False, omega_max: float = 1.0,
           filter_params: PoseFilterParams | None = None, fit_options: dict | None = None,
+          window_growth: str = "jump", lag_heading: Any = None,
           layout_check: bool = True) -> pd.DataFrame:
     """Track the platform over a recording; one row per estimate.
 
@@ -393,7 +448,13 @@ def track(t: Any, obs: Any, config: SensorConfig, window: int = 10, weighting: s
         (method "window" only). velocity_span : rows for the velocity estimate (default s).
     dynamic_window : small window size (e.g. 1) used on turning epochs (Section 3.4.2.1);
         requires ``turning``: a (n,) bool array or "detect" (options in ``detector``, see
-        :func:`detect_turning`).
+        :func:`detect_turning`). window_growth : "jump" (default) or "refill", how the
+        window grows back after a turn (:func:`dynamic_window_sizes`).
+    lag_heading : None or (n,) radians (CCW from +x; NaN allowed): the heading step 5 of the
+        lag correction uses, in place of the estimated law-of-cosines heading; row k takes
+        the value of its newest epoch, and a NaN leaves that row uncorrected (lag_dx NaN).
+        With ``lag_correction`` True / "pose" only. The simulator's heading here makes the
+        oracle rows "LC (simulator heading)"; a smoothed heading series is an estimator.
     solver : "procrustes" | "slsqp" | "ccp" (method "window" only); eps (m), warm_start and
         fit_options (e.g. ``{"maxiter": 100}``) pass to :func:`estimator.window.fit_window`.
     method : one of :data:`METHODS` (module docstring); "naive" gives a row only where every
@@ -444,6 +505,25 @@ def track(t: Any, obs: Any, config: SensorConfig, window: int = 10, weighting: s
         raise ValueError(f"weighting: method={method!r} takes no weights, got {weighting!r}")
     if velocity_span is not None:
         velocity_span = _check_int(velocity_span, "velocity_span", 1, n)
+    heading_for_lag = None
+    if lag_heading is not None:
+        if lag_mode != "pose":
+            raise ValueError("lag_heading: only used with lag_correction=True or 'pose' (got "
+                             f"lag_correction={lag_correction!r})")
+        heading_for_lag = np.asarray(lag_heading)
+        if heading_for_lag.shape != (n,) or not np.issubdtype(heading_for_lag.dtype,
+                                                              np.floating):
+            raise ValueError(f"lag_heading: expected a float array of shape ({n},) (radians), "
+                             f"got {heading_for_lag.dtype} {heading_for_lag.shape}")
+        if np.isinf(heading_for_lag).any():
+            k = int(np.argmax(np.isinf(heading_for_lag)))
+            raise ValueError(f"lag_heading: lag_heading[{k}] = {heading_for_lag[k]!r} is "
+                             "infinite (use NaN where the heading is unknown)")
+    if window_growth not in GROWTH_RULES:
+        raise ValueError(f"window_growth: must be one of {list(GROWTH_RULES)}, got "
+                         f"{window_growth!r}")
+    if window_growth != "jump" and dynamic_window is None:
+        raise ValueError(f"window_growth: {window_growth!r} only applies with dynamic_window")
     # turning / dynamic window
     flags = np.zeros(n, dtype=bool)
     if dynamic_window is not None:
@@ -472,7 +552,7 @@ def track(t: Any, obs: Any, config: SensorConfig, window: int = 10, weighting: s
     N = ends.size
     wsize = np.full(N, s, dtype=int)
     if dynamic_window is not None:
-        wsize[flags[ends]] = small
+        wsize = dynamic_window_sizes(flags[ends], s, small, window_growth)
     pos = np.full((N, m, 2), np.nan)
     yaw = np.full(N, np.nan)
     status = np.empty(N, dtype=object)
@@ -490,6 +570,11 @@ def track(t: Any, obs: Any, config: SensorConfig, window: int = 10, weighting: s
                 pos[sl], yaw[sl], status[sl], prev = _fit_windows(
                     o, cfg, ends[sl], int(wsize[a]), solver=solver, eps=eps, warm_start=True,
                     fit_kw=fit_options or {}, prev=prev, **common)
+        elif solver == "procrustes" and weighting in ("none", "huff"):
+            # per-sample weights: every row, whatever its window size, from one set of
+            # cumulative sums (a refilling dynamic window has up to s - small + 1 sizes)
+            pos, yaw, status, _ = _fit_windows(o, cfg, ends, wsize, solver=solver, eps=eps,
+                                               warm_start=False, fit_kw={}, **common)
         else:
             for w in np.unique(wsize):
                 sel = wsize == w
@@ -508,15 +593,12 @@ def track(t: Any, obs: Any, config: SensorConfig, window: int = 10, weighting: s
                 extra[k][sel] = out[k]
         extra = {"speed": np.hypot(extra["vx"], extra["vy"]), "yaw_rate": extra["yaw_rate"]}
     elif method == "naive":
-        cgm = cfg.cg_mask
-        for w in np.unique(wsize):
-            sel = wsize == w
-            means, cnt = _cumsum_means(o, ends[sel], int(w))
-            # every CG member must be in the window (module docstring): the mean of a
-            # subset is a different point of the platform
-            full = (cnt[:, cgm] > 0).all(axis=1)
-            pos[sel] = np.where(full[:, None, None], means, np.nan)
-            status[sel] = np.where(full, "ok", "insufficient_data")
+        means, cnt = _cumsum_means(o, ends, wsize)
+        # every CG member must be in the window (module docstring): the mean of a subset is
+        # a different point of the platform
+        full = (cnt[:, cfg.cg_mask] > 0).all(axis=1)
+        pos = np.where(full[:, None, None], means, np.nan)
+        status = np.where(full, "ok", "insufficient_data").astype(object)
     else:  # ekf
         pos, yaw, status, extra = _run_ekf(tt, o, cfg, s, filter_params or PoseFilterParams())
 
@@ -533,7 +615,8 @@ def track(t: Any, obs: Any, config: SensorConfig, window: int = 10, weighting: s
     lag_dx = np.zeros(N)
     lag_dy = np.zeros(N)
     if lag_mode is not None:
-        shift = _lag_correct(tt, o, cfg, ends, wsize, pos, cg, yaw_loc, s, lag_mode,
+        heading = yaw_loc if heading_for_lag is None else heading_for_lag[ends]
+        shift = _lag_correct(tt, o, cfg, ends, wsize, pos, cg, heading, s, lag_mode,
                              velocity_span or s, dynamic_window is not None, common, eps)
         ok = np.all(np.isfinite(shift), axis=1)
         pos = pos + np.where(ok[:, None], shift, 0.0)[:, None, :]
@@ -558,6 +641,8 @@ def track(t: Any, obs: Any, config: SensorConfig, window: int = 10, weighting: s
                     else "flags" if turning is not None else None),
         "solver": solver, "eps": eps, "huff_threshold": huff_threshold, "huber_c": huber_c,
         "warm_start": warm_start, "config": cfg.name,
+        "window_growth": window_growth if dynamic_window is not None else None,
+        "lag_heading": "given" if heading_for_lag is not None else None,
     }
     if layout_check:
         lc = check_layout(tt, o, cfg, window=s)
@@ -568,9 +653,10 @@ def track(t: Any, obs: Any, config: SensorConfig, window: int = 10, weighting: s
     return df
 
 
-def _lag_correct(tt, o, cfg, ends, wsize, pos, cg, yaw_loc, s, mode, span, dynamic, common,
+def _lag_correct(tt, o, cfg, ends, wsize, pos, cg, heading, s, mode, span, dynamic, common,
                  eps):
-    """Section 3.4.2 shift for every row (see :mod:`estimator.lag`)."""
+    """Section 3.4.2 shift for every row (see :mod:`estimator.lag`); ``heading`` (N,) rad
+    is the orientation of step 5 (the law-of-cosines heading, or ``lag_heading``)."""
     if dynamic:
         # velocity from a uniform window-s series, so it is not polluted by the jump in lag
         # between small- and large-window rows
@@ -586,7 +672,7 @@ def _lag_correct(tt, o, cfg, ends, wsize, pos, cg, yaw_loc, s, mode, span, dynam
     t_mid = (ct[ends + 1] - ct[ends + 1 - w_vel]) / w_vel + tt[0]
     vel = _lag.estimate_velocity(t_mid, vel_cg, span)
     first, fidx = _lag.first_observations(o, ends - wsize + 1, ends)
-    return _lag.lag_shift(tt, pos, first, fidx, tt[ends], vel, yaw_loc, wsize, mode)
+    return _lag.lag_shift(tt, pos, first, fidx, tt[ends], vel, heading, wsize, mode)
 
 
 def _run_ekf(tt, o, cfg, s, params):

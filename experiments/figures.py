@@ -12,6 +12,8 @@ follow the GPS dissertation (000_8f82f8df647bf685.txt):
 - ``fig_4_122_dynamic.png``: static vs dynamic window (Huff), Fig 4.122;
 - ``fig_4_123_lc_dyn.png``: none / LC / Dyn / LC + Dyn (Huff), Fig 4.123;
 - ``fig_beyond.png``: the dissertation's techniques beside the beyond-the-thesis trackers;
+- ``fig_oracle_lag_heading.png``: the lag correction with the estimated heading beside the
+  ORACLE rows fed the simulator's heading (hatched; diagnostics, not estimator results);
 - ``fig_overlay_<path>_w<window>.png``: truth, observations and estimates of sensor 1 and
   the CG along the path, Figs 4.34-4.49 style;
 - ``fig_sensor1_lag_<path>.png``: sensor 1 x and y against time at windows 10 and 100 with a
@@ -43,11 +45,15 @@ __all__ = ["draw_all", "load_epochs", "main"]
 PATH_LABELS = {"square100": "Path 1", "square200": "Path 2"}
 WEIGHT_COLORS = {"none": "#1f77b4", "random": "#7f7f7f", "huff": "#d62728"}
 TECH_COLORS = {"none": "#1f77b4", "lc": "#ff7f0e", "dyn": "#2ca02c", "lc+dyn": "#9467bd", "lc_course": "#bcbd22", "lc_course+dyn": "#17becf",
-               "motion_compensated": "#8c564b", "ekf": "#e377c2", "naive": "#7f7f7f"}
+               "motion_compensated": "#8c564b", "ekf": "#e377c2", "naive": "#7f7f7f",
+               "lc_sim_heading": "#ffffff", "lc_sim_heading+dyn": "#dddddd"}
 WEIGHT_LABELS = {"none": "no", "random": "random", "huff": "Huff"}
 TECH_LABELS = {"none": "None", "lc": "LC", "dyn": "Dyn SW", "lc+dyn": "LC+Dyn",
                "lc_course": "LC course", "lc_course+dyn": "LCc+Dyn",
-               "motion_compensated": "Motion-comp.", "ekf": "EKF", "naive": "Naive"}
+               "motion_compensated": "Motion-comp.", "ekf": "EKF", "naive": "Naive",
+               "lc_sim_heading": "ORACLE\nLC sim hdg", "lc_sim_heading+dyn": "ORACLE\nLC sim+Dyn"}
+#: Oracle techniques (experiments.spec.ORACLE_TECHNIQUES): drawn hatched, labelled ORACLE.
+ORACLES = ("lc_sim_heading", "lc_sim_heading+dyn")
 
 
 class _Epochs:
@@ -55,14 +61,24 @@ class _Epochs:
 
     def __init__(self, out: Path):
         self.out = Path(out)
-        from experiments.tables import variants
+        from experiments.tables import faithful, variants
 
         cells = pd.read_parquet(self.out / "cells.parquet")
-        # several variants (e.g. two configurations): the figures show the first one
+        # several variants (e.g. two configurations): the figures show the first one; of a
+        # dynamic window run under several growth rules, the faithful one (tables.faithful)
         self.variant, cells = variants(cells)[0]
+        cells = faithful(cells)
         idx = cells[cells["has_epochs"]] if "has_epochs" in cells else cells.iloc[:0]
         self.index = idx.drop_duplicates("key").reset_index(drop=True)
         self._cache: dict[str, pd.DataFrame] = {}
+
+    def straights_mask(self) -> str:
+        """The no-turns mask of the per-epoch files: whole window free of turns where they
+        record it (estimator.metrics.evaluation_masks), else the epochs not turning."""
+        if not self.index.empty and "no_turns_window" in self.load(
+                self.index["key"].iloc[0]).columns:
+            return "no_turns_window"
+        return "no_turns"
 
     def find(self, **where) -> pd.DataFrame:
         mk = np.ones(len(self.index), dtype=bool)
@@ -85,6 +101,8 @@ class _Epochs:
             v = np.abs(ep[column].to_numpy(dtype=float))
             if mask == "no_turns":
                 v = v[~ep["truth_turning"].to_numpy(dtype=bool)]
+            elif mask == "no_turns_window":
+                v = v[ep["no_turns_window"].to_numpy(dtype=bool)]
             vals.append(v[np.isfinite(v)])
             seeds.append(int(r["seed"]))
         return (np.concatenate(vals) if vals else np.array([])), sorted(set(seeds))
@@ -105,9 +123,12 @@ def _boxes(ax, groups: list[tuple[str, np.ndarray, str]], ylabel: str) -> None:
     data = [g[1] if g[1].size else np.array([np.nan]) for g in groups]
     bp = ax.boxplot(data, patch_artist=True, widths=0.6,
                     flierprops={"marker": ".", "markersize": 2, "alpha": 0.4})
-    for patch, (_, _, color) in zip(bp["boxes"], groups):
+    for patch, (label, _, color) in zip(bp["boxes"], groups):
         patch.set_facecolor(color)
         patch.set_alpha(0.55)
+        if "ORACLE" in label:  # truth-fed diagnostics: hatched, never mistaken for a result
+            patch.set_hatch("///")
+            patch.set_edgecolor("#d62728")
     ax.set_xticks(range(1, len(groups) + 1), [g[0] for g in groups], fontsize=8)
     ax.set_ylabel(ylabel)
     ax.grid(axis="y", alpha=0.3)
@@ -225,23 +246,29 @@ def _technique_fig(E: _Epochs, out: Path, written: list[Path], name: str, title:
                      if w > 1)
     if not windows:
         return
-    fig, axes = _subplots(2, len(masks), figsize=(6.5 * len(masks) + 1.5, 8), squeeze=False)
+    # (window, technique) pairs the sweep ran (e.g. an oracle only at window 100)
+    pairs = [(w, t) for w in windows for t in present
+             if not E.find(path=path, technique=t, window=w, weighting=[wt, "-"]).empty]
+    width = max(6.5, 0.6 * len(pairs))
+    fig, axes = _subplots(2, len(masks), figsize=(width * len(masks) + 1.5, 8), squeeze=False)
     seeds: list[int] = []
     for r, axis in enumerate(("x", "y")):
         for c, mask in enumerate(masks):
             groups = []
-            for w in windows:
-                for t in present:
-                    kw = {"weighting": [wt, "-"]}
-                    v, s = E.pooled(f"err_{axis}", mask=mask, path=path, technique=t, window=w,
-                                    **kw)
-                    seeds += s
-                    groups.append((f"w={w}\n{TECH_LABELS[t]}", v, TECH_COLORS[t]))
+            for w, t in pairs:
+                v, s = E.pooled(f"err_{axis}", mask=mask, path=path, technique=t, window=w,
+                                weighting=[wt, "-"])
+                seeds += s
+                groups.append((f"w={w}\n{TECH_LABELS[t]}", v, TECH_COLORS[t]))
             _boxes(axes[r, c], groups, f"|{axis}| CG error (m)")
-            axes[r, c].set_title(f"|{axis}|, {'full path' if mask == 'full' else 'no turns'}",
-                                 fontsize=10)
+            where = {"full": "full path", "no_turns": "no turns (epochs not turning)",
+                     "no_turns_window": "no turns (no turning epoch in the window)"}[mask]
+            axes[r, c].set_title(f"|{axis}|, {where}", fontsize=10)
+    oracle = any(t in ORACLES for t in present)
     fig.suptitle(f"{PATH_LABELS.get(path, path)}: {title}, {WEIGHT_LABELS.get(wt, wt)} weights, "
-                 f"{_seeds_txt(sorted(set(seeds)))}")
+                 f"{_seeds_txt(sorted(set(seeds)))}"
+                 + ("\nhatched ORACLE boxes use the simulator's heading: diagnostics, not "
+                    "estimator results" if oracle else ""))
     _save(fig, out / name, written)
 
 
@@ -329,16 +356,25 @@ def _tables_fig(out: Path, written: list[Path]) -> None:
     files = [(ax, out / f"table_4_{n}.csv") for ax, n in (("x", 1), ("y", 2))]
     if not all(f.exists() for _, f in files):
         return
-    fig, axes = _subplots(1, 2, figsize=(14, 5.5))
-    for ax_plot, (axis, f) in zip(axes, files):
-        df = pd.read_csv(f, keep_default_na=False, na_values=[""])   # "None" is a row label
+    frames = [pd.read_csv(f, keep_default_na=False, na_values=[""])   # "None" is a label
+              for _, f in files]
+    n = max(int((df["window"] > 1).sum()) for df in frames)
+    fig, axes = _subplots(1, 2, figsize=(max(14.0, 0.36 * n), 6.5))
+    for ax_plot, (axis, _), df in zip(axes, files, frames):
         df = df[df["window"] > 1]
-        labels = [f"w={w}\n{t}" for w, t in zip(df["window"], df["technique"])]
+        labels = [f"w={w} {t}" for w, t in zip(df["window"], df["technique"])]
         xs = np.arange(len(df))
         yerr = np.vstack([df["mean"] - df["mean_lo"], df["mean_hi"] - df["mean"]])
         yerr = np.where(np.isfinite(yerr), yerr, 0)
-        ax_plot.errorbar(xs, df["mean"], yerr=yerr, fmt="o", color="C0", capsize=3,
-                         label="ours: mean over seeds, 95 % CI")
+        oracle = (df["kind"] == "oracle").to_numpy() if "kind" in df else np.zeros(len(df), bool)
+        ax_plot.errorbar(xs[~oracle], df["mean"][~oracle], yerr=yerr[:, ~oracle], fmt="o",
+                         color="C0", capsize=3, label="ours: mean over seeds, 95 % CI")
+        if oracle.any():
+            ax_plot.errorbar(xs[oracle], df["mean"][oracle], yerr=yerr[:, oracle], fmt="s",
+                             mfc="none", color="C1", capsize=3,
+                             label="ORACLE (simulator heading): diagnostic, not a result")
+            for x in xs[oracle]:
+                ax_plot.axvspan(x - 0.5, x + 0.5, color="C1", alpha=0.08, lw=0)
         ax_plot.plot(xs, df["mean_thesis"], "x", color="C3", ms=8, mew=2,
                      label="dissertation (one run)")
         ax_plot.set_xticks(xs, labels, rotation=90, fontsize=7)
@@ -357,7 +393,7 @@ def _tables_fig(out: Path, written: list[Path]) -> None:
 
 
 _TASKS = ("weighting", "orientation", "lag_correction", "dynamic", "lc_dyn", "beyond",
-          "overlay", "sensor1", "tables")
+          "overlay", "sensor1", "tables", "oracle")
 
 
 def _draw(out: Path, task: str) -> list[Path]:
@@ -376,7 +412,12 @@ def _draw(out: Path, task: str) -> list[Path]:
     elif task == "lag_correction":
         _technique_fig(E, out, written, "fig_4_120_121_lag_correction.png",
                        "lag correction on the full path and without turns (Figs 4.120/4.121)",
-                       ["none", "lc"], ["full", "no_turns"])
+                       ["none", "lc"], ["full", E.straights_mask()])
+    elif task == "oracle":
+        _technique_fig(E, out, written, "fig_oracle_lag_heading.png",
+                       "lag correction with the estimated vs the simulator's heading (ORACLE)",
+                       ["none", "lc", "lc_sim_heading", "lc+dyn", "lc_sim_heading+dyn"],
+                       ["full", E.straights_mask()])
     elif task == "dynamic":
         _technique_fig(E, out, written, "fig_4_122_dynamic.png",
                        "static vs dynamic window (Fig 4.122)", ["none", "dyn"], ["full"])

@@ -15,7 +15,7 @@ field, e.g. ``grid[1].window[2]: must be a positive integer, got 0``)::
     description = "..."             # optional
     seed = 2013                     # spec seed: root of every random stream (default 0)
     seeds = 10                      # number of seeds (0..n-1) or an explicit list [3, 7, 11]
-    masks = ["full", "no_turns"]    # evaluation masks (default both)
+    masks = ["full", "no_turns"]    # evaluation masks (default these two; also "no_turns_window")
     sim_seed = 0                    # seed handed to the simulator (default 0)
     session_s = 4000                # length of each synthesized stationary session, s (4.1.1)
 
@@ -60,10 +60,16 @@ Axes (scalar or list; the dict-valued ones take a table or a list of tables):
   means the reference's turn flags.
 - ``window`` (positive int), ``weighting`` (:data:`WEIGHTINGS`), ``technique``
   (:data:`TECHNIQUES`), ``solver`` (:data:`SOLVERS`), ``dyn_window`` (small window of the
-  dynamic technique, default 1), ``turning`` ("controller" flag or estimate-based "detector").
+  dynamic technique, default 1), ``turning`` ("controller" flag or estimate-based "detector"),
+  ``dyn_growth`` (how the dynamic window grows back after a turn: "jump", default, or
+  "refill", one epoch per step, :data:`DYN_GROWTH`).
   Axes that do not apply to a technique are recorded as "-" (0 for ``dyn_window``): the
   solver for motion_compensated / ekf / naive, the weighting for ekf / naive, and
-  dyn_window / turning for techniques without the dynamic window.
+  dyn_window / turning / dyn_growth for techniques without the dynamic window.
+- ``masks`` (top level): "full", "no_turns" (estimates dated at an epoch that is not
+  turning), "no_turns_window" (estimates whose whole window is free of turning epochs).
+- Oracle techniques (:data:`ORACLE_TECHNIQUES`) use the simulator's truth and are reported
+  as diagnostics, never as estimator results.
 
 Names resolve to files at load time, and each cell's identity includes a hash of the files'
 contents, so editing a configuration invalidates exactly the cells that used it.
@@ -88,7 +94,9 @@ from estimator.model_files import SOURCE_CHECKOUT
 
 __all__ = [
     "AXES",
+    "DYN_GROWTH",
     "MASKS",
+    "ORACLE_TECHNIQUES",
     "PRESETS_DIR",
     "SOLVERS",
     "TECHNIQUES",
@@ -114,15 +122,26 @@ _HUFF_T = re.compile(r"^huff:(\d+(\.\d+)?)$")
 #: in place of the platform orientation (estimator.lag, variant "course").
 TECHNIQUES = ("none", "lc", "dyn", "lc+dyn", "lc_course", "lc_course+dyn", "motion_compensated",
               "ekf", "naive")
+#: Oracle techniques (issue 15): the lag correction of Section 3.4.2 fed the simulator's
+#: heading instead of the estimated one ("LC (simulator heading)", alone and with the
+#: dynamic window). They use the truth, so they are diagnostics, never estimator results.
+ORACLE_TECHNIQUES = ("lc_sim_heading", "lc_sim_heading+dyn")
+TECHNIQUES = TECHNIQUES + ORACLE_TECHNIQUES
 SOLVERS = ("procrustes", "slsqp", "ccp")
-MASKS = ("full", "no_turns")
+#: Evaluation masks: every estimate; those dated at an epoch that is not turning; those
+#: whose whole window is free of turning epochs (estimator.metrics.evaluation_masks).
+MASKS = ("full", "no_turns", "no_turns_window")
+#: Masks of a spec that does not name any.
+DEFAULT_MASKS = ("full", "no_turns")
 TURNING = ("controller", "detector")
+#: How the dynamic window grows back after a turn (estimator.tracking.dynamic_window_sizes).
+DYN_GROWTH = ("jump", "refill")
 
 #: Techniques that do not use the window solver / take no weights / no dynamic window: the
 #: axis value is recorded as "-" (not applicable) so such cells are not duplicated.
 NO_SOLVER = ("motion_compensated", "ekf", "naive")
 NO_WEIGHTS = ("ekf", "naive")
-DYNAMIC = ("dyn", "lc+dyn", "lc_course+dyn")
+DYNAMIC = ("dyn", "lc+dyn", "lc_course+dyn", "lc_sim_heading+dyn")
 
 #: Every axis and its default when neither [defaults] nor a grid block sets it.
 AXES: dict[str, Any] = {
@@ -138,6 +157,7 @@ AXES: dict[str, Any] = {
     "dyn_window": 1,
     "turning": "controller",
     "recording": "-",         # "-" = none: simulated path + noise model
+    "dyn_growth": "jump",
 }
 _DICT_AXES = ("path_overrides", "noise_overrides")
 
@@ -242,6 +262,7 @@ class Cell:
     seed: int
     dyn_window: int = 0            # 0 = not applicable (technique without dynamic window)
     turning: str = "-"
+    dyn_growth: str = "-"          # "-" = not applicable
     path_overrides: str = "{}"     # canonical JSON (hashable)
     noise_overrides: str = "{}"
     recording: str = "-"           # "-" = a simulated path; else a recording (spec docstring)
@@ -254,7 +275,7 @@ class Cell:
                 "noise_overrides": self.noise_overrides, "path_overrides": self.path_overrides,
                 "window": self.window, "weighting": self.weighting, "technique": self.technique,
                 "solver": self.solver, "dyn_window": self.dyn_window, "turning": self.turning,
-                "recording": self.recording, "seed": self.seed}
+                "recording": self.recording, "dyn_growth": self.dyn_growth, "seed": self.seed}
 
     def file(self, kind: str) -> str | None:
         """Resolved file for ``kind`` in {"path", "config", "noise", "recording"} (None when
@@ -342,7 +363,7 @@ class Spec:
         else:
             raise SpecError(f"{src}: seeds: must be a count in [1, {MAX_SEEDS}] or a list of "
                             f"1 to {MAX_SEEDS} integers, got {seeds_raw!r}"[:300])
-        masks_raw = data.get("masks", list(MASKS))
+        masks_raw = data.get("masks", list(DEFAULT_MASKS))
         masks = tuple(_as_list(masks_raw, f"{src}: masks"))
         for i, mk in enumerate(masks):
             if mk not in MASKS:
@@ -421,7 +442,7 @@ class Spec:
                 if tech in NO_WEIGHTS:
                     v["weighting"] = "-"
                 if tech not in DYNAMIC:
-                    v["dyn_window"], v["turning"] = 0, "-"
+                    v["dyn_window"], v["turning"], v["dyn_growth"] = 0, "-", "-"
                 elif v["dyn_window"] > v["window"]:
                     raise SpecError(f"{self.source}: grid[{gi}].dyn_window: {v['dyn_window']} "
                                     f"exceeds window {v['window']} (the small window of the "
@@ -433,6 +454,7 @@ class Spec:
                                 window=int(v["window"]), weighting=v["weighting"],
                                 technique=v["technique"], solver=v["solver"], seed=int(seed),
                                 dyn_window=int(v["dyn_window"]), turning=v["turning"],
+                                dyn_growth=v["dyn_growth"],
                                 path_overrides=_canon(v["path_overrides"]),
                                 noise_overrides=_canon(v["noise_overrides"]),
                                 recording=v["recording"],
@@ -680,6 +702,9 @@ def _check_axis(axis: str, v: object, where: str, base: Path, *, scalar: bool) -
     elif axis == "recording":
         if v != "-":
             _resolve_recording(v, base, where)
+    elif axis == "dyn_growth":
+        if v not in DYN_GROWTH:
+            raise SpecError(f"{where}: unknown growth rule {v!r}; allowed: {list(DYN_GROWTH)}")
     elif axis == "path":
         _resolve("paths", v, base, where)
     elif axis == "config":

@@ -191,6 +191,9 @@ _TECHNIQUE_KW = {
     "motion_compensated": {"method": "motion_compensated"},
     "ekf": {"method": "ekf"},
     "naive": {"method": "naive"},
+    # oracles (experiments.spec.ORACLE_TECHNIQUES): the truth's heading in step 5 of 3.4.2
+    "lc_sim_heading": {"lag_correction": True, "heading": "truth"},
+    "lc_sim_heading+dyn": {"lag_correction": True, "heading": "truth", "dynamic": True},
 }
 
 
@@ -268,7 +271,10 @@ def score_track(df: pd.DataFrame, truth, obs: np.ndarray, config, masks: Iterabl
     ob = obs[idx] - truth.sensor_positions[idx, :, :2]            # (k, m, 2)
     obs_ex = np.nanmean(np.abs(ob[..., 0]), axis=1) if ob.size else np.array([])
     obs_ey = np.nanmean(np.abs(ob[..., 1]), axis=1) if ob.size else np.array([])
-    mk_all = evaluation_masks(truth.turning[idx].astype(bool))
+    win = np.zeros(truth.n, dtype=np.int64)
+    win[idx] = df["window"].to_numpy(dtype=np.int64)
+    mk_all = {k: v[idx] for k, v in evaluation_masks(truth.turning.astype(bool),
+                                                      window=win).items()}
     series = {"ex": errs["x"], "ey": errs["y"], "eu": errs["euclid"], "eh": eh}
     rows = []
     for mname in masks:
@@ -300,7 +306,7 @@ def score_track(df: pd.DataFrame, truth, obs: np.ndarray, config, masks: Iterabl
         "truth_cg_x": tru[:, 0], "truth_cg_y": tru[:, 1], "truth_yaw": truth.yaw[idx],
         "truth_turning": truth.turning[idx].astype(bool), "err_x": d[:, 0], "err_y": d[:, 1],
         "err_yaw": wrap_angle(df["yaw"].to_numpy(float) - truth.yaw[idx]),
-        "along": along, "cross": cross}
+        "along": along, "cross": cross, "no_turns_window": mk_all["no_turns_window"]}
     # per-antenna truth and observations for plots: float32 (1e-5 m resolution at 200 m)
     # halves the files; the estimates, CG truth and errors stay float64
     for j, nm in enumerate(truth.sensor_names):
@@ -325,7 +331,7 @@ def evaluate_cell(cell: Cell, truth, ctx: CellContext) -> CellOutput:
     obs = _observations(cell, truth, config, ctx)
     t1 = time.perf_counter()
     df = _track_cell(cell, truth.t, obs, config, truth.turning.astype(bool), ctx,
-                     layout_check=False)
+                     true_yaw=np.asarray(truth.yaw, dtype=float), layout_check=False)
     t2 = time.perf_counter()
     rows, ep = score_track(df, truth, obs, config, ctx.masks, epochs=ctx.want_epochs)
     # the models' own names (a spec may name them by file, e.g. "rects/rect30.toml"): tables
@@ -362,17 +368,24 @@ def _noise_name(cell: Cell) -> str:
 
 
 def _track_cell(cell: Cell, t: np.ndarray, obs: np.ndarray, config, turning, ctx: CellContext,
-                **kw_extra: Any) -> pd.DataFrame:
+                true_yaw: np.ndarray | None = None, **kw_extra: Any) -> pd.DataFrame:
     """:func:`estimator.tracking.track` with the cell's window, weighting, technique and
     solver; ``turning`` is the "controller" flag (n,) bool (None: none available, the
-    dynamic window then uses the detector)."""
+    dynamic window then uses the detector); ``true_yaw`` (n,) rad the reference heading the
+    oracle techniques hand to the lag correction (None: no reference, such a cell fails)."""
     from estimator.tracking import track
 
     kw = dict(_TECHNIQUE_KW[cell.technique])
     flags = None
     if kw.pop("dynamic", False):
         kw["dynamic_window"] = cell.dyn_window
+        kw["window_growth"] = cell.dyn_growth
         flags = turning if cell.turning == "controller" and turning is not None else "detect"
+    if kw.pop("heading", None) == "truth":
+        if true_yaw is None:
+            raise ValueError(f"technique {cell.technique!r}: an oracle row needs the reference "
+                             "heading, and this cell has none")
+        kw["lag_heading"] = true_yaw
     weighting, extra = cell.weighting, {}
     if weighting == "-":
         weighting = "none"
@@ -405,7 +418,8 @@ def evaluate_recording_cell(cell: Cell, rec, ctx: CellContext) -> CellOutput:
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", LayoutWarning)     # recorded in the rows instead
         df = _track_cell(cell, rec.t, obs, config,
-                         None if truth is None else truth.turning.astype(bool), ctx)
+                         None if truth is None else truth.turning.astype(bool), ctx,
+                         true_yaw=None if truth is None else np.asarray(truth.yaw, dtype=float))
     t2 = time.perf_counter()
     if truth is not None:
         with warnings.catch_warnings():

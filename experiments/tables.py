@@ -9,8 +9,16 @@ published value beside it.
 
 Reading of the dissertation used here (it does not say it in so many words): the tables are
 Path 1 with Huff weights (Figures 4.122/4.123, which the tables summarise, are Huff
-weighted); "LC No Turns" is the lag-corrected estimate scored on the epochs where the
-platform is not turning; all other rows are scored on the full path.
+weighted); "LC No Turns" is the lag-corrected estimate scored without "sections of
+time-steps around which turning occurs" (Section 4.12.2), read as the estimates whose
+window holds no turning epoch (mask ``no_turns_window``; a sweep without it falls back to
+``no_turns``, the estimates dated at an epoch that is not turning); the dynamic window
+refills one epoch per step after a turn (``dyn_growth = "refill"``, the first-in-first-out
+queue of Section 3.4.1) where the sweep ran it. All other rows are scored on the full path.
+The other readings are shown beside them (:data:`READING_ROWS`), and the oracle rows
+(:data:`ORACLE_ROWS`: the lag correction fed the simulator's heading) in a table of their
+own: they answer "is the method right when the heading is right?" and are never counted as
+estimator results.
 
 All functions take the ``cells`` DataFrame of :mod:`experiments.sweep` (one row per
 cell x mask) and never re-run anything.
@@ -18,6 +26,7 @@ cell x mask) and never re-run anything.
 
 from __future__ import annotations
 
+import functools
 import math
 from pathlib import Path
 
@@ -28,13 +37,19 @@ from sim.atomic import atomic_write, atomic_write_text
 
 __all__ = [
     "BEYOND_ROWS",
+    "GROWTH_ORDER",
+    "ORACLE_ROWS",
     "PATH_LABELS",
+    "READING_ROWS",
     "THESIS_ROWS",
     "THESIS_TABLES",
     "aggregate",
+    "faithful",
     "fmt_ci",
     "orientation_table",
     "seed_ci",
+    "side_studies",
+    "thesis_row",
     "thesis_table",
     "weighting_table",
     "write_tables",
@@ -46,9 +61,27 @@ PATH_LABELS = {"square100": "Path 1", "square200": "Path 2"}
 THESIS_ROWS = {
     "None": ("none", "full"),
     "LC Full Path": ("lc", "full"),
-    "LC No Turns": ("lc", "no_turns"),
+    "LC No Turns": ("lc", "no_turns_window"),
     "Dyn SW": ("dyn", "full"),
     "LC + Dyn SW": ("lc+dyn", "full"),
+}
+#: Masks of the faithful reading and what a sweep without them falls back to.
+MASK_FALLBACK = {"no_turns_window": "no_turns"}
+#: Dynamic-window growth rules, most faithful first (Section 3.4.1's first-in-first-out
+#: queue refills one epoch per step; see estimator.tracking.dynamic_window_sizes).
+GROWTH_ORDER = ("refill", "jump")
+#: The other readings of Table 4.1/4.2 rows: label -> (technique, mask, growth rule or None).
+READING_ROWS = {
+    "LC No Turns (turning epochs only)": ("lc", "no_turns", None),
+    "Dyn SW (jump back)": ("dyn", "full", "jump"),
+    "LC + Dyn SW (jump back)": ("lc+dyn", "full", "jump"),
+}
+#: Oracle rows (experiments.spec.ORACLE_TECHNIQUES): the lag correction fed the simulator's
+#: heading. Diagnostics: they use the truth and never count as estimator results.
+ORACLE_ROWS = {
+    "Oracle: LC (simulator heading)": ("lc_sim_heading", "full"),
+    "Oracle: LC (simulator heading) No Turns": ("lc_sim_heading", "no_turns_window"),
+    "Oracle: LC (simulator heading) + Dyn SW": ("lc_sim_heading+dyn", "full"),
 }
 #: Beyond-the-dissertation rows (issue 5), scored on the full path.
 BEYOND_ROWS = {
@@ -126,8 +159,6 @@ def seed_ci(values: np.ndarray | pd.Series, lower: float | None = None
         2 seeds can reach far below zero (e.g. 0.264 [-1.443, 1.971]).
     With one seed the interval is (nan, nan).
     """
-    from scipy import stats
-
     v = np.asarray(values, dtype=float)
     v = v[np.isfinite(v)]
     n = int(v.size)
@@ -136,11 +167,19 @@ def seed_ci(values: np.ndarray | pd.Series, lower: float | None = None
     m = float(v.mean())
     if n == 1:
         return m, math.nan, math.nan, 1
-    h = float(stats.t.ppf(0.975, n - 1) * v.std(ddof=1) / math.sqrt(n))
+    h = float(_t975(n - 1) * v.std(ddof=1) / math.sqrt(n))
     lo, hi = m - h, m + h
     if lower is not None:
         lo = max(lo, float(lower))
     return m, lo, hi, n
+
+
+@functools.lru_cache(maxsize=256)
+def _t975(dof: int) -> float:
+    """Student-t 97.5 % quantile (scipy's ppf costs ~0.1 ms a call; tables make thousands)."""
+    from scipy import stats
+
+    return float(stats.t.ppf(0.975, dof))
 
 
 def fmt_ci(m: float, lo: float, hi: float, digits: int = 3, n: int | None = None) -> str:
@@ -220,11 +259,42 @@ def _vlabel(axis: str, value, cells: pd.DataFrame | None = None) -> str:
     return f"{axis}={value}"
 
 
+_LAYOUT = ("path", "window", "weighting", "technique", "mask")
+
+
+def _study_mask(cells: pd.DataFrame) -> np.ndarray:
+    """True on the cells of side studies: along a variant axis, a value whose cells cover
+    fewer (path, window, weighting, technique, mask) combinations than another value's."""
+    study = np.zeros(len(cells), dtype=bool)
+    lay_cols = [c for c in _LAYOUT if c in cells.columns]
+    for a in (a for a in VARIANT_AXES if a in cells.columns):
+        vals = [v for v in dict.fromkeys(cells[a]) if v not in _NA]
+        if len(vals) < 2:
+            continue
+        size = {v: len(cells.loc[cells[a] == v, lay_cols].drop_duplicates()) for v in vals}
+        full = max(size.values())
+        for v in vals:
+            if size[v] < full:
+                study |= (cells[a] == v).to_numpy()
+    return study
+
+
+def side_studies(cells: pd.DataFrame) -> pd.DataFrame:
+    """The cells of side studies (:func:`variants`): e.g. a few rows re-run under another
+    noise split. They are reported in sections of their own, never as a variant whose
+    claims would mostly be "not evaluated"."""
+    return cells[_study_mask(cells)]
+
+
 def variants(cells: pd.DataFrame) -> list[tuple[str, pd.DataFrame]]:
     """Split ``cells`` into variants over :data:`VARIANT_AXES`; returns (label, subset).
 
-    With a single variant the label is "" and the subset is ``cells`` itself.
+    A variant is a value of such an axis (e.g. a second configuration) whose cells cover the
+    same grid as the others; a value that covers only part of it is a side study
+    (:func:`side_studies`) and is left out here. With a single variant the label is "" and
+    the subset is ``cells`` without the side studies.
     """
+    cells = cells[~_study_mask(cells)]
     axes = [a for a in VARIANT_AXES if a in cells.columns]
     values = {a: [v for v in dict.fromkeys(cells[a]) if v not in _NA] for a in axes}
     multi = [a for a in axes if len(values[a]) > 1]
@@ -244,6 +314,34 @@ def variants(cells: pd.DataFrame) -> list[tuple[str, pd.DataFrame]]:
     return out
 
 
+def faithful(cells: pd.DataFrame) -> pd.DataFrame:
+    """``cells`` with, for every dynamic technique that ran under several growth rules, only
+    the rows of the most faithful one present (:data:`GROWTH_ORDER`), so a condition on a
+    technique names one cell per seed. Other rules stay visible through
+    :data:`READING_ROWS`."""
+    if "dyn_growth" not in cells.columns:
+        return cells
+    keep = np.ones(len(cells), dtype=bool)
+    g = cells["dyn_growth"].to_numpy()
+    tech = cells["technique"].to_numpy()
+    for t in pd.unique(tech[~pd.isna(g) & (g != "-")]):
+        sel = tech == t
+        present = set(g[sel])
+        best = next((r for r in GROWTH_ORDER if r in present), None)
+        if best is not None:
+            keep &= ~sel | (g == best)
+    return cells[keep]
+
+
+def thesis_row(cells: pd.DataFrame, label: str) -> tuple[str, str]:
+    """(technique, mask) of a Table 4.1/4.2 row (:data:`THESIS_ROWS`) in this sweep: the
+    faithful mask, or its fall-back (:data:`MASK_FALLBACK`) when the sweep lacks it."""
+    tech, mask = THESIS_ROWS[label]
+    if "mask" in cells.columns and mask in MASK_FALLBACK and mask not in set(cells["mask"]):
+        mask = MASK_FALLBACK[mask]
+    return tech, mask
+
+
 def _default_weighting(cells: pd.DataFrame, path: str) -> str | None:
     sub = select(cells, path=path, technique=["lc", "dyn", "lc+dyn"])
     if sub.empty:
@@ -253,37 +351,88 @@ def _default_weighting(cells: pd.DataFrame, path: str) -> str | None:
 
 
 # --------------------------------------------------------------------------- tables
+def _row_defs(cells: pd.DataFrame, beyond: bool) -> dict[str, tuple[str, str, str | None]]:
+    """label -> (technique, mask, growth rule or None = the faithful one) of every table row
+    this sweep can show, in table order; readings that would repeat a thesis row (the sweep
+    has no other rule or mask) are left out."""
+    defs: dict[str, tuple[str, str, str | None]] = {}
+    for label in THESIS_ROWS:
+        defs[label] = (*thesis_row(cells, label), None)
+    masks = set(cells["mask"]) if "mask" in cells.columns else set()
+    growth = set(cells["dyn_growth"]) if "dyn_growth" in cells.columns else set()
+    for label, (tech, mask, rule) in READING_ROWS.items():
+        if mask not in masks:
+            continue
+        if rule is None and (tech, mask, None) in defs.values():
+            continue            # the sweep has no other mask: the thesis row shows this one
+        if rule is not None:
+            best = faithful(select(cells, technique=tech))
+            if rule not in growth or best.empty or rule in set(best["dyn_growth"]):
+                continue        # the thesis row already uses this rule
+        defs[label] = (tech, mask, rule)
+    if beyond:
+        defs.update({k: (*v, None) for k, v in BEYOND_ROWS.items()})
+        defs.update({k: (t, m if m in masks else MASK_FALLBACK.get(m, m), None)
+                     for k, (t, m) in ORACLE_ROWS.items()})
+    return defs
+
+
+def row_kind(label: str) -> str:
+    """"thesis", "reading", "oracle" or "beyond": what a table row is."""
+    if label in THESIS_ROWS:
+        return "thesis"
+    if label in READING_ROWS:
+        return "reading"
+    return "oracle" if label in ORACLE_ROWS else "beyond"
+
+
 def thesis_table(cells: pd.DataFrame, axis: str, path: str = "square100",
                  weighting: str | None = None, beyond: bool = True) -> pd.DataFrame:
     """Table 4.1 (axis "x") or 4.2 (axis "y") in the dissertation's shape.
 
     One row per (window, technique row) present in ``cells``: for mean, median and std of the
     absolute CG error, our mean over seeds with its 95 % interval and the published value
-    (Path 1 only; NaN elsewhere). ``weighting`` defaults to Huff when present.
+    (Path 1 only; NaN elsewhere); for the "None" rows also the smallest and largest per-seed
+    value (``<stat>_seed_min``/``_seed_max``: the spread a single run, like the published
+    one, can land in). ``weighting`` defaults to Huff when present. Column ``kind`` says
+    what a row is (:func:`row_kind`): the thesis rows in their faithful reading, other
+    readings of them, oracle rows (truth-fed diagnostics), or beyond-the-thesis trackers.
     """
     if axis not in ("x", "y"):
         raise ValueError(f"axis: must be 'x' or 'y', got {axis!r}")
     weighting = weighting or _default_weighting(cells, path)
     pref = "ex" if axis == "x" else "ey"
-    rows_def = {**THESIS_ROWS, **(BEYOND_ROWS if beyond else {})}
+    rows_def = _row_defs(cells, beyond)
+    # only the columns used below: each select() takes whole rows
+    cells = select(cells, path=path, weighting=[weighting, "-"])
+    cells = cells[[c for c in (*_LAYOUT, "dyn_growth", "seed", *(f"{pref}_{s}" for s in STATS))
+                   if c in cells.columns]]
+    best = faithful(cells)
     published = THESIS_TABLES[axis] if path == "square100" else {}
-    windows = sorted(select(cells, path=path, weighting=[weighting, "-"])["window"].unique())
+    windows = sorted(cells["window"].unique())
     out = []
     for w in windows:
         if w == 1 and not beyond:
             continue
-        for label, (tech, mask) in rows_def.items():
+        for label, (tech, mask, rule) in rows_def.items():
             # ekf / naive take no weights (weighting "-"): shown beside the weighted rows
-            sub = select(cells, path=path, weighting=[weighting, "-"], window=w,
+            src = best if rule is None else select(cells, dyn_growth=rule)
+            sub = select(src, path=path, weighting=[weighting, "-"], window=w,
                          technique=tech, mask=mask)
             if sub.empty:
                 continue
             row = {"path": path, "weighting": weighting, "window": int(w), "technique": label,
-                   "thesis_row": label in THESIS_ROWS, "n_seeds": int(sub["seed"].nunique())}
+                   "thesis_row": label in THESIS_ROWS, "kind": row_kind(label), "mask": mask,
+                   "n_seeds": int(sub["seed"].nunique())}
             for s in STATS:
                 m, lo, hi, _ = seed_ci(sub[f"{pref}_{s}"], lower=0.0)   # |error| >= 0
                 row[s], row[f"{s}_lo"], row[f"{s}_hi"] = m, lo, hi
                 row[f"{s}_thesis"] = published.get((int(w), label), {}).get(s, np.nan)
+                v = sub[f"{pref}_{s}"].to_numpy(dtype=float)
+                v = v[np.isfinite(v)]
+                spread = label == "None" and v.size > 0
+                row[f"{s}_seed_min"] = float(v.min()) if spread else np.nan
+                row[f"{s}_seed_max"] = float(v.max()) if spread else np.nan
             out.append(row)
     return pd.DataFrame(out)
 
@@ -342,6 +491,18 @@ def thesis_table_md(df: pd.DataFrame) -> str:
     return _md(df, cols)
 
 
+def _reading_note(no_turns_mask: str, cells: pd.DataFrame) -> str:
+    """One sentence: which reading of the ambiguous rows this table shows."""
+    nt = ("the estimates whose window holds no turning epoch" if no_turns_mask ==
+          "no_turns_window" else "the estimates dated at an epoch that is not turning")
+    rules = set(faithful(cells).get("dyn_growth", pd.Series(dtype=object))) - {"-"}
+    grow = {"refill": "refills one epoch per step after a turn (Section 3.4.1's queue)",
+            "jump": "returns to full size at the first epoch after a turn"}
+    g = "; ".join(grow[r] for r in GROWTH_ORDER if r in rules)
+    return (f"Reading: \"LC No Turns\" is scored on {nt}"
+            + (f"; the dynamic window {g}." if g else "."))
+
+
 def _variant_tables(cells: pd.DataFrame, out: Path, vlabel: str) -> list[str]:
     """Markdown (and CSVs) for one variant of the sweep."""
     tag = "" if not vlabel else "_" + "".join(ch if ch.isalnum() else "_" for ch in vlabel)
@@ -359,10 +520,24 @@ def _variant_tables(cells: pd.DataFrame, out: Path, vlabel: str) -> list[str]:
             atomic_write(out / f"table_{tno.replace('.', '_')}{suffix}{tag}.csv",
                          lambda f, df=df: df.to_csv(f, index=False))
             thesis = df[df["thesis_row"] & df["window"].isin(THESIS_WINDOWS)]
-            beyond = df[~df.index.isin(thesis.index)]
+            readings = df[(df["kind"] == "reading") & df["window"].isin(THESIS_WINDOWS)]
+            oracle = df[df["kind"] == "oracle"]
+            beyond = df[~df.index.isin(thesis.index) & ~df.index.isin(readings.index)
+                        & ~df.index.isin(oracle.index)]
+            nt = thesis.loc[thesis["technique"] == "LC No Turns", "mask"]
             md += [(f"## Table {tno}: |{axis}| CG error, {label} ({p}), "
                    f"{df['weighting'].iloc[0]} weights"), ""]
+            if not nt.empty:
+                md += [_reading_note(nt.iloc[0], cells), ""]
             md += [thesis_table_md(thesis), ""]
+            if not readings.empty:
+                md += [(f"Other readings of the same rows (the faithful one is in the table "
+                       f"above), |{axis}| error:"), "", thesis_table_md(readings), ""]
+            if not oracle.empty:
+                md += [(f"**Oracle rows, not estimator results**: the lag correction of "
+                       f"Section 3.4.2 fed the simulator's true heading instead of the "
+                       f"estimated one. They show what the method gives when the heading is "
+                       f"right, |{axis}| error:"), "", thesis_table_md(oracle), ""]
             if not beyond.empty:
                 md += [(f"Beyond the dissertation (and window 1), same path and weights, full "
                        f"path, |{axis}| error:"), "", thesis_table_md(beyond), ""]
@@ -389,6 +564,30 @@ def _variant_tables(cells: pd.DataFrame, out: Path, vlabel: str) -> list[str]:
     return md
 
 
+def _side_study_md(study: pd.DataFrame, out: Path) -> list[str]:
+    """Side studies (:func:`side_studies`) as one table (full path) and ``side_studies.csv``."""
+    from experiments.spec import ORACLE_TECHNIQUES
+
+    axes = [a for a in ("path", *VARIANT_AXES, "weighting", "technique", "window")
+            if a in ("technique", "window") or a in study.columns
+            and len(set(study[a]) - _NA) > 1]
+    sub = select(study, mask="full").copy()
+    if sub.empty:
+        return []
+    sub["eh_median_deg"] = np.degrees(sub["eh_median"])
+    sub["technique"] = [f"{t} (ORACLE: simulator heading, not a result)"
+                        if t in ORACLE_TECHNIQUES else t for t in sub["technique"]]
+    agg = aggregate(sub, axes, ["ex_mean", "ey_mean", "eh_median_deg"])
+    atomic_write(out / "side_studies.csv", lambda p: agg.to_csv(p, index=False))
+    cols = [(a, a) for a in axes] + [("mean |x| (m)", _ci("ex_mean")),
+                                     ("mean |y| (m)", _ci("ey_mean")),
+                                     ("median heading error (deg)", _ci("eh_median_deg", 1))]
+    return ["## Side studies", "",
+            ("Rows re-run under another value of an axis that covers only part of the grid "
+             "(e.g. the heading-observability study's noise splits); full path. REPORT.md "
+             "discusses them; `side_studies.csv` has the numbers."), "", _md(agg, cols), ""]
+
+
 def write_tables(cells: pd.DataFrame, out_dir: str | Path) -> Path:
     """Write tables.md and the CSVs (table_4_1*.csv, table_4_2*.csv, weighting.csv,
     orientation.csv, by_cell.csv) to ``out_dir``; returns the path of tables.md."""
@@ -410,11 +609,17 @@ def write_tables(cells: pd.DataFrame, out_dir: str | Path) -> Path:
         if vlabel:
             md += [f"# Variant: {vlabel}", ""]
         md += _variant_tables(vcells, out, vlabel)
+    study = side_studies(cells)
+    if not study.empty:
+        md += _side_study_md(study, out)
     axes = ["path", "config", "noise", "noise_overrides", "path_overrides", "solver",
-            "weighting", "technique", "window", "dyn_window", "turning", "mask"]
+            "weighting", "technique", "window", "dyn_window", "turning", "dyn_growth", "mask"]
     by = aggregate(cells, [a for a in axes if a in cells.columns],
                    ["ex_mean", "ex_median", "ex_std", "ey_mean", "ey_median", "ey_std",
                     "eu_mean", "eu_rmse", "eh_median", "along_mean", "jitter_rms"])
+    from experiments.spec import ORACLE_TECHNIQUES
+
+    by["oracle"] = by["technique"].isin(ORACLE_TECHNIQUES)   # truth-fed: not a result
     atomic_write(out / "by_cell.csv", lambda p: by.to_csv(p, index=False))
     # wall times depend on the machine and its load: kept out of the tracked tables, in a
     # git-ignored sidecar beside them

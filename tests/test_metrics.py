@@ -5,6 +5,8 @@ import math
 import numpy as np
 import pandas as pd
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 from estimator.metrics import (
     STATISTICS,
@@ -76,6 +78,68 @@ def test_evaluation_masks_margin():
         evaluation_masks(np.zeros(3))
 
 
+def _window_mask_reference(turning, t, window, margin_s):
+    """Brute force: an estimate is kept when no epoch of its window is within margin_s of
+    a turning epoch."""
+    tt = t[turning]
+    out = np.zeros(turning.size, bool)
+    for k, w in enumerate(window):
+        if w == 0:
+            continue
+        win = t[k - w + 1:k + 1]
+        near = tt.size and (np.abs(win[:, None] - tt[None, :]) <= margin_s).any()
+        out[k] = not near
+    return out
+
+
+def test_no_turns_window_hand_example():
+    """Issue 15: "LC No Turns" drops every estimate whose window still holds a turning
+    epoch. A turn at epoch 5, windows of 3: estimates at 5, 6, 7 hold it; with a 1 s margin
+    epochs 4-6 count as turning, so 4-8 go; no estimate at epochs 0-1 (window 0)."""
+    tr = np.zeros(12, bool)
+    tr[5] = True
+    t = np.arange(12.0)
+    win = np.r_[0, 0, np.full(10, 3)]
+    m = evaluation_masks(tr, window=win)
+    np.testing.assert_array_equal(np.flatnonzero(~m["no_turns_window"]), [0, 1, 5, 6, 7])
+    np.testing.assert_array_equal(np.flatnonzero(~m["no_turns"]), [5])
+    m1 = evaluation_masks(tr, t, margin_s=1.0, window=win)
+    np.testing.assert_array_equal(np.flatnonzero(~m1["no_turns_window"]), [0, 1, 4, 5, 6, 7, 8])
+    assert "no_turns_window" not in evaluation_masks(tr)
+    with pytest.raises(ValueError, match=r"window\[2\]"):
+        evaluation_masks(tr, window=np.r_[0, 0, 4, np.full(9, 3)])
+    with pytest.raises(ValueError, match="window"):
+        evaluation_masks(tr, window=np.full(12, 1.0))
+    with pytest.raises(ValueError, match="window"):
+        evaluation_masks(tr, window=np.full(11, 1))
+
+
+@settings(max_examples=60, deadline=None)
+@given(st.lists(st.tuples(st.booleans(), st.integers(0, 50)), max_size=120),
+       st.sampled_from([0.0, 0.5, 2.0, 1e300]))
+def test_no_turns_window_matches_brute_force(rows, margin):
+    """Random turning flags and window sizes (clipped to the epochs available), margins up
+    to 1e300 s: the cumulative-count mask equals the brute-force definition."""
+    tr = np.array([r[0] for r in rows], dtype=bool)
+    win = np.array([min(r[1], k + 1) for k, r in enumerate(rows)], dtype=np.int64)
+    t = np.arange(tr.size) * 0.7
+    got = evaluation_masks(tr, t, margin_s=margin, window=win)["no_turns_window"]
+    np.testing.assert_array_equal(got, _window_mask_reference(tr, t, win, margin))
+    assert not (got & ~evaluation_masks(tr, t, margin_s=margin)["no_turns"]).any()
+
+
+def test_evaluate_track_scores_the_window_mask():
+    tt = np.arange(8.0)
+    cg = np.c_[tt, np.zeros(8)]
+    turning = np.zeros(8, bool)
+    turning[2] = True
+    df = pd.DataFrame({"t": tt[2:], "cg_x": tt[2:], "cg_y": np.ones(6), "yaw": np.zeros(6),
+                       "window": np.full(6, 3)})
+    ev = evaluate_track(df, tt, cg, np.zeros(8), turning).set_index(["mask", "quantity"])
+    assert ev.loc[("no_turns", "x"), "n"] == 5          # epoch 2 only
+    assert ev.loc[("no_turns_window", "x"), "n"] == 3   # epochs 2, 3, 4 hold epoch 2
+
+
 def test_align_to_truth():
     tt = np.array([0.0, 0.5, 1.0, 2.0])
     np.testing.assert_array_equal(align_to_truth(np.array([0.5, 2.0, 0.0]), tt), [1, 3, 0])
@@ -121,8 +185,3 @@ def test_align_to_truth_rejects_nan_estimate_time():
     with pytest.raises(ValueError, match=r"^est_t: .*est_t\[1\]"):
         align_to_truth(np.array([0.0, np.nan]), np.array([0.0, 0.5, 1.0]))
 
-
-def test_along_cross_errors_docstring_states_shapes():
-    doc = along_cross_errors.__doc__
-    assert "est_xy, true_xy : (n, 2)" in doc and "direction : (n,)" in doc
-    assert "each (n,) metres" in doc

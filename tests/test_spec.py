@@ -36,8 +36,11 @@ def test_presets_load_and_have_the_thesis_axes():
     assert {c.window for c in cells} == {1, 5, 10, 100}
     assert {"none", "random", "huff"} <= {c.weighting for c in cells}
     assert {"none", "lc", "dyn", "lc+dyn", "lc_course", "lc_course+dyn", "motion_compensated",
-            "ekf", "naive"} == {c.technique for c in cells}
-    assert thesis.masks == ("full", "no_turns")
+            "ekf", "naive", "lc_sim_heading", "lc_sim_heading+dyn"} == {c.technique for c in cells}
+    assert thesis.masks == ("full", "no_turns", "no_turns_window")
+    # the faithful growth rule for the tables, the other one beside it (issue 15)
+    assert {c.dyn_growth for c in cells if c.technique == "dyn"} == {"refill", "jump"}
+    assert {c.dyn_growth for c in cells if c.technique == "none"} == {"-"}
     quick = load_spec("quick")
     assert len(quick.seeds) == 2 and {c.path for c in quick.expand()} == {"square100"}
 
@@ -81,6 +84,8 @@ def test_top_level_errors_name_the_field(changes, field):
     ({"path_overrides": {"waypoints": []}}, r"grid\[0\].path_overrides"),
     ({"technique": "dyn", "dyn_window": 10}, r"dyn_window: 10 exceeds window"),
     ({"turning": "psychic"}, r"grid\[0\].turning"),
+    ({"technique": "dyn", "dyn_growth": "grow"}, r"grid\[0\].dyn_growth: unknown growth rule"),
+    ({"technique": "lc_sim_headin"}, r"grid\[0\].technique: unknown technique"),
 ])
 def test_grid_errors_name_the_field(block, field):
     with pytest.raises(SpecError, match=field):
@@ -124,6 +129,23 @@ def test_grid_expansion_is_the_union_of_blocks_without_duplicates():
     dyn = [c for c in cells if c.technique == "dyn"]
     assert all(c.dyn_window == 1 and c.turning == "controller" for c in dyn)
     assert all(c.dyn_window == 0 and c.turning == "-" for c in cells if c.technique != "dyn")
+
+
+def test_growth_rule_and_oracle_cells():
+    """Issue 15: the growth rule is an axis of the dynamic techniques only ("-" elsewhere,
+    so the others are not duplicated); the oracle techniques expand like any other; the
+    window mask is accepted and the default masks are unchanged."""
+    spec = _grid(technique=["none", "lc+dyn", "lc_sim_heading", "lc_sim_heading+dyn"],
+                 dyn_growth=["jump", "refill"])
+    cells = spec.expand()
+    by = {(c.technique, c.dyn_growth) for c in cells}
+    assert by == {("none", "-"), ("lc_sim_heading", "-"), ("lc+dyn", "jump"),
+                  ("lc+dyn", "refill"), ("lc_sim_heading+dyn", "jump"),
+                  ("lc_sim_heading+dyn", "refill")}
+    assert len(cells) == 2 * 2 * 6 and len({c.key for c in cells}) == len(cells)
+    assert {c.params()["dyn_growth"] for c in cells} == {"-", "jump", "refill"}
+    assert _spec().masks == ("full", "no_turns")
+    assert _spec(masks=["full", "no_turns_window"]).masks == ("full", "no_turns_window")
 
 
 def test_not_applicable_axes_are_marked_and_deduplicated():

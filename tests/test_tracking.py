@@ -5,11 +5,19 @@ import math
 
 import numpy as np
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 from synth_tracks import antennas, constant_twist, corner_path, rover, straight
 
 from estimator.metrics import along_cross_errors, heading_error
 from estimator.orientation import wrap_angle
-from estimator.tracking import METHODS, WEIGHTINGS, heading_pair, track
+from estimator.tracking import (
+    METHODS,
+    WEIGHTINGS,
+    dynamic_window_sizes,
+    heading_pair,
+    track,
+)
 
 XY = ["cg_x", "cg_y"]
 
@@ -165,6 +173,159 @@ def test_turn_detector_from_estimates_flags_the_corner():
     assert flagged.min() >= t_turn.min()
     assert flagged.max() <= t_turn.max() + (w - 1) + 2 * span
     assert (df.loc[df["turning"], "window"] == 1).all()
+
+
+def test_refill_vs_jump_on_a_synthetic_turn():
+    """Issue 15: after a turn the "jump" rule returns to the full window at once, "refill"
+    adds one epoch per step (Section 3.4.1's queue). Noise-free corner, window 10, small 1:
+    every refill row equals a plain track with that row's window (independent reference),
+    and its first rows after the turn hold no pre-turn epochs, so they cut the corner less
+    than the jump rule's full windows (which trail back into the first leg)."""
+    cfg, t, cg, _yaw, turning, obs = corner_path(leg_steps=60, turn_steps=4)
+    s = 10
+    jump = track(t, obs, cfg, window=s, dynamic_window=1, turning=turning)
+    refill = track(t, obs, cfg, window=s, dynamic_window=1, turning=turning,
+                   window_growth="refill")
+    last = int(np.flatnonzero(turning)[-1])          # last turning epoch
+    row = last - (s - 1)                             # its row
+    after = slice(row + 1, row + s)
+    np.testing.assert_array_equal(jump["window"].to_numpy()[after], s)
+    np.testing.assert_array_equal(refill["window"].to_numpy()[after], np.arange(2, s + 1))
+    assert (refill["window"].to_numpy()[row + s:] == s).all()
+    np.testing.assert_array_equal(refill["window"].to_numpy()[turning[s - 1:]], 1)
+    for k in range(row + 1, row + s):
+        w = int(refill["window"].iloc[k])
+        ref = track(t, obs, cfg, window=w).set_index("t").loc[refill["t"].iloc[k], XY]
+        np.testing.assert_allclose(refill[XY].iloc[k].to_numpy(), ref.to_numpy(), atol=1e-9)
+    e_jump, _ = _err(jump.iloc[after], t, cg)
+    e_refill, _ = _err(refill.iloc[after], t, cg)
+    # rows with window < s: strictly closer to the truth (measured 0.7-6.0 m vs 5.5-6.7 m);
+    # the last one has the full window under both rules
+    assert (np.hypot(*e_refill.T)[:-1] < np.hypot(*e_jump.T)[:-1]).all()
+    np.testing.assert_allclose(e_refill[-1], e_jump[-1], atol=1e-12)
+    # the settings record the rule; without a dynamic window it is refused, as a bad name
+    assert refill.attrs["settings"]["window_growth"] == "refill"
+    with pytest.raises(ValueError, match="window_growth"):
+        track(t, obs, cfg, window=s, window_growth="refill")
+    with pytest.raises(ValueError, match="window_growth"):
+        track(t, obs, cfg, window=s, dynamic_window=1, turning=turning, window_growth="grow")
+
+
+def _sizes_reference(turning, window, small, growth):
+    """Section 3.4.1's queue, one row at a time (the reference for the vectorized rule)."""
+    out, size = [], window
+    for f in turning:
+        size = small if f else (window if growth == "jump" else min(window, size + 1))
+        out.append(size)
+    return np.array(out, dtype=np.int64)
+
+
+@settings(max_examples=80, deadline=None)
+@given(turning=st.lists(st.booleans(), max_size=300),
+       window=st.sampled_from([1, 2, 7, 100, 10**12]), small=st.integers(1, 6),
+       growth=st.sampled_from(["jump", "refill"]))
+def test_dynamic_window_sizes_match_the_queue(turning, window, small, growth):
+    small = min(small, window)
+    fl = np.array(turning, dtype=bool)
+    got = dynamic_window_sizes(fl, window, small, growth)
+    np.testing.assert_array_equal(got, _sizes_reference(fl, window, small, growth))
+    assert got.dtype == np.int64 and got.shape == fl.shape
+
+
+@pytest.mark.parametrize("args, field", [
+    ((np.zeros(3), 5, 1), "turning"),
+    ((np.zeros(3, bool), 0, 1), "window"),
+    ((np.zeros(3, bool), 5, 6), "dynamic_window"),
+    ((np.zeros(3, bool), 5, 1.0), "dynamic_window"),
+    ((np.zeros(3, bool), 5, 1, "fifo"), "window_growth"),
+])
+def test_dynamic_window_sizes_bad_input_names_the_field(args, field):
+    with pytest.raises(ValueError, match=field):
+        dynamic_window_sizes(*args)
+
+
+def test_detect_on_a_recording_shorter_than_the_detector_window():
+    """Issue 13: turning='detect' on 8 epochs used to fail on the detector's default
+    window (10), an option the user never set; a window the user sets must still fit."""
+    cfg, t, _cg, _yaw, obs = straight(n=8)
+    df = track(t, obs, cfg, window=3, dynamic_window=1, turning="detect")
+    assert len(df) == 6 and not df["turning"].any()
+    with pytest.raises(ValueError, match="detector.window"):
+        track(t, obs, cfg, window=3, dynamic_window=1, turning="detect",
+              detector={"window": 9})
+
+
+# ----------------------------------------------------------------------------- lag heading
+def _noisy_corner(seed=4):
+    cfg, t, cg, yaw, turning, obs = corner_path(leg_steps=80, turn_steps=6)
+    rng = np.random.default_rng(seed)
+    return cfg, t, cg, yaw, turning, obs + rng.normal(0.0, 0.3, obs.shape)
+
+
+def test_lag_heading_with_the_estimated_heading_is_the_default():
+    """lag_heading substitutes the heading of step 5 and nothing else: fed the tracker's
+    own law-of-cosines heading, the correction is the default one, bit for bit."""
+    cfg, t, _cg, _yaw, turning, obs = _noisy_corner()
+    s = 20
+    for kw in ({}, {"dynamic_window": 1, "turning": turning, "window_growth": "refill"}):
+        ref = track(t, obs, cfg, window=s, lag_correction=True, **kw)
+        h = np.full(t.size, np.nan)
+        h[s - 1:] = ref["yaw_loc"].to_numpy()
+        got = track(t, obs, cfg, window=s, lag_correction=True, lag_heading=h, **kw)
+        np.testing.assert_array_equal(got[XY + ["lag_dx", "lag_dy"]].to_numpy(),
+                                      ref[XY + ["lag_dx", "lag_dy"]].to_numpy())
+        assert got.attrs["settings"]["lag_heading"] == "given"
+
+
+def test_lag_heading_shifts_along_the_given_heading():
+    """With the true heading the shift of every corrected row is parallel to the heading
+    of its newest epoch (the oracle "LC (simulator heading)"), and on the straights it
+    removes the trail: mean along-track error within 5 % of the uncorrected trail."""
+    cfg, t, cg, yaw, turning, obs = _noisy_corner()
+    s = 20
+    df = track(t, obs, cfg, window=s, lag_correction=True, lag_heading=wrap_angle(yaw))
+    k = np.searchsorted(t, df["t"].to_numpy())
+    d = df[["lag_dx", "lag_dy"]].to_numpy()
+    ok = np.isfinite(d).all(axis=1) & (np.hypot(*d.T) > 1e-9)
+    cross = d[ok, 0] * np.sin(yaw[k][ok]) - d[ok, 1] * np.cos(yaw[k][ok])
+    np.testing.assert_allclose(cross, 0.0, atol=1e-9)
+    plain = track(t, obs, cfg, window=s)
+    straight_rows = np.array([not turning[max(0, j - s + 1):j + 1].any() for j in k])
+    straight_rows[0] = False                        # row 0 has no velocity
+    a0 = along_cross_errors(plain[XY].to_numpy(), cg[k], yaw[k])[0][straight_rows]
+    a1 = along_cross_errors(df[XY].to_numpy(), cg[k], yaw[k])[0][straight_rows]
+    assert abs(a1.mean()) < 0.05 * abs(a0.mean())
+
+
+@settings(max_examples=30, deadline=None)
+@given(st.lists(st.one_of(st.floats(allow_nan=True, allow_infinity=False),
+                          st.sampled_from([1e300, -1e300, 0.0, np.pi])),
+                min_size=40, max_size=40))
+def test_lag_heading_extreme_values(values):
+    """Any finite heading (1e300 included) gives a finite shift; a NaN leaves its row
+    uncorrected and says so (lag_dx NaN); rows without a velocity are NaN whatever."""
+    cfg, t, _cg, _yaw, obs = straight(n=40)
+    h = np.array(values, dtype=float)
+    df = track(t, obs, cfg, window=5, lag_correction=True, lag_heading=h)
+    dx = df["lag_dx"].to_numpy()
+    nan_h = np.isnan(h[4:])
+    assert np.isnan(dx[nan_h]).all()
+    assert np.isfinite(dx[1:][~nan_h[1:]]).all()
+    assert np.isfinite(df[XY].to_numpy()).all()     # uncorrected rows keep their estimate
+
+
+@pytest.mark.parametrize("kwargs, match", [
+    ({"lag_correction": "course", "lag_heading": np.zeros(30)}, "lag_heading"),
+    ({"lag_heading": np.zeros(30)}, "lag_heading"),
+    ({"lag_correction": True, "lag_heading": np.zeros(29)}, "lag_heading"),
+    ({"lag_correction": True, "lag_heading": np.zeros(30, int)}, "lag_heading"),
+    ({"lag_correction": True, "lag_heading": np.r_[np.zeros(29), np.inf]},
+     r"lag_heading\[29\]"),
+])
+def test_lag_heading_bad_input_names_the_field(kwargs, match):
+    cfg, t, _cg, _yaw, obs = straight(n=30)
+    with pytest.raises(ValueError, match=match):
+        track(t, obs, cfg, window=5, **kwargs)
 
 
 # ----------------------------------------------------------------------------- headings
@@ -561,10 +722,3 @@ def test_heading_exactly_west_is_plus_pi(method):
     assert np.all((y > -math.pi) & (y <= math.pi))
     np.testing.assert_allclose(y, math.pi, atol=1e-9)
 
-
-def test_detect_turning_docstring_states_inputs_and_source():
-    from estimator.tracking import detect_turning
-
-    doc = " ".join(detect_turning.__doc__.split())
-    assert "Section 3.4.2.1" in doc
-    assert "obs : (n, m, 2) metres" in doc and "t : (n,) seconds" in doc
