@@ -78,6 +78,22 @@ def test_estimate_velocity_rejects_nan_or_repeated_time(bad):
         estimate_velocity(np.zeros((5, 1)), np.zeros((5, 2)), 2)
 
 
-def test_first_observations_cites_section_3_4_2_step_2():
-    doc = " ".join(first_observations.__doc__.split())
-    assert "Section 3.4.2, step 2" in doc
+def test_first_observations_against_a_row_by_row_reference():
+    """Section 3.4.2, step 2: the first complete observation of each sensor inside each
+    window, against a plain loop (a sensor with one NaN coordinate is not complete)."""
+    rng = np.random.default_rng(3)
+    n, m = 40, 4
+    obs = rng.normal(size=(n, m, 2))
+    obs[rng.random((n, m)) < 0.4] = np.nan
+    obs[5, 1, 0] = np.nan                                       # half an observation
+    start = rng.integers(0, n, 25)
+    end = np.minimum(start + rng.integers(0, 8, 25), n - 1)
+    first, idx = first_observations(obs, start, end)
+    for r, (a, b) in enumerate(zip(start, end)):
+        for j in range(m):
+            ks = [k for k in range(a, b + 1) if np.isfinite(obs[k, j]).all()]
+            if ks:
+                assert idx[r, j] == ks[0]
+                np.testing.assert_array_equal(first[r, j], obs[ks[0], j])
+            else:
+                assert idx[r, j] == -1 and np.isnan(first[r, j]).all()
