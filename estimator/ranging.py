@@ -238,6 +238,8 @@ class RangingConfig:
     relock_after : consecutive consistent samples that re-lock Filter 1 and re-initialise the
         Kalman filters (longer than a spike run: real UWB spikes come in runs of 2-4).
     lead_in : samples whose median initialises Filter 1 (Appendix C ``Num_Lead_Pts``).
+    sample_interval_s : the nominal sample interval (s) of Filter 1 (thesis mode: threshold =
+        max_speed x interval) and of ``max_change``; None = the median interval of the data.
     tx_separation_m : Filter 2's transmitter separation (None: no Filter 2).
     Geometry:
     lever_arms_m : (T, 3) transmitter positions in the body frame (x forward, y left, z up);
@@ -272,6 +274,7 @@ class RangingConfig:
     max_change_m: float | None = None
     relock_after: int = 5
     lead_in: int = 40
+    sample_interval_s: float | None = None
     tx_separation_m: float | None = None
     lever_arms_m: tuple | None = None
     height_m: float | None = None
@@ -296,7 +299,8 @@ class RangingConfig:
         for f in ("sigma_range_m", "max_speed_mps", "accel_std_mps2", "heading_sigma_process",
                   "heading_sigma_measurement", "tight_gate", "yaw_accel_std"):
             check_real(getattr(self, f), f, lo=0.0, lo_open=True, hi=big)
-        for f in ("noise_margin_m", "max_change_m", "tx_separation_m", "max_gap_s",
+        for f in ("noise_margin_m", "max_change_m", "sample_interval_s", "tx_separation_m",
+                  "max_gap_s",
                   "kalman_sigma_process", "kalman_sigma_measurement", "kalman_gate"):
             if getattr(self, f) is not None:
                 check_real(getattr(self, f), f, lo=0.0, lo_open=f != "noise_margin_m", hi=big)
@@ -332,14 +336,16 @@ class RangingConfig:
     @classmethod
     def appendix_c(cls, **changes) -> RangingConfig:
         """Thesis 003 Appendix C (HX19 ultrasonic, F450 quadcopter): range noise 5 mm
-        (Appendix B: +/- 15 mm as 3 sigma), Filter 1 at 10 m/s (1000 mm per 0.1 s sample),
+        (Appendix B: +/- 15 mm as 3 sigma), Filter 1 at 10 m/s (1000 mm per 0.1 s sample;
+        robust mode: 0.05 m margin, 2 m largest unconfirmed change),
         Filter 2 at the 0.5 m transmitter separation with the transmitters 0.25 m ahead of and
         behind the centre, CMD on receivers chosen by the caller, ``side=+1`` (the quadcopter
         flies above the array), Appendix C's Kalman sigmas (3 mm/s^2, 2 mm) after a 40-sample
         lead-in, heading filter 1 deg/s^2, 1 deg; accelerations 1 m/s^2 (the simulated
         square's lateral limit)."""
         base = dict(sigma_range_m=0.005, max_speed_mps=10.0, accel_std_mps2=1.0,
-                    noise_margin_m=0.05, max_change_m=2.0, tx_separation_m=0.5,
+                    noise_margin_m=0.05, max_change_m=2.0, sample_interval_s=0.1,
+                    tx_separation_m=0.5,
                     lever_arms_m=((0.25, 0.0, 0.0), (-0.25, 0.0, 0.0)), method="cayley_menger",
                     mirror="side", kalman_sigma_process=0.003, kalman_sigma_measurement=0.002,
                     kalman_gate=None, kalman_lead_in=40)
@@ -437,7 +443,7 @@ def gate_streams(streams: RangeStreams, config: RangingConfig) -> GateStage:
     ch = streams.channel
     if tp.shape[0] == 0:
         return GateStage(streams.r.copy(), np.zeros(0, dtype=bool))
-    dt = nominal_interval(streams)
+    dt = config.sample_interval_s or nominal_interval(streams)
     # empty channels: give them dummy increasing times so the gate sees valid columns
     tp = np.where(np.isnan(tp), np.nanmax(tp, axis=0, initial=0.0)[None, :] + 1.0
                   + np.arange(tp.shape[0])[:, None], tp) if np.isnan(tp).any() else tp
@@ -683,7 +689,7 @@ def transmitter_heading(front: np.ndarray, rear: np.ndarray, levers: np.ndarray 
 
 def _body_position(tx_pos: np.ndarray, levers: np.ndarray, yaw: np.ndarray) -> np.ndarray:
     """Body origin from transmitter positions (n, T, 3): mean over T of p_j - Rz(yaw) l_j."""
-    mean_tx = np.nanmean(tx_pos, axis=1) if tx_pos.shape[1] > 1 else tx_pos[:, 0]
+    mean_tx = tx_pos.mean(axis=1)                 # NaN if any transmitter is missing
     lm = levers.mean(axis=0)
     if not np.any(lm):
         return mean_tx
@@ -844,9 +850,9 @@ class TightResult:
 
     t (n,) epoch times s; position (n, 3) m of the body origin (NaN before initialisation),
     velocity (n, 3) m/s, yaw (n,) rad (NaN without lever arms), std (n, 3) m (filter's
-    position standard deviation); used (N,) bool per stream sample (the range updated the
-    filter), gated (N,) bool (finite range rejected by the innovation gate or Filter 1),
-    reinitialised (list of times s); n_updates (ranges offered to the filter).
+    position standard deviation); per stream sample (N,) bool: used (the range updated or
+    initialised the filter), gated (rejected by the innovation gate), skipped (not offered:
+    Filter 1 rejected it); reinitialised (times s); n_updates (finite ranges in the streams).
     """
 
     t: np.ndarray
@@ -856,13 +862,15 @@ class TightResult:
     std: np.ndarray
     used: np.ndarray
     gated: np.ndarray
+    skipped: np.ndarray
     reinitialised: tuple
     n_updates: int
 
 
 def _initial_fix(rec, levers, height, latest_t, latest_r, t, max_gap, sigma, prior=None):
     """A damped fix per transmitter from each channel's newest range at most max_gap old;
-    returns (body position (3,), yaw, position std) or None when too few channels."""
+    returns (body position (3,), yaw, position std) or None when too few channels report or
+    the fix is not usable (degenerate, bounded, or mirror-ambiguous without a prior)."""
     nt, k = latest_r.shape
     fresh = np.isfinite(latest_r) & (t - latest_t <= max_gap)
     if np.any(fresh.sum(axis=1) < 3):
@@ -876,6 +884,8 @@ def _initial_fix(rec, levers, height, latest_t, latest_r, t, max_gap, sigma, pri
         p, info = tri.damped_ls(rec, rj, height_m=h, prior=pr, sigma_m=sigma, return_info=True)
         if info.missing or info.degenerate or info.bounded or not np.all(np.isfinite(p)):
             return None
+        if info.ambiguous and prior is None:
+            return None                      # two mirror points fit: wait for more receivers
         pts[j] = p
         s = _fix_sigma(rec, p[None], rj[None], sigma, height is not None)[0]
         if not np.all(np.isfinite(s)):
@@ -893,8 +903,9 @@ def tight_filter(streams: RangeStreams, receivers: np.ndarray, config: RangingCo
     """Run :class:`RangeFilter` over the streams in time order; report it at the epochs.
 
     Initialisation: at the first sample when every transmitter has >= 3 receivers with a range
-    at most ``max_gap_s`` old, one :func:`estimator.trilateration.damped_ls` fix per
-    transmitter (position std = twice the fix's geometric std, speed std = max_speed).
+    at most ``max_gap_s`` old and an unambiguous :func:`estimator.trilateration.damped_ls`
+    fix per transmitter (position std = twice the fix's geometric std, speed std =
+    max_speed).
     Re-initialisation: when ``relock_after`` x (channels) consecutive finite ranges were all
     rejected, the filter has lost the platform and restarts from a fresh damped fix (prior:
     its own position). ``rejected`` (N,): samples to skip (Filter 1's mask when
@@ -922,6 +933,8 @@ def tight_filter(streams: RangeStreams, receivers: np.ndarray, config: RangingCo
     latest_t = np.full((nt, k), -np.inf)
     latest_r = np.full((nt, k), np.nan)
     skip = np.zeros(N, dtype=bool) if rejected is None else np.asarray(rejected, dtype=bool)
+    if skip.shape != (N,):
+        raise ValueError(f"rejected: expected shape ({N},), got {skip.shape}")
     lost_after = config.relock_after * streams.n_channels
     max_gap = config.max_gap
     reinit = []
@@ -939,7 +952,6 @@ def tight_filter(streams: RangeStreams, receivers: np.ndarray, config: RangingCo
             continue
         tx, rx = txs[s], rxs[s]
         if skip[s]:
-            gated[s] = True
             continue
         latest_t[tx, rx], latest_r[tx, rx] = ti, ri
         if not filt.initialised or run >= lost_after:
@@ -967,8 +979,8 @@ def tight_filter(streams: RangeStreams, receivers: np.ndarray, config: RangingCo
         e += 1
     if not filt.yaw:
         yaw[:] = np.nan
-    return TightResult(te, pos, vel, yaw, std, used, gated, tuple(reinit),
-                       int(np.isfinite(rs).sum()))
+    return TightResult(te, pos, vel, yaw, std, used, gated, skip & np.isfinite(rs),
+                       tuple(reinit), int(np.isfinite(rs).sum()))
 
 
 # =============================================================================================
@@ -1070,9 +1082,9 @@ def localize(streams: RangeStreams, receivers: np.ndarray, config: RangingConfig
                           rejected=gate.rejected if config.tight_uses_gate1 else None)
     else:
         nan3 = np.full((te.size, 3), np.nan)
+        none = np.zeros(streams.t.size, dtype=bool)
         tr = TightResult(te, nan3, nan3.copy(), np.full(te.size, np.nan), nan3.copy(),
-                         np.zeros(streams.t.size, dtype=bool),
-                         np.zeros(streams.t.size, dtype=bool), (), 0)
+                         none, none.copy(), none.copy(), (), 0)
     extra = {"sync": sync, "max_gap_s": gap, "nominal_interval_s": nominal_interval(streams)}
     return RangingResult(config, te, gate, raw, g1, g2, sep_rej, fixes_raw, fixes_g1, fixes,
                          kal, position, yaw_fix, yaw_f, tr, extra)

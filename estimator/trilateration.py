@@ -65,9 +65,9 @@ Algorithm 3.16) on the range residuals of whichever receivers reported in each r
   at an interior, well-determined point (not on the bound, not degenerate, not ``max_iter``);
 * a known-height mode (``height_m``): the tag's z is given and only x, y are solved, which
   removes the nearly unobservable z of a flat or small array seen from afar;
-* the mirror side chosen per row, not fixed for a run: the solver also starts from the start
-  reflected in the receivers' plane (or, in known-height mode, their line when they are
-  collinear in x-y); when both minima fit the ranges equally well (within 9 sigma^2) the row
+* the mirror side chosen per row, not fixed for a run: the solver also starts from its
+  solution reflected in the receivers' best-fit plane (in known-height mode: their best-fit
+  line in x-y); the better fit wins, and when both fit equally well (within 9 sigma^2) the row
   is ``ambiguous`` and the one nearer ``prior`` (e.g. the previous fix) is returned, or, with
   no prior, the one on ``side``; the other is ``info.alternative``.
 """
@@ -798,10 +798,11 @@ def damped_ls(receivers: np.ndarray, ranges: np.ndarray, *, height_m=None,
         start, _ = _project(start, radius)
         pa, ia, ca, ba, costa, wca = _levenberg_marquardt(G, dzl, rl, wl, start, radius, tol,
                                                           max_iter, scale)
-        # the mirror minimum: restart from the solution reflected in the receivers' plane
-        # (3-D: exact for a coplanar set, approximate for a nearly flat one), or their line in
-        # known-height mode when they are collinear in x-y (otherwise the 2-D fix is unique)
-        mir = np.ones(li.size, dtype=bool) if d == 3 else rank < d
+        # the mirror minimum: restart from the solution reflected in the receivers' best-fit
+        # plane (3-D) or, in known-height mode, their best-fit line in x-y: exact for a
+        # coplanar (collinear) set, a second local minimum for a nearly flat (nearly
+        # collinear) one, the same minimum again otherwise
+        mir = np.ones(li.size, dtype=bool)
         pb, cb, bb, costb, wcb = pa.copy(), ca.copy(), ba.copy(), costa.copy(), wca.copy()
         ib = np.zeros_like(ia)
         if mir.any():
