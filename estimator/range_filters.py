@@ -101,6 +101,8 @@ def check_units(t: np.ndarray | None, r: np.ndarray, *, t_name: str = "t",
     if t is None:
         return
     tt = np.asarray(t, dtype=float)
+    if tt.size < 2:
+        return
     steps = np.diff(tt.reshape(tt.shape[0], -1), axis=0)
     steps = steps[np.isfinite(steps) & (steps > 0)]
     if steps.size and np.median(steps) > _NS_LIKE_S:
