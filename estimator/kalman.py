@@ -28,8 +28,9 @@ variance kept, cross-covariance zero): a lasting change is a new level, not a ru
 ``gate=None`` (default) is Appendix C's filter.
 
 Bounds (so no number overflows; each raises ``ValueError`` naming the argument): sigmas in
-[1e-100, 1e100], ``|z| <= 1e100``, time steps ``dt <= MAX_DT_S`` (1e6 s, 11.6 days: a larger
-step is a unit error, e.g. nanoseconds, not a gap).
+[1e-50, 1e50] (squares in [1e-100, 1e100]), ``|z| <= 1e100``, initial covariances up to 1e200,
+time steps ``dt <= MAX_DT_S`` (1e6 s, 11.6 days: a larger step is a unit error, e.g.
+nanoseconds, not a gap).
 
 Missing measurements (NaN) are a predict-only step (the output is the prediction); the
 initial mean uses the first 10 *finite* measurements (identical to the thesis when there are
@@ -57,7 +58,8 @@ SIGMA_PROCESS_MPS2 = 0.003
 SIGMA_MEASUREMENT_M = 0.002
 #: largest time step (s) of a predict: 11.6 days; larger steps are unit errors (nanoseconds)
 MAX_DT_S = 1e6
-_SIGMA_LO, _SIGMA_HI = 1e-100, 1e100
+_SIGMA_LO, _SIGMA_HI = 1e-50, 1e50
+_P_MAX = 1e200
 _Z_MAX = 1e100
 
 
@@ -99,7 +101,7 @@ class PVKalman:
         self.sigma_process, self.sigma_measurement = _check_sigmas(sigma_process,
                                                                    sigma_measurement)
         x = check_array(x0, "x0", max_abs=_Z_MAX).reshape(-1)
-        P = check_array(P0, "P0", max_abs=_SIGMA_HI)
+        P = check_array(P0, "P0", max_abs=_P_MAX)
         if x.shape != (2,):
             raise ValueError(f"x0: expected 2 finite values, got {x0!r}")
         if P.shape != (2, 2):
