@@ -578,7 +578,7 @@ def main(argv: list[str] | None = None) -> int:
                                  formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("dirs", nargs="*", metavar="DIR", help="recording directories")
     ap.add_argument("--out", default=None,
-                    help=f"output folder (default {DEFAULT_OUT.relative_to(REPO)}/, untracked)")
+                    help="output folder (default results/local/ranging/, untracked)")
     ap.add_argument("--trajectory", choices=("A", "B"), default=None,
                     help="scoring window (default: from the path, else A)")
     ap.add_argument("--tag-height", type=float, default=TAG_HEIGHT_M,

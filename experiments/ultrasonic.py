@@ -693,10 +693,10 @@ def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(prog="python -m experiments.ultrasonic", description=__doc__,
                                  formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--out", default=None,
-                    help=f"output folder (default {DEFAULT_OUT.relative_to(REPO)}/, untracked)")
+                    help="output folder (default results/local/ultrasonic/, untracked)")
     ap.add_argument("--reference", action="store_true",
-                    help=f"regenerate the committed reference run "
-                         f"{REFERENCE_OUT.relative_to(REPO)}/ (default spec only)")
+                    help="regenerate the committed reference run results/ultrasonic/ "
+                         "(default spec only)")
     ap.add_argument("--n-mc", type=int, default=StudySpec.n_mc)
     ap.add_argument("--z-plane", type=float, default=StudySpec.z_plane_m,
                     help="height (m) of the Monte Carlo slice (Appendix B: 5 m)")
