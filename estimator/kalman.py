@@ -65,7 +65,10 @@ _Z_MAX = 1e100
 
 def process_noise(dt: float, sigma_process: float) -> np.ndarray:
     """Q for a white-acceleration PV model over ``dt`` s: sigma^2 [[dt^4/4, dt^3/2],
-    [dt^3/2, dt^2]] (Appendix C ``Error_Process``). Returns (2, 2)."""
+    [dt^3/2, dt^2]] (Appendix C ``Error_Process``). dt in [0, MAX_DT_S], sigma_process 0 or
+    in [1e-50, 1e50] (ValueError/TypeError naming them otherwise). Returns (2, 2)."""
+    dt = check_real(dt, "dt", lo=0.0, hi=MAX_DT_S)
+    sigma_process = _check_sigma(sigma_process, "sigma_process", allow_zero=True)
     return sigma_process ** 2 * np.array([[dt ** 4 / 4.0, dt ** 3 / 2.0],
                                           [dt ** 3 / 2.0, dt ** 2]])
 

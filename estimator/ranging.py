@@ -46,7 +46,7 @@ from itertools import combinations
 import numpy as np
 
 from estimator import trilateration as tri
-from estimator._checks import check_array, check_int, check_real
+from estimator._checks import check_array, check_increasing_times, check_int, check_real
 from estimator.kalman import pv_kalman
 from estimator.orientation import heading_from_points, unwrap_angle, wrap_angle
 from estimator.range_filters import MODES as GATE_MODES
@@ -422,6 +422,21 @@ def best_triple(rec: np.ndarray) -> tuple[int, int, int]:
     return best
 
 
+def _check_types(streams=None, config=None) -> None:
+    if streams is not None and not isinstance(streams, RangeStreams):
+        raise TypeError(f"streams: expected RangeStreams, got {type(streams).__name__}")
+    if config is not None and not isinstance(config, RangingConfig):
+        raise TypeError(f"config: expected RangingConfig, got {type(config).__name__}")
+
+
+def _check_epochs(epochs) -> np.ndarray:
+    te = check_array(epochs, "epochs", max_abs=_MAX_T)
+    if te.ndim != 1 or (te.size > 1 and np.any(np.diff(te) <= 0)):
+        raise ValueError(f"epochs: expected a strictly increasing (n,) array of seconds, got "
+                         f"shape {te.shape}")
+    return te
+
+
 # =============================================================================================
 # stages 1-2: gates and epochs
 # =============================================================================================
@@ -439,6 +454,7 @@ class GateStage:
 def gate_streams(streams: RangeStreams, config: RangingConfig) -> GateStage:
     """Filter 1 (:func:`estimator.range_filters.velocity_gate`) on every channel at once, each
     on its own clock (asynchronous receivers)."""
+    _check_types(streams, config)
     tp, rp, row = streams.padded()
     ch = streams.channel
     if tp.shape[0] == 0:
@@ -477,9 +493,18 @@ def epoch_ranges(streams: RangeStreams, values: np.ndarray, epochs: np.ndarray, 
     sample exactly at the epoch is used as is), "latest" (the newest valid sample at most
     ``max_gap_s`` old).
     """
+    _check_types(streams)
     if sync not in SYNC_MODES:
         raise ValueError(f"sync: must be one of {SYNC_MODES}, got {sync!r}")
-    te = np.asarray(epochs, dtype=float)
+    te = _check_epochs(epochs)
+    max_gap_s = check_real(max_gap_s, "max_gap_s", lo=0.0, hi=_MAX_T)
+    values = check_array(values, "values", allow_nan=True, shape=(streams.t.size,),
+                         max_abs=tri.MAX_ABS_M)
+    if valid is not None:
+        valid = np.asarray(valid)
+        if valid.shape != (streams.t.size,) or valid.dtype != bool:
+            raise ValueError(f"valid: expected a bool array of shape ({streams.t.size},), "
+                             f"got {valid.dtype} {valid.shape}")
     k, nt = streams.n_receivers, streams.n_transmitters
     out = np.full((te.size, nt, k), np.nan)
     ch = streams.channel
@@ -640,8 +665,11 @@ def filter_fixes(t: np.ndarray, fixes: Fixes, config: RangingConfig, *,
     and ``sigma_measurement`` override the config (None: config; the config's None: the
     acceleration std and the per-fix geometric stds). An axis whose fixes all have std 0
     (a known height) is passed through."""
-    tt = np.asarray(t, dtype=float)
+    if not isinstance(fixes, Fixes):
+        raise TypeError(f"fixes: expected Fixes, got {type(fixes).__name__}")
+    _check_types(None, config)
     n, nt, _ = fixes.position.shape
+    tt = check_increasing_times(t, "t", n=n) if n else np.zeros(0)
     sp = sigma_process if sigma_process is not None else (
         config.kalman_sigma_process if config.kalman_sigma_process is not None
         else config.accel_std_mps2)
@@ -760,6 +788,12 @@ class RangeFilter:
     def initialise(self, t: float, position: np.ndarray, *, position_std: float,
                    speed_std: float, yaw: float = 0.0, yaw_std: float = math.pi) -> None:
         """Start at time t (s) from a position (3,) m with isotropic stds (m, m/s, rad)."""
+        t = check_real(t, "t", lo=-_MAX_T, hi=_MAX_T)
+        position = check_array(position, "position", shape=(3,), max_abs=tri.MAX_ABS_M)
+        for name, v in (("position_std", position_std), ("speed_std", speed_std),
+                        ("yaw_std", yaw_std)):
+            check_real(v, name, lo=0.0, lo_open=True, hi=1e8)
+        yaw = check_real(yaw, "yaw", lo=-1e3, hi=1e3)
         d = self.d
         self.x = np.zeros(self.n)
         self.x[:d] = np.asarray(position, dtype=float)[:d]
@@ -772,7 +806,10 @@ class RangeFilter:
         self.initialised = True
 
     def predict(self, t: float) -> None:
-        """Propagate the state to time t (no-op for t <= the filter's time)."""
+        """Propagate the state to time t (s; no-op for t <= the filter's time)."""
+        self._predict(check_real(t, "t", lo=-_MAX_T, hi=_MAX_T))
+
+    def _predict(self, t: float) -> None:
         dt = t - self.t
         if dt <= 0:
             return
@@ -799,9 +836,23 @@ class RangeFilter:
         return p, np.array([-s * lx - c * ly, c * lx - s * ly])
 
     def update(self, t: float, receiver: int, transmitter: int, r: float) -> bool:
-        """Predict to t, then update with range r (m) of (transmitter, receiver). Returns
-        True if the range was used, False if the gate rejected it (or r is NaN)."""
-        self.predict(t)
+        """Predict to t (s), then update with range r (m, NaN: predict only) of
+        (transmitter, receiver). Returns True if the range was used, False if the gate
+        rejected it (or r is NaN). Before :meth:`initialise`: ValueError."""
+        if not self.initialised:
+            raise ValueError("update: the filter is not initialised (call initialise first)")
+        t = check_real(t, "t", lo=-_MAX_T, hi=_MAX_T)
+        check_int(receiver, "receiver", lo=0, hi=self.rec.shape[0] - 1)
+        ntx = 1 if self.levers is None else self.levers.shape[0]
+        check_int(transmitter, "transmitter", lo=0, hi=max(ntx - 1, 0))
+        if isinstance(r, (float, np.floating)) and r != r:
+            self._predict(t)
+            return False
+        r = check_real(r, "r", lo=0.0, hi=tri.MAX_ABS_M)
+        return self._update(t, int(receiver), int(transmitter), r)
+
+    def _update(self, t: float, receiver: int, transmitter: int, r: float) -> bool:
+        self._predict(t)
         if not r == r:                                       # NaN
             return False
         d = self.d
@@ -826,7 +877,11 @@ class RangeFilter:
         return True
 
     def state_at(self, t: float) -> tuple[np.ndarray, np.ndarray, float, np.ndarray]:
-        """(position (3,), velocity (3,), yaw, position std (3,)) extrapolated to time t."""
+        """(position (3,), velocity (3,), yaw, position std (3,)) extrapolated to time t (s);
+        NaN before :meth:`initialise`."""
+        if not self.initialised:
+            nan3 = np.full(3, np.nan)
+            return nan3, nan3.copy(), math.nan, nan3.copy()
         d = self.d
         dt = max(t - self.t, 0.0)
         pos = np.empty(3)
@@ -912,10 +967,11 @@ def tight_filter(streams: RangeStreams, receivers: np.ndarray, config: RangingCo
     ``tight_uses_gate1``). Epoch outputs are causal: the state after every sample at or before
     the epoch, extrapolated to it.
     """
+    _check_types(streams, config)
     rec = check_array(receivers, "receivers", max_abs=tri.MAX_ABS_M)
     if rec.ndim != 2 or rec.shape != (streams.n_receivers, 3):
         raise ValueError(f"receivers: expected shape ({streams.n_receivers}, 3), got {rec.shape}")
-    te = check_array(epochs, "epochs", max_abs=_MAX_T)
+    te = _check_epochs(epochs)
     nt, k = streams.n_transmitters, streams.n_receivers
     levers = config.levers(nt)
     height = config.height_m
@@ -962,12 +1018,12 @@ def tight_filter(streams: RangeStreams, receivers: np.ndarray, config: RangingCo
                 continue
             if filt.initialised:
                 reinit.append(float(ti))
-            filt.initialise(ti, fix[0], position_std=2.0 * fix[2],
+            filt.initialise(ti, fix[0], position_std=max(2.0 * fix[2], 1e-6),
                             speed_std=config.max_speed_mps, yaw=fix[1])
             run = 0
             used[s] = True
             continue
-        if filt.update(ti, rx, tx, ri):
+        if filt._update(ti, rx, tx, ri):
             used[s] = True
             run = 0
         else:
@@ -1029,20 +1085,14 @@ def localize(streams: RangeStreams, receivers: np.ndarray, config: RangingConfig
     times of synchronous streams, else a grid at the median sample interval over the data);
     tight : run the tightly coupled filter (else ``tight`` holds NaN).
     """
-    if not isinstance(streams, RangeStreams):
-        raise TypeError(f"streams: expected RangeStreams, got {type(streams).__name__}")
-    if not isinstance(config, RangingConfig):
-        raise TypeError(f"config: expected RangingConfig, got {type(config).__name__}")
+    _check_types(streams, config)
     rec = check_array(receivers, "receivers", max_abs=tri.MAX_ABS_M)
     if rec.shape != (streams.n_receivers, 3):
         raise ValueError(f"receivers: expected shape ({streams.n_receivers}, 3), got {rec.shape}")
     nt = streams.n_transmitters
     levers = config.levers(nt)
     sync = config.sync or ("sample" if streams.is_synchronous() else "interpolate")
-    te = _default_epochs(streams, sync) if epochs is None else check_array(
-        epochs, "epochs", max_abs=_MAX_T)
-    if te.ndim != 1 or (te.size > 1 and np.any(np.diff(te) <= 0)):
-        raise ValueError("epochs: expected a strictly increasing (n,) array of seconds")
+    te = _default_epochs(streams, sync) if epochs is None else _check_epochs(epochs)
     gate = gate_streams(streams, config)
     gap = config.max_gap
     fin = np.isfinite(streams.r)

@@ -509,3 +509,47 @@ def test_damped_fix_never_beyond_what_the_ranges_allow():
     bound = np.min(R + np.linalg.norm(UWB_ANCHORS - c, axis=1), axis=1) + 1.0
     assert np.all(np.linalg.norm(p - c, axis=1) <= bound + 1e-9)
     assert info.bounded[::7].mean() > 0.5 and not info.converged[info.bounded].any()
+
+
+@pytest.mark.parametrize("call, field, exc", [
+    (lambda f: f.update(1.0, 9, 0, 5.0), "receiver", ValueError),
+    (lambda f: f.update(1.0, 0, 1, 5.0), "transmitter", ValueError),
+    (lambda f: f.update(1.0, 0, 0, "5"), "r", TypeError),
+    (lambda f: f.update(1.0, 0, 0, None), "r", TypeError),
+    (lambda f: f.update(1.0, 0, 0, -1.0), "r", ValueError),
+    (lambda f: f.update(1.0, 0, 0, 1e300), "r", ValueError),
+    (lambda f: f.update(np.inf, 0, 0, 5.0), "t", ValueError),
+    (lambda f: f.predict("later"), "t", TypeError),
+    (lambda f: f.initialise(0.0, [1.0, 2.0], position_std=1.0, speed_std=1.0), "position",
+     ValueError),
+    (lambda f: f.initialise(0.0, [1.0, 2.0, 1.0], position_std=0.0, speed_std=1.0),
+     "position_std", ValueError),
+])
+def test_range_filter_bad_arguments_are_named(call, field, exc):
+    f = RangeFilter(UWB_ANCHORS, sigma_range_m=0.1, accel_std_mps2=1.0, height_m=1.0)
+    f.initialise(0.0, [10.0, 0.0, 1.0], position_std=1.0, speed_std=1.0)
+    with pytest.raises(exc, match=field):
+        call(f)
+    fresh = RangeFilter(UWB_ANCHORS, sigma_range_m=0.1, accel_std_mps2=1.0)
+    with pytest.raises(ValueError, match="initialise"):
+        fresh.update(0.0, 0, 0, 5.0)
+    assert np.isnan(fresh.state_at(0.0)[0]).all()
+
+
+@settings(max_examples=40, deadline=None)
+@given(r=st.sampled_from([0.0, 5e-324, 1e-300, 1e8, np.nan]),
+       dt=st.sampled_from([0.0, 1e-300, 1e-6, 0.1, 1e3, 1e6]),
+       height=st.sampled_from([1.0, None]))
+def test_range_filter_extremes_keep_a_finite_state(r, dt, height):
+    """Zero, subnormal, huge (1e8 m) and NaN ranges after steps from 0 to 1e6 s: the state and
+    covariance stay finite and symmetric, an absurd range is gated (update returns False)."""
+    f = RangeFilter(UWB_ANCHORS, sigma_range_m=0.1, accel_std_mps2=1.0, height_m=height)
+    f.initialise(0.0, [10.0, 0.0, 1.0], position_std=1.0, speed_std=1.0)
+    for i in range(8):                                   # settle on true ranges
+        f.update(0.1 * (i + 1), i % 4, 0,
+                 float(np.linalg.norm(np.array([10.0, 0.0, 1.0]) - UWB_ANCHORS[i % 4])))
+    used = f.update(f.t + dt, 1, 0, r)
+    assert np.all(np.isfinite(f.x)) and np.all(np.isfinite(f.P))
+    assert np.allclose(f.P, f.P.T, rtol=1e-9, atol=1e-12 * np.abs(f.P).max())
+    if r != r or r > 1e3 and dt < 10:
+        assert not used
