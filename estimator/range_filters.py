@@ -65,7 +65,7 @@ import warnings
 
 import numpy as np
 
-from estimator._checks import check_array, check_int, check_real
+from estimator._checks import check_array, check_increasing_times, check_int, check_real
 
 __all__ = ["MAX_ABS", "MODES", "UnitWarning", "check_units", "separation_gate", "velocity_gate"]
 
@@ -134,23 +134,15 @@ def _channel_times(t: np.ndarray, r: np.ndarray) -> np.ndarray:
     if tt.ndim == 1:
         if tt.shape[0] != n:
             raise ValueError(f"r: expected {tt.shape[0]} samples (one per time in t), got {n}")
-        if np.isnan(tt).any():
-            k = int(np.argmax(np.isnan(tt)))
-            raise ValueError(f"t: times must be finite; t[{k}] = nan")
-        tt = np.repeat(tt[:, None], c, axis=1)
+        return np.repeat(check_increasing_times(tt, "t")[:, None], c, axis=1)
     elif tt.shape != (n, c):
         raise ValueError(f"t: expected shape ({n},) or ({n}, {c}), got {tt.shape}")
     bad = np.isnan(tt) & np.isfinite(r)
     if bad.any():
         i, j = (int(v) for v in np.argwhere(bad)[0])
         raise ValueError(f"t: a finite range has no time; t[{i}, {j}] = nan, r = {r[i, j]!r}")
-    for j in range(c):
-        col = tt[:, j][np.isfinite(tt[:, j])]
-        dec = np.diff(col) <= 0
-        if dec.any():
-            k = int(np.argmax(dec))
-            raise ValueError(f"t: must be strictly increasing (channel {j}); {col[k + 1]!r} "
-                             f"after {col[k]!r}")
+    for j in range(c):                     # each channel on its own clock; NaN = padding
+        check_increasing_times(tt[:, j][np.isfinite(tt[:, j])], f"t[:, {j}]")
     return tt
 
 

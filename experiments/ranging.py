@@ -40,6 +40,7 @@ import pandas as pd
 
 from estimator.ranging import RangeStreams, RangingConfig, RangingResult, localize
 from experiments.provenance import git_describe
+from experiments.ultrasonic import markdown_table
 
 __all__ = [
     "METHODS",
@@ -502,18 +503,7 @@ def published_scores(directory: Path) -> dict:
 
 
 def _md_table(df: pd.DataFrame) -> str:
-    cols = list(df.columns)
-    lines = ["| " + " | ".join(cols) + " |", "|" + "|".join("---" for _ in cols) + "|"]
-    for _, r in df.iterrows():
-        cells = []
-        for c in cols:
-            v = r[c]
-            if isinstance(v, (float, np.floating)):
-                cells.append("-" if np.isnan(v) else f"{v:.3f}")
-            else:
-                cells.append(str(v))
-        lines.append("| " + " | ".join(cells) + " |")
-    return "\n".join(lines)
+    return markdown_table(df, ".3f")
 
 
 def run(directories, out: str | Path = DEFAULT_OUT, *, trajectory: str | None = None,

@@ -448,7 +448,8 @@ def plot_flight(series: pd.DataFrame, out: Path, receiver_names: list[str]) -> l
 # =============================================================================================
 
 
-def _md(df: pd.DataFrame, floatfmt: str = ".4g") -> str:
+def markdown_table(df: pd.DataFrame, floatfmt: str = ".4g") -> str:
+    """A DataFrame as a Markdown table; floats with ``floatfmt``, NaN as '-'."""
     cols = list(df.columns)
     lines = ["| " + " | ".join(cols) + " |", "|" + "|".join("---" for _ in cols) + "|"]
     for _, r in df.iterrows():
@@ -525,8 +526,8 @@ def run(out_dir: str | Path = DEFAULT_OUT, spec: StudySpec | None = None, *,
 def _write_markdown(out, spec, mc, fl, ident, ident_status) -> None:
     mct = mc["table"].drop(columns=["time_s"])
     flt = fl["table"].copy()
-    (out / "mc_table.md").write_text(_md(mct) + "\n")
-    (out / "flight_stages.md").write_text(_md(flt) + "\n")
+    (out / "mc_table.md").write_text(markdown_table(mct) + "\n")
+    (out / "flight_stages.md").write_text(markdown_table(flt) + "\n")
     ex = fl["extra"]
     best = mct.loc[mct["mse_total_mm2"].idxmin(), "method"]
     lines = [
@@ -543,7 +544,7 @@ def _write_markdown(out, spec, mc, fl, ident, ident_status) -> None:
         "(mm^2), per axis and summed. `mirror_side_pct`: estimates below the receivers' plane "
         "(z < 0, the wrong mirror solution)."),
         "",
-        _md(mct),
+        markdown_table(mct),
         "",
         (f"Lowest total MSE: **{best}**. CFP and CMD solve the same three sphere equations; "
         f"their estimates differ by at most {mc['extra']['cfp_vs_cmd_max_diff_m']:.2e} m "
@@ -571,7 +572,7 @@ def _write_markdown(out, spec, mc, fl, ident, ident_status) -> None:
         f"deg. The first {spec.lead_in} samples (Appendix C lead-in) are excluded from all "
         "scores. Positions in metres, headings in degrees.",
         "",
-        _md(flt),
+        markdown_table(flt),
         "",
         ("Figures: `flight_ranges.png` (Fig. 3.8), `flight_position.png` (Figs. 3.9-3.12), "
         "`flight_xy.png`, `flight_heading.png`."),
@@ -585,7 +586,7 @@ def _write_markdown(out, spec, mc, fl, ident, ident_status) -> None:
                   "`identification.md`, figures `identification_<axis>.png`). The simulator's "
                   "units differ from the thesis's (mm and normalised stick), so gains are not "
                   "comparable in value; time constants and delays are."), "",
-                  _md(ident[cols]), ""]
+                  markdown_table(ident[cols]), ""]
     else:
         lines += [f"Part 3 {ident_status}.", ""]
     lines += _discussion(spec, mct, flt)
