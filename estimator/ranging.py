@@ -460,9 +460,6 @@ def gate_streams(streams: RangeStreams, config: RangingConfig) -> GateStage:
     if tp.shape[0] == 0:
         return GateStage(streams.r.copy(), np.zeros(0, dtype=bool))
     dt = config.sample_interval_s or nominal_interval(streams)
-    # empty channels: give them dummy increasing times so the gate sees valid columns
-    tp = np.where(np.isnan(tp), np.nanmax(tp, axis=0, initial=0.0)[None, :] + 1.0
-                  + np.arange(tp.shape[0])[:, None], tp) if np.isnan(tp).any() else tp
     out, rej = velocity_gate(tp, rp, config.max_speed_mps, mode=config.gate_mode,
                              sample_interval=dt, noise_margin=config.noise_margin,
                              max_change=config.max_change(dt),
@@ -935,8 +932,8 @@ def _initial_fix(rec, levers, height, latest_t, latest_r, t, max_gap, sigma, pri
     for j in range(nt):
         rj = np.where(fresh[j], latest_r[j], np.nan)
         h = None if height is None else height + levers[j, 2]
-        pr = None if prior is None else prior + 0.0
-        p, info = tri.damped_ls(rec, rj, height_m=h, prior=pr, sigma_m=sigma, return_info=True)
+        p, info = tri.damped_ls(rec, rj, height_m=h, prior=prior, sigma_m=sigma,
+                                return_info=True)
         if info.missing or info.degenerate or info.bounded or not np.all(np.isfinite(p)):
             return None
         if info.ambiguous and prior is None:
