@@ -540,10 +540,8 @@ def run(directories, out: str | Path = DEFAULT_OUT, *, trajectory: str | None = 
         info = {"recording": _shown_path(d), "trajectory": traj, "tag_height_m": tag_height_m,
                 "config": asdict(config), "methods": {k: v[1] for k, v in METHODS.items()},
                 "code_version": git_describe(), "epochs": int(ev["results"]["2d"].epochs.size),
-                "scoring_window_s": list(authors_metric(
-                    rec.reference_t, rec.reference, *rec.authors.get(
-                        "authors_eskf", (rec.reference_t, rec.reference + [0, 0, 1])),
-                    trajectory=traj)["window"]),
+                "scoring_window_s": list(scoring_window(rec.reference_t, rec.reference,
+                                                        traj)),
                 "published": {k: {"rmse_3d_m": v[0], "rmse_2d_m": v[1]} for k, v in pub.items()}}
         (sub / "run_info.json").write_text(json.dumps(info, indent=2, default=float) + "\n")
         md += [f"## {label}", "", f"Recording `{_shown_path(d)}`, Trajectory {traj}; "
