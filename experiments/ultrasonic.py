@@ -677,7 +677,8 @@ def _discussion(spec: StudySpec, mct: pd.DataFrame, flt: pd.DataFrame) -> list[s
         f"{row(g10, 'mean of 2 Tx (physical sigmas) + filtered heading')['rmse_3d_m']:.3g} m "
         "and "
         f"{row(g10, 'mean of 2 Tx (Appendix C sigmas) + filtered heading')['heading_rmse_deg']:.3g}"
-        " deg for the best Appendix C chain: it uses six receivers instead of three, and the "
+        " deg for the Appendix C chain behind the same gates: it uses six receivers instead of "
+        "three, and the "
         "heading comes from the geometry of all twelve ranges rather than from the difference "
         "of two noisy fixes 0.5 m apart."),
         "",
