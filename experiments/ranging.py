@@ -528,7 +528,8 @@ def run(directories, out: str | Path = DEFAULT_OUT, *, trajectory: str | None = 
         ev["summary"].to_csv(sub / "summary.csv", index=False, float_format="%.6g")
         ev["stages"].to_csv(sub / "stages.csv", index=False, float_format="%.6g")
         ev["gates"].to_csv(sub / "gates.csv", index=False, float_format="%.6g")
-        ev["series"].to_csv(sub / "estimates.csv.gz", index=False, float_format="%.3f")
+        ev["series"].to_csv(sub / "estimates.csv.gz", index=False, float_format="%.3f",
+                            compression={"method": "gzip", "mtime": 0})   # reruns: same bytes
         pub = published_scores(d)
         table = ev["summary"].copy()
         table["published_rmse_2d_m"] = [pub.get(m, (np.nan, np.nan))[1] for m in table.method]
