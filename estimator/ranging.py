@@ -1107,7 +1107,7 @@ def localize(streams: RangeStreams, receivers: np.ndarray, config: RangingConfig
         g2 = np.stack([a, b], axis=1)
     fixes_raw = trilaterate_epochs(raw, rec, config)
     fixes_g1 = trilaterate_epochs(g1, rec, config)
-    fixes = trilaterate_epochs(g2, rec, config)
+    fixes = fixes_g1 if g2 is g1 else trilaterate_epochs(g2, rec, config)   # no Filter 2
     kal = filter_fixes(te, fixes, config)
     if nt == 2:
         yaw_fix = transmitter_heading(fixes.position[:, 0], fixes.position[:, 1], levers)
