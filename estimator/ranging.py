@@ -343,12 +343,12 @@ class RangingConfig:
         flies above the array), Appendix C's Kalman sigmas (3 mm/s^2, 2 mm) after a 40-sample
         lead-in, heading filter 1 deg/s^2, 1 deg; accelerations 1 m/s^2 (the simulated
         square's lateral limit)."""
-        base = dict(sigma_range_m=0.005, max_speed_mps=10.0, accel_std_mps2=1.0,
-                    noise_margin_m=0.05, max_change_m=2.0, sample_interval_s=0.1,
-                    tx_separation_m=0.5,
-                    lever_arms_m=((0.25, 0.0, 0.0), (-0.25, 0.0, 0.0)), method="cayley_menger",
-                    mirror="side", kalman_sigma_process=0.003, kalman_sigma_measurement=0.002,
-                    kalman_gate=None, kalman_lead_in=40)
+        base = {"sigma_range_m": 0.005, "max_speed_mps": 10.0, "accel_std_mps2": 1.0,
+                    "noise_margin_m": 0.05, "max_change_m": 2.0, "sample_interval_s": 0.1,
+                    "tx_separation_m": 0.5,
+                    "lever_arms_m": ((0.25, 0.0, 0.0), (-0.25, 0.0, 0.0)), "method": "cayley_menger",
+                    "mirror": "side", "kalman_sigma_process": 0.003, "kalman_sigma_measurement": 0.002,
+                    "kalman_gate": None, "kalman_lead_in": 40}
         base.update(changes)
         return cls(**base)
 
@@ -363,7 +363,7 @@ class RangingConfig:
         the 2-4 sample spike runs of this sensor class). Everything else: the defaults
         (damped least squares with mirror continuity, per-fix Kalman sigmas, 5-sigma gates).
         """
-        base = dict(sigma_range_m=0.1, max_speed_mps=3.0, accel_std_mps2=1.0)
+        base = {"sigma_range_m": 0.1, "max_speed_mps": 3.0, "accel_std_mps2": 1.0}
         base.update(changes)
         return cls(**base)
 
@@ -842,7 +842,7 @@ class RangeFilter:
         check_int(receiver, "receiver", lo=0, hi=self.rec.shape[0] - 1)
         ntx = 1 if self.levers is None else self.levers.shape[0]
         check_int(transmitter, "transmitter", lo=0, hi=max(ntx - 1, 0))
-        if isinstance(r, (float, np.floating)) and r != r:
+        if isinstance(r, (float, np.floating)) and math.isnan(r):
             self._predict(t)
             return False
         r = check_real(r, "r", lo=0.0, hi=tri.MAX_ABS_M)
@@ -850,7 +850,7 @@ class RangeFilter:
 
     def _update(self, t: float, receiver: int, transmitter: int, r: float) -> bool:
         self._predict(t)
-        if not r == r:                                       # NaN
+        if math.isnan(r):
             return False
         d = self.d
         p, dyaw = self._tx_point(self.x, transmitter)
@@ -923,7 +923,7 @@ def _initial_fix(rec, levers, height, latest_t, latest_r, t, max_gap, sigma, pri
     """A damped fix per transmitter from each channel's newest range at most max_gap old;
     returns (body position (3,), yaw, position std) or None when too few channels report or
     the fix is not usable (degenerate, bounded, or mirror-ambiguous without a prior)."""
-    nt, k = latest_r.shape
+    nt = latest_r.shape[0]
     fresh = np.isfinite(latest_r) & (t - latest_t <= max_gap)
     if np.any(fresh.sum(axis=1) < 3):
         return None
@@ -1001,7 +1001,7 @@ def tight_filter(streams: RangeStreams, receivers: np.ndarray, config: RangingCo
                 pos[e], vel[e], yaw[e], std[e] = filt.state_at(te[e])
             e += 1
         ri = rs[s]
-        if not ri == ri:
+        if math.isnan(ri):
             continue
         tx, rx = txs[s], rxs[s]
         if skip[s]:

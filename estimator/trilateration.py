@@ -694,7 +694,7 @@ def _linear_start(G, rho2, w, side):
     receiver's index and the rank (M,).
     """
     m = rho2.shape[0]
-    k, d = G.shape
+    d = G.shape[1]
     a = np.argmax(w, axis=1)
     rows = np.arange(m)
     Ga = G[a]
@@ -753,7 +753,7 @@ def damped_ls(receivers: np.ndarray, ranges: np.ndarray, *, height_m=None,
         bound_slack_m, "bound_slack_m", lo=0.0, hi=MAX_ABS_M)
     rec = _check_receivers(receivers, None, 3, "damped_ls")
     r, single = _check_ranges(ranges, rec.shape[0])
-    n, k = r.shape
+    n = r.shape[0]
     centre = rec.mean(axis=0)
     q = rec - centre
     w = np.isfinite(r)

@@ -323,7 +323,7 @@ def bench_ranging(quick: bool = False) -> list[dict]:
         r10 = np.linalg.norm(np.array([10.0, 0.0, 1.0]) - anchors, axis=1)
         n_up = 2000
 
-        def updates(f: RangeFilter = f, r10: np.ndarray = r10) -> None:
+        def updates(f: RangeFilter = f, r10: np.ndarray = r10, n_up: int = n_up) -> None:
             for i in range(n_up):
                 f.update(f.t + 0.025, i % 4, 0, r10[i % 4])
         up, up_cpu = timed(updates)

@@ -113,7 +113,7 @@ def _read_csv(path: Path, columns: tuple[str, ...]) -> pd.DataFrame:
 def _ns(values: pd.Series) -> np.ndarray:
     """Nanosecond timestamps as int64 (integers exactly; float text such as 1.73e+18 to the
     nearest representable value, as the authors' script reads them)."""
-    return np.array([int(v) if float(v).is_integer() else int(round(float(v)))
+    return np.array([int(v) if float(v).is_integer() else round(float(v))
                      for v in values], dtype=np.int64)
 
 
@@ -545,9 +545,9 @@ def run(directories, out: str | Path = DEFAULT_OUT, *, trajectory: str | None = 
                                                         traj)),
                 "published": {k: {"rmse_3d_m": v[0], "rmse_2d_m": v[1]} for k, v in pub.items()}}
         (sub / "run_info.json").write_text(json.dumps(info, indent=2, default=float) + "\n")
-        md += [f"## {label}", "", f"Recording `{_shown_path(d)}`, Trajectory {traj}; "
-               "the authors' metric (their scoring window, reference z + "
-               f"{tag_height_m:g} m for 3-D).", "", _md_table(table), "",
+        md += [f"## {label}", "", (f"Recording `{_shown_path(d)}`, Trajectory {traj}; "
+                                   "the authors' metric (their scoring window, reference z + "
+                                   f"{tag_height_m:g} m for 3-D)."), "", _md_table(table), "",
                _md_table(ev["stages"]), "", _md_table(ev["gates"]), ""]
         done[label] = ev
     head = ["# Range localization on recorded UWB runs", "",

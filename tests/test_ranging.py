@@ -13,6 +13,7 @@ import pandas as pd
 import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
+from synth_ranges import FLAT_ANCHORS, UWB_ANCHORS, path, scenario
 
 from estimator import trilateration as tri
 from estimator.range_filters import UnitWarning
@@ -26,7 +27,6 @@ from estimator.ranging import (
     tight_filter,
 )
 from experiments import ranging as cli
-from synth_ranges import FLAT_ANCHORS, UWB_ANCHORS, path, scenario
 
 UWB = RangingConfig.uwb_ground_tag
 
@@ -247,6 +247,8 @@ def test_filter_settles_on_a_static_tag_and_keeps_P_symmetric():
     np.testing.assert_allclose(f.x[:2], truth[:2], atol=0.05)
     pos, vel, yaw, std = f.state_at(11.0)
     assert math.isnan(yaw) and np.all(std[:2] > 0) and std[2] == 0.0
+    np.testing.assert_allclose(pos, truth, atol=0.05)           # static: no drift
+    np.testing.assert_allclose(vel[:2], 0.0, atol=0.05)
 
 
 # ---------------------------------------------------------------------------------------------
@@ -295,16 +297,16 @@ def test_synchronous_streams_round_trip():
 
 
 def test_streams_validation_names_fields():
-    ok = dict(t=np.array([0.0, 0.1]), r=np.array([1.0, 2.0]), receiver=np.array([0, 1]),
-              transmitter=np.array([0, 0]), n_receivers=2)
+    ok = {"t": np.array([0.0, 0.1]), "r": np.array([1.0, 2.0]), "receiver": np.array([0, 1]),
+              "transmitter": np.array([0, 0]), "n_receivers": 2}
     RangeStreams(**ok)
-    for change, field in ((dict(t=np.array([0.1, 0.0])), "t"),
-                          (dict(r=np.array([1.0, -2.0])), "r"),
-                          (dict(receiver=np.array([0, 2])), "receiver"),
-                          (dict(receiver=np.array([0.0, 1.0])), "receiver"),
-                          (dict(n_receivers="2"), "n_receivers"),
-                          (dict(t=np.array([0.0, np.inf])), "t"),
-                          (dict(r=["a", "b"]), "r")):
+    for change, field in (({"t": np.array([0.1, 0.0])}, "t"),
+                          ({"r": np.array([1.0, -2.0])}, "r"),
+                          ({"receiver": np.array([0, 2])}, "receiver"),
+                          ({"receiver": np.array([0.0, 1.0])}, "receiver"),
+                          ({"n_receivers": "2"}, "n_receivers"),
+                          ({"t": np.array([0.0, np.inf])}, "t"),
+                          ({"r": ["a", "b"]}, "r")):
         with pytest.raises((ValueError, TypeError), match=field):
             RangeStreams(**{**ok, **change})
     with pytest.raises(ValueError, match="strictly increasing"):
@@ -320,15 +322,15 @@ def test_streams_validation_names_fields():
 
 
 def test_config_validation_names_fields():
-    for bad, field in ((dict(sigma_range_m=0.0), "sigma_range_m"),
-                       (dict(max_speed_mps=math.inf), "max_speed_mps"),
-                       (dict(accel_std_mps2="1"), "accel_std_mps2"),
-                       (dict(relock_after=math.inf), "relock_after"),
-                       (dict(method="magic"), "method"),
-                       (dict(sync="never"), "sync"),
-                       (dict(lever_arms_m=[[0, 0]]), "lever_arms_m"),
-                       (dict(height_m=None, receivers_used=(0, 0, 1)), "receivers_used"),
-                       (dict(tight_uses_gate1=1), "tight_uses_gate1")):
+    for bad, field in (({"sigma_range_m": 0.0}, "sigma_range_m"),
+                       ({"max_speed_mps": math.inf}, "max_speed_mps"),
+                       ({"accel_std_mps2": "1"}, "accel_std_mps2"),
+                       ({"relock_after": math.inf}, "relock_after"),
+                       ({"method": "magic"}, "method"),
+                       ({"sync": "never"}, "sync"),
+                       ({"lever_arms_m": [[0, 0]]}, "lever_arms_m"),
+                       ({"height_m": None, "receivers_used": (0, 0, 1)}, "receivers_used"),
+                       ({"tight_uses_gate1": 1}, "tight_uses_gate1")):
         with pytest.raises((ValueError, TypeError), match=field):
             UWB(**bad)
     with pytest.raises(TypeError, match="streams"):
@@ -552,5 +554,5 @@ def test_range_filter_extremes_keep_a_finite_state(r, dt, height):
     used = f.update(f.t + dt, 1, 0, r)
     assert np.all(np.isfinite(f.x)) and np.all(np.isfinite(f.P))
     assert np.allclose(f.P, f.P.T, rtol=1e-9, atol=1e-12 * np.abs(f.P).max())
-    if r != r or r > 1e3 and dt < 10:
+    if math.isnan(r) or (r > 1e3 and dt < 10):
         assert not used

@@ -294,14 +294,14 @@ def test_every_method_is_exact_at_utm_sized_coordinates(offset):
 
 
 @pytest.mark.parametrize("kwargs, field, exc", [
-    (dict(max_iter=np.inf), "max_iter", TypeError),
-    (dict(max_iter=0), "max_iter", ValueError),
-    (dict(max_iter="15"), "max_iter", TypeError),
-    (dict(tol=np.nan), "tol", ValueError),
-    (dict(tol=None), "tol", TypeError),
-    (dict(x0=np.zeros(2)), "x0", ValueError),
-    (dict(x0="start"), "x0", TypeError),
-    (dict(side=True), "side", ValueError),
+    ({"max_iter": np.inf}, "max_iter", TypeError),
+    ({"max_iter": 0}, "max_iter", ValueError),
+    ({"max_iter": "15"}, "max_iter", TypeError),
+    ({"tol": np.nan}, "tol", ValueError),
+    ({"tol": None}, "tol", TypeError),
+    ({"x0": np.zeros(2)}, "x0", ValueError),
+    ({"x0": "start"}, "x0", TypeError),
+    ({"side": True}, "side", ValueError),
 ])
 def test_nonlinear_ls_bad_arguments_are_named(kwargs, field, exc):
     rec = np.array([[0.0, 0, 0], [1, 0, 0], [0, 1, 0], [0, 0, 1]])
@@ -310,16 +310,16 @@ def test_nonlinear_ls_bad_arguments_are_named(kwargs, field, exc):
 
 
 @pytest.mark.parametrize("bad, field, exc", [
-    (dict(receivers="abc"), "receivers", TypeError),
-    (dict(receivers=None), "receivers", ValueError),
-    (dict(ranges=["a", "b", "c"]), "ranges", TypeError),
-    (dict(ranges=None), "ranges", ValueError),
-    (dict(ranges=[1.0, np.inf, 1.0]), "ranges", ValueError),
-    (dict(ranges=[1e300, 1.0, 1.0]), "ranges", ValueError),
-    (dict(receivers=np.eye(3) * 1e300), "receivers", ValueError),
+    ({"receivers": "abc"}, "receivers", TypeError),
+    ({"receivers": None}, "receivers", ValueError),
+    ({"ranges": ["a", "b", "c"]}, "ranges", TypeError),
+    ({"ranges": None}, "ranges", ValueError),
+    ({"ranges": [1.0, np.inf, 1.0]}, "ranges", ValueError),
+    ({"ranges": [1e300, 1.0, 1.0]}, "ranges", ValueError),
+    ({"receivers": np.eye(3) * 1e300}, "receivers", ValueError),
 ])
 def test_strings_none_and_overflowing_numbers_are_named(bad, field, exc):
-    base = dict(receivers=np.array([[0.0, 0, 0], [1, 0, 0], [0, 1, 0]]), ranges=np.ones(3))
+    base = {"receivers": np.array([[0.0, 0, 0], [1, 0, 0], [0, 1, 0]]), "ranges": np.ones(3)}
     for name in (*THREE, "damped_ls"):
         with pytest.raises(exc, match=field):
             T.METHODS[name](**{**base, **bad})
@@ -397,7 +397,7 @@ def test_damped_ls_agrees_with_scipy_least_squares_on_noisy_data():
                                 return_info=True)
         assert info.converged.all()
         for i in range(60):
-            def res(x, i=i):
+            def res(x, i=i, known=known):
                 p = np.r_[x, 1.0] if known else x
                 return np.linalg.norm(p - rec, axis=1) - R[i]
             x0 = out[i, :2] if known else out[i]
