@@ -13,6 +13,9 @@ method             receivers   what it is (Appendix A function)
 ``closed_form``    3           "CFP": two linear sphere-difference equations plus the
                                quadratic in the out-of-plane coordinate (``ExplicitMethod_CFP``)
 ``cayley_menger``  3           "CMD": Cayley-Menger bideterminants (``ExplicitMethod_CMD``)
+``damped_ls``      >= 3        not in the thesis: damped (Levenberg-Marquardt) range least
+                               squares with missing receivers, a trust region, a known-height
+                               mode and a per-row mirror choice (see below)
 =================  ==========  ==============================================================
 
 Shapes: ``receivers`` ``(k, 3)``; ``ranges`` ``(k,)`` (one set, returns ``(3,)``) or ``(N, k)``
@@ -41,22 +44,53 @@ last iterate, ``info.degenerate`` is True and ``info.converged`` False; the othe
 batch are solved as if it were not there.
 
 Degenerate geometry (coincident or collinear receivers, coplanar receivers for ``linear_ls``),
-wrong shapes and negative ranges raise ``ValueError`` naming the field.
+wrong shapes and negative ranges raise ``ValueError`` naming the field; a non-numeric argument
+raises ``TypeError`` naming it. Coordinates and ranges are limited to ``|value| <= MAX_ABS_M``
+(1e8 m, beyond any Earth-fixed coordinate) so that squared ranges never overflow.
+
+Large coordinates. ``closed_form`` works with squared norms of receiver positions, which loses
+every digit at UTM-sized coordinates (1e7 m: squares of 1e14 m^2); every method therefore
+solves in coordinates centred on the receivers' centroid and adds it back (exact ranges at
+1e7 m offsets are recovered to < 1e-7 m, tested).
+
+Beyond the thesis: :func:`damped_ls`, the solver for real ranging data. Levenberg-Marquardt
+(Madsen, Nielsen and Tingleff 2004, "Methods for non-linear least squares problems",
+Algorithm 3.16) on the range residuals of whichever receivers reported in each row (any
+``>= 3``; NaN = that receiver missing), with
+
+* a trust region: every iterate stays inside the ball the data allow (a point consistent with
+  range ``r_i`` lies within ``r_i`` of receiver ``i``, so within ``min_i (r_i + |p_i - c|)``
+  of the centroid ``c``, plus a slack); a result on that boundary is flagged ``bounded``;
+* ``converged`` meaning converged: the gradient or the step test of Algorithm 3.16 was met,
+  at an interior, well-determined point (not on the bound, not degenerate, not ``max_iter``);
+* a known-height mode (``height_m``): the tag's z is given and only x, y are solved, which
+  removes the nearly unobservable z of a flat or small array seen from afar;
+* the mirror side chosen per row, not fixed for a run: the solver also starts from its
+  solution reflected in the receivers' best-fit plane (in known-height mode: their best-fit
+  line in x-y); the better fit wins, and when both fit equally well (within 9 sigma^2) the row
+  is ``ambiguous`` and the one nearer ``prior`` (e.g. the previous fix) is returned, or, with
+  no prior, the one on ``side``; the other is ``info.alternative``.
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, fields
 
 import numpy as np
 
+from estimator._checks import check_array, check_int, check_real
+
 __all__ = [
+    "DLS_MAX_ITER",
+    "DLS_TOL",
+    "MAX_ABS_M",
     "METHODS",
     "NLS_MAX_ITER",
     "NLS_TOL_M",
     "TrilaterationInfo",
     "cayley_menger",
     "closed_form",
+    "damped_ls",
     "linear_ls",
     "nonlinear_ls",
     "simple",
@@ -66,6 +100,16 @@ __all__ = [
 NLS_TOL_M = 1e-9
 #: Gauss-Newton iteration cap; the thesis's ``while ... i_count_nls <= 15``.
 NLS_MAX_ITER = 15
+#: Levenberg-Marquardt iteration cap of :func:`damped_ls`. Rows far from a small array sit in a
+#: long flat valley (HDOP ~ 30) where the damped steps need 60-130 iterations (measured).
+DLS_MAX_ITER = 200
+#: Relative tolerance of :func:`damped_ls`'s gradient and step tests (eps_1, eps_2 of
+#: Algorithm 3.16): 1e-10 x the problem's length scale, five digits above float64 rounding.
+DLS_TOL = 1e-10
+#: Largest accepted |coordinate| and range (m): squares stay far from overflow.
+MAX_ABS_M = 1e8
+#: Largest iteration cap accepted by the iterative solvers (a cap, not a target).
+_MAX_ITER_CAP = 1_000_000
 
 # Relative tolerances for degenerate geometry, against the layout's own length scale.
 _COINCIDENT_REL = 1e-9   # receivers closer than this x array size are "coincident"
@@ -77,19 +121,24 @@ _NLS_SINGULAR_REL = 1e-12
 
 
 def _well_conditioned(A: np.ndarray) -> np.ndarray:
-    """(M,) bool for symmetric PSD (M, 3, 3): smallest eigenvalue > _NLS_SINGULAR_REL x largest.
+    """(M,) bool for symmetric PSD (M, d, d), d = 2 or 3: smallest eigenvalue >
+    _NLS_SINGULAR_REL x largest.
 
-    Cheap sufficient test first: det > rel * trace^3 implies lambda_min >= det / lambda_max^2
-    > rel * lambda_max (trace >= lambda_max). Only rows failing it (rare: degenerate ones)
-    get the exact eigenvalue test, so the Gauss-Newton loop does not pay an eigen-
-    decomposition per row and iteration.
+    Cheap sufficient test first: det > rel * trace^d implies lambda_min >= det /
+    lambda_max^(d-1) > rel * lambda_max (trace >= lambda_max). Only rows failing it (rare:
+    degenerate ones) get the exact eigenvalue test, so the Gauss-Newton loop does not pay an
+    eigendecomposition per row and iteration.
     """
-    det = (A[:, 0, 0] * (A[:, 1, 1] * A[:, 2, 2] - A[:, 1, 2] * A[:, 2, 1])
-           - A[:, 0, 1] * (A[:, 1, 0] * A[:, 2, 2] - A[:, 1, 2] * A[:, 2, 0])
-           + A[:, 0, 2] * (A[:, 1, 0] * A[:, 2, 1] - A[:, 1, 1] * A[:, 2, 0]))
-    tr = A[:, 0, 0] + A[:, 1, 1] + A[:, 2, 2]
-    ok = det > _NLS_SINGULAR_REL * tr ** 3
-    rest = np.flatnonzero(~ok)
+    d = A.shape[-1]
+    if d == 2:
+        det = A[:, 0, 0] * A[:, 1, 1] - A[:, 0, 1] * A[:, 1, 0]
+    else:
+        det = (A[:, 0, 0] * (A[:, 1, 1] * A[:, 2, 2] - A[:, 1, 2] * A[:, 2, 1])
+               - A[:, 0, 1] * (A[:, 1, 0] * A[:, 2, 2] - A[:, 1, 2] * A[:, 2, 0])
+               + A[:, 0, 2] * (A[:, 1, 0] * A[:, 2, 1] - A[:, 1, 1] * A[:, 2, 0]))
+    tr = np.trace(A, axis1=1, axis2=2)
+    ok = det > _NLS_SINGULAR_REL * tr ** d
+    rest = np.flatnonzero(~ok & np.all(np.isfinite(A), axis=(1, 2)))
     if rest.size:
         ev = np.linalg.eigvalsh(A[rest])                      # ascending, >= 0 up to rounding
         ok[rest] = ev[:, 0] > _NLS_SINGULAR_REL * ev[:, -1]
@@ -100,16 +149,29 @@ def _well_conditioned(A: np.ndarray) -> np.ndarray:
 class TrilaterationInfo:
     """Per-row diagnostics of a trilateration call.
 
-    Attributes (each ``(N,)``, or 0-d for a single range set):
-    no_intersection : bool, the spheres do not meet; the closest real point was returned.
-    missing : bool, the row had a NaN range; the position is NaN.
-    iterations : int, Gauss-Newton iterations (``nonlinear_ls``); 1 for ``linear_ls`` (as the
+    Attributes (each ``(N,)``, ``alternative`` ``(N, 3)``; 0-d / ``(3,)`` for a single range set):
+    no_intersection : bool, the spheres do not meet; the closest real point was returned
+        (three-receiver closed forms; False for the least-squares methods).
+    missing : bool, the row had too few ranges (the thesis methods: any NaN; ``damped_ls``:
+        fewer than 3 finite ranges); the position is NaN.
+    iterations : int, Gauss-Newton / Levenberg-Marquardt iterations; 1 for ``linear_ls`` (as the
         thesis's ``i_count_ls``); 0 for the closed forms.
-    converged : bool, ``nonlinear_ls`` step fell below ``tol`` within ``max_iter``; True for the
-        direct methods.
-    degenerate : bool, ``nonlinear_ls`` found no Gauss-Newton step (start not finite, iterate
-        on a receiver, or ``J'J`` singular: condition number >= 1e12) and stopped the row at
-        its last iterate (see the module docstring); False for the other methods.
+    converged : bool, the iterative methods met their convergence test (``nonlinear_ls``: step
+        below ``tol`` within ``max_iter``; ``damped_ls``: gradient or step test at an interior,
+        well-determined point); True for the direct methods.
+    degenerate : bool, no well-determined solution: ``nonlinear_ls`` found no Gauss-Newton step
+        (start not finite, iterate on a receiver, or ``J'J`` singular: condition number
+        >= 1e12) and stopped the row at its last iterate; ``damped_ls``: the receivers of the
+        row do not fix a start (collinear in 3-D, coincident in x-y in known-height mode) or
+        ``J'J`` is singular at the solution. False for the direct methods.
+    bounded : bool, ``damped_ls`` only: the solution lies on the trust-region bound (the
+        ranges allow no point farther out; the fit wanted one), i.e. the ranges are mutually
+        inconsistent (a spike, a blunder).
+    ambiguous : bool, ``damped_ls`` only: two mirror minima fit equally well; ``prior`` or
+        ``side`` picked the returned one.
+    rms_residual_m : float, RMS of ``|p - p_i| - r_i`` over the receivers used (NaN if missing).
+    alternative : ``damped_ls`` only: the other mirror minimum where one exists and differs
+        from the returned point (NaN otherwise).
     """
 
     no_intersection: np.ndarray
@@ -117,6 +179,10 @@ class TrilaterationInfo:
     iterations: np.ndarray
     converged: np.ndarray
     degenerate: np.ndarray
+    bounded: np.ndarray
+    ambiguous: np.ndarray
+    rms_residual_m: np.ndarray
+    alternative: np.ndarray
 
 
 # ---------------------------------------------------------------------------------------------
@@ -125,15 +191,13 @@ class TrilaterationInfo:
 
 
 def _check_receivers(receivers: np.ndarray, k: int | None, min_k: int, method: str) -> np.ndarray:
-    rec = np.asarray(receivers, dtype=float)
+    rec = check_array(receivers, "receivers", max_abs=MAX_ABS_M)
     if rec.ndim != 2 or rec.shape[1] != 3:
         raise ValueError(f"receivers: expected shape (k, 3), got {rec.shape}")
     if k is not None and rec.shape[0] != k:
         raise ValueError(f"receivers: {method} needs exactly {k} receivers, got {rec.shape[0]}")
     if rec.shape[0] < min_k:
         raise ValueError(f"receivers: {method} needs >= {min_k} receivers, got {rec.shape[0]}")
-    if not np.all(np.isfinite(rec)):
-        raise ValueError("receivers: must be finite")
     scale = float(np.max(np.ptp(rec, axis=0))) if rec.shape[0] > 1 else 0.0
     diff = rec[:, None, :] - rec[None, :, :]
     dist = np.sqrt(np.einsum("ijk,ijk->ij", diff, diff))
@@ -145,23 +209,39 @@ def _check_receivers(receivers: np.ndarray, k: int | None, min_k: int, method: s
 
 
 def _check_ranges(ranges: np.ndarray, k: int) -> tuple[np.ndarray, bool]:
-    r = np.asarray(ranges, dtype=float)
+    r = check_array(ranges, "ranges", allow_nan=True, max_abs=MAX_ABS_M)
     single = r.ndim == 1
     if single:
         r = r[None, :]
     if r.ndim != 2 or r.shape[1] != k:
-        raise ValueError(f"ranges: expected shape ({k},) or (N, {k}), got {np.shape(ranges)}")
-    if np.any(np.isinf(r)):
-        raise ValueError("ranges: must be finite or NaN (NaN = missing), got inf")
-    if np.any(r < 0):
+        raise ValueError(f"ranges: expected shape ({k},) or (N, {k}), got {np.shape(r)}")
+    with np.errstate(invalid="ignore"):
+        neg = r < 0
+    if neg.any():
         raise ValueError(f"ranges: must be >= 0, got min {np.nanmin(r):.6g} m")
     return r, single
 
 
 def _check_side(side: int) -> int:
-    if side not in (1, -1):
+    if isinstance(side, (bool, np.bool_)) or side not in (1, -1):
         raise ValueError(f"side: must be +1 or -1, got {side!r}")
     return int(side)
+
+
+def _check_iter_tol(max_iter: int, tol: float) -> tuple[int, float]:
+    it = check_int(max_iter, "max_iter", lo=1, hi=_MAX_ITER_CAP)
+    return it, check_real(tol, "tol", lo=0.0, lo_open=True)
+
+
+def _rows_of_points(x, name: str, n: int, *, allow_nan: bool, d: int = 3) -> np.ndarray:
+    """``x`` as (n, d) float: a (d,) point repeated or an (n, d) array; the message names
+    ``name`` and the shape it got."""
+    a = check_array(x, name, allow_nan=allow_nan, max_abs=MAX_ABS_M)
+    if a.shape == (d,):
+        return np.broadcast_to(a, (n, d)).copy()
+    if a.shape != (n, d):
+        raise ValueError(f"{name}: expected shape ({d},) or ({n}, {d}), got {a.shape}")
+    return a.copy()
 
 
 def _plane_frame(p1: np.ndarray, p2: np.ndarray, p3: np.ndarray):
@@ -183,19 +263,40 @@ def _plane_frame(p1: np.ndarray, p2: np.ndarray, p3: np.ndarray):
     return ex, ey, ez, s
 
 
+def _rms_residual(rec: np.ndarray, pos: np.ndarray, r: np.ndarray) -> np.ndarray:
+    """RMS over the finite ranges of |p - p_i| - r_i, (N,) m; NaN where pos or all r are NaN."""
+    res = np.linalg.norm(pos[:, None, :] - rec[None, :, :], axis=2) - r
+    ok = np.isfinite(res)
+    n = ok.sum(axis=1)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        return np.where(n > 0, np.sqrt(np.sum(np.where(ok, res, 0.0) ** 2, axis=1) / n), np.nan)
+
+
 def _finish(pos: np.ndarray, info: TrilaterationInfo, single: bool, return_info: bool):
     if single:
         pos = pos[0]
-        info = TrilaterationInfo(*(np.asarray(a)[0] for a in (
-            info.no_intersection, info.missing, info.iterations, info.converged,
-            info.degenerate)))
+        info = TrilaterationInfo(*(np.asarray(getattr(info, f.name))[0] for f in fields(info)))
     return (pos, info) if return_info else pos
 
 
-def _direct_info(no_int: np.ndarray, missing: np.ndarray) -> TrilaterationInfo:
+def _info(rec: np.ndarray, pos: np.ndarray, r: np.ndarray, *, no_intersection=None,
+          missing, iterations, converged, degenerate=None, bounded=None, ambiguous=None,
+          alternative=None) -> TrilaterationInfo:
+    """Fill every diagnostic field; unset ones get their 'not applicable' value."""
+    n = pos.shape[0]
+    no = np.zeros(n, dtype=bool)
+    return TrilaterationInfo(
+        no if no_intersection is None else no_intersection, missing, iterations, converged,
+        no if degenerate is None else degenerate, no if bounded is None else bounded,
+        no if ambiguous is None else ambiguous, _rms_residual(rec, pos, r),
+        np.full((n, 3), np.nan) if alternative is None else alternative)
+
+
+def _direct_info(rec: np.ndarray, pos: np.ndarray, r: np.ndarray, no_int: np.ndarray,
+                 missing: np.ndarray) -> TrilaterationInfo:
     n = no_int.shape[0]
-    return TrilaterationInfo(no_int & ~missing, missing, np.zeros(n, dtype=int),
-                             np.ones(n, dtype=bool), np.zeros(n, dtype=bool))
+    return _info(rec, pos, r, no_intersection=no_int & ~missing, missing=missing,
+                 iterations=np.zeros(n, dtype=int), converged=np.ones(n, dtype=bool))
 
 
 # ---------------------------------------------------------------------------------------------
@@ -230,7 +331,7 @@ def simple(receivers: np.ndarray, ranges: np.ndarray, *, side: int = 1,
     no_int = z2 < 0
     z = np.sqrt(np.where(no_int, 0.0, z2)) * (side * s)
     pos = p1 + x[:, None] * ex + y[:, None] * ey + z[:, None] * ez
-    return _finish(pos, _direct_info(no_int, missing), single, return_info)
+    return _finish(pos, _direct_info(rec, pos, r, no_int, missing), single, return_info)
 
 
 def closed_form(receivers: np.ndarray, ranges: np.ndarray, *, side: int = 1,
@@ -243,7 +344,9 @@ def closed_form(receivers: np.ndarray, ranges: np.ndarray, *, side: int = 1,
     ``[x, y] = W^-1 (beta - d z)``, and sphere 1 becomes the quadratic
     ``a z^2 + b z + c = 0`` with the thesis's ``a_cf = 1 + |W^-1 d|^2``, ``b_cf``, ``c_cf``.
     The thesis's "original position calculation" (``R_cfp1``) is implemented; its "improved"
-    re-expression (``R_cfp2``, Lambda/zeta) is algebraically the same point.
+    re-expression (``R_cfp2``, Lambda/zeta) is algebraically the same point. Computed in
+    coordinates centred on the receivers (see the module docstring: the S_i^2 terms lose every
+    digit at UTM-sized coordinates otherwise).
 
     Generalisation: the thesis eliminates x, y and solves for z, which needs the receivers'
     xy-projection to be non-collinear. Here the quadratic is in the world coordinate most
@@ -259,7 +362,10 @@ def closed_form(receivers: np.ndarray, ranges: np.ndarray, *, side: int = 1,
     normal = ez * s
     q = int(np.argmax(np.abs(ez)))           # coordinate solved by the quadratic ("z")
     a_idx = [c for c in range(3) if c != q]   # the two eliminated ("x", "y")
-    P = rec[:, a_idx + [q]]                   # permuted so the quadratic coordinate is last
+    # centred on the receivers' centroid: S_i^2 below are squared norms, which at UTM-sized
+    # coordinates (1e7 m) would keep no significant digit of the metre-sized differences
+    centre = rec.mean(axis=0)
+    P = (rec - centre)[:, a_idx + [q]]        # permuted so the quadratic coordinate is last
     x1, y1, z1 = P[0]
     W = np.array([[P[1, 0] - x1, P[1, 1] - y1], [P[2, 0] - x1, P[2, 1] - y1]])
     dvec = np.array([P[1, 2] - z1, P[2, 2] - z1])
@@ -287,7 +393,8 @@ def closed_form(receivers: np.ndarray, ranges: np.ndarray, *, side: int = 1,
     pos[:, a_idx[0]] = xy[:, 0]
     pos[:, a_idx[1]] = xy[:, 1]
     pos[:, q] = z
-    return _finish(pos, _direct_info(no_int, missing), single, return_info)
+    pos += centre
+    return _finish(pos, _direct_info(rec, pos, r, no_int, missing), single, return_info)
 
 
 def cayley_menger(receivers: np.ndarray, ranges: np.ndarray, *, side: int = 1,
@@ -348,7 +455,7 @@ def cayley_menger(receivers: np.ndarray, ranges: np.ndarray, *, side: int = 1,
     k3 = np.sqrt(np.where(no_int, 0.0, cmbd_k3)) / kk * (side * s)
     pos = p1 + k1[:, None] * v1 + k2[:, None] * v2 + k3[:, None] * cr
     pos[missing] = np.nan
-    return _finish(pos, _direct_info(no_int, missing), single, return_info)
+    return _finish(pos, _direct_info(rec, pos, r, no_int, missing), single, return_info)
 
 
 # ---------------------------------------------------------------------------------------------
@@ -385,8 +492,8 @@ def linear_ls(receivers: np.ndarray, ranges: np.ndarray, *, side: int = 1,
     _, Apinv = _linear_system(rec, "linear_ls")
     pos, missing = _linear_solve(rec, Apinv, r)
     n = r.shape[0]
-    info = TrilaterationInfo(np.zeros(n, dtype=bool), missing, np.ones(n, dtype=int),
-                             np.ones(n, dtype=bool), np.zeros(n, dtype=bool))
+    info = _info(rec, pos, r, missing=missing, iterations=np.ones(n, dtype=int),
+                 converged=np.ones(n, dtype=bool))
     return _finish(pos, info, single, return_info)
 
 
@@ -426,10 +533,7 @@ def nonlinear_ls(receivers: np.ndarray, ranges: np.ndarray, *, side: int = 1,
     receivers (k, 3) m, ranges (k,) or (N, k) m -> (3,) or (N, 3) m.
     """
     _check_side(side)
-    if not (tol > 0):
-        raise ValueError(f"tol: must be > 0 metres, got {tol!r}")
-    if int(max_iter) != max_iter or max_iter < 1:
-        raise ValueError(f"max_iter: must be a positive integer, got {max_iter!r}")
+    max_iter, tol = _check_iter_tol(max_iter, tol)
     rec = _check_receivers(receivers, None, 4, "nonlinear_ls")
     r, single = _check_ranges(ranges, rec.shape[0])
     n = r.shape[0]
@@ -438,10 +542,7 @@ def nonlinear_ls(receivers: np.ndarray, ranges: np.ndarray, *, side: int = 1,
         _, Apinv = _linear_system(rec, "nonlinear_ls")
         p, _ = _linear_solve(rec, Apinv, r)
     else:
-        p = np.broadcast_to(np.asarray(x0, dtype=float), (n, 3)).copy() if np.ndim(x0) == 1 \
-            else np.asarray(x0, dtype=float).copy()
-        if p.shape != (n, 3):
-            raise ValueError(f"x0: expected shape (3,) or ({n}, 3), got {np.shape(x0)}")
+        p = _rows_of_points(x0, "x0", n, allow_nan=True)
     if reflect_start:
         centre = rec.mean(axis=0)
         normal = np.linalg.svd(rec - centre)[2][-1]
@@ -482,16 +583,282 @@ def nonlinear_ls(receivers: np.ndarray, ranges: np.ndarray, *, side: int = 1,
         converged[idx[done]] = True
         active[idx[done]] = False
     p[missing] = np.nan
-    info = TrilaterationInfo(np.zeros(n, dtype=bool), missing, iters, converged | missing,
-                             degenerate)
+    info = _info(rec, p, r, missing=missing, iterations=iters, converged=converged | missing,
+                 degenerate=degenerate)
     return _finish(p, info, single, return_info)
 
 
-#: name -> function, in the thesis's order.
+# ---------------------------------------------------------------------------------------------
+# damped least squares (>= 3 receivers, missing ranges, known height): not in the thesis
+# ---------------------------------------------------------------------------------------------
+
+
+def _orient(normal: np.ndarray) -> np.ndarray:
+    """Unit normals (M, d) oriented as the module's ``+side``: n_z > 0 in 3-D (x, then y
+    breaking ties); in 2-D n_x > 0 (then n_y)."""
+    key = normal[:, -1] if normal.shape[1] == 3 else normal[:, 0]
+    alt = normal[:, 0] if normal.shape[1] == 3 else normal[:, 1]
+    flip = (key < 0) | ((key == 0) & (alt < 0))
+    return np.where(flip[:, None], -normal, normal)
+
+
+def _model(G: np.ndarray, dz: np.ndarray | None, p: np.ndarray):
+    """Distances (M, k) from points p (M, d) to receivers G (k, d) (plus the fixed vertical
+    offsets dz (M, k) in known-height mode) and the unit Jacobian rows (M, k, d)."""
+    diff = p[:, None, :] - G[None, :, :]
+    d2 = np.einsum("mkc,mkc->mk", diff, diff)
+    if dz is not None:
+        d2 = d2 + dz * dz
+    dist = np.sqrt(d2)
+    J = diff / np.where(dist > 0, dist, 1.0)[:, :, None]
+    return dist, J
+
+
+def _project(p: np.ndarray, radius: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Points (M, d) pulled onto the ball |p| <= radius (M,); returns (points, on_bound)."""
+    norm = np.linalg.norm(p, axis=1)
+    out = norm > radius
+    scale = np.where(out, radius / np.where(norm > 0, norm, 1.0), 1.0)
+    return p * scale[:, None], out
+
+
+def _levenberg_marquardt(G, dz, r, w, p0, radius, tol, max_iter, scale):
+    """Batched Algorithm 3.16 of Madsen, Nielsen and Tingleff (2004) on the range residuals.
+
+    G (k, d) receivers (centred), dz (M, k) or None, r (M, k) with 0 where w is False, w (M, k)
+    bool, p0 (M, d) finite starts inside the ball, radius (M,) trust-region bound, scale (M,)
+    the problem's length scale for the relative tests. Returns p, iterations, stopped-by-test,
+    on-bound, cost (sum of squared residuals), well-conditioned J'J at the end.
+    """
+    m, d = p0.shape
+    eye = np.eye(d)
+    p = p0.copy()
+
+    def evaluate(pts, rows):
+        dist, J = _model(G, None if dz is None else dz[rows], pts)
+        f = np.where(w[rows], dist - r[rows], 0.0)
+        J = J * w[rows][:, :, None]
+        return f, np.einsum("mki,mkj->mij", J, J), np.einsum("mki,mk->mi", J, f)
+
+    f, A, g = evaluate(p, np.arange(m))
+    cost = np.sum(f * f, axis=1)
+    eps1 = tol * scale
+    mu = 1e-3 * np.max(np.diagonal(A, axis1=1, axis2=2), axis=1)   # tau = 1e-3 (Eq. 3.14)
+    mu = np.where(mu > 0, mu, 1e-3)
+    nu = np.full(m, 2.0)
+    done = np.max(np.abs(g), axis=1) <= eps1
+    iters = np.zeros(m, dtype=int)
+    bound = np.zeros(m, dtype=bool)
+    for _ in range(max_iter):
+        idx = np.flatnonzero(~done)
+        if idx.size == 0:
+            break
+        iters[idx] += 1
+        h = -np.linalg.solve(A[idx] + mu[idx, None, None] * eye, g[idx][:, :, None])[:, :, 0]
+        hn = np.linalg.norm(h, axis=1)
+        small = hn <= tol * (np.linalg.norm(p[idx], axis=1) + scale[idx])
+        done[idx[small]] = True
+        idx, h = idx[~small], h[~small]
+        if idx.size == 0:
+            break
+        p_new, on_b = _project(p[idx] + h, radius[idx])
+        f_new, A_new, g_new = evaluate(p_new, idx)
+        cost_new = np.sum(f_new * f_new, axis=1)
+        # gain ratio (Eq. 3.15): actual / predicted decrease of F = cost / 2
+        pred = 0.5 * np.einsum("mi,mi->m", h, mu[idx, None] * h - g[idx])
+        with np.errstate(divide="ignore", invalid="ignore"):
+            rho = 0.5 * (cost[idx] - cost_new) / pred
+        acc = (cost_new < cost[idx]) & (rho > 0)
+        ia, ir = idx[acc], idx[~acc]
+        p[ia], cost[ia], A[ia], g[ia], bound[ia] = (p_new[acc], cost_new[acc], A_new[acc],
+                                                  g_new[acc], on_b[acc])
+        mu[ia] *= np.maximum(1.0 / 3.0, 1.0 - (2.0 * rho[acc] - 1.0) ** 3)
+        nu[ia] = 2.0
+        mu[ir] *= nu[ir]
+        nu[ir] *= 2.0
+        done[ia[np.max(np.abs(g[ia]), axis=1) <= eps1[ia]]] = True
+        # a damping factor this large means no step can lower the cost: stuck, not converged
+        stuck = ~np.isfinite(mu) | (mu > 1e300)
+        mu = np.where(stuck, 1e300, mu)
+        nu = np.minimum(nu, 1e300)
+    return p, iters, done, bound, cost, _well_conditioned(A)
+
+
+def _linear_start(G, rho2, w, side):
+    """Linearised start: differences against the first receiver of each row, solved by SVD.
+
+    Full rank: the least-squares point. One rank short (three receivers, a coplanar set in 3-D,
+    a collinear one in known-height mode): the minimum-norm point plus the offset along the
+    null direction that puts it on the reference sphere, on ``side`` of the oriented normal.
+    Returns starts (M, d) (NaN where rank < d - 1), oriented normals (M, d), the reference
+    receiver's index and the rank (M,).
+    """
+    m = rho2.shape[0]
+    d = G.shape[1]
+    a = np.argmax(w, axis=1)
+    rows = np.arange(m)
+    Ga = G[a]
+    rho2a = rho2[rows, a]
+    use = w.copy()
+    use[rows, a] = False
+    A = (G[None, :, :] - Ga[:, None, :]) * use[:, :, None]
+    b = 0.5 * (rho2a[:, None] - np.where(use, rho2, 0.0)
+               + np.sum(G * G, axis=1)[None, :] - np.sum(Ga * Ga, axis=1)[:, None]) * use
+    U, S, Vt = np.linalg.svd(A, full_matrices=False)
+    sig = S > _COPLANAR_REL * S[:, :1]
+    inv = np.where(sig, 1.0 / np.where(sig, S, 1.0), 0.0)
+    x = np.einsum("mji,mj,mkj,mk->mi", Vt, inv, U, b)          # V diag(1/S) U' b
+    rank = sig.sum(axis=1)
+    normal = _orient(Vt[:, -1, :])
+    short = rank == d - 1
+    if short.any():
+        beta = np.einsum("mi,mi->m", normal, x - Ga)
+        gamma = np.sum((x - Ga) ** 2, axis=1) - rho2a
+        t = -beta + side * np.sqrt(np.maximum(beta * beta - gamma, 0.0))
+        x = np.where(short[:, None], x + t[:, None] * normal, x)
+    x[rank < d - 1] = np.nan
+    return x, normal, a, rank
+
+
+def damped_ls(receivers: np.ndarray, ranges: np.ndarray, *, height_m=None,
+              x0: np.ndarray | None = None, prior: np.ndarray | None = None, side: int = 1,
+              sigma_m: float = 0.1, bound_slack_m: float | None = None, tol: float = DLS_TOL,
+              max_iter: int = DLS_MAX_ITER,
+              return_info: bool = False) -> np.ndarray | tuple[np.ndarray, TrilaterationInfo]:
+    """Damped range least squares for real data (not in the thesis; see the module docstring).
+
+    Minimises ``sum_i (|p - p_i| - R_i)^2`` over the receivers with a finite range in each row
+    (>= 3 needed; fewer: ``missing``) by Levenberg-Marquardt (Madsen, Nielsen and Tingleff
+    2004, Algorithm 3.16) inside the trust-region ball ``|p - c| <= min_i (R_i + |p_i - c|) +
+    bound_slack_m`` (``c`` the receivers' centroid; default slack 10 ``sigma_m``).
+
+    receivers (k, 3) m, k >= 3; ranges (k,) or (N, k) m, NaN = that receiver missing.
+    height_m : None (solve x, y, z) or the tag's known z, scalar or (N,) m: only x, y are
+        solved (known-height mode, for a ground tag or a flat array seen from afar).
+    x0 : start, (3,) or (N, 3) m (e.g. the previous fix); default the linearised solution.
+    prior : (3,) or (N, 3) m, NaN allowed: decides between two mirror minima that fit equally
+        well (continuity with the previous fix); rows without a prior use ``side``.
+    side : +1 / -1, the mirror side when there is no prior (the module's convention).
+    sigma_m : range noise std (m): mirror minima whose sums of squared residuals differ by
+        less than 9 sigma_m^2 are ``ambiguous``; also sets the default bound slack.
+    tol, max_iter : relative gradient/step tolerance and iteration cap of Algorithm 3.16.
+
+    Returns positions (3,) or (N, 3) m (NaN for ``missing`` rows and rows whose receivers fix
+    no start, flagged ``degenerate``) [and :class:`TrilaterationInfo`].
+    """
+    side = _check_side(side)
+    max_iter, tol = _check_iter_tol(max_iter, tol)
+    sigma = check_real(sigma_m, "sigma_m", lo=0.0, lo_open=True, hi=MAX_ABS_M)
+    slack = 10.0 * sigma if bound_slack_m is None else check_real(
+        bound_slack_m, "bound_slack_m", lo=0.0, hi=MAX_ABS_M)
+    rec = _check_receivers(receivers, None, 3, "damped_ls")
+    r, single = _check_ranges(ranges, rec.shape[0])
+    n = r.shape[0]
+    centre = rec.mean(axis=0)
+    q = rec - centre
+    w = np.isfinite(r)
+    missing = w.sum(axis=1) < 3
+    w &= ~missing[:, None]
+    r0 = np.where(w, r, 0.0)
+    if height_m is None:
+        d, G, dz, rho2 = 3, q, None, r0 * r0
+    else:
+        h = check_array(height_m, "height_m", max_abs=MAX_ABS_M)
+        if h.shape not in ((), (n,)):
+            raise ValueError(f"height_m: expected a scalar or shape ({n},), got {h.shape}")
+        d, G = 2, q[:, :2]
+        hz = np.broadcast_to(h, (n,))
+        dz = (hz - centre[2])[:, None] - q[None, :, 2]
+        rho2 = np.maximum(r0 * r0 - dz * dz, 0.0)
+    pri = None if prior is None else _rows_of_points(prior, "prior", n, allow_nan=True) - centre
+
+    pos = np.full((n, d), np.nan)
+    iters = np.zeros(n, dtype=int)
+    conv = np.zeros(n, dtype=bool)
+    degen = np.zeros(n, dtype=bool)
+    bnd = np.zeros(n, dtype=bool)
+    amb = np.zeros(n, dtype=bool)
+    alt = np.full((n, 3), np.nan)
+    live = np.flatnonzero(~missing)
+    if live.size:
+        wl, rl, rho2l = w[live], r0[live], rho2[live]
+        dzl = None if dz is None else dz[live]
+        start, normal, ref, rank = _linear_start(G, rho2l, wl, side)
+        if x0 is not None:
+            start = _rows_of_points(x0, "x0", n, allow_nan=False)[live] - centre
+            start = start[:, :d]
+        radius = np.min(np.where(wl, np.sqrt(rho2l) + np.linalg.norm(G, axis=1)[None], np.inf),
+                        axis=1) + slack
+        scale = np.maximum(np.max(rl, axis=1), float(np.max(np.ptp(G, axis=0))))
+        ok = np.all(np.isfinite(start), axis=1)
+        degen[live[~ok]] = True
+        li, start, normal, ref, rank = live[ok], start[ok], normal[ok], ref[ok], rank[ok]
+        wl, rl, radius, scale = wl[ok], rl[ok], radius[ok], scale[ok]
+        dzl = None if dzl is None else dzl[ok]
+        start, _ = _project(start, radius)
+        pa, ia, ca, ba, costa, wca = _levenberg_marquardt(G, dzl, rl, wl, start, radius, tol,
+                                                          max_iter, scale)
+        # the mirror minimum: restart from the solution reflected in the receivers' best-fit
+        # plane (3-D) or, in known-height mode, their best-fit line in x-y: exact for a
+        # coplanar (collinear) set, a second local minimum for a nearly flat (nearly
+        # collinear) one, the same minimum again otherwise
+        mir = np.ones(li.size, dtype=bool)
+        pb, cb, bb, costb, wcb = pa.copy(), ca.copy(), ba.copy(), costa.copy(), wca.copy()
+        ib = np.zeros_like(ia)
+        if mir.any():
+            Ga = G[ref[mir]]
+            hgt = np.einsum("mi,mi->m", pa[mir] - Ga, normal[mir])
+            sb, _ = _project(pa[mir] - 2.0 * hgt[:, None] * normal[mir], radius[mir])
+            out = _levenberg_marquardt(G, None if dzl is None else dzl[mir], rl[mir], wl[mir],
+                                       sb, radius[mir], tol, max_iter, scale[mir])
+            pb[mir], ib[mir], cb[mir], bb[mir], costb[mir], wcb[mir] = out
+        distinct = np.linalg.norm(pa - pb, axis=1) > 1e-6 * scale
+        delta = costb - costa                           # sums of squared residuals, m^2
+        b_better = distinct & (delta < -9.0 * sigma ** 2)
+        tie = distinct & ~b_better & (delta <= 9.0 * sigma ** 2)
+        # ties: nearer the prior, else on `side` of the oriented normal
+        choose_b = b_better.copy()
+        if tie.any():
+            hb = np.einsum("mi,mi->m", pb - G[ref], normal)
+            ha = np.einsum("mi,mi->m", pa - G[ref], normal)
+            by_side = side * hb > side * ha
+            if pri is not None:
+                pr = pri[li][:, :d]
+                has = np.all(np.isfinite(pr), axis=1)
+                nearer_b = np.linalg.norm(pb - pr, axis=1) < np.linalg.norm(pa - pr, axis=1)
+                by_side = np.where(has, nearer_b, by_side)
+            choose_b |= tie & by_side
+        sel = choose_b[:, None]
+        pos[li] = np.where(sel, pb, pa)
+        other = np.where(sel, pa, pb)
+        iters[li] = ia + ib
+        bnd[li] = np.where(choose_b, bb, ba)
+        wc = np.where(choose_b, wcb, wca)
+        conv[li] = np.where(choose_b, cb, ca) & ~bnd[li] & wc
+        degen[li] = ~wc
+        amb[li] = tie
+        full_other = np.empty((li.size, 3))
+        full_other[:, :d] = other + centre[:d]
+        if d == 2:
+            full_other[:, 2] = hz[li]
+        alt[li] = np.where(distinct[:, None], full_other, np.nan)
+    out = np.full((n, 3), np.nan)
+    out[:, :d] = pos + centre[:d]
+    if d == 2:
+        out[:, 2] = hz
+        out[np.isnan(pos[:, 0])] = np.nan
+    info = _info(rec, out, np.where(w, r, np.nan), missing=missing, iterations=iters,
+                 converged=conv, degenerate=degen, bounded=bnd, ambiguous=amb,
+                 alternative=alt)
+    return _finish(out, info, single, return_info)
+
+
+#: name -> function, in the thesis's order, then the damped solver (not in the thesis).
 METHODS = {
     "simple": simple,
     "linear_ls": linear_ls,
     "nonlinear_ls": nonlinear_ls,
     "closed_form": closed_form,
     "cayley_menger": cayley_menger,
+    "damped_ls": damped_ls,
 }

@@ -30,6 +30,7 @@ from pathlib import Path
 import numpy as np
 from scipy import stats
 
+from estimator._checks import check_fields, check_real
 from estimator.model_files import MODELS_DIR, read_model_toml
 
 __all__ = [
@@ -103,27 +104,24 @@ class UltrasonicNoiseModel:
     max_interval_s: float = 0.10
 
     def __post_init__(self) -> None:
-        def check(name, lo, hi, lo_open=False, hi_open=False):
-            v = getattr(self, name)
-            if isinstance(v, bool) or not isinstance(v, (int, float)) or not np.isfinite(v):
-                raise ValueError(f"{name}: must be a finite number, got {v!r}")
-            if (v < lo or (lo_open and v == lo)) or (v > hi or (hi_open and v == hi)):
-                raise ValueError(f"{name}: must be in {'(' if lo_open else '['}{lo}, {hi}"
-                                 f"{')' if hi_open else ']'}, got {v!r}")
-            object.__setattr__(self, name, float(v))
-
+        # one validation rule for every numeric field (estimator._checks): a real number, never
+        # a bool, finite, in its range; TypeError / ValueError name the field and the value
         inf = float("inf")
-        check("sigma_m", 0, inf)
-        check("max_error_m", 0, inf)
-        check("spike_rate", 0, 1)
-        check("spike_min_m", 0, inf)
-        check("spike_max_m", 0, inf)
-        check("spike_positive_fraction", 0, 1)
-        check("hold_rate", 0, 1, hi_open=True)
-        check("dropout_rate", 0, 1, hi_open=True)
-        check("dropout_mean_length", 1, inf)
-        check("min_interval_s", 0, inf, lo_open=True)
-        check("max_interval_s", 0, inf, lo_open=True)
+        bounds = {  # field: (lo, hi, lo_open, hi_open)
+            "sigma_m": (0, inf, False, False), "max_error_m": (0, inf, False, False),
+            "spike_rate": (0, 1, False, False), "spike_min_m": (0, inf, False, False),
+            "spike_max_m": (0, inf, False, False),
+            "spike_positive_fraction": (0, 1, False, False),
+            "hold_rate": (0, 1, False, True), "dropout_rate": (0, 1, False, True),
+            "dropout_mean_length": (1, inf, False, False),
+        }
+        for name, (lo, hi, lo_open, hi_open) in bounds.items():
+            v = check_real(getattr(self, name), name, lo=lo, hi=hi, lo_open=lo_open,
+                           hi_open=hi_open)
+            object.__setattr__(self, name, v)
+        check_fields(self, ("min_interval_s", "max_interval_s"))      # finite, > 0
+        for name in ("min_interval_s", "max_interval_s"):
+            object.__setattr__(self, name, float(getattr(self, name)))
         if self.spike_max_m < self.spike_min_m:
             raise ValueError(f"spike_max_m: must be >= spike_min_m ({self.spike_min_m}), "
                              f"got {self.spike_max_m}")
@@ -268,8 +266,7 @@ def sample_times(duration_s: float, model: UltrasonicNoiseModel,
                  rng: np.random.Generator, t0: float = 0.0) -> np.ndarray:
     """Uneven sample times in [t0, t0 + duration_s]: intervals uniform in
     [min_interval_s, max_interval_s] (Section 3.2.2: at most about 0.1 s). Returns (n,) s."""
-    if not (np.isfinite(duration_s) and duration_s > 0):
-        raise ValueError(f"duration_s: must be finite and > 0, got {duration_s!r}")
+    duration_s = check_real(duration_s, "duration_s", lo=0.0, lo_open=True)
     if not isinstance(rng, np.random.Generator):
         raise ValueError(f"rng: expected numpy.random.Generator, got {type(rng).__name__}")  # noqa: TRY004 (DESIGN: ValueError)
     m = int(np.ceil(duration_s / model.min_interval_s)) + 1

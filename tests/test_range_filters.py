@@ -2,6 +2,8 @@
 
 import numpy as np
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 from estimator.range_filters import separation_gate, velocity_gate
 
@@ -173,3 +175,141 @@ def test_robust_accepts_return_after_a_spike_that_slipped_through():
     out, rej = velocity_gate(t, r, 10.0, mode="robust", return_mask=True)
     assert not rej.any()
     np.testing.assert_array_equal(out, r)
+
+
+# ---------------------------------------------------------------------------------------------
+# real-data behaviours (issue 12): spike runs, long dropouts, asynchronous receivers, units
+# ---------------------------------------------------------------------------------------------
+
+
+def _walk(n=1200, dt=0.1, seed=0, speed=1.2):
+    """A range changing at up to `speed` m/s with 0.08 m noise, 10 Hz."""
+    rng = np.random.default_rng(seed)
+    t = np.arange(n) * dt + rng.normal(0, 0.004, n)
+    t.sort()
+    r = 20.0 + 15.0 * np.sin(speed / 15.0 * t) + rng.normal(0, 0.08, n)
+    return t, r
+
+
+@pytest.mark.parametrize("after_gap", [False, True])
+def test_consistent_spike_runs_of_2_to_4_samples_are_rejected_whole(after_gap):
+    """Real UWB spikes: runs of 2-4 samples with the same negative offset (1-19 m), sometimes
+    right after a dropout. Every sample of every run is rejected, not only the first (the
+    allowance grows with the time since the last accepted sample; a sample continuing the
+    rejected run stays rejected). Gate sized for a 3 m/s platform and 0.1 m ranges."""
+    t, r = _walk(seed=3)
+    rng = np.random.default_rng(4)
+    raw = r.copy()
+    spike = np.zeros(r.size, dtype=bool)
+    for s0 in range(60, r.size - 10, 37):
+        if after_gap:
+            raw[s0 - 8:s0] = np.nan                     # 0.8 s dropout, then the spike run
+        run = rng.integers(2, 5)
+        raw[s0:s0 + run] = r[s0:s0 + run] - rng.uniform(1.0, 19.0)
+        spike[s0:s0 + run] = True
+    kw = {"noise_margin": 0.3, "max_change": 0.9, "relock_after": 5}
+    _, rej = velocity_gate(t, raw, 3.0, return_mask=True, **kw)
+    assert rej[spike].all()
+    # clean samples pass, except the re-lock: after a dropout (or the moving lead-in) whose
+    # motion exceeds max_change, relock_after - 1 = 4 samples are held before the re-lock
+    gaps = 1 + (len(range(60, r.size - 10, 37)) if after_gap else 0)
+    assert rej[~spike & np.isfinite(raw)].sum() <= 4 * gaps
+
+
+def test_true_change_across_a_long_dropout_is_reacquired_in_relock_after_samples():
+    t = np.arange(400) * 0.1
+    r = 10.0 + 1.5 * t                                 # receding at 1.5 m/s
+    r[100:150] = np.nan                                # 5 s dropout: the range moved 7.5 m
+    out, rej = velocity_gate(t, r, 3.0, noise_margin=0.3, max_change=0.9, relock_after=5,
+                             return_mask=True)
+    assert rej[150:154].all() and not rej[154:].any()  # 4 held, re-locked on the 5th
+    np.testing.assert_array_equal(out[154:], r[154:])
+    # the thesis gate never re-acquires
+    _, rej_t = velocity_gate(t, r, 3.0, mode="thesis", return_mask=True)
+    assert rej_t[150:].all()
+
+
+def test_per_channel_times_equal_gating_each_channel_on_its_own_clock():
+    ta, ra = _walk(seed=5)
+    tb, rb = _walk(n=900, seed=6)
+    tb = tb + 0.037                                    # another receiver, its own clock
+    rb[[100, 101, 400]] -= 7.0
+    T = np.full((1200, 2), np.nan)
+    R = np.full((1200, 2), np.nan)
+    T[:, 0], R[:, 0] = ta, ra
+    T[:900, 1], R[:900, 1] = tb, rb                    # shorter channel: NaN padded
+    both, rej = velocity_gate(T, R, 3.0, return_mask=True)
+    a, rej_a = velocity_gate(ta, ra, 3.0, return_mask=True)
+    b, rej_b = velocity_gate(tb, rb, 3.0, return_mask=True)
+    np.testing.assert_array_equal(rej[:, 0], rej_a)
+    np.testing.assert_array_equal(both[:, 0], a)
+    np.testing.assert_array_equal(both[:900, 1], b)
+    np.testing.assert_array_equal(rej[:900, 1], rej_b)
+    assert np.isnan(both[900:, 1]).all() and not rej[900:, 1].any()
+    with pytest.raises(ValueError, match=r"t\[:, 1\]: must be strictly increasing"):
+        bad = T.copy()
+        bad[5, 1] = bad[4, 1]
+        velocity_gate(bad, R, 3.0)
+    with pytest.raises(ValueError, match="t:"):
+        bad = T.copy()
+        bad[3, 0] = np.nan                             # a range without a time
+        velocity_gate(bad, R, 3.0)
+
+
+def test_unit_mistakes_are_caught():
+    from estimator.range_filters import UnitWarning
+
+    t, r = _walk(n=100)
+    with pytest.warns(UnitWarning, match="millimetres"):
+        velocity_gate(t, r * 1000.0, 3.0)
+    with pytest.raises(ValueError, match="nanoseconds"):
+        velocity_gate(t * 1e9, r, 3.0)
+
+
+@pytest.mark.parametrize("kwargs, field, exc", [
+    ({"relock_after": np.inf}, "relock_after", TypeError),
+    ({"relock_after": 2.0}, "relock_after", TypeError),
+    ({"noise_margin": "0.1"}, "noise_margin", TypeError),
+    ({"noise_margin": None}, "noise_margin", TypeError),
+    ({"max_sep": 1e300}, "max_sep", ValueError),
+])
+def test_separation_gate_bad_numbers_named(kwargs, field, exc):
+    with pytest.raises(exc, match=field):
+        separation_gate(np.ones(5), np.ones(5), **kwargs)
+
+
+@pytest.mark.parametrize("kwargs, field, exc", [
+    ({"relock_after": np.inf}, "relock_after", TypeError),
+    ({"lead_in": 0}, "lead_in", ValueError),
+    ({"max_change": np.nan}, "max_change", ValueError),
+    ({"max_speed": "fast"}, "max_speed", TypeError),
+    ({"sample_interval": None}, "sample_interval", TypeError),
+])
+def test_velocity_gate_bad_numbers_named(kwargs, field, exc):
+    with pytest.raises(exc, match=field):
+        velocity_gate(np.arange(5.0), np.ones(5), **kwargs)
+
+
+@pytest.mark.filterwarnings("ignore::estimator.range_filters.UnitWarning")
+@settings(max_examples=40, deadline=None)
+@given(value=st.sampled_from([0.0, 5e-324, 1e11, 1e300, np.inf, np.nan]),
+       n=st.sampled_from([0, 1, 2, 3000]), mode=st.sampled_from(["robust", "thesis"]))
+def test_extremes_never_crash_silently(value, n, mode):
+    """Extreme ranges (0, subnormal, 1e11 m, 1e300, inf, NaN), empty to long series: a named
+    ValueError (inf and anything beyond 1e12) or a filtered series of the same shape whose
+    finite outputs are input values."""
+    t = np.arange(n) * 0.1
+    r = np.full(n, 5.0)
+    r[n // 2:n // 2 + 1] = value
+    try:
+        out, rej = velocity_gate(t, r, 3.0, mode=mode, return_mask=True)
+        a, _, rej2 = separation_gate(r, r, 0.5, mode=mode, return_mask=True)
+    except ValueError as exc:
+        assert str(exc).startswith(("r:", "r_a:")), exc
+        assert not (np.isfinite(value) and abs(value) <= 1e12)
+        return
+    assert out.shape == r.shape == rej.shape == a.shape
+    # missing stays missing, accepted samples pass bit for bit, everything else is finite
+    np.testing.assert_array_equal(np.isnan(out), np.isnan(r))
+    np.testing.assert_array_equal(out[~rej], r[~rej])
+    np.testing.assert_array_equal(a[~rej2], r[~rej2])

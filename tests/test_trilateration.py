@@ -270,3 +270,178 @@ def test_nls_conditioning_test_equals_the_eigenvalue_rule():
     exact = ev[:, 0] > _NLS_SINGULAR_REL * ev[:, -1]
     assert 0 < (~exact).sum() < k  # both sides of the threshold are exercised
     np.testing.assert_array_equal(_well_conditioned(A), exact)
+
+
+# ---------------------------------------------------------------------------------------------
+# issue 13: large coordinates, bad arguments, extremes
+# ---------------------------------------------------------------------------------------------
+
+
+@pytest.mark.parametrize("offset", [1e5, 1e6, 1e7])
+def test_every_method_is_exact_at_utm_sized_coordinates(offset):
+    """Exact ranges to receivers shifted by UTM-sized offsets: every method recovers the point
+    to 1e-7 m (closed_form lost 3e-4 / 0.08 / 3 m here before it centred the geometry; the
+    remaining error is rounding of 1e7-sized coordinates, 1e7 * 2.2e-16 = 2e-9 m, amplified
+    by the layout's conditioning)."""
+    rec = np.array([[0.0, 0, 0], [1.3, 0, 0], [0.65, 1.13, 0.05], [0.2, 0.9, 0.4]])
+    P = np.array([[1.0, 2.0, 3.0], [-2.0, 0.5, 4.0]])
+    o = np.array([offset, -offset, 0.3 * offset])
+    R = np.linalg.norm(P[:, None] - rec[None], axis=2)
+    for name, f in T.METHODS.items():
+        rr = rec[:3] if name in THREE else rec
+        out = f(rr + o, R[:, : rr.shape[0]])
+        np.testing.assert_allclose(out, P + o, rtol=0, atol=1e-7, err_msg=name)
+
+
+@pytest.mark.parametrize("kwargs, field, exc", [
+    ({"max_iter": np.inf}, "max_iter", TypeError),
+    ({"max_iter": 0}, "max_iter", ValueError),
+    ({"max_iter": "15"}, "max_iter", TypeError),
+    ({"tol": np.nan}, "tol", ValueError),
+    ({"tol": None}, "tol", TypeError),
+    ({"x0": np.zeros(2)}, "x0", ValueError),
+    ({"x0": "start"}, "x0", TypeError),
+    ({"side": True}, "side", ValueError),
+])
+def test_nonlinear_ls_bad_arguments_are_named(kwargs, field, exc):
+    rec = np.array([[0.0, 0, 0], [1, 0, 0], [0, 1, 0], [0, 0, 1]])
+    with pytest.raises(exc, match=field):
+        T.nonlinear_ls(rec, np.ones(4), **kwargs)
+
+
+@pytest.mark.parametrize("bad, field, exc", [
+    ({"receivers": "abc"}, "receivers", TypeError),
+    ({"receivers": None}, "receivers", ValueError),
+    ({"ranges": ["a", "b", "c"]}, "ranges", TypeError),
+    ({"ranges": None}, "ranges", ValueError),
+    ({"ranges": [1.0, np.inf, 1.0]}, "ranges", ValueError),
+    ({"ranges": [1e300, 1.0, 1.0]}, "ranges", ValueError),
+    ({"receivers": np.eye(3) * 1e300}, "receivers", ValueError),
+])
+def test_strings_none_and_overflowing_numbers_are_named(bad, field, exc):
+    base = {"receivers": np.array([[0.0, 0, 0], [1, 0, 0], [0, 1, 0]]), "ranges": np.ones(3)}
+    for name in (*THREE, "damped_ls"):
+        with pytest.raises(exc, match=field):
+            T.METHODS[name](**{**base, **bad})
+
+
+@settings(max_examples=40, deadline=None)
+@given(value=st.sampled_from([0.0, 1e-300, 5e-324, 1e8, np.nan]),
+       n=st.sampled_from([0, 1, 7, 2000]),
+       method=st.sampled_from(list(T.METHODS)))
+def test_extreme_ranges_give_flagged_rows_never_garbage(value, n, method):
+    """Zero, subnormal, huge (1e8 m) and NaN ranges, empty and large batches: each method
+    returns (n, 3) rows that are finite or NaN-and-flagged, with finite diagnostics; memory is
+    bounded by the batch (no per-row matrices beyond (n, k, 3))."""
+    rec = np.array([[0.0, 0, 0], [1.3, 0, 0], [0.65, 1.13, 0.3], [0.2, 0.9, 1.0]])
+    rr = rec[:3] if method in THREE else rec
+    R = np.full((n, rr.shape[0]), 2.0)
+    R[:, 0] = value
+    out, info = T.METHODS[method](rr, R, return_info=True)
+    assert out.shape == (n, 3)
+    bad = ~np.all(np.isfinite(out), axis=1)
+    assert not np.any(bad & ~(info.missing | info.degenerate)), method
+    assert np.all(np.isfinite(info.iterations))
+    if method == "damped_ls" and n:
+        # never farther than the ranges allow
+        c = rr.mean(axis=0)
+        ok = ~bad
+        lim = np.nanmin(R[ok] + np.linalg.norm(rr - c, axis=1), axis=1) + 1.0   # NaN: unused
+        assert np.all(np.linalg.norm(out[ok] - c, axis=1) <= lim + 1e-9)
+
+
+# ---------------------------------------------------------------------------------------------
+# damped_ls: the solver for real data
+# ---------------------------------------------------------------------------------------------
+
+
+@settings(max_examples=30, deadline=None)
+@given(seed=layouts, k=st.integers(3, 7), known=st.booleans())
+def test_damped_ls_recovers_exact_positions(seed, k, known):
+    """Exact ranges, any k >= 3 receivers with some ranges missing per row, with and without
+    the known height: the true point to 1e-7 relative (Levenberg-Marquardt converges
+    quadratically at a zero-residual minimum; the tolerance is its stopping test, 1e-10, with
+    the geometry's conditioning on top)."""
+    rng = np.random.default_rng(seed)
+    rec = rng.uniform(-2, 2, size=(k, 3))
+    if not _well_conditioned(rec):
+        return
+    P = rng.uniform(-6, 6, size=(40, 3))
+    R = np.linalg.norm(P[:, None] - rec[None], axis=2)
+    if k > 3:
+        R[rng.random(R.shape) < 0.15] = np.nan          # up to k - 3 receivers missing
+    prior = P            # decides the mirror ties (e.g. three receivers: two exact points)
+    out, info = T.damped_ls(rec, R, height_m=P[:, 2] if known else None, prior=prior,
+                            return_info=True)
+    ok = ~info.missing & ~info.degenerate
+    scale = np.max(np.abs(P)) + 4
+    np.testing.assert_allclose(out[ok], P[ok], rtol=0, atol=1e-7 * scale)
+    assert info.converged[ok].all()
+    assert (info.missing == (np.isfinite(R).sum(axis=1) < 3)).all()
+
+
+def test_damped_ls_agrees_with_scipy_least_squares_on_noisy_data():
+    """A second solver (scipy's trust-region reflective least_squares on the same residuals,
+    run to 1e-15) reaches the same minimum. Tolerance 1e-5 m: damped_ls stops when the
+    gradient is below eps_1 = 1e-10 x 45 m = 4.5e-9 m, which leaves a position error up to
+    eps_1 / lambda_min(J'J); far from this 2 m array lambda_min ~ 1 / HDOP^2 ~ 1e-3."""
+    from scipy.optimize import least_squares
+
+    rng = np.random.default_rng(2)
+    rec = np.array([[2.5775, 0.87, 1.97], [2.5775, -0.87, 1.97], [2.5775, -0.87, 0.5],
+                    [0.69, 0.87, 0.5]])
+    P = np.c_[rng.uniform(-5, 45, 60), rng.uniform(-5, 5, 60), np.ones(60)]
+    R = np.linalg.norm(P[:, None] - rec[None], axis=2) + rng.normal(0, 0.1, (60, 4))
+    for known in (True, False):
+        out, info = T.damped_ls(rec, R, height_m=1.0 if known else None, prior=P,
+                                return_info=True)
+        assert info.converged.all()
+        for i in range(60):
+            def res(x, i=i, known=known):
+                p = np.r_[x, 1.0] if known else x
+                return np.linalg.norm(p - rec, axis=1) - R[i]
+            x0 = out[i, :2] if known else out[i]
+            ref = least_squares(res, x0 + 0.3, xtol=1e-15, ftol=1e-15, gtol=1e-15)
+            np.testing.assert_allclose(out[i, : x0.size], ref.x, atol=1e-5)
+
+
+def test_damped_ls_picks_the_mirror_by_prior_then_side():
+    # three receivers in the plane z = 0: two exact mirror solutions
+    rec = np.array([[0.0, 0, 0], [2, 0, 0], [0, 2, 0]])
+    P = np.array([0.5, 0.7, 3.0])
+    R = np.linalg.norm(P - rec, axis=1)
+    up, info = T.damped_ls(rec, R, return_info=True)
+    assert info.ambiguous and up[2] > 0
+    np.testing.assert_allclose(info.alternative, P * [1, 1, -1], atol=1e-7)
+    down = T.damped_ls(rec, R, side=-1)
+    np.testing.assert_allclose(down, P * [1, 1, -1], atol=1e-7)
+    near = T.damped_ls(rec, np.stack([R, R]), prior=[[0, 0, -1.0], [np.nan] * 3])
+    np.testing.assert_allclose(near, [P * [1, 1, -1], P], atol=1e-7)
+
+
+def test_damped_ls_known_height_with_receivers_collinear_in_xy():
+    """Receivers on one vertical plane (collinear in x-y): the 2-D fix has a mirror across
+    that line; the prior (continuity) picks the right one, and three of four anchors with a
+    shared x is enough."""
+    rec = np.array([[2.5775, 0.87, 1.97], [2.5775, -0.87, 1.97], [2.5775, -0.87, 0.5]])
+    P = np.array([30.0, 2.0, 1.0])
+    R = np.linalg.norm(P - rec, axis=1)
+    p, info = T.damped_ls(rec, R, height_m=1.0, prior=[29.0, 1.5, 1.0], return_info=True)
+    np.testing.assert_allclose(p, P, atol=1e-6)
+    assert info.ambiguous and info.alternative[0] < 0       # the mirror behind the array
+
+
+def test_damped_ls_converged_means_converged():
+    rng = np.random.default_rng(4)
+    rec = np.array([[0.0, 0, 0], [1.3, 0, 0], [0.65, 1.13, 0.02], [0.65, 0.4, 0.5]])
+    P = np.c_[rng.uniform(-20, 20, (300, 2)), rng.uniform(0.5, 5, 300)]
+    R = np.linalg.norm(P[:, None] - rec[None], axis=2) + rng.normal(0, 0.05, (300, 4))
+    out, info = T.damped_ls(rec, R, return_info=True)
+    # at a converged row the gradient J'f vanishes (to the stopping test's scale)
+    d = out[:, None] - rec[None]
+    dist = np.linalg.norm(d, axis=2)
+    g = np.einsum("nki,nk->ni", d / dist[:, :, None], dist - R)
+    assert info.converged.mean() > 0.99
+    assert np.all(np.abs(g[info.converged]) < 1e-6)
+    _, short = T.damped_ls(rec, R, max_iter=1, return_info=True)
+    assert not short.converged.all()                      # one step does not converge them

@@ -132,3 +132,19 @@ def test_simulate_validates():
         simulate_ranges(np.arange(3.0), np.zeros((3, 2, 3)), rec, model, 0)
     with pytest.raises(ValueError, match="t:"):
         simulate_ranges(np.zeros(3), np.zeros((3, 2, 3)), rec, model, rng)
+
+
+@pytest.mark.parametrize("field, value, exc", [
+    ("sigma_m", True, TypeError),            # a bool is not a number (one rule, _checks)
+    ("spike_rate", "0.1", TypeError),
+    ("hold_rate", None, TypeError),
+    ("min_interval_s", 0.0, ValueError),
+    ("max_interval_s", float("inf"), ValueError),
+    ("dropout_rate", float("nan"), ValueError),
+    ("hold_rate", 1.0, ValueError),
+])
+def test_every_numeric_field_is_checked_one_way(field, value, exc):
+    with pytest.raises(exc, match=field):
+        UltrasonicNoiseModel(**{field: value})
+    # and a valid number comes back as a float
+    assert isinstance(UltrasonicNoiseModel(spike_rate=0).spike_rate, float)
