@@ -547,7 +547,7 @@ def run(spec: Spec | str | Path, *, out: str | Path | None = None, jobs: int | N
     backend : "loky" (joblib processes) or "dask" (``scheduler`` = address of a running
         Dask scheduler; without one, a LocalCluster of ``jobs`` workers is started).
     force : recompute cells that are already finished.
-    outputs / figures : write tables, REPORT.md (and figures) after the cells.
+    outputs / figures : write tables, REPORT.md, index.html (and figures) after the cells.
     cache_dir : truth cache folder (default results/cache/truth).
     cell_fn, truth_fn : replace :func:`evaluate_cell` / :func:`simulate_truth` (tests).
     """
@@ -641,6 +641,9 @@ def run(spec: Spec | str | Path, *, out: str | Path | None = None, jobs: int | N
             from experiments import figures as figs
 
             figs.draw_all(out_dir, jobs=jobs if backend == "loky" else 1)
+        from experiments import page
+
+        page.write_page(out_dir)      # index.html: replay, claims, tables, figures
     t_out = time.perf_counter() - t_out0
     res.wall_s = time.perf_counter() - t_start
     res.timings = {"simulate_s": t_sim, "cells_s": t_cells, "outputs_s": t_out,
