@@ -299,3 +299,99 @@ def test_tables_figure_grows_with_its_rows(tmp_path):
         assert _draw(tmp_path, "tables") == [tmp_path / "fig_tables.png"]
         heights.append(Image.open(tmp_path / "fig_tables.png").size)
     assert heights[0][0] == heights[1][0] and heights[1][1] > heights[0][1] + 200
+
+
+# --------------------------------------------------------------------------- real browser
+CHROMIUM = "/usr/bin/chromium"      # Debian package `chromium` (.ci/run installs it)
+CHROMIUM_ARGS = ["--headless", "--no-sandbox", "--disable-gpu",
+                 "--disable-background-networking", "--disable-component-update",
+                 "--disable-sync", "--no-first-run"]
+
+
+@pytest.fixture
+def browser_page(tmp_path):
+    """A fresh headless Chromium (own --user-data-dir) page that records console errors;
+    skips with the reason when Playwright or Debian's Chromium is missing."""
+    sync_api = pytest.importorskip(
+        "playwright.sync_api", reason="playwright not installed (pip install -e '.[test]')")
+    if not Path(CHROMIUM).exists():
+        pytest.skip(f"{CHROMIUM} not found: install Debian's chromium (apt-get install "
+                    "chromium; .ci/run does this)")
+    errors: list[str] = []
+    with sync_api.sync_playwright() as p:
+        ctx = p.chromium.launch_persistent_context(
+            str(tmp_path / "chromium-profile"), executable_path=CHROMIUM, headless=True,
+            args=CHROMIUM_ARGS, viewport={"width": 1300, "height": 1000})
+        pg = ctx.new_page()
+        pg.on("console", lambda m: errors.append(m.text) if m.type == "error" else None)
+        pg.on("pageerror", lambda e: errors.append(str(e)))
+        pg.errors = errors
+        yield pg
+        ctx.close()
+
+
+def _state(pg, which: str) -> dict:
+    return pg.evaluate(f"window.configpose.{which}.state()")
+
+
+def test_page_in_headless_chromium(tiny_run, tmp_path, browser_page):
+    """Open the page from disk: no console error; the slider moves the drawn pose; switching
+    cells and sources redraws; the flight plays; screenshots go to the test's tmp dir."""
+    write_recording_folder(tmp_path / "rec", n=200)
+    html = tmp_path / "index.html"
+    page.write_page(tiny_run, out=html, extra=(tmp_path / "rec",))
+    pg = browser_page
+    pg.goto(html.as_uri())
+    pg.wait_for_function("window.configpose && window.configpose.ready", timeout=10_000)
+    assert pg.evaluate("window.configpose.gps.length") == 2
+    assert pg.evaluate("window.configpose.flight !== null")
+
+    # the slider moves the pose (keyboard on the slider, as a user would)
+    s0 = _state(pg, "gps[0]")
+    shot0 = pg.locator("#replay-0 canvas.overview").screenshot()
+    pg.locator("#replay-0 .slider").focus()
+    for _ in range(s0["n"] // 2):              # half way round the (closed) square
+        pg.keyboard.press("ArrowRight")
+    s1 = _state(pg, "gps[0]")
+    assert s1["index"] == s0["n"] // 2 and s1["t"] > s0["t"]
+    assert math.dist(s0["overviewPx"], s1["overviewPx"]) > 20           # pixels on screen
+    assert math.dist(s0["truth"][:2], s1["truth"][:2]) > 5               # metres in the data
+    assert pg.locator("#replay-0 canvas.overview").screenshot() != shot0
+
+    # switch cells: another window; same epoch, another estimate
+    pg.select_option("#replay-0 select[data-axis=window]", "5")
+    s2 = _state(pg, "gps[0]")
+    assert s2["axes"]["window"] == "5" and s2["key"] != s1["key"] and s2["index"] == s1["index"]
+    assert s2["est"] != s1["est"] and s2["truth"] == s1["truth"]
+    pg.select_option("#replay-0 select[data-axis=technique]", "ekf")
+    s3 = _state(pg, "gps[0]")
+    assert s3["axes"]["technique"] == "ekf" and s3["key"] != s2["key"]
+
+    # the recording source: the one without a reference has no truth drawn
+    pg.select_option("#replay-1 select[data-axis=recording]", "drive_b")
+    r0 = _state(pg, "gps[1]")
+    assert r0["truth"] is None and r0["truthPx"] is None and r0["estPx"] is not None
+    pg.locator("#replay-1 .slider").focus()
+    for _ in range(40):
+        pg.keyboard.press("ArrowRight")
+    r1 = _state(pg, "gps[1]")
+    assert r1["index"] == 40 and math.dist(r0["overviewPx"], r1["overviewPx"]) > 5
+
+    # the flight: play for a moment, then drag to the end
+    f0 = _state(pg, "flight")
+    pg.click("#flight-replay button.play")
+    pg.wait_for_timeout(600)
+    pg.click("#flight-replay button.play")
+    f1 = _state(pg, "flight")
+    assert f1["index"] > f0["index"]
+    pg.locator("#flight-replay .slider").focus()
+    pg.keyboard.press("End")
+    f2 = _state(pg, "flight")
+    assert math.dist(f1["truthPx"], f2["truthPx"]) > 5 and f2["front"] != f1["front"]
+
+    for sel, name in (("#replay-0", "replay"), ("#replay-1", "recording"),
+                      ("#flight-replay", "flight")):
+        pg.locator(sel).screenshot(path=str(tmp_path / f"page_{name}.png"))
+    pg.screenshot(path=str(tmp_path / "page.png"), full_page=True)
+    assert (tmp_path / "page.png").stat().st_size > 50_000
+    assert pg.errors == []

@@ -101,12 +101,12 @@
       c.textAlign = "center"; c.textBaseline = "top";
       for (const v of tx.v) {
         const px = this.X(v); c.beginPath(); c.moveTo(px, b.y); c.lineTo(px, b.y + b.h); c.stroke();
-        c.fillText(fmt(v + (o.xoff || 0), tx.step), px, b.y + b.h + 3);
+        c.fillText(fmt(v, tx.step), px, b.y + b.h + 3);
       }
       c.textAlign = "right"; c.textBaseline = "middle";
       for (const v of ty.v) {
         const py = this.Y(v); c.beginPath(); c.moveTo(b.x, py); c.lineTo(b.x + b.w, py); c.stroke();
-        c.fillText(fmt(v + (o.yoff || 0), ty.step), b.x - 4, py);
+        c.fillText(fmt(v, ty.step), b.x - 4, py);
       }
       if (o.zero) {
         c.strokeStyle = "#9aa3ab"; const py = this.Y(0);
@@ -372,7 +372,7 @@
       {
         const { ctx, w, h } = canvasCtx(this.cvOver);
         const F = new Frame(ctx, plotBox(w, h), range([tr.tx || d.x], 0.04), range([tr.ty || d.y], 0.04), true);
-        F.axes(xl, yl, { xoff, yoff, title: "whole run" });
+        F.axes(xl, yl, { title: "whole run" });
         F.clip();
         if (hasT) F.line(tr.tx, tr.ty, { color: "#111", width: 1.2, alpha: 0.55 });
         F.line(d.x, d.y, { color: "#d62728", width: 1, alpha: 0.25 });
@@ -391,7 +391,7 @@
         const { ctx, w, h } = canvasCtx(this.cvClose);
         const z = +this.zoomSel.value, c0 = [fin(cx) ? cx : 0, fin(cy) ? cy : 0];
         const F = new Frame(ctx, plotBox(w, h), [c0[0] - z, c0[0] + z], [c0[1] - z, c0[1] + z], true);
-        F.axes(xl, yl, { xoff, yoff, title: "close-up at t = " + (t[i] + tr.t0).toFixed(1) + " s" });
+        F.axes(xl, yl, { title: "close-up at t = " + (t[i] + tr.t0).toFixed(1) + " s" });
         F.clip();
         const a = Math.max(0, i - 400);
         if (hasT) F.line(tr.tx, tr.ty, { color: "#111", width: 1.2, alpha: 0.5 }, a, i + 1);
@@ -409,17 +409,18 @@
         ctx.restore();
       }
       // error over time
-      const bands = tr.turn;
+      const bands = tr.turn, tl = "time (s)" + (tr.t0 ? " \u2212 " + tr.t0 : "");
       if (hasT) {
         timePlot(this.cvPos, t, [{ y: d.ex, color: "#1f77b4", width: 1 }, { y: d.ey, color: "#2ca02c", width: 1 }],
-                 { i, bands, ylabel: "error (m)", title: "CG error, estimate \u2212 truth: x (blue), y (green)", xlabel: "time (s)" + (tr.t0 ? " \u2212 " + tr.t0 : "") });
+                 { i, bands, ylabel: "error (m)", title: "CG error, estimate \u2212 truth: x (blue), y (green)", xlabel: tl });
         timePlot(this.cvHead, t, [{ y: d.eh, color: "#d62728", width: 1, wrap: 360 }],
-                 { i, bands, ylabel: "error (deg)", title: "heading error, estimate \u2212 truth (wrapped)", yr: [-180, 180], xlabel: "time (s)" + (tr.t0 ? " \u2212 " + tr.t0 : "") });
+                 { i, bands, ylabel: "error (deg)", title: "heading error, estimate \u2212 truth (wrapped)", yr: [-180, 180], xlabel: tl });
       } else {
         timePlot(this.cvPos, t, [{ y: d.x, color: "#1f77b4" }, { y: d.y, color: "#2ca02c" }],
-                 { i, bands, ylabel: "position (m)", title: "estimate x (blue), y (green); this source has no reference, so no error" });
+                 { i, bands, xlabel: tl, ylabel: "position (m)" + (xoff || yoff ? " \u2212 origin" : ""),
+                   title: "estimate x (blue), y (green); this source has no reference, so no error" });
         const hd = d.yaw.map((v) => v * DEG);
-        timePlot(this.cvHead, t, [{ y: hd, color: "#d62728", width: 1, wrap: 360 }], { i, bands, ylabel: "heading (deg)", title: "estimated heading", yr: [-180, 180] });
+        timePlot(this.cvHead, t, [{ y: hd, color: "#d62728", width: 1, wrap: 360 }], { i, bands, xlabel: tl, ylabel: "heading (deg)", title: "estimated heading", yr: [-180, 180] });
       }
       const e = fin(d.x[i]) ? `estimate (${(d.x[i] + xoff).toFixed(2)}, ${(d.y[i] + yoff).toFixed(2)}) m, ${(d.yaw[i] * DEG).toFixed(1)}\u00B0` : "no estimate";
       const tt = hasT ? ` \u00B7 error x ${d.ex[i].toFixed(2)} m, y ${d.ey[i].toFixed(2)} m, heading ${d.eh[i].toFixed(1)}\u00B0` : "";
