@@ -503,7 +503,7 @@ def build_page(results: str | Path, *, ultrasonic: str | Path | None = ULTRASONI
     gps, errs = [], []
     for i, folder in enumerate((results, *extra)):
         src, err = _safe(f"the replay of {folder}", replay_source, folder, max_points=max_points,
-                         title=None if i else f"{Path(folder).name} (this run)")
+                         title=None if i else f"{name} (this run)")
         errs.append(err)
         if src:
             gps.append(src)
