@@ -101,7 +101,8 @@ def _b64(a: np.ndarray, dtype: str = "<f4") -> str:
 def _origin(*arrays: np.ndarray) -> float:
     """0 for local coordinates (|values| < 10 km); else a rounded offset (UTM-sized values
     would lose centimetres in float32)."""
-    vals = np.concatenate([np.asarray(a, float).ravel() for a in arrays if a is not None])
+    vals = np.concatenate([np.asarray(a, float).ravel() for a in arrays if a is not None]
+                          or [np.zeros(0)])
     vals = vals[np.isfinite(vals)]
     if vals.size == 0 or np.abs(vals).max() < 1e4:
         return 0.0
