@@ -360,8 +360,9 @@ def _tables_fig(out: Path, written: list[Path]) -> None:
             if k % 2 == 0:
                 ax_plot.axhspan(ys[idx[-1]] - 0.5, ys[idx[0]] + 0.5, color="#eef1f4", zorder=0)
             if axis == "x":
-                ax_plot.text(-0.005, ys[idx[0]] + 0.45, f"window {w}", transform=ax_plot.get_yaxis_transform(),
-                             ha="right", va="top", fontsize=10, fontweight="bold")
+                ax_plot.text(-0.005, ys[idx[0]] + 0.45, f"window {w}", ha="right", va="top",
+                             transform=ax_plot.get_yaxis_transform(), fontsize=10,
+                             fontweight="bold")
         ax_plot.set_xscale("log")
         ax_plot.xaxis.set_major_locator(LogLocator(subs=(1.0, 2.0, 5.0)))
         ax_plot.xaxis.set_major_formatter(FormatStrFormatter("%g"))

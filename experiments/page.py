@@ -450,8 +450,8 @@ def _claims_summary(results: Path) -> str:
     parts = []
     for v, g in c.assign(variant=var).groupby("variant", sort=False):
         per = g.drop_duplicates("claim")["verdict"].value_counts()
-        badges = "".join(f'<span class="verdict v-{k.replace(" ", "-")}">{html.escape(k)}: {n}</span>'
-                         for k, n in per.items())
+        badges = "".join(f'<span class="verdict v-{k.replace(" ", "-")}">'
+                         f"{html.escape(k)}: {n}</span>" for k, n in per.items())
         parts.append(f'<div class="badges">{html.escape(v) + ": " if v else ""}{badges}</div>')
     return "".join(parts)
 
@@ -515,7 +515,8 @@ def build_page(results: str | Path, *, ultrasonic: str | Path | None = ULTRASONI
     nav, secs = [], []
     body = "".join(errs)
     for k, src in enumerate(gps):
-        body += (f"<h3>{html.escape(src['title'])}</h3><p class=\"note\">{html.escape(src['note'])}."
+        body += (f"<h3>{html.escape(src['title'])}</h3>"
+                 f"<p class=\"note\">{html.escape(src['note'])}."
                  " Pick a cell with the selectors (the closest existing cell is taken when a "
                  "combination was not run), drag the slider or press play; click a time plot to "
                  "jump there. Keyboard: focus the slider and use the arrow keys, Home, End.</p>"

@@ -43,8 +43,8 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-__all__ = ["MAX_FRAMES", "ClipOptions", "flight_frames", "main", "render_cell", "render_flight", "rover_frames",
-           "write_clip"]
+__all__ = ["MAX_FRAMES", "ClipOptions", "flight_frames", "main", "render_cell", "render_flight",
+           "rover_frames", "write_clip"]
 
 _GL_OK = ("osmesa", "egl")
 #: Most frames one clip may have (an hour at 25 fps): a typo in speed fails fast instead.
@@ -367,7 +367,8 @@ def flight_frames(series: pd.DataFrame, receivers: tuple[list[str], np.ndarray],
                     g = float(gated[n].iloc[k]) if gated[n] is not None else np.nan
                     w = float(raw[n].iloc[k]) if raw[n] is not None else np.nan
                     if np.isfinite(g):
-                        s.connector(r, r + d / dn * g, 0.012 if on else 0.006, (0.1, 0.45, 0.9, 0.9))
+                        s.connector(r, r + d / dn * g, 0.012 if on else 0.006,
+                                    (0.1, 0.45, 0.9, 0.9))
                     if np.isfinite(w) and not abs(w - g) <= 0.05:
                         s.connector(r, r + d / dn * w, 0.02, (1.0, 0.5, 0.05, 1))
                 if est_f is not None and np.isfinite(est_f[k]).all():

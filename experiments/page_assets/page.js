@@ -519,9 +519,9 @@
       }
       const nm = this.rxSel.value;
       timePlot(this.cvRng, t, [
-        { y: this.rng.raw[nm], color: "#ff7f0e", dots: true, r: 2 },
-        { y: this.rng.true[nm], color: "#111", width: 3, alpha: 0.25 },
-        { y: this.rng.gated[nm], color: "#1f77b4", width: 1.2 }],
+        { y: this.rng.true[nm], color: "#111", width: 5, alpha: 0.2 },
+        { y: this.rng.raw[nm], color: "#ff7f0e", dots: true, r: 1.5 },
+        { y: this.rng.gated[nm], color: "#1f77b4", width: 2 }],
         { i, ylabel: "range (m)", title: `range ${nm} \u2192 front transmitter: raw (orange dots), gated (blue), true (grey band)` });
       if (E.front) {
         const ex = [], ey = [], ez = [];
