@@ -48,11 +48,11 @@ def payload(html: str) -> dict:
 
 @pytest.fixture(scope="module")
 def tiny_run(tmp_path_factory) -> Path:
-    """A real tiny sweep (square20, one seed) with per-epoch files; writes index.html."""
+    """A real tiny sweep (square20, one seed) with per-epoch files; writes index.html. The
+    truth comes from the shared, content-addressed cache (simulated on the first run)."""
     out = tmp_path_factory.mktemp("tinypage")
-    cache = tmp_path_factory.mktemp("truth")
     r = run(Spec.from_dict(TINY, source="tiny"), out=out, jobs=1, progress=False,
-            figures=False, cache_dir=cache)
+            figures=False)
     assert r.n_failed == 0, r.errors
     return out
 
