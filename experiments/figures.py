@@ -353,42 +353,76 @@ def _sensor1_lag_figs(E: _Epochs, out: Path, written: list[Path]) -> None:
 
 
 def _tables_fig(out: Path, written: list[Path]) -> None:
+    """Tables 4.1/4.2 as a dot chart: one horizontal row per (window, technique) with its
+    label written out level, |x| and |y| side by side on a shared row axis, windows
+    separated by bands; ours (mean over seeds, 95 % CI) and the published value."""
     files = [(ax, out / f"table_4_{n}.csv") for ax, n in (("x", 1), ("y", 2))]
     if not all(f.exists() for _, f in files):
         return
-    frames = [pd.read_csv(f, keep_default_na=False, na_values=[""])   # "None" is a label
-              for _, f in files]
-    n = max(int((df["window"] > 1).sum()) for df in frames)
-    fig, axes = _subplots(1, 2, figsize=(max(14.0, 0.36 * n), 6.5))
-    for ax_plot, (axis, _), df in zip(axes, files, frames):
-        df = df[df["window"] > 1]
-        labels = [f"w={w} {t}" for w, t in zip(df["window"], df["technique"])]
-        xs = np.arange(len(df))
-        yerr = np.vstack([df["mean"] - df["mean_lo"], df["mean_hi"] - df["mean"]])
-        yerr = np.where(np.isfinite(yerr), yerr, 0)
-        oracle = (df["kind"] == "oracle").to_numpy() if "kind" in df else np.zeros(len(df), bool)
-        ax_plot.errorbar(xs[~oracle], df["mean"][~oracle], yerr=yerr[:, ~oracle], fmt="o",
-                         color="C0", capsize=3, label="ours: mean over seeds, 95 % CI")
-        if oracle.any():
-            ax_plot.errorbar(xs[oracle], df["mean"][oracle], yerr=yerr[:, oracle], fmt="s",
-                             mfc="none", color="C1", capsize=3,
-                             label="ORACLE (simulator heading): diagnostic, not a result")
-            for x in xs[oracle]:
-                ax_plot.axvspan(x - 0.5, x + 0.5, color="C1", alpha=0.08, lw=0)
-        ax_plot.plot(xs, df["mean_thesis"], "x", color="C3", ms=8, mew=2,
-                     label="dissertation (one run)")
-        ax_plot.set_xticks(xs, labels, rotation=90, fontsize=7)
-        ax_plot.set_yscale("log")
-        from matplotlib.ticker import FormatStrFormatter
+    from matplotlib.lines import Line2D
+    from matplotlib.ticker import FormatStrFormatter, LogLocator
 
-        ax_plot.yaxis.set_major_formatter(FormatStrFormatter("%g"))
-        ax_plot.yaxis.set_minor_formatter(FormatStrFormatter("%g"))
-        ax_plot.set_ylabel(f"mean |{axis}| CG error (m)")
-        ax_plot.grid(alpha=0.3, which="both")
-        ax_plot.set_title(f"Table 4.{1 if axis == 'x' else 2} (|{axis}|), "
-                          f"{df['weighting'].iloc[0]} weights", fontsize=10)
-        ax_plot.legend(fontsize=8, loc="upper left")
-    fig.suptitle("Tables 4.1/4.2 as a chart: ours (o, 95 % CI over seeds) vs published (x)")
+    tabs = {}
+    for axis, f in files:
+        df = pd.read_csv(f, keep_default_na=False, na_values=[""])   # "None" is a row label
+        df = df[df["window"] > 1].drop_duplicates(["window", "technique"])
+        tabs[axis] = df.set_index(["window", "technique"])
+    rows = list(dict.fromkeys([*tabs["x"].index, *tabs["y"].index]))
+    if not rows:
+        return
+    n = len(rows)
+    ys = np.arange(n)[::-1]                  # first row at the top
+    fig, axes = _subplots(1, 2, figsize=(13, 1.6 + 0.3 * n), sharey=True)
+    for ax_plot, axis in zip(axes, ("x", "y")):
+        df = tabs[axis].reindex(rows)
+        m = df["mean"].to_numpy(float)
+        err = np.vstack([m - df["mean_lo"].to_numpy(float), df["mean_hi"].to_numpy(float) - m])
+        err = np.where(np.isfinite(err), err, 0)
+        thesis = df["thesis_row"].fillna(False).astype(bool).to_numpy()
+        # oracle rows (simulator heading fed to the lag correction): diagnostics, drawn apart
+        oracle = (df["kind"] == "oracle").fillna(False).to_numpy(bool) if "kind" in df \
+            else np.zeros(n, bool)
+        for sel, color, fmt in ((thesis & ~oracle, "C0", "o"), (~thesis & ~oracle, "#7f7f7f", "o"),
+                                (oracle, "C1", "s")):
+            ax_plot.errorbar(m[sel], ys[sel], xerr=err[:, sel], fmt=fmt, color=color, ms=5,
+                             mfc="none" if fmt == "s" else color, capsize=3, lw=1.4)
+        for y in ys[oracle]:
+            ax_plot.axhspan(y - 0.5, y + 0.5, color="C1", alpha=0.08, lw=0, zorder=0)
+        ax_plot.plot(df["mean_thesis"], ys, "x", color="C3", ms=9, mew=2.2)
+        wins = [w for w, _ in rows]
+        for k, w in enumerate(dict.fromkeys(wins)):
+            idx = [i for i, ww in enumerate(wins) if ww == w]
+            if k % 2 == 0:
+                ax_plot.axhspan(ys[idx[-1]] - 0.5, ys[idx[0]] + 0.5, color="#eef1f4", zorder=0)
+            if axis == "x":
+                ax_plot.text(-0.005, ys[idx[0]] + 0.45, f"window {w}", ha="right", va="top",
+                             transform=ax_plot.get_yaxis_transform(), fontsize=10,
+                             fontweight="bold")
+        ax_plot.set_xscale("log")
+        ax_plot.xaxis.set_major_locator(LogLocator(subs=(1.0, 2.0, 5.0)))
+        ax_plot.xaxis.set_major_formatter(FormatStrFormatter("%g"))
+        ax_plot.xaxis.set_minor_formatter(FormatStrFormatter(""))
+        ax_plot.grid(axis="x", alpha=0.35, which="both")
+        ax_plot.set_xlabel(f"mean |{axis}| CG error (m, log scale)")
+        ax_plot.set_ylim(-0.6, n - 0.4)
+        w_label = df["weighting"].dropna().iloc[0] if df["weighting"].notna().any() else ""
+        ax_plot.set_title(f"Table 4.{1 if axis == 'x' else 2}: |{axis}| error, {w_label} weights",
+                          fontsize=11)
+    axes[0].set_yticks(ys, [f"{t}   " for _, t in rows], fontsize=10)
+    axes[0].tick_params(axis="y", length=0, pad=70)
+    handles = [Line2D([], [], color="C0", marker="o", ls="-", label="ours, dissertation row "
+                      "(mean over seeds, 95 % CI)"),
+               Line2D([], [], color="#7f7f7f", marker="o", ls="-", label="ours, beyond the "
+                      "dissertation"),
+               Line2D([], [], color="C3", marker="x", ls="none", ms=9, mew=2.2,
+                      label="dissertation (one run)")]
+    if any(("kind" in t and (t["kind"] == "oracle").any()) for t in tabs.values()):
+        handles.append(Line2D([], [], color="C1", marker="s", mfc="none", ls="-",
+                              label="ORACLE (simulator heading): a diagnostic, not a result"))
+    fig.legend(handles=handles, loc="outside lower center", ncol=min(4, len(handles)),
+               fontsize=10, frameon=False)
+    fig.suptitle("Tables 4.1/4.2 as a chart: Path 1, our mean over seeds beside the published "
+                 "value")
     _save(fig, out / "fig_tables.png", written)
 
 

@@ -769,8 +769,8 @@ def write_report(cells: pd.DataFrame, out_dir: str | Path, spec=None) -> Path:
 
 
 def main(argv: list[str] | None = None) -> int:
-    """``python -m experiments.report results/thesis``: rewrite tables and REPORT.md from
-    the folder's cells.parquet (no simulation, no estimation)."""
+    """``python -m experiments.report results/thesis``: rewrite tables, REPORT.md and the
+    page (index.html) from the folder's cells.parquet (no simulation, no estimation)."""
     import argparse
     import sys
 
@@ -778,8 +778,8 @@ def main(argv: list[str] | None = None) -> int:
 
     p = argparse.ArgumentParser(
         prog="python -m experiments.report",
-        description="Rewrite tables.md, the table CSVs, REPORT.md and claims.csv of a sweep "
-                    "results folder from its cells.parquet. Example: "
+        description="Rewrite tables.md, the table CSVs, REPORT.md, claims.csv and index.html "
+                    "of a sweep results folder from its cells.parquet. Example: "
                     "python -m experiments.report results/thesis")
     p.add_argument("results", help="results folder, e.g. results/thesis")
     args = p.parse_args(argv)
@@ -790,6 +790,9 @@ def main(argv: list[str] | None = None) -> int:
     cells = pd.read_parquet(out / "cells.parquet")
     print(write_tables(cells, out))
     print(write_report(cells, out))
+    from experiments.page import write_page
+
+    print(write_page(out))
     return 0
 
 

@@ -772,7 +772,7 @@ def run(spec: Spec | str | Path, *, out: str | Path | None = None, jobs: int | N
     backend : "loky" (joblib processes) or "dask" (``scheduler`` = address of a running
         Dask scheduler; without one, a LocalCluster of ``jobs`` workers is started).
     force : recompute cells that are already finished.
-    outputs / figures : write tables, REPORT.md (and figures) after the cells.
+    outputs / figures : write tables, REPORT.md, index.html (and figures) after the cells.
     cache_dir : truth cache folder (default results/cache/truth).
     cell_fn, truth_fn : replace :func:`evaluate_cell` / :func:`simulate_truth` (tests).
     """
@@ -878,7 +878,7 @@ def run(spec: Spec | str | Path, *, out: str | Path | None = None, jobs: int | N
             from experiments import report, tables
 
             n_fig = len(figs.figure_tasks()) if figures else 0
-            obar = tqdm(total=2 + n_fig, unit="step", desc=f"{spec.name}: outputs",
+            obar = tqdm(total=3 + n_fig, unit="step", desc=f"{spec.name}: outputs",
                         disable=not progress, dynamic_ncols=True)
             try:
                 tables.write_tables(table, out_dir)
@@ -888,6 +888,10 @@ def run(spec: Spec | str | Path, *, out: str | Path | None = None, jobs: int | N
                 if figures:
                     figs.draw_all(out_dir, jobs=jobs if backend == "loky" else 1,
                                   on_done=lambda _paths: obar.update())
+                from experiments import page
+
+                page.write_page(out_dir)      # index.html: replay, claims, tables, figures
+                obar.update()
             finally:
                 obar.close()
             if figures and not table.get("has_epochs", pd.Series(dtype=bool)).any():
