@@ -23,7 +23,8 @@ def test_wheel_ships_models_and_presets_and_loads_them(tmp_path):
     for f in ("configpose_models/rover.xml", "configpose_models/configs/rover_gps8.toml",
               "configpose_models/paths/square100.toml", "configpose_models/noise/gps_stationary.toml",
               "experiments/presets/thesis.toml", "configpose_models/recordings/synthetic_rig.toml",
-              "configpose_models/recordings/synthetic_rig/ant1.nmea"):
+              "configpose_models/recordings/synthetic_rig/ant1.nmea",
+              "experiments/page_assets/page.js"):
         assert f in names, f
     target = tmp_path / "site"
     subprocess.run([sys.executable, "-m", "pip", "install", "--no-deps", "-q", "--target",
