@@ -10,8 +10,9 @@ Source: 000_8f82f8df647bf685.txt (GPS dissertation), Sections 3.1.2, 3.2, 3.4 an
   (3.3.3), ``"huber"`` (3.3.1, per axis), ``"huff_huber"`` (Eq. 3.14), from
   :mod:`estimator.weights`, all windows stacked into one call.
 - Solvers from :mod:`estimator.window`: ``"procrustes"`` (closed form; all windows in one
-  batched call, cumulative sums when unweighted), ``"slsqp"``/``"ccp"`` (Eq. 3.9 with the eps
-  slack, one window at a time, cold-started from procrustes; ``warm_start=True`` passes the
+  batched call, cumulative sums when unweighted), ``"elastic"`` (Eq. 3.9 with the eps slack,
+  all windows of the track in one batched interior-point call, :mod:`estimator.elastic`),
+  ``"slsqp"``/``"ccp"`` (Eq. 3.9 with the eps slack, one window at a time, cold-started from procrustes; ``warm_start=True`` passes the
   previous row's fit as ``x0``, the dissertation's start, Section 3.1.2; with a dynamic
   window too, the rows are fitted in time order so the previous row may have either size;
   a row with insufficient data passes on the fit before it).
@@ -59,7 +60,8 @@ from estimator.configuration import SensorConfig
 from estimator.motion import motion_compensated_batch, motion_compensated_series
 from estimator.orientation import law_of_cosines_heading, wrap_angle
 from estimator.pose_filter import PoseFilterParams, run_pose_filter
-from estimator.window import SOLVERS, fit_window, procrustes_batch, window_means
+from estimator.elastic import elastic_batch
+from estimator.window import SOLVERS, fit_window, procrustes_batch, window_means, window_moments
 
 __all__ = [
     "LAG_OPTIONS",
@@ -247,6 +249,11 @@ def _fit_windows(obs, cfg, ends, w, *, weighting, rng, huff_threshold, huber_c, 
     (the ``prev`` for the rows that follow; unchanged by procrustes).
     """
     N, m = ends.size, cfg.m
+    if solver == "elastic":
+        means, wax = _elastic_moments(obs, cfg, ends, w, weighting=weighting, rng=rng,
+                                      huff_threshold=huff_threshold, huber_c=huber_c)
+        ef = elastic_batch(means, wax, cfg, eps, **fit_kw)
+        return ef.positions, ef.yaw, ef.status.astype(object), prev
     pos = np.full((N, m, 2), np.nan)
     yaw = np.full(N, np.nan)
     status = np.empty(N, dtype=object)
@@ -285,6 +292,33 @@ def _fit_windows(obs, cfg, ends, w, *, weighting, rng, huff_threshold, huber_c, 
                     prev = fit.positions
         a += ch.size
     return pos, yaw, status, prev
+
+
+def _elastic_moments(obs, cfg, ends, w, *, weighting, rng, huff_threshold, huber_c):
+    """Per-axis window means (N, m, 2) and axis weights (N, m, 2) of the windows ending at
+    ``ends`` for the batched elastic solver: cumulative sums for per-sample weights (none,
+    Huff), weighted sums for random weights, stacked windows (in chunks) for Huber."""
+    if weighting in ("none", "huff"):
+        sw = None if weighting == "none" else _weights.huff_weights(obs, cfg, huff_threshold)
+        means, cnt = _cumsum_means(obs, ends, w, sw)
+        return means, np.repeat(cnt[..., None], 2, axis=-1)
+    means = np.full((ends.size, cfg.m, 2), np.nan)
+    wax = np.zeros((ends.size, cfg.m, 2))
+    huff = _sample_huff(obs, cfg, weighting, huff_threshold)
+    a = 0
+    for ch in _chunks(ends, w, cfg.m):
+        sl = slice(a, a + ch.size)
+        if weighting == "random":
+            wts = _weights.random_weights((ch.size, w, cfg.m), rng)
+            mu, sw = _weighted_window_means(obs, ch, w, wts)
+            means[sl], wax[sl] = mu, sw[..., None]
+        else:
+            st = _stack(obs, ch, w)
+            wts = _window_weights(st, cfg, weighting, rng, huff_threshold, huber_c,
+                                  None if huff is None else _stack(huff, ch, w))
+            means[sl], wax[sl] = window_moments(st, wts)
+        a += ch.size
+    return means, wax
 
 
 def _runs(values: np.ndarray) -> list[tuple[int, int]]:
@@ -392,8 +426,9 @@ def track(t: Any, obs: Any, config: SensorConfig, window: int = 10, weighting: s
     dynamic_window : small window size (e.g. 1) used on turning epochs (Section 3.4.2.1);
         requires ``turning``: a (n,) bool array or "detect" (options in ``detector``, see
         :func:`detect_turning`).
-    solver : "procrustes" | "slsqp" | "ccp" (method "window" only); eps (m), warm_start and
-        fit_options (e.g. ``{"maxiter": 100}``) pass to :func:`estimator.window.fit_window`.
+    solver : "procrustes" | "slsqp" | "ccp" | "elastic" (method "window" only); eps (m),
+        warm_start (slsqp/ccp only) and fit_options (e.g. ``{"maxiter": 100}``) pass to
+        :func:`estimator.window.fit_window` (elastic: :func:`estimator.elastic.elastic_batch`).
     method : one of :data:`METHODS` (module docstring); "naive" gives a row only where every
         CG sensor has data in the window, else NaN and "insufficient_data". yaw_rate : the
         motion-compensated
@@ -424,6 +459,9 @@ def track(t: Any, obs: Any, config: SensorConfig, window: int = 10, weighting: s
     if method != "window" and solver != "procrustes":
         raise ValueError(
             f"solver: {solver!r} applies to method='window' only (got method={method!r})")
+    if warm_start and solver == "elastic":
+        raise ValueError("warm_start: the batched elastic solver starts every window from "
+                         "its procrustes fit; warm_start applies to 'slsqp' and 'ccp'")
     if lag_correction not in LAG_OPTIONS or (isinstance(lag_correction, (int, float))
                                              and not isinstance(lag_correction, bool)):
         raise ValueError(f"lag_correction: must be one of {LAG_OPTIONS}, got {lag_correction!r}")

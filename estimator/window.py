@@ -38,6 +38,12 @@ Solvers (all return the proper-handed configuration, never its mirror image):
     procrustes fit (or ``x0``). Result checked (feasibility, objective not worse than
     procrustes, handedness); on failure the procrustes fit is returned with a status saying
     why.
+``"elastic"``
+    The same problem by a batched feasible primal-dual interior-point method
+    (:mod:`estimator.elastic`, :func:`estimator.elastic.elastic_batch`): every window of a track
+    in one vectorized iteration, started from the procrustes fit (or ``x0`` when it is strictly
+    inside every band), converged per window to ~1e-9 relative objective. Status "maxiter" when
+    the iteration limit is reached first (the last, feasible iterate is returned).
 ``"ccp"``
     The same problem by the convex-concave procedure in cvxpy + Clarabel: upper bounds as
     second-order cones, lower bounds linearized at the current iterate (a restriction, so
@@ -86,9 +92,10 @@ __all__ = [
     "procrustes_batch",
     "sliding_window_means",
     "window_means",
+    "window_moments",
 ]
 
-SOLVERS = ("procrustes", "slsqp", "ccp")
+SOLVERS = ("procrustes", "slsqp", "ccp", "elastic")
 
 #: Status vocabulary of :class:`WindowFit` / :class:`BatchFit`.
 STATUSES = {
@@ -101,6 +108,8 @@ STATUSES = {
     "fallback_mirrored": "solver result was the mirror image of the configuration; "
                          "procrustes returned",
     "fallback_failed": "solver raised or returned no solution; procrustes returned",
+    "maxiter": "elastic: iteration limit reached before convergence; the last iterate "
+               "(feasible, objective not worse than the start) returned",
 }
 
 
@@ -228,6 +237,20 @@ def window_means(obs: Any, weights: Any | None = None) -> tuple[np.ndarray, np.n
     sw = np.where(full, Wa.mean(axis=-1), 0.0)
     means = np.where(full[..., None], means, np.nan)
     return means, sw
+
+
+def window_moments(obs: Any, weights: Any | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """Per-axis weighted window means and per-axis total weights: the exact sufficient
+    statistics of Eq. 3.9 with per-axis weights (Eq. 3.12-3.14), the input of
+    :func:`estimator.elastic.elastic_batch`.
+
+    obs : (..., s, m, d) metres, NaN = missing sample. weights : None (all 1), (..., s, m) or
+    (..., s, m, d), finite and >= 0. Returns ``means (..., m, d)`` (NaN where the axis weight
+    is 0) and ``axis_weight (..., m, d)``; unlike :func:`window_means` nothing is reduced to
+    one weight per sensor.
+    """
+    arr, present = _check_obs(obs)
+    return _moments(arr, present, weights)
 
 
 def sliding_window_means(obs: Any, window: int, weights: Any | None = None
@@ -486,9 +509,10 @@ def fit_window(obs: Any, config: SensorConfig, weights: Any | None = None, eps: 
 
     obs : (s, m, d) metres, NaN = missing sample. weights : None, (s, m) or (s, m, d),
     finite and >= 0. eps : constraint slack in metres, 0 < eps < min_ij a_ij / 2.
-    solver : "procrustes" | "slsqp" | "ccp" (module docstring). x0 : (m, d) start for
-    slsqp/ccp (default: the procrustes fit) and the positions returned when the window has
-    insufficient data. maxiter : iteration limit of slsqp / ccp.
+    solver : "procrustes" | "slsqp" | "ccp" | "elastic" (module docstring). x0 : (m, d) start
+    for slsqp/ccp/elastic (default: the procrustes fit; elastic uses it only when it is
+    strictly inside every band) and the positions returned when the window has insufficient
+    data. maxiter : iteration limit of slsqp / ccp / elastic.
     Raises ValueError naming the field for malformed input; solver trouble is in ``status``.
     """
     if not isinstance(config, SensorConfig):
@@ -541,6 +565,16 @@ def fit_window(obs: Any, config: SensorConfig, weights: Any | None = None, eps: 
 
     start = p_proc if x0a is None else x0a - centre
     yc = np.where(Wa > 0, means, 0.0)
+    if solver == "elastic":
+        from estimator.elastic import elastic_batch
+
+        ef = elastic_batch(np.where(Wa > 0, means, np.nan)[None], Wa[None], config, e,
+                           start=start[None], maxiter=maxiter)
+        st = str(ef.status[0])
+        p_el = ef.positions[0]
+        obj = obj_proc if st.startswith("fallback") else _objective(obs0, wa, p_el)
+        return _result(p_el, centre, config, obj, mirror, solver, int(ef.iterations[0]), st,
+                       yaw=float(ef.yaw[0]))
     try:
         if solver == "slsqp":
             p_sol, iters = _solve_slsqp(yc, Wa, config, e, start, maxiter)

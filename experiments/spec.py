@@ -94,7 +94,7 @@ _HUFF_T = re.compile(r"^huff:(\d+(\.\d+)?)$")
 #: in place of the platform orientation (estimator.lag, variant "course").
 TECHNIQUES = ("none", "lc", "dyn", "lc+dyn", "lc_course", "lc_course+dyn", "motion_compensated",
               "ekf", "naive")
-SOLVERS = ("procrustes", "slsqp", "ccp")
+SOLVERS = ("procrustes", "slsqp", "ccp", "elastic")
 MASKS = ("full", "no_turns")
 TURNING = ("controller", "detector")
 
