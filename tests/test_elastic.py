@@ -370,7 +370,7 @@ def test_memory_is_bounded_by_the_batch():
     rng = np.random.default_rng(9)
     cfg = SensorConfig.load("rover_gps8")
     peaks = []
-    for N in (400, 800):
+    for N in (200, 400):
         means = cfg.body_positions + 0.5 * rng.normal(size=(N, cfg.m, 2))
         wax = np.ones((N, cfg.m, 2))
         tracemalloc.start()
