@@ -100,8 +100,10 @@ KAPPA_EPS, KAPPA_MU, THETA_MU = 10.0, 0.2, 1.5
 KAPPA_SIGMA = 1e10
 #: inertia correction: first shift, growth, decrease (IPOPT delta_w^0, kappa_w^+, kappa_w^-)
 DELTA0, DELTA_GROW, DELTA_SHRINK, DELTA_MIN = 1e-4, 8.0, 1.0 / 3.0, 1e-20
-#: Armijo sufficient-decrease constant on the barrier function
+#: Armijo sufficient-decrease constant on the barrier function; a rejected step is tried at
+#: 2^-1 .. 2^-HALVINGS of its length (all at once), else the window stays for that iteration
 ARMIJO = 1e-4
+HALVINGS = 30
 #: default iteration limit (as slsqp's in fit_window): 99.99 % of GPS-like windows converge in
 #: <= 30 iterations; the rest start near a saddle or crawl along curved bands (slsqp needs
 #: 50-90 iterations on such windows too); a straggler holds its whole batch, so the limit
@@ -396,29 +398,33 @@ def _barrier_solve(Y: np.ndarray, Wn: np.ndarray, Z0: np.ndarray, a: np.ndarray,
             & (sun > 0).all(axis=0) & (sln > 0).all(axis=0)
         md &= ok
         todo = np.flatnonzero(~ok)
-        while todo.size:
-            tp[todo] *= 0.5
-            stuck = todo[tp[todo] < 1e-14]   # no acceptable step (e.g. non-finite): stay
+        if todo.size:   # backtracking: all halvings 2^-1 .. 2^-HALVINGS at once per window
+            frac_k = 0.5 ** np.arange(1, HALVINGS + 1)
+            tk = tp[todo][:, None] * frac_k                          # (r, h)
+            zt = np.take(Z, todo, axis=-1)[..., None] + tk * np.take(dz, todo, axis=-1)[..., None]
+            vt = np.einsum("pm,dmrh->dprh", S, zt)
+            qt = (vt * vt).sum(axis=0)
+            ut, lt = hi2[..., None] - qt, qt - lo2[..., None]
+            with np.errstate(divide="ignore", invalid="ignore"):
+                rt = zt - np.take(Yw, todo, axis=-1)[..., None]
+                ph = (np.take(Ww, todo, axis=-1)[..., None] * rt * rt).sum(axis=(0, 1)) \
+                    - ta[todo, None] * (np.log(ut) + np.log(lt)).sum(axis=0)
+            good = (ph <= phi0[todo, None] + ARMIJO * tk * slope[todo, None]
+                    + 1e-14 * np.abs(phi0[todo, None])) & (ut > 0).all(axis=0) \
+                & (lt > 0).all(axis=0)
+            found = good.any(axis=1)
+            h = np.argmax(good, axis=1)                              # the longest acceptable
+            r = np.arange(todo.size)
+            g, gr, gh = todo[found], r[found], h[found]
+            Zn[..., g], Vn[..., g] = zt[..., gr, gh], vt[..., gr, gh]
+            sun[:, g], sln[:, g] = ut[:, gr, gh], lt[:, gr, gh]
+            tp[g] = tk[gr, gh]
+            stuck = todo[~found]     # no acceptable step (e.g. non-finite values): stay
             if stuck.size:
                 Zn[..., stuck], Vn[..., stuck] = Z[..., stuck], V[..., stuck]
                 sun[:, stuck], sln[:, stuck] = su[:, stuck], sl[:, stuck]
                 td[stuck] = 0.0
                 dlu[:, stuck] = dll[:, stuck] = 0.0
-                todo = todo[tp[todo] >= 1e-14]
-            zt = np.take(Z, todo, axis=-1) + tp[todo] * np.take(dz, todo, axis=-1)
-            vt = S @ zt
-            qt = (vt * vt).sum(axis=0)
-            ut, lt = hi2 - qt, qt - lo2
-            with np.errstate(divide="ignore", invalid="ignore"):
-                rt = zt - np.take(Yw, todo, axis=-1)
-                ph = (np.take(Ww, todo, axis=-1) * rt * rt).sum(axis=(0, 1)) \
-                    - ta[todo] * (np.log(ut) + np.log(lt)).sum(axis=0)
-            good = (ph <= phi0[todo] + ARMIJO * tp[todo] * slope[todo]
-                    + 1e-14 * np.abs(phi0[todo])) & (ut > 0).all(axis=0) & (lt > 0).all(axis=0)
-            g = todo[good]
-            Zn[..., g], Vn[..., g] = zt[..., good], vt[..., good]
-            sun[:, g], sln[:, g] = ut[:, good], lt[:, good]
-            todo = todo[~good]
         Z, V, su, sl = Zn, Vn, sun, sln
         lu = np.clip(lu + td * dlu, ta / (KAPPA_SIGMA * su), KAPPA_SIGMA * ta / su)
         ll = np.clip(ll + td * dll, ta / (KAPPA_SIGMA * sl), KAPPA_SIGMA * ta / sl)
