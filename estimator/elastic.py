@@ -63,7 +63,11 @@ from typing import Any
 import numpy as np
 
 from estimator.configuration import SensorConfig
+from estimator.orientation import wrap_angle
+from estimator._checks import check_array, check_int
 from estimator.window import (
+    MAX_COORD_M,
+    MAX_WEIGHT_SUM,
     PROX_WEIGHT,
     _check_eps,
     _geometry,
@@ -435,8 +439,8 @@ def _barrier_solve(Y: np.ndarray, Wn: np.ndarray, Z0: np.ndarray, a: np.ndarray,
 # ----------------------------------------------------------------------------- public
 def _check_batch(means: Any, axis_weight: Any, config: SensorConfig
                  ) -> tuple[np.ndarray, np.ndarray]:
-    Y = np.asarray(means, dtype=float)
-    W = np.asarray(axis_weight, dtype=float)
+    Y = check_array(means, "means", allow_nan=True, max_abs=MAX_COORD_M)
+    W = check_array(axis_weight, "axis_weight", max_abs=MAX_WEIGHT_SUM)
     m, d = config.m, config.d
     if Y.ndim != 3 or Y.shape[1:] != (m, d):
         raise ValueError(f"means: expected shape (N, {m}, {d}) for config {config.name!r}, "
@@ -444,11 +448,9 @@ def _check_batch(means: Any, axis_weight: Any, config: SensorConfig
     if W.shape != Y.shape:
         raise ValueError(f"axis_weight: expected shape {Y.shape} (one weight per window, "
                          f"sensor and axis), got {W.shape}")
-    if not np.isfinite(W).all() or (W < 0).any():
-        k = tuple(int(i) for i in np.argwhere(~(np.isfinite(W) & (W >= 0)))[0])
-        raise ValueError(f"axis_weight: must be finite and >= 0; axis_weight{list(k)} = "
-                         f"{W[k]!r}")
-    bad = np.isinf(Y) | (np.isnan(Y) & (W > 0))
+    if (W < 0).any():
+        raise ValueError(f"axis_weight: must be >= 0, found minimum {W.min()!r}")
+    bad = np.isnan(Y) & (W > 0)
     if bad.any():
         k = tuple(int(i) for i in np.argwhere(bad)[0])
         raise ValueError(f"means: must be finite wherever axis_weight > 0; means{list(k)} = "
@@ -467,6 +469,19 @@ def _mirrored(Pc: np.ndarray, B: np.ndarray) -> np.ndarray:
         return improper > proper * (1.0 + 1e-9) + 1e-12   # equal for collinear layouts
     U, Sv, Vt = np.linalg.svd(M)
     return (np.linalg.det(U @ Vt) < 0) & (Sv[:, -1] > 1e-12 * Sv[:, 0])
+
+
+def _yaw(Pc: np.ndarray, config: SensorConfig) -> np.ndarray:
+    """(N,) heading of the best unweighted rigid fit of the body onto positions (N, m, d), as
+    fit_window reports it. d = 2: the closed form of procrustes_batch, window by window
+    (elementwise, so a window's yaw does not depend on its batch); d = 3: procrustes_batch."""
+    if config.d != 2:
+        return procrustes_batch(Pc, np.ones(Pc.shape[:2]), config).yaw
+    P0 = Pc - Pc.mean(axis=1, keepdims=True)
+    Bc = config.body_positions - config.body_positions.mean(axis=0)
+    m00, m01 = (P0[..., 0] * Bc[:, 0]).sum(axis=1), (P0[..., 0] * Bc[:, 1]).sum(axis=1)
+    m10, m11 = (P0[..., 1] * Bc[:, 0]).sum(axis=1), (P0[..., 1] * Bc[:, 1]).sum(axis=1)
+    return wrap_angle(np.arctan2(m10 - m01, m00 + m11))
 
 
 def _pair_gaps(P_: np.ndarray, config: SensorConfig) -> np.ndarray:
@@ -511,8 +526,7 @@ def elastic_batch(means: Any, axis_weight: Any, config: SensorConfig, eps: float
         raise TypeError(f"config: expected a SensorConfig, got {type(config).__name__}")
     Y, W = _check_batch(means, axis_weight, config)
     e = _check_eps(eps, config)
-    if isinstance(maxiter, bool) or not isinstance(maxiter, (int, np.integer)) or maxiter < 1:
-        raise ValueError(f"maxiter: must be a positive integer, got {maxiter!r}")
+    check_int(maxiter, "maxiter", lo=1)
     N, m, d = Y.shape
     if start is not None:
         X0 = np.asarray(start, dtype=float)
@@ -576,8 +590,7 @@ def elastic_batch(means: Any, axis_weight: Any, config: SensorConfig, eps: float
         obj0[idx] = f_start
         iters[idx] = it
         status[idx] = st
-        # yaw of the best unweighted rigid fit to the centred positions (as fit_window)
-        yaw_c = procrustes_batch(Zb, np.ones((idx.size, m)), config).yaw
+        yaw_c = _yaw(Zb, config)
     yaw = np.full(N, np.nan)
     viol = np.full(N, np.nan)
     if idx.size:

@@ -12,6 +12,7 @@ from __future__ import annotations
 import math
 
 import numpy as np
+import pandas as pd
 import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
@@ -379,3 +380,53 @@ def test_memory_is_bounded_by_the_batch():
         tracemalloc.stop()
         assert peaks[-1] < 22e3 * N, peaks
     assert peaks[1] < 2.2 * peaks[0], peaks
+
+
+# ----------------------------------------------------------------------------- batches, memo
+def test_a_window_fit_does_not_depend_on_its_batch():
+    """Every array operation of the iteration is per window (reductions run over pairs,
+    sensors and axes, never across windows): a window's fit alone, in a slice or in the whole
+    track agree to round-off (1e-9 m; bit for bit on this machine's numpy)."""
+    from experiments.bench import straight_line_obs
+    from estimator.tracking import _cumsum_means
+
+    cfg = SensorConfig.load("rover_gps8")
+    t, obs = straight_line_obs(400, cfg, np.random.default_rng(7))
+    obs[:, 3] = np.nan
+    ends = np.arange(9, 400)
+    means, cnt = _cumsum_means(obs, ends, 10)
+    wax = np.repeat(cnt[..., None], 2, axis=-1)
+    full = elastic_batch(means, wax, cfg, 0.01)
+    for sl in (slice(0, 1), slice(37, 38), slice(50, 213), slice(0, None, 7)):
+        part = elastic_batch(means[sl], wax[sl], cfg, 0.01)
+        np.testing.assert_allclose(part.positions, full.positions[sl], rtol=0, atol=1e-9)
+        np.testing.assert_allclose(part.yaw, full.yaw[sl], rtol=0, atol=1e-12)
+        np.testing.assert_array_equal(part.status, full.status[sl])
+        np.testing.assert_array_equal(part.iterations, full.iterations[sl])
+
+
+def test_track_memo_is_transparent():
+    """track(solver="elastic") memoises fits by content: a repeated request (another
+    technique on the same data) returns what a fresh call returns, bit for bit, and random
+    weights are never memoised."""
+    from experiments.bench import straight_line_obs
+    from estimator import tracking
+
+    cfg = SensorConfig.load("rover_gps8")
+    t, obs = straight_line_obs(300, cfg, np.random.default_rng(2))
+    obs[:, 3] = np.nan
+    turning = np.zeros(300, dtype=bool)
+    turning[80:120] = True
+    kw = {"window": 10, "weighting": "huff", "solver": "elastic", "dynamic_window": 1,
+          "turning": turning}
+    tracking._ELASTIC_MEMO.clear()
+    fresh = track(t, obs, cfg, **kw)
+    assert len(tracking._ELASTIC_MEMO) == 2          # the large- and the small-window rows
+    again = track(t, obs, cfg, **kw)                 # both from the memo
+    pd.testing.assert_frame_equal(again, fresh)
+    tracking._ELASTIC_MEMO.clear()
+    pd.testing.assert_frame_equal(track(t, obs, cfg, **kw), fresh)
+    tracking._ELASTIC_MEMO.clear()
+    track(t, obs, cfg, window=5, weighting="random", solver="elastic",
+          rng=np.random.default_rng(0))
+    assert not tracking._ELASTIC_MEMO
