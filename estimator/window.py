@@ -42,7 +42,7 @@ Solvers (all return the proper-handed configuration, never its mirror image):
     The same problem by a batched feasible primal-dual interior-point method
     (:mod:`estimator.elastic`, :func:`estimator.elastic.elastic_batch`): every window of a track
     in one vectorized iteration, started from the procrustes fit (or ``x0`` when it is strictly
-    inside every band), converged per window to ~1e-9 relative objective. Status "maxiter" when
+    inside every band), converged per window to ~1e-7 relative objective. Status "maxiter" when
     the iteration limit is reached first (the last, feasible iterate is returned).
 ``"ccp"``
     The same problem by the convex-concave procedure in cvxpy + Clarabel: upper bounds as

@@ -144,10 +144,12 @@ def test_matches_slsqp_on_thousands_of_windows():
 
 
 def kkt_residual(p: np.ndarray, means: np.ndarray, wax: np.ndarray, cfg: SensorConfig,
-                 eps: float, tol: float = 1e-7) -> tuple[float, int]:
+                 eps: float, tol: float = 1e-6) -> tuple[float, int]:
     """Independent first-order check of Eq. 3.9 at positions p: the relative residual of
     grad f = sum mu_k (-+ grad |p_i - p_j|) over the bands active to ``tol`` metres, with the
-    multipliers' signs enforced by scipy's NNLS; and the number of active bands."""
+    multipliers' signs enforced by scipy's NNLS; and the number of active bands. (The
+    interior-point iterates stop up to ~1e-6 m inside an active band at RTOL = 1e-7; slsqp's
+    points sit on it to 1e-9 m.)"""
     from scipy.optimize import nnls
 
     I, J = np.triu_indices(cfg.m, 1)
@@ -231,8 +233,8 @@ def test_larger_eps_never_worse_and_small_eps_is_procrustes():
         if eps == 1e-4:
             np.testing.assert_allclose(ef.objective, ef.start_objective, rtol=1e-2)
         if prev is not None:
-            # nested sets: never worse, up to the convergence tolerance (RTOL = 1e-8)
-            assert (ef.objective <= prev * (1 + 1e-7) + 1e-12).all()
+            # nested sets: never worse, up to the convergence tolerance (RTOL = 1e-7)
+            assert (ef.objective <= prev * (1 + 3e-7) + 1e-12).all()
         prev = ef.objective
 
 
@@ -256,7 +258,7 @@ def test_per_axis_weights_are_first_class(aniso):
 
 def test_track_elastic_agrees_with_slsqp():
     """track(solver="elastic") and track(solver="slsqp") on a short Huber-weighted track:
-    the same CG to 1e-5 m (both solve Eq. 3.9; the solvers stop at 1e-8 / ftol 1e-12)."""
+    the same CG to 1e-5 m (both solve Eq. 3.9; the solvers stop at 1e-7 / ftol 1e-12)."""
     from experiments.bench import straight_line_obs
 
     cfg = SensorConfig.load("rover_gps8")
