@@ -56,15 +56,14 @@ objective not worse than the start, proper-handed) and every window gets a statu
 
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
 
+from estimator._checks import check_array, check_int
 from estimator.configuration import SensorConfig
 from estimator.orientation import wrap_angle
-from estimator._checks import check_array, check_int
 from estimator.window import (
     MAX_COORD_M,
     MAX_WEIGHT_SUM,
@@ -337,7 +336,7 @@ def _barrier_solve(Y: np.ndarray, Wn: np.ndarray, Z0: np.ndarray, a: np.ndarray,
         Lt, dl = _inertia_cholesky(H.reshape(n, n, k_), dprev)
         md = md & (dl == 0)
 
-        def solve(coef: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        def solve(coef: np.ndarray, G=G, V=V, Lt=Lt, k_=k_) -> tuple[np.ndarray, np.ndarray]:
             """dz for rhs -(grad f + sum coef grad q) and its pair differences."""
             rhs = G + ST @ (2.0 * coef * V)
             dz = -_cho_solve(Lt, rhs.reshape(n, k_)).reshape(d, m, k_)

@@ -59,10 +59,10 @@ from estimator import turns as _turns
 from estimator import weights as _weights
 from estimator._checks import check_increasing_times
 from estimator.configuration import SensorConfig
+from estimator.elastic import elastic_batch
 from estimator.motion import motion_compensated_batch, motion_compensated_series
 from estimator.orientation import law_of_cosines_heading, wrap_angle
 from estimator.pose_filter import PoseFilterParams, run_pose_filter
-from estimator.elastic import elastic_batch
 from estimator.window import SOLVERS, fit_window, procrustes_batch, window_means, window_moments
 
 __all__ = [

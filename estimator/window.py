@@ -84,10 +84,10 @@ from estimator.configuration import SensorConfig
 from estimator.orientation import wrap_angle
 
 __all__ = [
-    "SOLVERS",
-    "STATUSES",
     "MAX_COORD_M",
     "MAX_WEIGHT",
+    "SOLVERS",
+    "STATUSES",
     "BatchFit",
     "WindowFit",
     "fit_stationary",

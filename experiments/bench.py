@@ -146,7 +146,7 @@ def bench_solvers(quick: bool = False) -> list[dict]:
 
         el: dict = {}
 
-        def batched_elastic(windows: np.ndarray = windows) -> None:
+        def batched_elastic(windows: np.ndarray = windows, el: dict = el) -> None:
             means, wax = window_moments(windows)
             el["fit"] = elastic_batch(means, wax, cfg, eps)
 

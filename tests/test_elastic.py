@@ -389,11 +389,11 @@ def test_a_window_fit_does_not_depend_on_its_batch():
     """Every array operation of the iteration is per window (reductions run over pairs,
     sensors and axes, never across windows): a window's fit alone, in a slice or in the whole
     track agree to round-off (1e-9 m; bit for bit on this machine's numpy)."""
-    from experiments.bench import straight_line_obs
     from estimator.tracking import _cumsum_means
+    from experiments.bench import straight_line_obs
 
     cfg = SensorConfig.load("rover_gps8")
-    t, obs = straight_line_obs(400, cfg, np.random.default_rng(7))
+    _, obs = straight_line_obs(400, cfg, np.random.default_rng(7))
     obs[:, 3] = np.nan
     ends = np.arange(9, 400)
     means, cnt = _cumsum_means(obs, ends, 10)
@@ -411,8 +411,8 @@ def test_track_memo_is_transparent():
     """track(solver="elastic") memoises fits by content: a repeated request (another
     technique on the same data) returns what a fresh call returns, bit for bit, and random
     weights are never memoised."""
-    from experiments.bench import straight_line_obs
     from estimator import tracking
+    from experiments.bench import straight_line_obs
 
     cfg = SensorConfig.load("rover_gps8")
     t, obs = straight_line_obs(300, cfg, np.random.default_rng(2))
