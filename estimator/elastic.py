@@ -75,7 +75,7 @@ from estimator.window import (
 
 __all__ = ["ELASTIC_STATUSES", "ElasticFit", "elastic_batch"]
 
-#: Per-window status of :class:`ElasticFit` (a subset of estimator.window.STATUSES plus "maxiter").
+#: Per-window status of :class:`ElasticFit` (all of them in estimator.window.STATUSES).
 ELASTIC_STATUSES = {
     "ok": "converged (gap and dual residual below RTOL x objective): feasible, objective not "
           "worse than the start, proper-handed",
@@ -107,7 +107,7 @@ DELTA0, DELTA_GROW, DELTA_SHRINK, DELTA_MIN = 1e-4, 8.0, 1.0 / 3.0, 1e-20
 #: 2^-1 .. 2^-HALVINGS of its length (all at once), else the window stays for that iteration
 ARMIJO = 1e-4
 HALVINGS = 30
-#: default iteration limit (as slsqp's in fit_window): 99.99 % of GPS-like windows converge in
+#: default iteration limit (as slsqp's in fit_window): 99.9 % of GPS-like windows converge in
 #: <= 30 iterations; the rest start near a saddle or crawl along curved bands (slsqp needs
 #: 50-90 iterations on such windows too); a straggler holds its whole batch, so the limit
 #: bounds the cost, and a window that reaches it gets status "maxiter"
@@ -512,7 +512,7 @@ def elastic_batch(means: Any, axis_weight: Any, config: SensorConfig, eps: float
     Returns :class:`ElasticFit`. Method and tolerances: module docstring. Sensors (axes)
     without data stay in the problem with the proximal weight of slsqp; after the fit they
     are put back at their start when that keeps every distance in its band (as slsqp's).
-    Raises ValueError naming the argument for malformed input.
+    Raises ValueError or TypeError naming the argument for malformed input.
     """
     if not isinstance(config, SensorConfig):
         raise TypeError(f"config: expected a SensorConfig, got {type(config).__name__}")
@@ -521,7 +521,7 @@ def elastic_batch(means: Any, axis_weight: Any, config: SensorConfig, eps: float
     check_int(maxiter, "maxiter", lo=1)
     N, m, d = Y.shape
     if start is not None:
-        X0 = np.asarray(start, dtype=float)
+        X0 = check_array(start, "start", allow_nan=True)
         if X0.shape != Y.shape:
             raise ValueError(f"start: expected shape {Y.shape}, got {X0.shape}")
     geo = _geometry(config)
