@@ -10,8 +10,9 @@ Source: 000_8f82f8df647bf685.txt (GPS dissertation), Sections 3.1.2, 3.2, 3.4 an
   (3.3.3), ``"huber"`` (3.3.1, per axis), ``"huff_huber"`` (Eq. 3.14), from
   :mod:`estimator.weights`, all windows stacked into one call.
 - Solvers from :mod:`estimator.window`: ``"procrustes"`` (closed form; all windows in one
-  batched call, cumulative sums when unweighted), ``"slsqp"``/``"ccp"`` (Eq. 3.9 with the eps
-  slack, one window at a time, cold-started from procrustes; ``warm_start=True`` passes the
+  batched call, cumulative sums when unweighted), ``"elastic"`` (Eq. 3.9 with the eps slack,
+  all windows of the track in one batched interior-point call, :mod:`estimator.elastic`),
+  ``"slsqp"``/``"ccp"`` (Eq. 3.9 with the eps slack, one window at a time, cold-started from procrustes; ``warm_start=True`` passes the
   previous row's fit as ``x0``, the dissertation's start, Section 3.1.2; with a dynamic
   window too, the rows are fitted in time order so the previous row may have either size;
   a row with insufficient data passes on the fit before it).
@@ -62,7 +63,9 @@ Observations are planar ``(n, m, 2)``; a 3-D configuration is projected (``confi
 
 from __future__ import annotations
 
+import hashlib
 import warnings
+from collections import OrderedDict
 from typing import Any
 
 import numpy as np
@@ -73,11 +76,12 @@ from estimator import turns as _turns
 from estimator import weights as _weights
 from estimator._checks import check_increasing_times
 from estimator.configuration import LayoutWarning, SensorConfig
+from estimator.elastic import elastic_batch
 from estimator.layout_check import check_layout
 from estimator.motion import motion_compensated_batch, motion_compensated_series
 from estimator.orientation import law_of_cosines_heading, wrap_angle
 from estimator.pose_filter import PoseFilterParams, run_pose_filter
-from estimator.window import SOLVERS, fit_window, procrustes_batch, window_means
+from estimator.window import SOLVERS, fit_window, procrustes_batch, window_means, window_moments
 
 __all__ = [
     "GROWTH_RULES",
@@ -300,6 +304,11 @@ def _fit_windows(obs, cfg, ends, w, *, weighting, rng, huff_threshold, huber_c, 
     (the ``prev`` for the rows that follow; unchanged by procrustes).
     """
     N, m = ends.size, cfg.m
+    if solver == "elastic":
+        pos, yaw, status = _elastic_fits(obs, cfg, ends, w, weighting=weighting, rng=rng,
+                                         huff_threshold=huff_threshold, huber_c=huber_c,
+                                         eps=eps, fit_kw=fit_kw)
+        return pos, yaw, status, prev
     pos = np.full((N, m, 2), np.nan)
     yaw = np.full(N, np.nan)
     status = np.empty(N, dtype=object)
@@ -338,6 +347,68 @@ def _fit_windows(obs, cfg, ends, w, *, weighting, rng, huff_threshold, huber_c, 
                     prev = fit.positions
         a += ch.size
     return pos, yaw, status, prev
+
+
+def _elastic_moments(obs, cfg, ends, w, *, weighting, rng, huff_threshold, huber_c):
+    """Per-axis window means (N, m, 2) and axis weights (N, m, 2) of the windows ending at
+    ``ends`` for the batched elastic solver: cumulative sums for per-sample weights (none,
+    Huff), weighted sums for random weights, stacked windows (in chunks) for Huber."""
+    if weighting in ("none", "huff"):
+        sw = None if weighting == "none" else _weights.huff_weights(obs, cfg, huff_threshold)
+        means, cnt = _cumsum_means(obs, ends, w, sw)
+        return means, np.repeat(cnt[..., None], 2, axis=-1)
+    means = np.full((ends.size, cfg.m, 2), np.nan)
+    wax = np.zeros((ends.size, cfg.m, 2))
+    huff = _sample_huff(obs, cfg, weighting, huff_threshold)
+    a = 0
+    for ch in _chunks(ends, w, cfg.m):
+        sl = slice(a, a + ch.size)
+        if weighting == "random":
+            wts = _weights.random_weights((ch.size, w, cfg.m), rng)
+            mu, sw = _weighted_window_means(obs, ch, w, wts)
+            means[sl], wax[sl] = mu, sw[..., None]
+        else:
+            st = _stack(obs, ch, w)
+            wts = _window_weights(st, cfg, weighting, rng, huff_threshold, huber_c,
+                                  None if huff is None else _stack(huff, ch, w))
+            means[sl], wax[sl] = window_moments(st, wts)
+        a += ch.size
+    return means, wax
+
+
+#: Elastic window fits memoised per process, keyed by content: a sweep fits the same windows
+#: of the same observations for several techniques (none, lc and lc_course share one track's
+#: fits; dyn, lc+dyn and lc_course+dyn another's). A hit is an identical request (the same
+#: observations, configuration, windows and options), so it returns exactly what the call
+#: would. Random weights are never memoised (they consume the generator). Least recently used
+#: first out; one entry holds N x m x 2 positions (~0.5 MB for 4000 windows of 8 sensors).
+_ELASTIC_MEMO: OrderedDict[tuple, tuple[np.ndarray, np.ndarray, np.ndarray]] = OrderedDict()
+_ELASTIC_MEMO_SIZE = 16
+
+
+def _elastic_fits(obs, cfg, ends, w, *, weighting, rng, huff_threshold, huber_c, eps, fit_kw):
+    """(positions (N, m, 2), yaw (N,), status (N,) object) of the elastic fits of the windows
+    ending at ``ends`` (:func:`estimator.elastic.elastic_batch`), memoised by content."""
+    key = None
+    if weighting != "random":
+        h = hashlib.blake2b(np.ascontiguousarray(obs).tobytes(), digest_size=16)
+        h.update(np.ascontiguousarray(ends).tobytes())
+        h.update(np.ascontiguousarray(cfg.body_positions).tobytes())
+        key = (h.hexdigest(), obs.shape, ends.size, int(w), weighting, repr(huff_threshold),
+               float(huber_c), float(eps), repr(sorted(fit_kw.items())))
+        if key in _ELASTIC_MEMO:
+            _ELASTIC_MEMO.move_to_end(key)
+            pos, yaw, status = _ELASTIC_MEMO[key]
+            return pos.copy(), yaw.copy(), status.copy()
+    means, wax = _elastic_moments(obs, cfg, ends, w, weighting=weighting, rng=rng,
+                                  huff_threshold=huff_threshold, huber_c=huber_c)
+    ef = elastic_batch(means, wax, cfg, eps, **fit_kw)
+    out = (ef.positions, ef.yaw, ef.status.astype(object))
+    if key is not None:
+        _ELASTIC_MEMO[key] = out
+        while len(_ELASTIC_MEMO) > _ELASTIC_MEMO_SIZE:
+            _ELASTIC_MEMO.popitem(last=False)
+    return out[0].copy(), out[1].copy(), out[2].copy()
 
 
 def _runs(values: np.ndarray) -> list[tuple[int, int]]:
@@ -455,8 +526,9 @@ def track(t: Any, obs: Any, config: SensorConfig, window: int = 10, weighting: s
         the value of its newest epoch, and a NaN leaves that row uncorrected (lag_dx NaN).
         With ``lag_correction`` True / "pose" only. The simulator's heading here makes the
         oracle rows "LC (simulator heading)"; a smoothed heading series is an estimator.
-    solver : "procrustes" | "slsqp" | "ccp" (method "window" only); eps (m), warm_start and
-        fit_options (e.g. ``{"maxiter": 100}``) pass to :func:`estimator.window.fit_window`.
+    solver : "procrustes" | "slsqp" | "ccp" | "elastic" (method "window" only); eps (m),
+        warm_start (slsqp/ccp only) and fit_options (e.g. ``{"maxiter": 100}``) pass to
+        :func:`estimator.window.fit_window` (elastic: :func:`estimator.elastic.elastic_batch`).
     method : one of :data:`METHODS` (module docstring); "naive" gives a row only where every
         CG sensor has data in the window, else NaN and "insufficient_data". yaw_rate : the
         motion-compensated
@@ -495,6 +567,9 @@ def track(t: Any, obs: Any, config: SensorConfig, window: int = 10, weighting: s
     if method != "window" and solver != "procrustes":
         raise ValueError(
             f"solver: {solver!r} applies to method='window' only (got method={method!r})")
+    if warm_start and solver == "elastic":
+        raise ValueError("warm_start: the batched elastic solver starts every window from "
+                         "its procrustes fit; warm_start applies to 'slsqp' and 'ccp'")
     if lag_correction not in LAG_OPTIONS or (isinstance(lag_correction, (int, float))
                                              and not isinstance(lag_correction, bool)):
         raise ValueError(f"lag_correction: must be one of {LAG_OPTIONS}, got {lag_correction!r}")

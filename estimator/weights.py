@@ -19,7 +19,9 @@ from typing import Any
 
 import numpy as np
 
+from estimator._checks import check_array, check_int, check_real
 from estimator.configuration import SensorConfig
+from estimator.window import MAX_COORD_M
 
 __all__ = [
     "HUBER_C",
@@ -38,11 +40,11 @@ MAD_CONSISTENCY = 0.6745
 
 
 def _obs(obs: Any) -> tuple[np.ndarray, np.ndarray]:
-    arr = np.asarray(obs, dtype=float)
+    """obs as a float array (NaN = missing; finite entries at most MAX_COORD_M metres, so
+    residuals and their squares stay finite) and its NaN mask."""
+    arr = check_array(obs, "obs", allow_nan=True, max_abs=MAX_COORD_M)
     if arr.ndim < 3 or arr.shape[-1] not in (2, 3):
         raise ValueError(f"obs: expected shape (..., s, m, d) with d = 2 or 3, got {arr.shape}")
-    if np.isinf(arr).any():
-        raise ValueError("obs: contains infinite values (use NaN for missing samples)")
     return arr, np.isnan(arr)
 
 
@@ -52,6 +54,8 @@ def _window_nanmedian(x: np.ndarray, n: np.ndarray) -> np.ndarray:
     last), then the mean of the two middle present values, as numpy computes it; NaN where
     nothing is present. nanmedian on many short windows loops over masked arrays and is
     ~10x slower."""
+    if x.shape[-1] == 0:  # empty window: nothing present, NaN (n is 0 everywhere)
+        return np.moveaxis(np.full(x.shape[:-1] + (1,), np.nan), -1, -3)
     srt = np.sort(x, axis=-1)
     last = x.shape[-1] - 1
     lo = np.take_along_axis(srt, np.clip((n - 1) // 2, 0, last), axis=-1)
@@ -85,9 +89,7 @@ def huber_weights(obs: Any, c: float = HUBER_C) -> np.ndarray:
     samples equal the median) the limit MAD -> 0 is used: weight 1 at zero residual, 0
     otherwise. Missing samples get 0.
     """
-    c = float(c)
-    if not (math.isfinite(c) and c > 0):
-        raise ValueError(f"c: Huber constant must be a positive number, got {c!r}")
+    c = check_real(c, "c", lo=0.0, lo_open=True)
     arr, nan = _obs(obs)
     e, mad, _ = _robust_residuals(arr, nan)
     ae = np.abs(e)
@@ -133,9 +135,7 @@ def deleted_residual_mask(obs: Any, threshold: float | None = None, *,
         raise ValueError(f"rule: unknown {rule!r}; choose 'standardized' or 'absolute'")
     if threshold is None:
         threshold = 3.0 if rule == "standardized" else 1.0
-    thr = float(threshold)
-    if not (math.isfinite(thr) and thr > 0):
-        raise ValueError(f"threshold: must be a positive number, got {threshold!r}")
+    thr = check_real(threshold, "threshold", lo=0.0, lo_open=True)
     arr, nan = _obs(obs)
     e, mad, n = _robust_residuals(arr, nan)
     with np.errstate(divide="ignore", invalid="ignore"):
@@ -189,13 +189,8 @@ def huff_weights(obs: Any, config: SensorConfig, threshold: float | None = None,
         raise ValueError(f"obs: expected shape (..., s, {config.m}, {config.d}) for config "
                          f"{config.name!r}, got {arr.shape}")
     if threshold is not None:
-        thr = float(threshold)
-        if not (math.isfinite(thr) and thr > 0):
-            raise ValueError(f"threshold: must be a positive number of metres or None, "
-                             f"got {threshold!r}")
-    mf = float(min_error)
-    if not (math.isfinite(mf) and mf > 0):
-        raise ValueError(f"min_error: must be a positive number of metres, got {min_error!r}")
+        thr = check_real(threshold, "threshold", lo=0.0, lo_open=True)
+    mf = check_real(min_error, "min_error", lo=0.0, lo_open=True)
     m = config.m
     present = ~nan.any(axis=-1)                                   # (..., s, m)
     o = np.where(present[..., None], arr, 0.0)
@@ -238,7 +233,17 @@ def random_weights(shape: tuple[int, ...] | int, rng: np.random.Generator) -> np
     if not isinstance(rng, np.random.Generator):
         raise ValueError(  # noqa: TRY004 (the project's bad-input contract is ValueError)
             f"rng: expected a numpy.random.Generator, got {type(rng).__name__}")
-    shp = (shape,) if isinstance(shape, (int, np.integer)) else tuple(shape)
-    if any((not isinstance(k, (int, np.integer))) or k < 0 for k in shp):
-        raise ValueError(f"shape: must be non-negative integers, got {shape!r}")
-    return rng.random(shp)
+    if isinstance(shape, (int, np.integer)) and not isinstance(shape, (bool, np.bool_)):
+        shp = (int(shape),)
+    else:
+        try:
+            shp = tuple(shape)
+        except TypeError:
+            raise TypeError(f"shape: must be an integer or a tuple of integers, got "
+                            f"{type(shape).__name__} {shape!r}") from None
+    shp = tuple(check_int(k, "shape", lo=0) for k in shp)
+    try:
+        return rng.random(shp)
+    except (MemoryError, ValueError) as exc:  # numpy refuses sizes it cannot allocate
+        raise ValueError(f"shape: {shp} ({math.prod(shp)} weights) cannot be allocated: "
+                         f"{exc}") from None

@@ -38,6 +38,12 @@ Solvers (all return the proper-handed configuration, never its mirror image):
     procrustes fit (or ``x0``). Result checked (feasibility, objective not worse than
     procrustes, handedness); on failure the procrustes fit is returned with a status saying
     why.
+``"elastic"``
+    The same problem by a batched feasible primal-dual interior-point method
+    (:mod:`estimator.elastic`, :func:`estimator.elastic.elastic_batch`): every window of a track
+    in one vectorized iteration, started from the procrustes fit (or ``x0`` when it is strictly
+    inside every band), converged per window to ~1e-7 relative objective. Status "maxiter" when
+    the iteration limit is reached first (the last, feasible iterate is returned).
 ``"ccp"``
     The same problem by the convex-concave procedure in cvxpy + Clarabel: upper bounds as
     second-order cones, lower bounds linearized at the current iterate (a restriction, so
@@ -73,10 +79,13 @@ from typing import Any
 
 import numpy as np
 
+from estimator._checks import check_array, check_int, check_real
 from estimator.configuration import SensorConfig
 from estimator.orientation import wrap_angle
 
 __all__ = [
+    "MAX_COORD_M",
+    "MAX_WEIGHT",
     "SOLVERS",
     "STATUSES",
     "BatchFit",
@@ -86,9 +95,10 @@ __all__ = [
     "procrustes_batch",
     "sliding_window_means",
     "window_means",
+    "window_moments",
 ]
 
-SOLVERS = ("procrustes", "slsqp", "ccp")
+SOLVERS = ("procrustes", "slsqp", "ccp", "elastic")
 
 #: Status vocabulary of :class:`WindowFit` / :class:`BatchFit`.
 STATUSES = {
@@ -101,6 +111,8 @@ STATUSES = {
     "fallback_mirrored": "solver result was the mirror image of the configuration; "
                          "procrustes returned",
     "fallback_failed": "solver raised or returned no solution; procrustes returned",
+    "maxiter": "elastic: iteration limit reached before convergence; the last iterate "
+               "(feasible, objective not worse than the start) returned",
 }
 
 
@@ -156,16 +168,25 @@ class BatchFit:
 
 
 # ----------------------------------------------------------------------------- validation
+#: largest accepted |coordinate| in metres: ECEF coordinates are < 6.4e6 m and UTM northings
+#: < 1e7 m; 1e9 m keeps every squared spread (< 4e18 m^2) and Eq. 3.9 sum far from overflow
+MAX_COORD_M = 1e9
+#: largest accepted weight: the fit depends only on ratios of weights (Huber <= 1, Huff <= 1 /
+#: min_error = 1e3 by default); with 1e100 no weight sum or weighted square can overflow
+MAX_WEIGHT = 1e100
+#: largest accepted total weight of a sensor (procrustes_batch): sums of up to 1e100 windows
+#: of MAX_WEIGHT; products with squared coordinates stay below 1e220
+MAX_WEIGHT_SUM = 1e200
+
+
 def _check_obs(obs: Any, *, min_ndim: int = 3) -> tuple[np.ndarray, np.ndarray]:
     """Return (obs as float array, present mask (..., s, m)). NaN marks missing samples."""
-    arr = np.asarray(obs, dtype=float)
+    arr = check_array(obs, "obs", allow_nan=True, max_abs=MAX_COORD_M)
     if arr.ndim < min_ndim:
         raise ValueError(f"obs: expected shape (..., s, m, d), got shape {arr.shape}")
     if arr.shape[-1] not in (2, 3):
         raise ValueError(f"obs: last axis must be d = 2 or 3 coordinates, got shape {arr.shape}")
     nan = np.isnan(arr)
-    if np.isinf(arr).any():
-        raise ValueError("obs: contains infinite values (use NaN for missing samples)")
     missing = nan.any(axis=-1)
     if (missing != nan.all(axis=-1)).any():
         idx = tuple(int(v) for v in np.argwhere(missing != nan.all(axis=-1))[0])
@@ -176,14 +197,11 @@ def _check_obs(obs: Any, *, min_ndim: int = 3) -> tuple[np.ndarray, np.ndarray]:
 
 
 def _check_weights(weights: Any, obs_shape: tuple[int, ...]) -> np.ndarray:
-    w = np.asarray(weights, dtype=float)
+    w = check_array(weights, "weights", max_abs=MAX_WEIGHT)
     if w.shape != obs_shape[:-1] and w.shape != obs_shape:
         raise ValueError(
             f"weights: expected shape {obs_shape[:-1]} (per sample and sensor) or {obs_shape} "
             f"(per axis) to match obs, got {w.shape}")
-    if not np.isfinite(w).all():
-        raise ValueError("weights: contains NaN or infinite values (missing samples need a "
-                         "finite weight, e.g. 0)")
     if (w < 0).any():
         raise ValueError(f"weights: must be >= 0, found minimum {w.min()!r}")
     return w
@@ -230,6 +248,20 @@ def window_means(obs: Any, weights: Any | None = None) -> tuple[np.ndarray, np.n
     return means, sw
 
 
+def window_moments(obs: Any, weights: Any | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """Per-axis weighted window means and per-axis total weights: the exact sufficient
+    statistics of Eq. 3.9 with per-axis weights (Eq. 3.12-3.14), the input of
+    :func:`estimator.elastic.elastic_batch`.
+
+    obs : (..., s, m, d) metres, NaN = missing sample. weights : None (all 1), (..., s, m) or
+    (..., s, m, d), finite and >= 0. Returns ``means (..., m, d)`` (NaN where the axis weight
+    is 0) and ``axis_weight (..., m, d)``; unlike :func:`window_means` nothing is reduced to
+    one weight per sensor.
+    """
+    arr, present = _check_obs(obs)
+    return _moments(arr, present, weights)
+
+
 def sliding_window_means(obs: Any, window: int, weights: Any | None = None
                          ) -> tuple[np.ndarray, np.ndarray]:
     """:func:`window_means` of every sliding window of ``window`` samples, in O(n).
@@ -245,8 +277,9 @@ def sliding_window_means(obs: Any, window: int, weights: Any | None = None
     if arr.ndim != 3:
         raise ValueError(f"obs: expected shape (n, m, d), got {arr.shape}")
     n = arr.shape[0]
-    if not (isinstance(window, (int, np.integer)) and 1 <= window <= n):
-        raise ValueError(f"window: must be an integer in 1..n = {n}, got {window!r}")
+    check_int(window, "window", 1, max(n, 1))
+    if n == 0:
+        raise ValueError("obs: no samples (n = 0): a window needs at least one")
     wa = _axis_weights(arr, present, weights)
     ref = arr[present].mean(axis=0) if present.any() else np.zeros(arr.shape[-1])
     o = np.where(present[..., None], arr - ref, 0.0)
@@ -288,18 +321,20 @@ def procrustes_batch(means: Any, sensor_weight: Any, config: SensorConfig) -> Ba
     (d = 3), get status "insufficient_data" and NaN fields. Sensors with zero weight still
     get positions from the rigid transform.
     """
-    Y = np.asarray(means, dtype=float)
-    w = np.asarray(sensor_weight, dtype=float)
+    if not isinstance(config, SensorConfig):
+        raise TypeError(f"config: expected a SensorConfig, got {type(config).__name__}")
+    Y = check_array(means, "means", allow_nan=True, max_abs=MAX_COORD_M)
+    w = check_array(sensor_weight, "sensor_weight", max_abs=MAX_WEIGHT_SUM)
     m, d = config.m, config.d
     if Y.ndim != 3 or Y.shape[1:] != (m, d):
         raise ValueError(f"means: expected shape (N, {m}, {d}) for config {config.name!r}, "
                          f"got {Y.shape}")
     if w.shape != Y.shape[:2]:
         raise ValueError(f"sensor_weight: expected shape {Y.shape[:2]}, got {w.shape}")
-    if not np.isfinite(w).all() or (w < 0).any():
-        raise ValueError("sensor_weight: must be finite and >= 0")
+    if (w < 0).any():
+        raise ValueError(f"sensor_weight: must be >= 0, found minimum {w.min()!r}")
     valid = w > 0
-    if np.isinf(Y).any() or np.isnan(Y[valid]).any():
+    if np.isnan(Y[valid]).any():
         raise ValueError("means: must be finite wherever sensor_weight > 0")
     N = Y.shape[0]
     B = config.body_positions
@@ -429,12 +464,9 @@ def _objective(obs0: np.ndarray, wa: np.ndarray, positions: np.ndarray) -> float
 
 
 def _check_eps(eps: Any, config: SensorConfig) -> float:
-    try:
-        e = float(eps)
-    except (TypeError, ValueError):
-        raise ValueError(f"eps: must be a number in metres, got {eps!r}") from None
+    e = check_real(eps, "eps")
     dmin = float(_geometry(config).a.min())
-    if not (math.isfinite(e) and 0.0 < e < dmin / 2.0):
+    if not 0.0 < e < dmin / 2.0:
         raise ValueError(
             f"eps: must satisfy 0 < eps < min distance / 2 = {dmin / 2.0:.6g} m for config "
             f"{config.name!r}, got {eps!r}")
@@ -444,12 +476,7 @@ def _check_eps(eps: Any, config: SensorConfig) -> float:
 def _check_x0(x0: Any, config: SensorConfig) -> np.ndarray | None:
     if x0 is None:
         return None
-    a = np.asarray(x0, dtype=float)
-    if a.shape != (config.m, config.d):
-        raise ValueError(f"x0: expected shape ({config.m}, {config.d}), got {a.shape}")
-    if not np.isfinite(a).all():
-        raise ValueError("x0: must be finite")
-    return a
+    return check_array(x0, "x0", shape=(config.m, config.d), max_abs=MAX_COORD_M)
 
 
 def _result(positions_c: np.ndarray, centre: np.ndarray, config: SensorConfig,
@@ -486,9 +513,10 @@ def fit_window(obs: Any, config: SensorConfig, weights: Any | None = None, eps: 
 
     obs : (s, m, d) metres, NaN = missing sample. weights : None, (s, m) or (s, m, d),
     finite and >= 0. eps : constraint slack in metres, 0 < eps < min_ij a_ij / 2.
-    solver : "procrustes" | "slsqp" | "ccp" (module docstring). x0 : (m, d) start for
-    slsqp/ccp (default: the procrustes fit) and the positions returned when the window has
-    insufficient data. maxiter : iteration limit of slsqp / ccp.
+    solver : "procrustes" | "slsqp" | "ccp" | "elastic" (module docstring). x0 : (m, d) start
+    for slsqp/ccp/elastic (default: the procrustes fit; elastic uses it only when it is
+    strictly inside every band) and the positions returned when the window has insufficient
+    data. maxiter : iteration limit of slsqp / ccp / elastic.
     Raises ValueError naming the field for malformed input; solver trouble is in ``status``.
     """
     if not isinstance(config, SensorConfig):
@@ -503,8 +531,7 @@ def fit_window(obs: Any, config: SensorConfig, weights: Any | None = None, eps: 
         raise ValueError(f"solver: unknown {solver!r}; choose one of {list(SOLVERS)}")
     e = _check_eps(eps, config)
     x0a = _check_x0(x0, config)
-    if not (isinstance(maxiter, (int, np.integer)) and maxiter >= 1):
-        raise ValueError(f"maxiter: must be a positive integer, got {maxiter!r}")
+    check_int(maxiter, "maxiter", lo=1)
 
     wa = _axis_weights(arr, present, weights)
     # centre on the window (UTM coordinates are ~1e6 m): any fixed reference point works
@@ -541,6 +568,16 @@ def fit_window(obs: Any, config: SensorConfig, weights: Any | None = None, eps: 
 
     start = p_proc if x0a is None else x0a - centre
     yc = np.where(Wa > 0, means, 0.0)
+    if solver == "elastic":
+        from estimator.elastic import elastic_batch
+
+        ef = elastic_batch(np.where(Wa > 0, means, np.nan)[None], Wa[None], config, e,
+                           start=start[None], maxiter=maxiter)
+        st = str(ef.status[0])
+        p_el = ef.positions[0]
+        obj = obj_proc if st.startswith("fallback") else _objective(obs0, wa, p_el)
+        return _result(p_el, centre, config, obj, mirror, solver, int(ef.iterations[0]), st,
+                       yaw=float(ef.yaw[0]))
     try:
         if solver == "slsqp":
             p_sol, iters = _solve_slsqp(yc, Wa, config, e, start, maxiter)
@@ -747,7 +784,12 @@ def _solve_ccp(yc: np.ndarray, Wa: np.ndarray, config: SensorConfig, eps: float,
         with warnings.catch_warnings():
             # "solution may be inaccurate": the iterate is checked below and in _accept
             warnings.simplefilter("ignore", UserWarning)
-            prob.solve(solver=cp.CLARABEL, **CLARABEL_OPTIONS)
+            try:
+                prob.solve(solver=cp.CLARABEL, **CLARABEL_OPTIONS)
+            except cp.error.SolverError as exc:  # reported as status "fallback_failed"
+                if it == 1:
+                    raise RuntimeError(f"ccp: Clarabel failed: {exc}") from exc
+                break
         if z.value is None or prob.status not in ("optimal", "optimal_inaccurate"):
             if it == 1:
                 raise RuntimeError(f"ccp: subproblem status {prob.status}")

@@ -127,7 +127,7 @@ TECHNIQUES = ("none", "lc", "dyn", "lc+dyn", "lc_course", "lc_course+dyn", "moti
 #: dynamic window). They use the truth, so they are diagnostics, never estimator results.
 ORACLE_TECHNIQUES = ("lc_sim_heading", "lc_sim_heading+dyn")
 TECHNIQUES = TECHNIQUES + ORACLE_TECHNIQUES
-SOLVERS = ("procrustes", "slsqp", "ccp")
+SOLVERS = ("procrustes", "slsqp", "ccp", "elastic")
 #: Evaluation masks: every estimate; those dated at an epoch that is not turning; those
 #: whose whole window is free of turning epochs (estimator.metrics.evaluation_masks).
 MASKS = ("full", "no_turns", "no_turns_window")

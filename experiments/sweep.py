@@ -957,6 +957,7 @@ _EPILOG = """examples:
   python -m experiments.sweep --preset quick       # one path, 2 seeds, a few seconds
   python -m experiments.sweep my_spec.toml --out /tmp/run --jobs 2
   python -m experiments.sweep --preset thesis --solver slsqp   # faithful solver -> results/thesis-slsqp/
+  python -m experiments.sweep --preset thesis --solver elastic # the same fit, batched -> results/thesis-elastic/
   python -m experiments.sweep --preset thesis --backend dask --scheduler tcp://10.0.0.5:8786
   python -m experiments.figures results/thesis     # re-plot from saved files, no simulation
 
@@ -988,7 +989,7 @@ def build_parser() -> argparse.ArgumentParser:
                    help="Dask scheduler address for --backend dask, e.g. tcp://127.0.0.1:8786 "
                         "(default: start a LocalCluster of --jobs workers)")
     p.add_argument("--force", action="store_true", help="recompute finished cells")
-    p.add_argument("--solver", choices=("procrustes", "slsqp", "ccp"),
+    p.add_argument("--solver", choices=("procrustes", "slsqp", "ccp", "elastic"),
                    help="override every cell's solver; results go to results/<name>-<solver>/, "
                         "e.g. --solver slsqp")
     p.add_argument("--seeds", type=int, metavar="N",
