@@ -2,114 +2,293 @@
 
 The dissertation's future work (000_8f82f8df647bf685.txt, Section 5.2): "a system that takes
 advantage of extended Kalman Filter and the quadratic optimization framework using sensor
-configuration knowledge". Here the configuration enters the measurement model directly:
+configuration knowledge". Here the configuration enters the measurement model directly, and
+the filter is built to hold its heading on any wheeled platform, from a 0.2 m/s rover to a
+20 m/s car (issue 14). Its smoother (fixed-lag and full RTS) is :mod:`estimator.pose_smoother`.
 
-State ``x = (px, py, yaw, v, omega)``: CG position (m), heading (rad, CCW from +x), speed
-along the heading (m/s, negative = reversing) and yaw rate (rad/s). Motion model: constant
-turn rate and velocity (CTRV),
+State and non-holonomic constraint
+----------------------------------
+``x = (px, py, yaw, v, omega)``: position (m) of the platform's *no-slip point* M, heading
+(rad, CCW from +x), speed of M along the heading (m/s) and yaw rate (rad/s). M is the point of
+the body whose velocity has no lateral component: the middle of the driven axle of a
+differential drive (the rover's axle passes under its CG), the middle of the rear axle of a
+car. Writing the velocity of M as ``v (cos yaw, sin yaw)`` with no lateral term IS the
+non-holonomic constraint, exactly (a hard constraint, not a soft prior). Every other body point
+moves sideways in a turn: the CG, ``b_cg - b_M`` ahead of M, has lateral speed
+``omega (b_cg - b_M)_x``. M is given in :attr:`PoseFilterParams.no_slip_point_m` (body frame,
+relative to the configuration's CG; (0, 0) for the rover). Tyre slip (a car's few degrees of
+slip angle at high lateral acceleration) violates the constraint; it enters as model error.
 
-    px' = px + v/omega (sin(yaw + omega dt) - sin yaw)   (v cos(yaw) dt as omega -> 0)
-    py' = py + v/omega (cos yaw - cos(yaw + omega dt))   (v sin(yaw) dt as omega -> 0)
+Motion model: constant turn rate and velocity (CTRV),
+
+    px' = px + v dt (cos(yaw) f1 - sin(yaw) f2),  py' = py + v dt (sin(yaw) f1 + cos(yaw) f2)
     yaw' = yaw + omega dt,   v' = v,   omega' = omega,
+    f1 = sin(q)/q, f2 = (1 - cos q)/q, q = omega dt (series below |q| = 1e-4),
 
-driven by white longitudinal acceleration (``sigma_accel``, m/s^2) and yaw acceleration
-(``sigma_yaw_accel``, rad/s^2): ``Q = G diag(sa^2, sy^2) G^T`` with
-``G = [[dt^2/2 cos yaw, 0], [dt^2/2 sin yaw, 0], [0, dt^2/2], [dt, 0], [0, dt]]``.
+driven by white longitudinal acceleration (sd ``sigma_accel``) and yaw acceleration
+(``sigma_yaw_accel``): ``Q = G diag(sa^2, sy^2) G^T`` with ``G = [[dt^2/2 cos yaw, 0],
+[dt^2/2 sin yaw, 0], [0, dt^2/2], [dt, 0], [0, dt]]`` (discrete white-noise acceleration).
 
-Measurements: every antenna ``i`` that reported, ``z_i = p + R(yaw) r_i + noise``, with
-``r_i = b_i - cg_body`` its known body offset from the CG and noise ``N(0, sigma_meas^2 I)``;
-Jacobian ``[I, R(yaw) J r_i, 0, 0]`` with J the 90 degree rotation. So the filter uses the
-configuration as the window fit does, sample by sample, with every antenna at its own time.
+Process noise and gates from the platform's limits (never tuned on truth)
+-------------------------------------------------------------------------
+``sigma_accel = max_accel_mps2 / 2`` and ``sigma_yaw_accel = max_yaw_accel_radps2 / 2``: the
+rule for the white-noise acceleration model of Bar-Shalom, Li and Kirubarajan, *Estimation
+with Applications to Tracking and Navigation* (2001), Section 6.3.2: the noise sd "of the order
+of the maximum acceleration magnitude a_M", in ``[0.5 a_M, a_M]``; we take the lower end since
+a ground vehicle spends most of its time below its limits. The turn rate is bounded by the
+platform: ``|omega| <= min(max_turn_rate_radps, max_lateral_accel_mps2 / |v|)`` (the
+lateral-acceleration limit ``|v omega| <= a_lat``), enforced by projection after each update.
+Gates are chi-square tests on the innovation covariance, which carries that process noise, so
+they widen with the platform's agility and the time since the last update. The limits come
+from the vehicle: the path file's ``max_accel_mps2``, ``max_turn_rate_radps``,
+``max_lateral_accel_mps2`` and the controller's yaw-acceleration limit (the sweep reads them
+from the simulated vehicle; :meth:`PoseFilterParams.from_limits`).
 
-Robust gating: each antenna's innovation is tested against the predicted covariance,
-``nu_i^T S_i^{-1} nu_i <= chi2_2(gate_prob)`` (13.8 at 0.999); failures are dropped from the
-update (counted in ``n_gated``). If every reporting antenna fails for ``max_rejects``
-consecutive epochs the filter has lost track: the covariance is reset to its initial value
-and the epoch's antennas are used (status "reset"); a warning sign, reported, not hidden.
+Measurements
+------------
+For every antenna ``i`` with body offset ``r_i`` from M:
 
-Initialisation (by :func:`estimator.tracking.track`): the motion-compensated window fit
-(:mod:`estimator.motion`, constant velocity) over the first ``s`` epochs gives position,
-heading and the speed along it.
+- its fix, ``z_i = p + R(yaw) r_i + e``, ``e ~ N(0, sigma_abs^2 I)``; Jacobian
+  ``[I, J R r_i, 0, 0]`` (J the 90 degree rotation);
+- its displacement since its last accepted fix ``tau`` seconds earlier (at most
+  :data:`MAX_STEP_GAP` sample intervals), as a function of the current state through the CTRV
+  motion run backwards: ``z_i(t) - z_i(t - tau) = R(yaw) u_i`` with
+  ``u_i = (v tau f1 + (1 - cos q) r_x - sin q r_y, -v tau f2 + sin q r_x + (1 - cos q) r_y)``,
+  ``q = omega tau``; noise sd ``sigma_step * sqrt(max(1, tau / dt_median))``.
 
-Tuning (done once, on synthetic data; ``tests/tune_pose_filter.py`` reruns it, ~4 min): Path
-1 (square100 at 0.2 m/s, 1985 epochs at 1 Hz) driven by the MuJoCo rover with the rover_gps8
-layout, GPS errors from models/noise/gps_stationary.toml (2 m per axis, half common-mode,
-smooth Gauss-Markov, plateaus, outliers, bursty dropouts) in 4000 s sessions replayed onto
-the truth; four sessions spawned from seed 20261122, which no test and no sweep preset uses.
-Criterion: mean Euclidean CG error over the whole path, averaged over the sessions. First
-grid sigma_meas {0.5, 1, 2, 3} m x sigma_accel {0.2, 0.5, 1, 2} m/s^2 x sigma_yaw_accel
-{0.02, 0.05, 0.1, 0.2} rad/s^2: best 1.621 m at (3, 2, 0.05), worst 2.217 m; second grid {2,
-3, 4, 6} x {0.5, 1, 2} x {0.005, 0.01, 0.02, 0.05}: best 1.563 m at the defaults below (3,
-0.5, 0.01), worst 1.702 m. Same data: window-1 fit 1.535 m, motion-compensated window 10
-with yaw rate 1.533 m, window 10 1.688 m, naive window 10 1.850 m. With errors this time-
-correlated (the filter's white-noise model is wrong, and the common mode is invisible to any
-configuration method) the EKF does not beat the window-1 fit on position; its heading,
-carried by the motion model, is far better (median 0.18 rad against ~0.8 rad for the window
-fits on one such session). ``TUNING`` holds these numbers.
+Why the displacements: GNSS position errors are strongly correlated in time (multipath and
+atmosphere change over minutes; the dissertation's Section 4.3 sees no "sharp jaggedness"),
+so one antenna's error changes little from one sample to the next even when it is metres
+large. Its epoch-to-epoch displacement therefore measures the platform's motion far better
+than two absolute fixes do, and with the non-holonomic constraint the direction of motion is
+the heading; differences between antennas' displacements measure the yaw rate through the
+configuration. (The correlation of consecutive displacements through their shared fix, and
+the slow drift of the error, are left out of the model; the first is small next to the
+absolute fixes' noise, the second is what limits the heading, see the README.)
+
+Noise levels from the data through the configuration (no truth, no tuning)
+--------------------------------------------------------------------------
+``sigma_abs`` and ``sigma_step`` default to :func:`estimate_noise`: the rigid fit of the
+configuration to every epoch leaves residuals that are each antenna's own error (the error
+all antennas share moves the fit and cancels); their robust scale is ``sigma_abs``, and the
+robust scale of each antenna's residual change between consecutive epochs is ``sigma_step``.
+This is a calibration over the whole recording (two numbers); a strictly on-line user passes
+the receivers' values instead.
+
+Forward speed that cannot flip silently
+---------------------------------------
+With ``reverse=False`` (a platform that does not reverse: the default) the speed is
+non-negative. After each update a negative speed is either insignificant (``v > -3 sd``:
+projected to 0) or means the heading is off by pi: then ``yaw += pi, v = -v`` (the same
+motion, the covariance mapped by ``diag(1, 1, 1, -1, 1)``) and the epoch's status is
+``"flip_corrected"``: reported, never silent. With ``reverse=True`` the speed is signed
+(negative = reversing) and the direction is decided by the configuration: a running
+log-likelihood ratio of the antennas' fixes under the heading and under the heading + pi
+(exponential forgetting over ``flip_memory_s``) flips the state when the reversed pose is
+more likely by ``chi2_1(gate_prob)``; also reported as ``"flip_corrected"``.
+
+Initialisation waits for data, resets are reported
+--------------------------------------------------
+The filter starts at the first epoch where the heading is known: either the configuration
+fixes it (heading sd ``sigma_abs / sqrt(sum |r_i|^2)`` below :data:`INIT_MAX_YAW_SD`, e.g.
+centimetre receivers) or the platform has moved, relative to the first fix, by more than
+:data:`INIT_MOTION_SIGMAS` times the sd of that displacement (then heading = course). Before
+that, rows are NaN with status ``"waiting"`` (``"no_data"`` when no antenna reported), so a
+recording that starts inside an outage, or a receiver that starts late, simply starts later.
+If every fix (or every displacement) is rejected for ``max_rejects`` consecutive epochs the
+track is lost: the filter returns to waiting and restarts from the data (status ``"reset"`` on
+the restart epoch).
 """
 
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 from scipy.stats import chi2
 
-from estimator._checks import check_increasing_times
+from estimator._checks import check_array, check_fields, check_increasing_times, check_int
+from estimator._checks import check_real
 
 __all__ = [
-    "TUNING",
+    "FilterStart",
+    "INIT_MAX_YAW_SD",
+    "INIT_MOTION_SIGMAS",
+    "MAX_STEP_GAP",
     "PoseFilterParams",
     "PoseFilterResult",
-    "antenna_update",
+    "antenna_jacobians",
     "ctrv_predict",
+    "estimate_noise",
+    "kalman_update",
     "run_pose_filter",
 ]
+
+#: Heading sd (rad) from the configuration alone below which the filter starts at once.
+#: 0.1 rad: the EKF's linearisation of R(yaw) is good to ~0.5 % there.
+INIT_MAX_YAW_SD = 0.1
+#: Otherwise it starts once the CG has moved this many sd from the first fix (heading =
+#: course, error below ~1/5 rad, which the filter then removes).
+INIT_MOTION_SIGMAS = 5.0
+#: Displacements span at most this many median sample intervals (a longer gap: fix only).
+MAX_STEP_GAP = 5
+#: Numerical floor of the estimated noise levels, m (noise-free data would give 0).
+NOISE_FLOOR_M = 1e-3
+
+STATUSES = ("", "no_data", "waiting", "init", "reset", "ok", "predicted", "flip_corrected")
 
 
 @dataclass(frozen=True)
 class PoseFilterParams:
-    """Noise and gating parameters (SI units). See the module docstring for the tuning."""
+    """Platform limits and measurement model of the pose filter (SI units).
 
-    sigma_meas: float = 3.0
-    sigma_accel: float = 0.5
-    sigma_yaw_accel: float = 0.01
+    Limits (module docstring; defaults: the rover of models/paths/square100.toml and the
+    controller's yaw-acceleration limit, sim.controllers): ``max_accel_mps2`` (longitudinal),
+    ``max_yaw_accel_radps2``, ``max_turn_rate_radps``, ``max_lateral_accel_mps2``.
+    ``sigma_abs_m`` / ``sigma_step_m``: per-axis sd of an antenna fix and of its displacement
+    over one sample interval; None = :func:`estimate_noise` on the recording.
+    ``no_slip_point_m``: (x, y) of the no-slip point in the body frame relative to the
+    configuration's CG. ``reverse``: the platform may drive backwards (signed speed).
+    ``gate_prob``: chi-square gate probability (1 = no gating). ``max_rejects``: consecutive
+    all-rejected epochs before the track is declared lost. ``flip_memory_s``: memory of the
+    configuration's heading test (reverse mode). ``lag_s``: latency of the fixed-lag smoother
+    (:mod:`estimator.pose_smoother`), s.
+    """
+
+    max_accel_mps2: float = 0.5
+    max_yaw_accel_radps2: float = 1.0
+    max_turn_rate_radps: float = 0.8
+    max_lateral_accel_mps2: float = 0.8
+    sigma_abs_m: float | None = None
+    sigma_step_m: float | None = None
+    no_slip_point_m: tuple[float, float] = (0.0, 0.0)
+    reverse: bool = False
     gate_prob: float = 0.999
     max_rejects: int = 5
+    flip_memory_s: float = 30.0
+    lag_s: float = 10.0
 
     def __post_init__(self) -> None:
-        for name in ("sigma_meas", "sigma_accel", "sigma_yaw_accel"):
-            v = getattr(self, name)
-            if not (isinstance(v, (int, float)) and np.isfinite(v) and v > 0):
-                raise ValueError(f"{name}: must be a positive number, got {v!r}")
-        if not (0.0 < self.gate_prob <= 1.0):
-            raise ValueError(f"gate_prob: must be in (0, 1], got {self.gate_prob!r}")
-        if int(self.max_rejects) != self.max_rejects or self.max_rejects < 1:
-            raise ValueError(f"max_rejects: must be an integer >= 1, got {self.max_rejects!r}")
+        check_fields(self, ("max_accel_mps2", "max_yaw_accel_radps2", "max_turn_rate_radps",
+                            "max_lateral_accel_mps2", "flip_memory_s", "lag_s"))
+        for name in ("sigma_abs_m", "sigma_step_m"):
+            if getattr(self, name) is not None:
+                check_real(getattr(self, name), name, lo=0.0, lo_open=True)
+        check_real(self.gate_prob, "gate_prob", lo=0.0, hi=1.0, lo_open=True)
+        check_int(self.max_rejects, "max_rejects", lo=1)
+        if not isinstance(self.reverse, bool):
+            raise TypeError(f"reverse: must be True or False, got {self.reverse!r}")
+        ns = self.no_slip_point_m
+        if not isinstance(ns, (tuple, list)) or len(ns) != 2:
+            raise ValueError(f"no_slip_point_m: must be (x, y) metres, got {ns!r}")
+        object.__setattr__(self, "no_slip_point_m", (
+            check_real(ns[0], "no_slip_point_m[0]"), check_real(ns[1], "no_slip_point_m[1]")))
 
+    @property
+    def sigma_accel(self) -> float:
+        """White longitudinal-acceleration sd, m/s^2: half the limit (module docstring)."""
+        return 0.5 * self.max_accel_mps2
 
-#: Measured tuning results (module docstring; mean Euclidean CG error in metres).
-TUNING: dict[str, object] = {
-    "data": "square100 rover truth (0.2 m/s, 1985 epochs), gps_stationary replay, "
-            "4 sessions from seed 20261122",
-    "best": {"sigma_meas": 3.0, "sigma_accel": 0.5, "sigma_yaw_accel": 0.01,
-             "mean_cg_error_m": 1.563},
-    "references_m": {"window_1": 1.535, "motion_compensated_yaw_rate_10": 1.533,
-                     "window_10": 1.688, "naive_10": 1.850},
-}
+    @property
+    def sigma_yaw_accel(self) -> float:
+        """White yaw-acceleration sd, rad/s^2: half the limit (module docstring)."""
+        return 0.5 * self.max_yaw_accel_radps2
+
+    @classmethod
+    def from_limits(cls, limits: dict, **overrides: object) -> PoseFilterParams:
+        """Parameters from a platform's limits, e.g. a path file's fields plus the
+        controller's: keys ``max_accel_mps2``, ``max_yaw_accel_radps2``,
+        ``max_turn_rate_radps``, ``max_lateral_accel_mps2`` (absent or None: the default);
+        other keys are ignored. ``overrides`` set any field."""
+        kw = {k: limits[k] for k in ("max_accel_mps2", "max_yaw_accel_radps2",
+                                     "max_turn_rate_radps", "max_lateral_accel_mps2")
+              if limits.get(k) is not None}
+        kw.update(overrides)
+        return cls(**kw)
 
 
 @dataclass(frozen=True)
 class PoseFilterResult:
-    """states (n, 5), covariances (n, 5, 5), status (n,) str ("init" | "ok" | "predicted" |
-    "reset"), n_used (n,) antennas used in the update, n_gated (n,) antennas rejected."""
+    """The filter's forward pass, everything the smoother needs.
+
+    states (n, 5) and covariances (n, 5, 5): filtered state of the no-slip point and its
+    covariance (NaN where the filter was not running). pred_states / pred_covariances
+    (n, 5) / (n, 5, 5): the prediction into each epoch from the previous one, transition
+    (n, 5, 5) its Jacobian F (row k maps epoch k-1 to k; NaN at segment starts).
+    segment_start (n,) bool: the filter (re)started here, or the state was flipped (a smoother
+    never crosses such an epoch). status (n,) str (:data:`STATUSES`). n_used / n_gated (n,):
+    antenna fixes accepted / rejected; n_steps (n,): displacements accepted.
+    sigma_abs_m, sigma_step_m: the noise levels used. cg_offset (2,): CG in the body frame
+    relative to the no-slip point (CG = p + R(yaw) cg_offset).
+    """
 
     states: np.ndarray
     covariances: np.ndarray
+    pred_states: np.ndarray
+    pred_covariances: np.ndarray
+    transition: np.ndarray
+    segment_start: np.ndarray
     status: np.ndarray
     n_used: np.ndarray
     n_gated: np.ndarray
+    n_steps: np.ndarray
+    sigma_abs_m: float
+    sigma_step_m: float
+    cg_offset: np.ndarray = field(default_factory=lambda: np.zeros(2))
+
+    def cg(self, states: np.ndarray | None = None) -> np.ndarray:
+        """CG (n, 2) metres of ``states`` (default the filtered ones)."""
+        X = self.states if states is None else states
+        c, s = np.cos(X[:, 2]), np.sin(X[:, 2])
+        ox, oy = self.cg_offset
+        return np.c_[X[:, 0] + c * ox - s * oy, X[:, 1] + s * ox + c * oy]
+
+
+# ----------------------------------------------------------------------------- motion
+def _ctrv_terms(q: float) -> tuple[float, float, float, float]:
+    """f1 = sin(q)/q, f2 = (1 - cos q)/q and their derivatives g1, g2 in q.
+
+    Exact formulas above |q| = 1e-4, Taylor series below (the series' first omitted terms,
+    q^4/120 in f1 and q^5/720 in f2, are < 1e-18 there, below double rounding of f ~ 1).
+    """
+    if abs(q) > 1e-4:
+        sq, cq = math.sin(q), math.cos(q)
+        return (sq / q, (1.0 - cq) / q, (q * cq - sq) / (q * q),
+                (q * sq - (1.0 - cq)) / (q * q))
+    return 1.0 - q * q / 6.0, 0.5 * q - q * q * q / 24.0, -q / 3.0, 0.5 - q * q / 8.0
+
+
+def _predict(x: np.ndarray, P: np.ndarray, dt: float, qa: float, qy: float
+             ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """CTRV prediction: (x', P', F). See :func:`ctrv_predict`."""
+    yaw, v, om = float(x[2]), float(x[3]), float(x[4])
+    f1, f2, g1, g2 = _ctrv_terms(om * dt)
+    c0, s0 = math.cos(yaw), math.sin(yaw)
+    ax = c0 * f1 - s0 * f2  # displacement direction / (v dt)
+    ay = s0 * f1 + c0 * f2
+    vdt = v * dt
+    F = np.array([
+        [1.0, 0.0, -vdt * ay, dt * ax, vdt * dt * (c0 * g1 - s0 * g2)],
+        [0.0, 1.0, vdt * ax, dt * ay, vdt * dt * (s0 * g1 + c0 * g2)],
+        [0.0, 0.0, 1.0, 0.0, dt],
+        [0.0, 0.0, 0.0, 1.0, 0.0],
+        [0.0, 0.0, 0.0, 0.0, 1.0],
+    ])
+    h = 0.5 * dt * dt
+    G = np.array([[h * c0, 0.0], [h * s0, 0.0], [0.0, h], [dt, 0.0], [0.0, dt]])
+    Pn = F @ P @ F.T + (G * (qa, qy)) @ G.T
+    xn = np.array([x[0] + vdt * ax, x[1] + vdt * ay, _wrap(yaw + om * dt), v, om])
+    return xn, 0.5 * (Pn + Pn.T), F
+
+
+def ctrv_predict(x: np.ndarray, P: np.ndarray, dt: float, sigma_accel: float,
+                 sigma_yaw_accel: float) -> tuple[np.ndarray, np.ndarray]:
+    """CTRV prediction of state (5,) and covariance (5, 5) over dt seconds (module
+    docstring: motion model and Q). Returns (x', P')."""
+    xn, Pn, _ = _predict(np.asarray(x, dtype=float), np.asarray(P, dtype=float), float(dt),
+                         float(sigma_accel) ** 2, float(sigma_yaw_accel) ** 2)
+    return xn, Pn
 
 
 def _wrap(a: float) -> float:
@@ -122,259 +301,438 @@ def _wrap(a: float) -> float:
 _TWO_PI = 2.0 * math.pi
 
 
-def _predict(x: list, P: np.ndarray, dt: float, qa: float, qy: float
-             ) -> tuple[list, np.ndarray]:
-    """CTRV prediction on a state list [px, py, yaw, v, omega] (see :func:`ctrv_predict`)."""
-    px, py, yaw, v, om = x
-    # exact CTRV written with f1 = sin(q)/q, f2 = (1 - cos q)/q, q = omega dt, which are
-    # smooth through omega = 0 (no branch, so state and Jacobian always agree)
-    q = om * dt
-    if abs(q) > 1e-4:
-        sq, cq = math.sin(q), math.cos(q)
-        f1 = sq / q
-        f2 = (1.0 - cq) / q
-        g1 = (q * cq - sq) / (q * q)  # d f1 / d q
-        g2 = (q * sq - (1.0 - cq)) / (q * q)  # d f2 / d q
-    else:  # series: f1 = 1 - q^2/6, f2 = q/2 - q^3/24
-        f1 = 1.0 - q * q / 6.0
-        f2 = 0.5 * q - q * q * q / 24.0
-        g1 = -q / 3.0
-        g2 = 0.5 - q * q / 8.0
-    c0, s0 = math.cos(yaw), math.sin(yaw)
-    ax = c0 * f1 - s0 * f2  # displacement direction / (v dt)
-    ay = s0 * f1 + c0 * f2
-    vdt = v * dt
-    F = np.array([
-        [1.0, 0.0, -vdt * ay, dt * ax, vdt * dt * (c0 * g1 - s0 * g2)],
-        [0.0, 1.0, vdt * ax, dt * ay, vdt * dt * (s0 * g1 + c0 * g2)],
-        [0.0, 0.0, 1.0, 0.0, dt],
-        [0.0, 0.0, 0.0, 1.0, 0.0],
-        [0.0, 0.0, 0.0, 0.0, 1.0],
-    ])
-    Pn = F @ P @ F.T
-    # + Q = qa ga ga^T + qy gy gy^T, ga = [h c0, h s0, 0, dt, 0], gy = [0, 0, h, 0, dt]
-    # (added entry by entry: the outer products are sparse)
-    h = 0.5 * dt * dt
-    hc, hs = h * c0, h * s0
-    qhc, qhs, qdt = qa * hc, qa * hs, qa * dt
-    Pn[0, 0] += qhc * hc
-    Pn[0, 1] += qhc * hs
-    Pn[1, 0] += qhs * hc
-    Pn[1, 1] += qhs * hs
-    Pn[0, 3] += qhc * dt
-    Pn[3, 0] += qdt * hc
-    Pn[1, 3] += qhs * dt
-    Pn[3, 1] += qdt * hs
-    Pn[3, 3] += qdt * dt
-    qh, qyd = qy * h, qy * dt
-    Pn[2, 2] += qh * h
-    Pn[2, 4] += qh * dt
-    Pn[4, 2] += qyd * h
-    Pn[4, 4] += qyd * dt
-    return [px + vdt * ax, py + vdt * ay, _wrap(yaw + q), v, om], Pn
+# ----------------------------------------------------------------------------- measurements
+def _ctrv_terms_vec(q: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """:func:`_ctrv_terms` for an array of q (same formulas, same switch at |q| = 1e-4)."""
+    big = np.abs(q) > 1e-4
+    qs = np.where(big, q, 1.0)
+    sq, cq = np.sin(qs), np.cos(qs)
+    q2 = q * q
+    f1 = np.where(big, sq / qs, 1.0 - q2 / 6.0)
+    f2 = np.where(big, (1.0 - cq) / qs, 0.5 * q - q2 * q / 24.0)
+    g1 = np.where(big, (qs * cq - sq) / (qs * qs), -q / 3.0)
+    g2 = np.where(big, (qs * sq - (1.0 - cq)) / (qs * qs), 0.5 - q2 / 8.0)
+    return f1, f2, g1, g2
 
 
-def ctrv_predict(x: np.ndarray, P: np.ndarray, dt: float, sigma_accel: float,
-                 sigma_yaw_accel: float) -> tuple[np.ndarray, np.ndarray]:
-    """CTRV prediction of state (5,) and covariance (5, 5) over dt seconds (EKF).
+def antenna_jacobians(x: np.ndarray, r: np.ndarray, tau: np.ndarray | None = None
+                      ) -> tuple[np.ndarray, np.ndarray]:
+    """Predicted measurements and Jacobians for antennas at body offsets r (k, 2) from M.
 
-    Scalar math on purpose: this runs once per epoch in a Python loop.
+    tau None: fixes, ``h (k, 2) = p + R(yaw) r``. tau (k,) seconds: displacements since
+    ``tau`` ago under CTRV (module docstring), ``h = R(yaw) u``. Returns h (k, 2) and
+    H (k, 2, 5).
     """
-    xn, Pn = _predict([float(e) for e in x], np.asarray(P, dtype=float), float(dt),
-                      sigma_accel**2, sigma_yaw_accel**2)
-    return np.array(xn), Pn
-
-
-def _h(x: np.ndarray, r: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Predicted antenna positions (k, 2) and stacked Jacobian (2k, 5) for offsets r (k, 2)."""
-    c, s = np.cos(x[2]), np.sin(x[2])
-    Rr = np.stack([c * r[:, 0] - s * r[:, 1], s * r[:, 0] + c * r[:, 1]], axis=1)
-    z = x[:2] + Rr
-    k = r.shape[0]
-    H = np.zeros((2 * k, 5))
-    H[0::2, 0] = 1.0
-    H[1::2, 1] = 1.0
-    H[0::2, 2] = -Rr[:, 1]  # d/dyaw R r = J R r = (-(Rr)_y, (Rr)_x)
-    H[1::2, 2] = Rr[:, 0]
-    return z, H
-
-
-def _update(x: list, P: np.ndarray, zs: list, rs: list, r2: float, gate: float
-            ) -> tuple[list, np.ndarray, list]:
-    """Information-form update (see :func:`antenna_update`) on Python scalars: x a state
-    list, zs/rs lists of (x, y) fixes and body offsets. Returns (x, P, accepted flags)."""
+    x = np.asarray(x, dtype=float)
+    r = np.asarray(r, dtype=float)
     c, s = math.cos(x[2]), math.sin(x[2])
-    x0, x1 = x[0], x[1]
-    if gate != math.inf:
-        P00, P01, P02 = float(P[0, 0]), float(P[0, 1]), float(P[0, 2])
-        P11, P12, P22 = float(P[1, 1]), float(P[1, 2]), float(P[2, 2])
-    acc = []
-    k = 0
-    sx = sy = sr = sny = snx = s3 = 0.0
-    for (zx, zy), (r0, r1) in zip(zs, rs):
-        rx = c * r0 - s * r1  # R(yaw) r, world frame
-        ry = s * r0 + c * r1
-        nux = zx - (x0 + rx)
-        nuy = zy - (x1 + ry)
-        if gate != math.inf:
-            # S_i = h_i P[:3, :3] h_i^T + sigma^2 I with h_i = [[1, 0, -ry], [0, 1, rx]]
-            a = P00 - 2.0 * ry * P02 + ry * ry * P22 + r2
-            b = P01 + rx * P02 - ry * P12 - rx * ry * P22
-            d = P11 + 2.0 * rx * P12 + rx * rx * P22 + r2
-            ok = (d * nux * nux - 2.0 * b * nux * nuy + a * nuy * nuy) / (a * d - b * b) <= gate
-        else:
-            ok = True
-        acc.append(ok)
-        if ok:  # running sums in antenna order (numpy's order for these short sums)
-            k += 1
-            sy += ry
-            sx += rx
-            sr += rx * rx + ry * ry
-            snx += nux
-            sny += nuy
-            s3 += rx * nuy - ry * nux
-    if k == 0:
-        return x, P, acc
-    # P+ = (P^-1 + E M3 E^T / r2)^-1 with E the first three unit vectors and
-    # M3 = [[k, 0, -sy], [0, k, sx], [-sy, sx, sr]]; by the push-through identity
-    # P+ = P - P E G E^T P with G = (r2 I + M3 P3)^-1 M3 (P3 = E^T P E): one 3x3 inverse
-    # (closed form, adjugate) instead of two 5x5 inverses; valid for any k >= 1 (M3 is
-    # singular for k = 1).
-    kf = float(k)
-    if gate == math.inf:
-        P00, P01, P02 = float(P[0, 0]), float(P[0, 1]), float(P[0, 2])
-        P11, P12, P22 = float(P[1, 1]), float(P[1, 2]), float(P[2, 2])
-    c00 = kf * P00 - sy * P02 + r2
-    c01 = kf * P01 - sy * P12
-    c02 = kf * P02 - sy * P22
-    c10 = kf * P01 + sx * P02
-    c11 = kf * P11 + sx * P12 + r2
-    c12 = kf * P12 + sx * P22
-    c20 = -sy * P00 + sx * P01 + sr * P02
-    c21 = -sy * P01 + sx * P11 + sr * P12
-    c22 = -sy * P02 + sx * P12 + sr * P22 + r2
-    i00 = c11 * c22 - c12 * c21
-    i01 = c02 * c21 - c01 * c22
-    i02 = c01 * c12 - c02 * c11
-    i10 = c12 * c20 - c10 * c22
-    i11 = c00 * c22 - c02 * c20
-    i12 = c02 * c10 - c00 * c12
-    i20 = c10 * c21 - c11 * c20
-    i21 = c01 * c20 - c00 * c21
-    i22 = c00 * c11 - c01 * c10
-    det = c00 * i00 + c01 * i10 + c02 * i20
-    G = np.array([[kf * i00 - sy * i02, kf * i01 + sx * i02, -sy * i00 + sx * i01 + sr * i02],
-                  [kf * i10 - sy * i12, kf * i11 + sx * i12, -sy * i10 + sx * i11 + sr * i12],
-                  [kf * i20 - sy * i22, kf * i21 + sx * i22, -sy * i20 + sx * i21 + sr * i22]])
-    PE = P[:, :3]
-    Pn = P - (PE @ (G / det)) @ PE.T
+    k = r.shape[0]
+    H = np.zeros((k, 2, 5))
+    h = np.empty((k, 2))
+    if tau is None:
+        rx = c * r[:, 0] - s * r[:, 1]
+        ry = s * r[:, 0] + c * r[:, 1]
+        H[:, 0, 0] = 1.0
+        H[:, 1, 1] = 1.0
+        H[:, 0, 2] = -ry
+        H[:, 1, 2] = rx
+        h[:, 0] = x[0] + rx
+        h[:, 1] = x[1] + ry
+        return h, H
+    tau = np.asarray(tau, dtype=float)
+    v, om = x[3], x[4]
+    q = om * tau
+    if tau.size and (tau == tau[0]).all():   # the usual case: one sample interval for all
+        f1, f2, g1, g2 = _ctrv_terms(float(q[0]))
+        sq, cq = math.sin(q[0]), math.cos(q[0])
+    else:
+        f1, f2, g1, g2 = _ctrv_terms_vec(q)
+        sq, cq = np.sin(q), np.cos(q)
+    vt = v * tau
+    ux = vt * f1 + (1.0 - cq) * r[:, 0] - sq * r[:, 1]
+    uy = -vt * f2 + sq * r[:, 0] + (1.0 - cq) * r[:, 1]
+    hx, hy = c * ux - s * uy, s * ux + c * uy
+    h[:, 0], h[:, 1] = hx, hy
+    H[:, 0, 2], H[:, 1, 2] = -hy, hx                       # d/dyaw R u = J R u
+    dvx, dvy = tau * f1, -tau * f2                          # d u / d v
+    H[:, 0, 3], H[:, 1, 3] = c * dvx - s * dvy, s * dvx + c * dvy
+    # d u / d omega = tau d u / d q
+    dqx = tau * (vt * g1 + sq * r[:, 0] - cq * r[:, 1])
+    dqy = tau * (-vt * g2 + cq * r[:, 0] + sq * r[:, 1])
+    H[:, 0, 4], H[:, 1, 4] = c * dqx - s * dqy, s * dqx + c * dqy
+    return h, H
+
+
+def _quad2(M: np.ndarray, e: np.ndarray, guard: bool = False) -> np.ndarray:
+    """e_i^T M_i^-1 e_i for symmetric 2 x 2 matrices M (k, 2, 2) and vectors e (k, 2).
+    With ``guard``, 0 where M_i is singular to rounding (no redundancy left to test)."""
+    a, b, c = M[:, 0, 0], M[:, 0, 1], M[:, 1, 1]
+    ex, ey = e[:, 0], e[:, 1]
+    det = a * c - b * b
+    num = c * ex * ex - 2.0 * b * ex * ey + a * ey * ey
+    if not guard:
+        return num / det
+    return np.divide(num, det, out=np.zeros_like(num), where=det > 1e-12 * np.abs(a * c))
+
+
+def _info_update(x: np.ndarray, Pinv: np.ndarray, nu: np.ndarray, H: np.ndarray,
+                 w: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Information-form update with the measurements given (H (a, 2, 5), weights w (a,))."""
+    Hf = H.reshape(-1, 5)
+    HtW = Hf.T * np.repeat(w, 2)                            # (5, 2a)
+    Pn = np.linalg.inv(Pinv + HtW @ Hf)
     Pn = 0.5 * (Pn + Pn.T)
-    dx = Pn[:, :3] @ [snx / r2, sny / r2, s3 / r2]
-    xn = [x[0] + dx[0], x[1] + dx[1], _wrap(x[2] + dx[2]), x[3] + dx[3], x[4] + dx[4]]
+    return x + Pn @ (HtW @ nu.reshape(-1)), Pn
+
+
+def kalman_update(x: np.ndarray, P: np.ndarray, nu: np.ndarray, H: np.ndarray,
+                  var: np.ndarray, gate: float = math.inf, max_deleted: int = 3
+                  ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Joint EKF update with k two-dimensional measurements, robustly gated.
+
+    nu (k, 2) innovations, H (k, 2, 5) Jacobians, var (k,) per-axis noise variances (R_i =
+    var_i I). Two tests, both at the chi-square(2) quantile ``gate``:
+
+    1. prior gate: a measurement whose NIS ``nu_i^T S_i^-1 nu_i`` (``S_i = H_i P H_i^T +
+       R_i``) exceeds ``gate`` is left out;
+    2. deleted residual (the dissertation's Section 3.3.2 idea on the filter): after the
+       update, each accepted measurement's residual ``e_i = nu_i - H_i (x+ - x)`` against
+       ``C_i = R_i - H_i P+ H_i^T`` is the test of that measurement against all the others
+       and the prior (leave-one-out); the worst one above ``gate`` is removed and the update
+       redone, at most ``max_deleted`` times. This catches a gross error that the prior
+       alone cannot (e.g. a displacement from an outlying fix while the platform's agility
+       makes the predicted spread wide).
+
+    The accepted measurements update in information form, ``P+ = (P^-1 + sum H_i^T H_i /
+    var_i)^-1``, ``x+ = x + P+ sum H_i^T nu_i / var_i``, the same update as the textbook
+    gain form (tested against FilterPy) with 5 x 5 inverses only. The yaw component of x+
+    is not wrapped here. Returns (x+, P+, accepted (k,)).
+    """
+    k = nu.shape[0]
+    if k == 0:
+        return x, P, np.zeros(0, dtype=bool)
+    if gate != math.inf:
+        S = (H @ P) @ H.transpose(0, 2, 1)
+        S[:, 0, 0] += var
+        S[:, 1, 1] += var
+        acc = _quad2(S, nu) <= gate
+        if not acc.any():
+            return x, P, acc
+    else:
+        acc = np.ones(k, dtype=bool)
+    Pinv = np.linalg.inv(P)
+    w = 1.0 / var
+    if acc.all():
+        xn, Pn = _info_update(x, Pinv, nu, H, w)
+        ia, Ha, nua, vara = np.arange(k), H, nu, var
+    else:
+        ia = np.flatnonzero(acc)
+        Ha, nua, vara = H[ia], nu[ia], var[ia]
+        xn, Pn = _info_update(x, Pinv, nua, Ha, w[ia])
+    for _ in range(max_deleted if gate != math.inf else 0):
+        if ia.size < 2:
+            break
+        C = -((Ha @ Pn) @ Ha.transpose(0, 2, 1))
+        C[:, 0, 0] += vara
+        C[:, 1, 1] += vara
+        stat = _quad2(C, nua - Ha @ (xn - x), guard=True)
+        worst = int(stat.argmax())
+        if not stat[worst] > gate:
+            break
+        acc[ia[worst]] = False
+        keep = np.arange(ia.size) != worst
+        ia, Ha, nua, vara = ia[keep], Ha[keep], nua[keep], vara[keep]
+        xn, Pn = _info_update(x, Pinv, nua, Ha, 1.0 / vara)
     return xn, Pn, acc
 
 
-def antenna_update(x: np.ndarray, P: np.ndarray, z: np.ndarray, r: np.ndarray,
-                   sigma_meas: float, gate: float = np.inf
-                   ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """EKF update with antenna fixes z (k, 2) at body offsets r (k, 2) from the CG.
+# ----------------------------------------------------------------------------- noise levels
+def _rigid_fits(obs: np.ndarray, offsets: np.ndarray
+                ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Closed-form 2-D rigid fit of the offsets to every epoch's fixes (Kabsch in 2-D).
 
-    Antennas whose innovation NIS (2 dof, predicted covariance) exceeds ``gate`` are left
-    out. The joint update of the accepted antennas is done in information form, which is
-    the same update as the textbook gain form (tested against FilterPy) without a 2k x 2k
-    innovation covariance: each antenna's Jacobian ``[I, J R r_i, 0, 0]`` touches
-    (px, py, yaw) only, so the k antennas add ``M = sum H_i^T H_i / sigma^2`` (a 3x3 block)
-    to the information and ``b = sum H_i^T nu_i / sigma^2`` to the information vector:
-    ``P+ = (P^-1 + M)^-1``, ``x+ = x + P+ b``; ``P+`` is evaluated through the 3x3 block
-    (push-through identity, one closed-form 3x3 inverse). Returns (x (5,), P (5, 5),
-    accepted (k,)).
+    Returns origin (n, 2) (the world position of offset (0, 0)), yaw (n,), number of fixes
+    (n,) and residuals (n, m, 2) (NaN where absent); epochs with < 2 fixes are NaN.
     """
-    P = np.asarray(P, dtype=float)
-    xn, Pn, acc = _update([float(e) for e in x], P, np.asarray(z, dtype=float).tolist(),
-                          np.asarray(r, dtype=float).tolist(), float(sigma_meas) ** 2,
-                          float(gate))
-    return np.array(xn, dtype=float), Pn, np.array(acc, dtype=bool)
+    present = np.isfinite(obs[..., 0])
+    cnt = present.sum(axis=1)
+    w = present.astype(float)
+    z = np.where(present[..., None], obs, 0.0)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        zc = (z * w[..., None]).sum(1) / cnt[:, None]
+        rc = (offsets[None] * w[..., None]).sum(1) / cnt[:, None]
+    dz = (z - zc[:, None]) * w[..., None]
+    dr = (offsets[None] - rc[:, None]) * w[..., None]
+    yaw = np.arctan2((dr[..., 0] * dz[..., 1] - dr[..., 1] * dz[..., 0]).sum(1),
+                     (dr * dz).sum(-1).sum(1))
+    c, s = np.cos(yaw), np.sin(yaw)
+    origin = zc - np.c_[c * rc[:, 0] - s * rc[:, 1], s * rc[:, 0] + c * rc[:, 1]]
+    fit = origin[:, None] + np.stack([c[:, None] * offsets[None, :, 0]
+                                      - s[:, None] * offsets[None, :, 1],
+                                      s[:, None] * offsets[None, :, 0]
+                                      + c[:, None] * offsets[None, :, 1]], -1)
+    bad = cnt < 2
+    origin[bad] = np.nan
+    yaw[bad] = np.nan
+    res = np.where(present[..., None] & ~bad[:, None, None], obs - fit, np.nan)
+    return origin, yaw, cnt, res
 
 
-def run_pose_filter(t: np.ndarray, obs: np.ndarray, offsets: np.ndarray, x0: np.ndarray,
-                    P0: np.ndarray, k0: int, params: PoseFilterParams = PoseFilterParams()
-                    ) -> PoseFilterResult:
-    """Run the filter from epoch ``k0`` (state x0, covariance P0 there) to the end.
+def estimate_noise(obs: np.ndarray, offsets: np.ndarray) -> tuple[float, float]:
+    """Per-axis noise sd of one antenna's fix and of its one-sample displacement, metres,
+    from the data alone through the configuration (module docstring).
 
-    t : (n,) s, finite and strictly increasing (uneven steps are fine: each prediction uses
-        its own dt).
-    obs : (n, m, 2) metres (world x east, y north), NaN = the antenna did not report.
-    offsets : (m, 2) metres, body offsets ``r_i = b_i - cg_body`` of the antennas from the CG
-        (body x forward, y left); dead antennas simply never report.
-    x0 : (5,) the state at epoch k0, ``(px m, py m, yaw rad CCW from +x, v m/s,
-        omega rad/s)`` (module docstring), finite.
-    P0 : (5, 5) its covariance in the same units, finite; also the covariance a "reset"
-        restarts from.
-    k0 : int in [0, n - 1], the first epoch. params : :class:`PoseFilterParams`.
-
-    Returns a :class:`PoseFilterResult` of n rows; row k0 holds x0, P0 with status "init",
-    rows before k0 are NaN (status ""). Wrong shapes or values raise ValueError naming the
-    field.
+    obs (n, m, 2) metres, NaN = missing; offsets (m, 2) body positions (any origin).
+    Each epoch with k >= 2 fixes is fitted rigidly (2-D Kabsch); its residuals are scaled by
+    ``1 / sqrt(1 - 3 / (2k))`` (3 pose parameters taken from 2k numbers) and
+    ``sigma_abs = 1.4826 median |residual|`` (MAD, robust to outliers). ``sigma_step`` is the
+    same statistic of one antenna's residual change between consecutive epochs with the same
+    antennas reporting (its fit removes the shared motion). The error every antenna shares is
+    invisible to both (it moves the fit). Both are floored at :data:`NOISE_FLOOR_M`.
+    Raises ValueError if no epoch has 3 or more fixes (nothing to estimate from).
     """
     obs = np.asarray(obs, dtype=float)
+    off = np.asarray(offsets, dtype=float)
+    _, _, cnt, res = _rigid_fits(obs, off)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        scale = 1.0 / np.sqrt(1.0 - 3.0 / (2.0 * cnt))
+    good = cnt >= 3
+    if not good.any():
+        raise ValueError("obs: no epoch has 3 or more antenna fixes, the noise levels cannot "
+                         "be estimated; give sigma_abs_m and sigma_step_m")
+    r = (res[good] * scale[good, None, None]).ravel()
+    sigma_abs = 1.4826 * float(np.median(np.abs(r[np.isfinite(r)])))
+    present = np.isfinite(obs[..., 0])
+    same = good[1:] & good[:-1] & np.all(present[1:] == present[:-1], axis=1)
+    d = ((res[1:] - res[:-1]) * scale[1:, None, None])[same].ravel()
+    d = d[np.isfinite(d)]
+    sigma_step = 1.4826 * float(np.median(np.abs(d))) if d.size else sigma_abs * math.sqrt(2)
+    return max(sigma_abs, NOISE_FLOOR_M), max(sigma_step, NOISE_FLOOR_M)
+
+
+# ----------------------------------------------------------------------------- the filter
+class FilterStart:
+    """When and where the filter starts (module docstring, "Initialisation waits for data").
+
+    t (n,), obs (n, m, 2), r (m, 2) antenna offsets from the no-slip point, sigma_abs (m),
+    params. :meth:`offer` is asked epoch by epoch while waiting; it returns (x0 (5,),
+    P0 (5, 5)) at the start epoch, else None. Shared by the EKF and the GTSAM peer
+    (:mod:`estimator.gtsam_peer`), so both start at the same epoch from the same state.
+    """
+
+    def __init__(self, t: np.ndarray, obs: np.ndarray, r: np.ndarray, sigma_abs: float,
+                 params: PoseFilterParams) -> None:
+        self.t = t
+        self.origin, self.yaw, self.cnt, _ = _rigid_fits(obs, r)   # origin = no-slip point
+        self.present = np.isfinite(obs[..., 0])
+        self.r2 = (r ** 2).sum(1)
+        self.sigma_abs = sigma_abs
+        self.params = params
+        self.anchor = -1
+
+    def reset(self) -> None:
+        """Forget the anchor (after a lost track)."""
+        self.anchor = -1
+
+    def offer(self, k: int) -> tuple[np.ndarray, np.ndarray] | None:
+        """The start state at epoch k, or None to keep waiting."""
+        if self.cnt[k] < 2:
+            return None
+        sa, p = self.sigma_abs, self.params
+        yaw_sd = sa / math.sqrt(self.r2[self.present[k]].sum())
+        if yaw_sd < INIT_MAX_YAW_SD:
+            yaw0, v0, ysd = float(self.yaw[k]), 0.0, yaw_sd
+        elif self.anchor < 0:
+            self.anchor = k
+            return None
+        else:
+            a = self.anchor
+            d = self.origin[k] - self.origin[a]
+            dist = math.hypot(d[0], d[1])
+            sd = sa * math.sqrt(1.0 / self.cnt[k] + 1.0 / self.cnt[a])
+            if dist <= INIT_MOTION_SIGMAS * sd:
+                return None
+            course = math.atan2(d[1], d[0])
+            sp = dist / (self.t[k] - self.t[a])
+            ysd = sd / dist
+            if p.reverse and math.cos(course - self.yaw[k]) < 0:
+                yaw0, v0 = course + math.pi, -sp
+            else:
+                yaw0, v0 = course, sp
+        self.anchor = -1
+        pvar = sa * sa / self.cnt[k]
+        x = np.array([self.origin[k, 0], self.origin[k, 1], _wrap(yaw0), v0, 0.0])
+        P = np.diag([pvar, pvar, ysd ** 2, max(abs(v0), p.max_accel_mps2) ** 2,
+                     (0.5 * p.max_turn_rate_radps) ** 2])
+        return x, P
+
+
+def _check_run_args(t, obs, offsets, params):
+    obs = check_array(obs, "obs", allow_nan=True)
     if obs.ndim != 3 or obs.shape[2] != 2:
         raise ValueError(f"obs: expected shape (n, m, 2) metres, got {obs.shape}")
     n, m = obs.shape[:2]
-    check_increasing_times(t, "t", n=n)
-    off_arr = np.asarray(offsets, dtype=float)
-    if off_arr.shape != (m, 2) or not np.all(np.isfinite(off_arr)):
-        raise ValueError(f"offsets: expected finite values of shape ({m}, 2) metres, got "
-                         f"shape {off_arr.shape}")
-    x0_arr = np.asarray(x0, dtype=float)
-    if x0_arr.shape != (5,) or not np.all(np.isfinite(x0_arr)):
-        raise ValueError(f"x0: expected 5 finite values (px, py, yaw, v, omega), got "
-                         f"{x0_arr.tolist() if x0_arr.size <= 5 else x0_arr.shape}")
-    P0_arr = np.asarray(P0, dtype=float)
-    if P0_arr.shape != (5, 5) or not np.all(np.isfinite(P0_arr)):
-        raise ValueError(f"P0: expected a finite (5, 5) covariance, got shape {P0_arr.shape}")
-    if isinstance(k0, bool) or not isinstance(k0, (int, np.integer)) or not 0 <= k0 < n:
-        raise ValueError(f"k0: must be an integer in [0, {n - 1}], got {k0!r}")
+    tt = check_increasing_times(t, "t", n=n, min_size=1)
+    off = check_array(offsets, "offsets", shape=(m, 2))
     if not isinstance(params, PoseFilterParams):
-        raise ValueError(  # noqa: TRY004 (bad input is ValueError by contract)
-            f"params: expected a PoseFilterParams, got {type(params).__name__}")
+        raise TypeError(f"params: expected a PoseFilterParams, got {type(params).__name__}")
+    nan = np.isnan(obs)
+    if np.any(nan[..., 0] != nan[..., 1]):
+        k, i = np.argwhere(nan[..., 0] != nan[..., 1])[0]
+        raise ValueError(f"obs: epoch {k}, antenna {i} has one coordinate NaN; a missing fix "
+                         f"must be NaN in both")
+    return tt, obs, off
+
+
+def run_pose_filter(t: np.ndarray, obs: np.ndarray, offsets: np.ndarray,
+                    params: PoseFilterParams = PoseFilterParams()) -> PoseFilterResult:
+    """Run the filter over a recording (module docstring for the model).
+
+    t : (n,) s, finite and strictly increasing (uneven steps are fine).
+    obs : (n, m, 2) metres (world x east, y north), NaN = the antenna did not report.
+    offsets : (m, 2) metres, antenna body positions relative to the configuration's CG
+        (body x forward, y left); dead antennas simply never report.
+    params : :class:`PoseFilterParams` (limits, noise levels or None = estimated, no-slip
+        point, reverse mode, gates).
+
+    Returns a :class:`PoseFilterResult` of n rows; rows before the start are NaN with status
+    "waiting" or "no_data". Wrong shapes or values raise ValueError/TypeError naming the
+    argument.
+    """
+    tt, obs, off = _check_run_args(t, obs, offsets, params)
+    n, m = obs.shape[:2]
+    ns = np.asarray(params.no_slip_point_m, dtype=float)
+    r_m = off - ns                         # antenna offsets from the no-slip point
+    cg_offset = -ns                        # CG relative to the no-slip point
+    if params.sigma_abs_m is None or params.sigma_step_m is None:
+        sa, ss = estimate_noise(obs, off)
+    sigma_abs = params.sigma_abs_m if params.sigma_abs_m is not None else sa
+    sigma_step = params.sigma_step_m if params.sigma_step_m is not None else ss
+    va, vs = sigma_abs ** 2, sigma_step ** 2
+    dt_med = float(np.median(np.diff(tt))) if n > 1 else 1.0
+    max_gap = MAX_STEP_GAP * dt_med * (1.0 + 1e-9)
+    gate = float(chi2.ppf(params.gate_prob, 2)) if params.gate_prob < 1 else math.inf
+    flip_thr = float(chi2.ppf(params.gate_prob, 1)) if params.gate_prob < 1 else 10.83
+    qa, qy = params.sigma_accel ** 2, params.sigma_yaw_accel ** 2
+    om_max, alat = params.max_turn_rate_radps, params.max_lateral_accel_mps2
+
     X = np.full((n, 5), np.nan)
     PP = np.full((n, 5, 5), np.nan)
+    XP = np.full((n, 5), np.nan)
+    PPp = np.full((n, 5, 5), np.nan)
+    FF = np.full((n, 5, 5), np.nan)
+    seg = np.zeros(n, dtype=bool)
     status = np.full(n, "", dtype=object)
     n_used = np.zeros(n, dtype=int)
     n_gated = np.zeros(n, dtype=int)
-    gate = float(chi2.ppf(params.gate_prob, 2)) if params.gate_prob < 1 else np.inf
-    present = np.all(np.isfinite(obs), axis=-1)
-    x = [float(e) for e in np.asarray(x0, dtype=float)]
-    P = np.asarray(P0, dtype=float).copy()
-    X[k0], PP[k0], status[k0] = x, P, "init"
-    # per-epoch Python lists of the reporting antennas' fixes and offsets (scalar math in
-    # the loop: numpy's per-call overhead dominates arrays of <= m elements)
-    off = np.asarray(offsets, dtype=float).tolist()
-    zl = obs.tolist()
-    idx = [np.flatnonzero(p).tolist() for p in present]
-    tl = np.asarray(t, dtype=float).tolist()
-    qa, qy, r2 = params.sigma_accel**2, params.sigma_yaw_accel**2, params.sigma_meas**2
-    rejects = 0
-    for k in range(k0 + 1, n):
-        x, P = _predict(x, P, tl[k] - tl[k - 1], qa, qy)
-        ik = idx[k]
+    n_steps = np.zeros(n, dtype=int)
+
+    present = np.isfinite(obs[..., 0])
+    starter = FilterStart(tt, obs, r_m, sigma_abs, params)
+
+    x = P = None
+    lost = False          # the next start is a restart
+    rej_abs = rej_step = 0
+    llr = 0.0             # reverse mode: log-likelihood ratio for the flipped heading
+    last_t = np.full(m, np.nan)
+    last_z = np.full((m, 2), np.nan)
+    for k in range(n):
+        ik = np.flatnonzero(present[k])
+        if x is None:
+            # ---------------------------------------------------------------- waiting
+            if ik.size == 0:
+                status[k] = "no_data"
+                continue
+            status[k] = "waiting"
+            got = starter.offer(k)
+            if got is None:
+                continue
+            x, P = got
+            X[k], PP[k], seg[k] = x, P, True
+            status[k] = "reset" if lost else "init"
+            n_used[k] = ik.size
+            last_t[:] = np.nan
+            last_t[ik] = tt[k]
+            last_z[ik] = obs[k, ik]
+            rej_abs, rej_step, llr = 0, 0, 0.0
+            continue
+        # -------------------------------------------------------------------- running
+        dt = tt[k] - tt[k - 1]
+        x, P, F = _predict(x, P, dt, qa, qy)
+        XP[k], PPp[k], FF[k] = x, P, F
         st = "predicted"
-        if ik:
-            zs = [zl[k][i] for i in ik]
-            rs = [off[i] for i in ik]
-            x1, P1, acc = _update(x, P, zs, rs, r2, gate)
-            na = sum(acc)
-            if na:
-                x, P, rejects, st = x1, P1, 0, "ok"
-                n_used[k] = na
-                n_gated[k] = len(ik) - na
+        if ik.size:
+            h, H = antenna_jacobians(x, r_m[ik])
+            nu = obs[k, ik] - h
+            tau = tt[k] - last_t[ik]
+            sel = np.isfinite(tau) & (tau <= max_gap)
+            js = ik[sel]
+            if js.size:
+                hd, Hd = antenna_jacobians(x, r_m[js], tau[sel])
+                nu = np.concatenate((nu, obs[k, js] - last_z[js] - hd))
+                H = np.concatenate((H, Hd))
+                var = np.concatenate((np.full(ik.size, va),
+                                      vs * np.maximum(1.0, tau[sel] / dt_med)))
             else:
-                rejects += 1
-                n_gated[k] = len(ik)
-                if rejects >= params.max_rejects:
-                    P = np.asarray(P0, dtype=float).copy()
-                    x, P, acc = _update(x, P, zs, rs, r2, math.inf)
-                    n_used[k], n_gated[k], rejects, st = len(ik), 0, 0, "reset"
+                var = np.full(ik.size, va)
+            x1, P1, acc = kalman_update(x, P, nu, H, var, gate)
+            acc_abs, acc_step = acc[:ik.size], acc[ik.size:]
+            n_used[k] = int(acc_abs.sum())
+            n_gated[k] = ik.size - n_used[k]
+            n_steps[k] = int(acc_step.sum())
+            rej_abs = rej_abs + 1 if n_used[k] == 0 else 0
+            rej_step = rej_step + 1 if (js.size >= 2 and n_steps[k] == 0) else 0
+            if max(rej_abs, rej_step) >= params.max_rejects:
+                # lost: back to waiting, restart from the data (reported on the restart)
+                x = P = None
+                starter.reset()
+                lost = True
+                status[k] = "waiting"
+                continue
+            if acc.any():
+                x, P, st = x1, P1, "ok"
+                x[2] = _wrap(x[2])
+            good = ik[acc_abs]
+            last_t[good] = tt[k]
+            last_z[good] = obs[k, good]
+            # ------------------------------------------------------- direction of travel
+            if not params.reverse:
+                if x[3] < 0.0:
+                    if x[3] < -3.0 * math.sqrt(max(P[3, 3], 0.0)):
+                        x, P = _flip(x, P)
+                        st = "flip_corrected"
+                    else:
+                        x[3] = 0.0
+            elif good.size >= 2:
+                # configuration's evidence for yaw + pi: residuals of the accepted fixes
+                # with R(yaw) r and -R(yaw) r; LLR = (|e+|^2 - |e-|^2) / (2 var)
+                hz, _ = antenna_jacobians(x, r_m[good])
+                e_plus = obs[k, good] - hz
+                e_minus = e_plus + 2.0 * (hz - x[:2])
+                llr = llr * math.exp(-dt / params.flip_memory_s) + float(
+                    ((e_plus ** 2).sum() - (e_minus ** 2).sum()) / (2.0 * va))
+                if llr > flip_thr:
+                    x, P = _flip(x, P)
+                    st, llr = "flip_corrected", 0.0
+        # turn-rate limit of the platform (projection)
+        lim = om_max if x[3] == 0 else min(om_max, alat / abs(x[3]))
+        if abs(x[4]) > lim:
+            x[4] = math.copysign(lim, x[4])
         X[k], PP[k], status[k] = x, P, st
-    return PoseFilterResult(states=X, covariances=PP, status=status.astype(str),
-                            n_used=n_used, n_gated=n_gated)
+        if st == "flip_corrected":
+            seg[k] = True
+    return PoseFilterResult(states=X, covariances=PP, pred_states=XP, pred_covariances=PPp,
+                            transition=FF, segment_start=seg, status=status.astype(str),
+                            n_used=n_used, n_gated=n_gated, n_steps=n_steps,
+                            sigma_abs_m=float(sigma_abs), sigma_step_m=float(sigma_step),
+                            cg_offset=cg_offset)
+
+
+def _flip(x: np.ndarray, P: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The same motion with the heading turned by pi: (yaw + pi, -v); P mapped by
+    diag(1, 1, 1, -1, 1) (the position of the no-slip point and the yaw rate are kept)."""
+    xn = x.copy()
+    xn[2] = _wrap(x[2] + math.pi)
+    xn[3] = -x[3]
+    J = np.array([1.0, 1.0, 1.0, -1.0, 1.0])
+    return xn, P * J[:, None] * J[None, :]
