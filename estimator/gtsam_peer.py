@@ -58,6 +58,9 @@ from estimator._checks import check_real
 from estimator.orientation import wrap_angle
 from estimator.pose_filter import (
     MAX_STEP_GAP,
+    NX,
+    OMEGA,
+    V,
     FilterStart,
     PoseFilterParams,
     _check_run_args,
@@ -90,8 +93,9 @@ def gtsam_available() -> bool:
 
 @dataclass(frozen=True)
 class GtsamPeerResult:
-    """causal (n, 5) and fixed_lag (n, 5) states ``(px, py, yaw, v, omega)`` of the no-slip
-    point (NaN before the start); status (n,) str ("waiting"/"no_data" before the start,
+    """causal (n, 6) and fixed_lag (n, 6) states ``(px, py, yaw, v, a, omega)`` of the
+    no-slip point, the EKF's layout (a is NaN: the peer's motion prior has no acceleration;
+    NaN before the start); status (n,) str ("waiting"/"no_data" before the start,
     then "ok" or "predicted"); update_s: wall time of the smoother updates, s; cg_offset (2,)
     as in :class:`estimator.pose_filter.PoseFilterResult`."""
 
@@ -164,10 +168,10 @@ def run_gtsam_peer(t: np.ndarray, obs: np.ndarray, offsets: np.ndarray,
     huber = robust(sigma_abs)
     nhc = gtsam.noiseModel.Diagonal.Sigmas(np.array([1e6, NHC_SIGMA_MPS, 1e6]))
     X = lambda k: gtsam.symbol("x", k)  # noqa: E731
-    V = lambda k: gtsam.symbol("v", k)  # noqa: E731
+    Vk = lambda k: gtsam.symbol("v", k)  # noqa: E731
 
-    causal = np.full((n, 5), np.nan)
-    fixed = np.full((n, 5), np.nan)
+    causal = np.full((n, NX), np.nan)
+    fixed = np.full((n, NX), np.nan)
     status = np.full(n, "", dtype=object)
     present = np.isfinite(obs[..., 0])
     starter = FilterStart(tt, obs, r_m, sigma_abs, params)
@@ -179,8 +183,8 @@ def run_gtsam_peer(t: np.ndarray, obs: np.ndarray, offsets: np.ndarray,
 
     def state_of(est, k):
         p = est.atPose2(X(k))
-        w = est.atVector(V(k))
-        return [p.x(), p.y(), p.theta(), w[0], w[2]]
+        w = est.atVector(Vk(k))
+        return [p.x(), p.y(), p.theta(), w[0], np.nan, w[2]]
 
     for k in range(n):
         ik = np.flatnonzero(present[k])
@@ -198,23 +202,24 @@ def run_gtsam_peer(t: np.ndarray, obs: np.ndarray, offsets: np.ndarray,
             params_isam.relinearizeSkip = 1
             smoother = gtsam.IncrementalFixedLagSmoother(lag + 1.5 * dt_med, params_isam)
             pose = gtsam.Pose2(x0[0], x0[1], x0[2])
-            twist = np.array([x0[3], 0.0, x0[4]])
+            twist = np.array([x0[V], 0.0, x0[OMEGA]])
             graph = gtsam.NonlinearFactorGraph()
             values = gtsam.Values()
             stamps = gtsam.FixedLagSmootherKeyTimestampMap()
             graph.add(gtsam.PriorFactorPose2(X(k), pose, gtsam.noiseModel.Gaussian.Covariance(
                 P0[:3, :3])))
-            graph.add(gtsam.PriorFactorVector(V(k), twist, gtsam.noiseModel.Diagonal.Sigmas(
-                np.sqrt([P0[3, 3], NHC_SIGMA_MPS ** 2, P0[4, 4]]))))
+            graph.add(gtsam.PriorFactorVector(Vk(k), twist, gtsam.noiseModel.Diagonal.Sigmas(
+                np.sqrt([P0[V, V], NHC_SIGMA_MPS ** 2, P0[OMEGA, OMEGA]]))))
         else:
             graph = gtsam.NonlinearFactorGraph()
             values = gtsam.Values()
             stamps = gtsam.FixedLagSmootherKeyTimestampMap()
             dt = tt[k] - tt[k - 1]
             pose = pose.compose(gtsam.Pose2.Expmap(twist * dt))
-            graph.add(gtsam.WnoaMotionFactorPose2(gtsam.StateData(X(k - 1), V(k - 1), tt[k - 1]),
-                                                  gtsam.StateData(X(k), V(k), tt[k]), qc))
-        graph.add(gtsam.PriorFactorVector(V(k), np.zeros(3), nhc))
+            graph.add(gtsam.WnoaMotionFactorPose2(
+                gtsam.StateData(X(k - 1), Vk(k - 1), tt[k - 1]),
+                gtsam.StateData(X(k), Vk(k), tt[k]), qc))
+        graph.add(gtsam.PriorFactorVector(Vk(k), np.zeros(3), nhc))
         for i in ik:
             graph.add(gtsam.KnownLandmarkFactorPose2(X(k), obs[k, i], r_m[i], huber))
             j = last[i]
@@ -224,16 +229,16 @@ def run_gtsam_peer(t: np.ndarray, obs: np.ndarray, offsets: np.ndarray,
                                                obs[k, i] - obs[j, i]))
             last[i] = k
         values.insert(X(k), pose)
-        values.insert(V(k), twist)
+        values.insert(Vk(k), twist)
         stamps.insert((X(k), tt[k]))
-        stamps.insert((V(k), tt[k]))
+        stamps.insert((Vk(k), tt[k]))
         t0 = time.perf_counter()
         smoother.update(graph, values, stamps)
         est = smoother.calculateEstimate()
         spent += time.perf_counter() - t0
         causal[k] = state_of(est, k)
         pose = est.atPose2(X(k))
-        twist = est.atVector(V(k))
+        twist = est.atVector(Vk(k))
         status[k] = "ok" if ik.size else "predicted"
         pending.append(k)
         nxt = tt[k + 1] if k + 1 < n else math.inf

@@ -119,7 +119,8 @@ __all__ = [
     "PoseFilterParams",
     "PoseFilterResult",
     "antenna_jacobians",
-    "ctrv_predict",
+    "ctra_predict",
+    "motion_integrals",
     "estimate_noise",
     "kalman_update",
     "run_pose_filter",
@@ -186,13 +187,15 @@ class PoseFilterParams:
             check_real(ns[0], "no_slip_point_m[0]"), check_real(ns[1], "no_slip_point_m[1]")))
 
     @property
-    def sigma_accel(self) -> float:
-        """White longitudinal-acceleration sd, m/s^2: half the limit (module docstring)."""
+    def sigma_accel_step(self) -> float:
+        """sd of the longitudinal acceleration's change over one sample interval, m/s^2:
+        half the limit (module docstring, discrete Wiener-process acceleration)."""
         return 0.5 * self.max_accel_mps2
 
     @property
     def sigma_yaw_accel(self) -> float:
-        """White yaw-acceleration sd, rad/s^2: half the limit (module docstring)."""
+        """sd of the yaw acceleration, constant over a sample interval, rad/s^2: half the
+        limit (module docstring, discrete white-noise acceleration)."""
         return 0.5 * self.max_yaw_accel_radps2
 
     @classmethod
@@ -212,10 +215,11 @@ class PoseFilterParams:
 class PoseFilterResult:
     """The filter's forward pass, everything the smoother needs.
 
-    states (n, 5) and covariances (n, 5, 5): filtered state of the no-slip point and its
-    covariance (NaN where the filter was not running). pred_states / pred_covariances
-    (n, 5) / (n, 5, 5): the prediction into each epoch from the previous one, transition
-    (n, 5, 5) its Jacobian F (row k maps epoch k-1 to k; NaN at segment starts).
+    states (n, 6) and covariances (n, 6, 6): filtered state of the no-slip point
+    ``(px, py, yaw, v, a, omega)`` and its covariance (NaN where the filter was not
+    running). pred_states / pred_covariances (n, 6) / (n, 6, 6): the prediction into each
+    epoch from the previous one, transition (n, 6, 6) its Jacobian F (row k maps epoch k-1
+    to k; NaN at segment starts).
     segment_start (n,) bool: the filter (re)started here, or the state was flipped (a smoother
     never crosses such an epoch). status (n,) str (:data:`STATUSES`). n_used / n_gated (n,):
     antenna fixes accepted / rejected; n_steps (n,): displacements accepted.
@@ -246,48 +250,100 @@ class PoseFilterResult:
 
 
 # ----------------------------------------------------------------------------- motion
-def _ctrv_terms(q: float) -> tuple[float, float, float, float]:
-    """f1 = sin(q)/q, f2 = (1 - cos q)/q and their derivatives g1, g2 in q.
+#: State layout: position of the no-slip point (m), heading (rad), speed (m/s),
+#: longitudinal acceleration (m/s^2), yaw rate (rad/s).
+PX, PY, YAW, V, A, OMEGA = range(6)
+NX = 6
 
-    Exact formulas above |q| = 1e-4, Taylor series below (the series' first omitted terms,
-    q^4/120 in f1 and q^5/720 in f2, are < 1e-18 there, below double rounding of f ~ 1).
+#: Below this |q| = |omega tau| the integrals F_k are summed as series (module docstring).
+SERIES_BELOW = 0.25
+_SERIES_TERMS = 12
+_FACT = np.array([math.factorial(n) for n in range(_SERIES_TERMS)], dtype=float)
+
+
+def motion_integrals(q: np.ndarray | float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """``F_k(q) = integral_0^1 u^(k-1) exp(i q u) du`` for k = 1, 2, 3 (complex).
+
+    The CTRA motion over tau (turn q = omega tau) moves the platform by
+    ``exp(i yaw) (v tau F1 + a tau^2 F2)`` (x + i y), and ``dF_k/dq = i F_(k+1)``.
+    Closed forms ``F1 = (e^iq - 1)/(iq)``, ``F2 = (e^iq - F1)/(iq)``,
+    ``F3 = (e^iq - 2 F2)/(iq)`` for |q| >= :data:`SERIES_BELOW`; below, where they cancel,
+    the series ``sum_n (iq)^n / (n! (n + k))`` to n = 11 (truncation < 1e-16 there).
+    q : any shape; returns three complex arrays of that shape.
     """
-    if abs(q) > 1e-4:
-        sq, cq = math.sin(q), math.cos(q)
-        return (sq / q, (1.0 - cq) / q, (q * cq - sq) / (q * q),
-                (q * sq - (1.0 - cq)) / (q * q))
-    return 1.0 - q * q / 6.0, 0.5 * q - q * q * q / 24.0, -q / 3.0, 0.5 - q * q / 8.0
+    q = np.asarray(q, dtype=float)
+    small = np.abs(q) < SERIES_BELOW
+    qs = np.where(small, 1.0, q)
+    e = np.exp(1j * qs)
+    f1 = (e - 1.0) / (1j * qs)
+    f2 = (e - f1) / (1j * qs)
+    f3 = (e - 2.0 * f2) / (1j * qs)
+    if small.any():
+        z = (1j * np.where(small, q, 0.0))[..., None] ** np.arange(_SERIES_TERMS) / _FACT
+        n = np.arange(_SERIES_TERMS)
+        f1 = np.where(small, (z / (n + 1)).sum(-1), f1)
+        f2 = np.where(small, (z / (n + 2)).sum(-1), f2)
+        f3 = np.where(small, (z / (n + 3)).sum(-1), f3)
+    return f1, f2, f3
+
+
+def _integrals_scalar(q: float) -> tuple[complex, complex, complex]:
+    """:func:`motion_integrals` for one q (Python complex numbers, same formulas)."""
+    if abs(q) >= SERIES_BELOW:
+        e = complex(math.cos(q), math.sin(q))
+        iq = 1j * q
+        f1 = (e - 1.0) / iq
+        f2 = (e - f1) / iq
+        return f1, f2, (e - 2.0 * f2) / iq
+    f1 = f2 = f3 = 0j
+    term = 1.0 + 0j                    # (iq)^n / n!
+    for n in range(_SERIES_TERMS):
+        f1 += term / (n + 1)
+        f2 += term / (n + 2)
+        f3 += term / (n + 3)
+        term *= 1j * q / (n + 1)
+    return f1, f2, f3
 
 
 def _predict(x: np.ndarray, P: np.ndarray, dt: float, qa: float, qy: float
              ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """CTRV prediction: (x', P', F). See :func:`ctrv_predict`."""
-    yaw, v, om = float(x[2]), float(x[3]), float(x[4])
-    f1, f2, g1, g2 = _ctrv_terms(om * dt)
-    c0, s0 = math.cos(yaw), math.sin(yaw)
-    ax = c0 * f1 - s0 * f2  # displacement direction / (v dt)
-    ay = s0 * f1 + c0 * f2
-    vdt = v * dt
-    F = np.array([
-        [1.0, 0.0, -vdt * ay, dt * ax, vdt * dt * (c0 * g1 - s0 * g2)],
-        [0.0, 1.0, vdt * ax, dt * ay, vdt * dt * (s0 * g1 + c0 * g2)],
-        [0.0, 0.0, 1.0, 0.0, dt],
-        [0.0, 0.0, 0.0, 1.0, 0.0],
-        [0.0, 0.0, 0.0, 0.0, 1.0],
-    ])
+    """CTRA prediction: (x', P', F). See :func:`ctra_predict`."""
+    yaw, v, acc, om = float(x[YAW]), float(x[V]), float(x[A]), float(x[OMEGA])
+    f1, f2, f3 = _integrals_scalar(om * dt)
+    rot = complex(math.cos(yaw), math.sin(yaw))
+    d = rot * (v * dt * f1 + acc * dt * dt * f2)          # displacement
+    dv = rot * dt * f1
+    da = rot * dt * dt * f2
+    dq = rot * 1j * (v * dt * f2 + acc * dt * dt * f3) * dt   # d/domega = dt d/dq
+    F = np.eye(NX)
+    F[PX, YAW], F[PY, YAW] = -d.imag, d.real              # d/dyaw = J d
+    F[PX, V], F[PY, V] = dv.real, dv.imag
+    F[PX, A], F[PY, A] = da.real, da.imag
+    F[PX, OMEGA], F[PY, OMEGA] = dq.real, dq.imag
+    F[YAW, OMEGA] = dt
+    F[V, A] = dt
+    # discrete process noise (module docstring): the acceleration changes by a random
+    # increment (variance qa, per sample) along the heading, the yaw acceleration is a
+    # random constant (variance qy) over the sample
+    c, s = rot.real, rot.imag
     h = 0.5 * dt * dt
-    G = np.array([[h * c0, 0.0], [h * s0, 0.0], [0.0, h], [dt, 0.0], [0.0, dt]])
-    Pn = F @ P @ F.T + (G * (qa, qy)) @ G.T
-    xn = np.array([x[0] + vdt * ax, x[1] + vdt * ay, _wrap(yaw + om * dt), v, om])
+    ga = np.array([h * c, h * s, 0.0, dt, 1.0, 0.0])
+    gy = np.array([0.0, 0.0, h, 0.0, 0.0, dt])
+    Q = qa * np.outer(ga, ga) + qy * np.outer(gy, gy)
+    Pn = F @ P @ F.T + Q
+    xn = np.array([x[PX] + d.real, x[PY] + d.imag, _wrap(yaw + om * dt), v + acc * dt, acc,
+                   om])
     return xn, 0.5 * (Pn + Pn.T), F
 
 
-def ctrv_predict(x: np.ndarray, P: np.ndarray, dt: float, sigma_accel: float,
+def ctra_predict(x: np.ndarray, P: np.ndarray, dt: float, sigma_accel_step: float,
                  sigma_yaw_accel: float) -> tuple[np.ndarray, np.ndarray]:
-    """CTRV prediction of state (5,) and covariance (5, 5) over dt seconds (module
-    docstring: motion model and Q). Returns (x', P')."""
+    """CTRA prediction of state (6,) and covariance (6, 6) over dt seconds (module
+    docstring: motion model and Q); sigma_accel_step (m/s^2): sd of the acceleration's
+    change over this step, sigma_yaw_accel (rad/s^2): sd of the yaw acceleration.
+    Returns (x', P')."""
     xn, Pn, _ = _predict(np.asarray(x, dtype=float), np.asarray(P, dtype=float), float(dt),
-                         float(sigma_accel) ** 2, float(sigma_yaw_accel) ** 2)
+                         float(sigma_accel_step) ** 2, float(sigma_yaw_accel) ** 2)
     return xn, Pn
 
 
@@ -302,64 +358,50 @@ _TWO_PI = 2.0 * math.pi
 
 
 # ----------------------------------------------------------------------------- measurements
-def _ctrv_terms_vec(q: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-    """:func:`_ctrv_terms` for an array of q (same formulas, same switch at |q| = 1e-4)."""
-    big = np.abs(q) > 1e-4
-    qs = np.where(big, q, 1.0)
-    sq, cq = np.sin(qs), np.cos(qs)
-    q2 = q * q
-    f1 = np.where(big, sq / qs, 1.0 - q2 / 6.0)
-    f2 = np.where(big, (1.0 - cq) / qs, 0.5 * q - q2 * q / 24.0)
-    g1 = np.where(big, (qs * cq - sq) / (qs * qs), -q / 3.0)
-    g2 = np.where(big, (qs * sq - (1.0 - cq)) / (qs * qs), 0.5 - q2 / 8.0)
-    return f1, f2, g1, g2
-
-
 def antenna_jacobians(x: np.ndarray, r: np.ndarray, tau: np.ndarray | None = None
                       ) -> tuple[np.ndarray, np.ndarray]:
     """Predicted measurements and Jacobians for antennas at body offsets r (k, 2) from M.
 
     tau None: fixes, ``h (k, 2) = p + R(yaw) r``. tau (k,) seconds: displacements since
-    ``tau`` ago under CTRV (module docstring), ``h = R(yaw) u``. Returns h (k, 2) and
-    H (k, 2, 5).
+    ``tau`` ago under CTRA (module docstring), ``h = exp(i yaw) (v tau conj(F1) -
+    a tau^2 conj(F2) + (1 - exp(-iq)) r)``. Returns h (k, 2) and H (k, 2, 6).
     """
     x = np.asarray(x, dtype=float)
     r = np.asarray(r, dtype=float)
-    c, s = math.cos(x[2]), math.sin(x[2])
+    c, s = math.cos(x[YAW]), math.sin(x[YAW])
     k = r.shape[0]
-    H = np.zeros((k, 2, 5))
+    H = np.zeros((k, 2, NX))
     h = np.empty((k, 2))
     if tau is None:
         rx = c * r[:, 0] - s * r[:, 1]
         ry = s * r[:, 0] + c * r[:, 1]
-        H[:, 0, 0] = 1.0
-        H[:, 1, 1] = 1.0
-        H[:, 0, 2] = -ry
-        H[:, 1, 2] = rx
-        h[:, 0] = x[0] + rx
-        h[:, 1] = x[1] + ry
+        H[:, 0, PX] = 1.0
+        H[:, 1, PY] = 1.0
+        H[:, 0, YAW] = -ry
+        H[:, 1, YAW] = rx
+        h[:, 0] = x[PX] + rx
+        h[:, 1] = x[PY] + ry
         return h, H
     tau = np.asarray(tau, dtype=float)
-    v, om = x[3], x[4]
-    q = om * tau
+    v, acc, om = x[V], x[A], x[OMEGA]
+    rc = r[:, 0] + 1j * r[:, 1]
     if tau.size and (tau == tau[0]).all():   # the usual case: one sample interval for all
-        f1, f2, g1, g2 = _ctrv_terms(float(q[0]))
-        sq, cq = math.sin(q[0]), math.cos(q[0])
+        f1, f2, f3 = (np.conj(f) for f in _integrals_scalar(om * float(tau[0])))
+        eq = complex(math.cos(om * tau[0]), -math.sin(om * tau[0]))
     else:
-        f1, f2, g1, g2 = _ctrv_terms_vec(q)
-        sq, cq = np.sin(q), np.cos(q)
-    vt = v * tau
-    ux = vt * f1 + (1.0 - cq) * r[:, 0] - sq * r[:, 1]
-    uy = -vt * f2 + sq * r[:, 0] + (1.0 - cq) * r[:, 1]
-    hx, hy = c * ux - s * uy, s * ux + c * uy
-    h[:, 0], h[:, 1] = hx, hy
-    H[:, 0, 2], H[:, 1, 2] = -hy, hx                       # d/dyaw R u = J R u
-    dvx, dvy = tau * f1, -tau * f2                          # d u / d v
-    H[:, 0, 3], H[:, 1, 3] = c * dvx - s * dvy, s * dvx + c * dvy
-    # d u / d omega = tau d u / d q
-    dqx = tau * (vt * g1 + sq * r[:, 0] - cq * r[:, 1])
-    dqy = tau * (-vt * g2 + cq * r[:, 0] + sq * r[:, 1])
-    H[:, 0, 4], H[:, 1, 4] = c * dqx - s * dqy, s * dqx + c * dqy
+        f1, f2, f3 = (np.conj(f) for f in motion_integrals(om * tau))
+        eq = np.exp(-1j * om * tau)
+    rot = complex(c, s)
+    u = rot * (v * tau * f1 - acc * tau * tau * f2 + (1.0 - eq) * rc)
+    du_v = rot * tau * f1 * np.ones(k)
+    du_a = -rot * tau * tau * f2 * np.ones(k)
+    # d/domega = tau d/dq; d conj(F_k)/dq = -i conj(F_(k+1)), d(1 - e^-iq)/dq = i e^-iq
+    du_q = rot * tau * (-1j * v * tau * f2 + 1j * acc * tau * tau * f3 + 1j * eq * rc)
+    h[:, 0], h[:, 1] = u.real, u.imag
+    H[:, 0, YAW], H[:, 1, YAW] = -u.imag, u.real           # d/dyaw = J h
+    H[:, 0, V], H[:, 1, V] = du_v.real, du_v.imag
+    H[:, 0, A], H[:, 1, A] = du_a.real, du_a.imag
+    H[:, 0, OMEGA], H[:, 1, OMEGA] = du_q.real, du_q.imag
     return h, H
 
 
@@ -377,9 +419,9 @@ def _quad2(M: np.ndarray, e: np.ndarray, guard: bool = False) -> np.ndarray:
 
 def _info_update(x: np.ndarray, Pinv: np.ndarray, nu: np.ndarray, H: np.ndarray,
                  w: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Information-form update with the measurements given (H (a, 2, 5), weights w (a,))."""
-    Hf = H.reshape(-1, 5)
-    HtW = Hf.T * np.repeat(w, 2)                            # (5, 2a)
+    """Information-form update with the measurements given (H (a, 2, n), weights w (a,))."""
+    Hf = H.reshape(-1, H.shape[-1])
+    HtW = Hf.T * np.repeat(w, 2)                            # (n, 2a)
     Pn = np.linalg.inv(Pinv + HtW @ Hf)
     Pn = 0.5 * (Pn + Pn.T)
     return x + Pn @ (HtW @ nu.reshape(-1)), Pn
@@ -390,7 +432,7 @@ def kalman_update(x: np.ndarray, P: np.ndarray, nu: np.ndarray, H: np.ndarray,
                   ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Joint EKF update with k two-dimensional measurements, robustly gated.
 
-    nu (k, 2) innovations, H (k, 2, 5) Jacobians, var (k,) per-axis noise variances (R_i =
+    nu (k, 2) innovations, H (k, 2, n) Jacobians, var (k,) per-axis noise variances (R_i =
     var_i I). Two tests, both at the chi-square(2) quantile ``gate``:
 
     1. prior gate: a measurement whose NIS ``nu_i^T S_i^-1 nu_i`` (``S_i = H_i P H_i^T +
@@ -405,7 +447,7 @@ def kalman_update(x: np.ndarray, P: np.ndarray, nu: np.ndarray, H: np.ndarray,
 
     The accepted measurements update in information form, ``P+ = (P^-1 + sum H_i^T H_i /
     var_i)^-1``, ``x+ = x + P+ sum H_i^T nu_i / var_i``, the same update as the textbook
-    gain form (tested against FilterPy) with 5 x 5 inverses only. The yaw component of x+
+    gain form (tested against FilterPy) with n x n inverses only. The yaw component of x+
     is not wrapped here. Returns (x+, P+, accepted (k,)).
     """
     k = nu.shape[0]
@@ -515,8 +557,8 @@ class FilterStart:
     """When and where the filter starts (module docstring, "Initialisation waits for data").
 
     t (n,), obs (n, m, 2), r (m, 2) antenna offsets from the no-slip point, sigma_abs (m),
-    params. :meth:`offer` is asked epoch by epoch while waiting; it returns (x0 (5,),
-    P0 (5, 5)) at the start epoch, else None. Shared by the EKF and the GTSAM peer
+    params. :meth:`offer` is asked epoch by epoch while waiting; it returns (x0 (6,),
+    P0 (6, 6)) at the start epoch, else None. Shared by the EKF and the GTSAM peer
     (:mod:`estimator.gtsam_peer`), so both start at the same epoch from the same state.
     """
 
@@ -541,11 +583,23 @@ class FilterStart:
         sa, p = self.sigma_abs, self.params
         yaw_sd = sa / math.sqrt(self.r2[self.present[k]].sum())
         if yaw_sd < INIT_MAX_YAW_SD:
-            yaw0, v0, ysd = float(self.yaw[k]), 0.0, yaw_sd
+            # the configuration fixes the heading; speed along it from the previous
+            # epoch's fit if there is one (a restart on the move must not start at rest)
+            yaw0, ysd = float(self.yaw[k]), yaw_sd
+            v0, vsd = 0.0, p.max_accel_mps2
+            if k > 0 and self.cnt[k - 1] >= 2:
+                dt = self.t[k] - self.t[k - 1]
+                d = self.origin[k] - self.origin[k - 1]
+                v0 = (d[0] * math.cos(yaw0) + d[1] * math.sin(yaw0)) / dt
+                vsd = math.hypot(p.max_accel_mps2 * dt, sa * math.sqrt(
+                    1.0 / self.cnt[k] + 1.0 / self.cnt[k - 1]) / dt)
+                if not p.reverse:
+                    v0 = max(v0, 0.0)
         elif self.anchor < 0:
             self.anchor = k
             return None
         else:
+            # heading = course once the platform has clearly moved from the anchor fix
             a = self.anchor
             d = self.origin[k] - self.origin[a]
             dist = math.hypot(d[0], d[1])
@@ -554,15 +608,15 @@ class FilterStart:
                 return None
             course = math.atan2(d[1], d[0])
             sp = dist / (self.t[k] - self.t[a])
-            ysd = sd / dist
+            ysd, vsd = sd / dist, max(sp, p.max_accel_mps2)
             if p.reverse and math.cos(course - self.yaw[k]) < 0:
                 yaw0, v0 = course + math.pi, -sp
             else:
                 yaw0, v0 = course, sp
         self.anchor = -1
         pvar = sa * sa / self.cnt[k]
-        x = np.array([self.origin[k, 0], self.origin[k, 1], _wrap(yaw0), v0, 0.0])
-        P = np.diag([pvar, pvar, ysd ** 2, max(abs(v0), p.max_accel_mps2) ** 2,
+        x = np.array([self.origin[k, 0], self.origin[k, 1], _wrap(yaw0), v0, 0.0, 0.0])
+        P = np.diag([pvar, pvar, ysd ** 2, vsd ** 2, p.max_accel_mps2 ** 2,
                      (0.5 * p.max_turn_rate_radps) ** 2])
         return x, P
 
@@ -613,14 +667,15 @@ def run_pose_filter(t: np.ndarray, obs: np.ndarray, offsets: np.ndarray,
     max_gap = MAX_STEP_GAP * dt_med * (1.0 + 1e-9)
     gate = float(chi2.ppf(params.gate_prob, 2)) if params.gate_prob < 1 else math.inf
     flip_thr = float(chi2.ppf(params.gate_prob, 1)) if params.gate_prob < 1 else 10.83
-    qa, qy = params.sigma_accel ** 2, params.sigma_yaw_accel ** 2
+    qa, qy = params.sigma_accel_step ** 2, params.sigma_yaw_accel ** 2
     om_max, alat = params.max_turn_rate_radps, params.max_lateral_accel_mps2
+    a_max = params.max_accel_mps2
 
-    X = np.full((n, 5), np.nan)
-    PP = np.full((n, 5, 5), np.nan)
-    XP = np.full((n, 5), np.nan)
-    PPp = np.full((n, 5, 5), np.nan)
-    FF = np.full((n, 5, 5), np.nan)
+    X = np.full((n, NX), np.nan)
+    PP = np.full((n, NX, NX), np.nan)
+    XP = np.full((n, NX), np.nan)
+    PPp = np.full((n, NX, NX), np.nan)
+    FF = np.full((n, NX, NX), np.nan)
     seg = np.zeros(n, dtype=bool)
     status = np.full(n, "", dtype=object)
     n_used = np.zeros(n, dtype=int)
@@ -634,6 +689,9 @@ def run_pose_filter(t: np.ndarray, obs: np.ndarray, offsets: np.ndarray,
     lost = False          # the next start is a restart
     rej_abs = rej_step = 0
     llr = 0.0             # reverse mode: log-likelihood ratio for the flipped heading
+    back = 0.0            # forward mode: backward travel over consecutive epochs, m
+    n_alive = max(int(present.any(axis=0).sum()), 1)
+    flip_dist = INIT_MOTION_SIGMAS * sigma_abs * math.sqrt(2.0 / n_alive)
     last_t = np.full(m, np.nan)
     last_z = np.full((m, 2), np.nan)
     for k in range(n):
@@ -654,11 +712,12 @@ def run_pose_filter(t: np.ndarray, obs: np.ndarray, offsets: np.ndarray,
             last_t[:] = np.nan
             last_t[ik] = tt[k]
             last_z[ik] = obs[k, ik]
-            rej_abs, rej_step, llr = 0, 0, 0.0
+            rej_abs, rej_step, llr, back = 0, 0, 0.0, 0.0
             continue
         # -------------------------------------------------------------------- running
         dt = tt[k] - tt[k - 1]
-        x, P, F = _predict(x, P, dt, qa, qy)
+        # the acceleration's increments add up over a longer gap (random walk)
+        x, P, F = _predict(x, P, dt, qa * max(1.0, dt / dt_med), qy)
         XP[k], PPp[k], FF[k] = x, P, F
         st = "predicted"
         if ik.size:
@@ -691,18 +750,20 @@ def run_pose_filter(t: np.ndarray, obs: np.ndarray, offsets: np.ndarray,
                 continue
             if acc.any():
                 x, P, st = x1, P1, "ok"
-                x[2] = _wrap(x[2])
+                x[YAW] = _wrap(x[YAW])
             good = ik[acc_abs]
             last_t[good] = tt[k]
             last_z[good] = obs[k, good]
             # ------------------------------------------------------- direction of travel
             if not params.reverse:
-                if x[3] < 0.0:
-                    if x[3] < -3.0 * math.sqrt(max(P[3, 3], 0.0)):
-                        x, P = _flip(x, P)
-                        st = "flip_corrected"
-                    else:
-                        x[3] = 0.0
+                # backward travel accumulates over consecutive epochs of negative speed;
+                # beyond the start's motion threshold the heading is off by pi: flip
+                back = back - x[V] * dt if x[V] < 0.0 else 0.0
+                if back > flip_dist:
+                    x, P = _flip(x, P)
+                    st, back = "flip_corrected", 0.0
+                elif x[V] < 0.0:
+                    x[V] = 0.0
             elif good.size >= 2:
                 # configuration's evidence for yaw + pi: residuals of the accepted fixes
                 # with R(yaw) r and -R(yaw) r; LLR = (|e+|^2 - |e-|^2) / (2 var)
@@ -715,9 +776,11 @@ def run_pose_filter(t: np.ndarray, obs: np.ndarray, offsets: np.ndarray,
                     x, P = _flip(x, P)
                     st, llr = "flip_corrected", 0.0
         # turn-rate limit of the platform (projection)
-        lim = om_max if x[3] == 0 else min(om_max, alat / abs(x[3]))
-        if abs(x[4]) > lim:
-            x[4] = math.copysign(lim, x[4])
+        lim = om_max if x[V] == 0 else min(om_max, alat / abs(x[V]))
+        if abs(x[OMEGA]) > lim:
+            x[OMEGA] = math.copysign(lim, x[OMEGA])
+        if abs(x[A]) > a_max:
+            x[A] = math.copysign(a_max, x[A])
         X[k], PP[k], status[k] = x, P, st
         if st == "flip_corrected":
             seg[k] = True
@@ -729,10 +792,11 @@ def run_pose_filter(t: np.ndarray, obs: np.ndarray, offsets: np.ndarray,
 
 
 def _flip(x: np.ndarray, P: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """The same motion with the heading turned by pi: (yaw + pi, -v); P mapped by
-    diag(1, 1, 1, -1, 1) (the position of the no-slip point and the yaw rate are kept)."""
+    """The same motion with the heading turned by pi: (yaw + pi, -v, -a); P mapped by
+    diag(1, 1, 1, -1, -1, 1) (the no-slip point's position and the yaw rate are kept)."""
     xn = x.copy()
-    xn[2] = _wrap(x[2] + math.pi)
-    xn[3] = -x[3]
-    J = np.array([1.0, 1.0, 1.0, -1.0, 1.0])
+    xn[YAW] = _wrap(x[YAW] + math.pi)
+    xn[V] = -x[V]
+    xn[A] = -x[A]
+    J = np.array([1.0, 1.0, 1.0, -1.0, -1.0, 1.0])
     return xn, P * J[:, None] * J[None, :]

@@ -31,30 +31,30 @@ import numpy as np
 from estimator._checks import check_real
 from estimator.configuration import SensorConfig
 from estimator.orientation import wrap_angle
-from estimator.pose_filter import PoseFilterParams, PoseFilterResult, run_pose_filter
+from estimator.pose_filter import V, YAW, PoseFilterParams, PoseFilterResult, run_pose_filter
 
 __all__ = ["SmoothedStates", "fixed_lag_smooth", "rts_smooth", "smoothed_heading"]
 
 
 @dataclass(frozen=True)
 class SmoothedStates:
-    """Smoothed states (n, 5) of the no-slip point ``(px, py, yaw, v, omega)`` and, for the
-    RTS smoother, their covariances (n, 5, 5) (None for the fixed-lag smoother); NaN where
-    the filter was not running."""
+    """Smoothed states (n, 6) of the no-slip point ``(px, py, yaw, v, a, omega)``
+    (:mod:`estimator.pose_filter`) and, for the RTS smoother, their covariances (n, 6, 6)
+    (None for the fixed-lag smoother); NaN where the filter was not running."""
 
     states: np.ndarray
     covariances: np.ndarray | None
 
 
 def _gains(res: PoseFilterResult) -> tuple[np.ndarray, np.ndarray]:
-    """Smoother gains C (n, 5, 5) (row k: from k+1 back to k) and a mask (n,) of the rows
+    """Smoother gains C (n, 6, 6) (row k: from k+1 back to k) and a mask (n,) of the rows
     with a valid gain (k and k+1 in the same running segment)."""
-    n = res.states.shape[0]
+    n, nx = res.states.shape
     ok = np.zeros(n, dtype=bool)
     if n > 1:
         ok[:-1] = (np.isfinite(res.states[:-1, 0]) & np.isfinite(res.pred_states[1:, 0])
                    & ~res.segment_start[1:])
-    C = np.full((n, 5, 5), np.nan)
+    C = np.full((n, nx, nx), np.nan)
     k = np.flatnonzero(ok)
     if k.size:
         # C = P_f F^T P_p^-1, via a solve with the symmetric P_p: C^T = P_p^-1 F P_f
@@ -66,17 +66,17 @@ def _gains(res: PoseFilterResult) -> tuple[np.ndarray, np.ndarray]:
 
 def _step(xf: np.ndarray, C: np.ndarray, xs_next: np.ndarray, xp_next: np.ndarray
           ) -> np.ndarray:
-    """x_f + C (x_s' - x_p') for a batch (N, 5), the heading difference wrapped."""
+    """x_f + C (x_s' - x_p') for a batch (N, 6), the heading difference wrapped."""
     d = xs_next - xp_next
-    d[:, 2] = wrap_angle(d[:, 2])
+    d[:, YAW] = wrap_angle(d[:, YAW])
     out = xf + np.einsum("nij,nj->ni", C, d)
-    out[:, 2] = wrap_angle(out[:, 2])
+    out[:, YAW] = wrap_angle(out[:, YAW])
     return out
 
 
 def _constrain(X: np.ndarray, reverse: bool) -> np.ndarray:
     if not reverse:
-        X[:, 3] = np.where(X[:, 3] < 0, 0.0, X[:, 3])
+        X[:, V] = np.where(X[:, V] < 0, 0.0, X[:, V])
     return X
 
 
@@ -85,7 +85,7 @@ def rts_smooth(res: PoseFilterResult, reverse: bool = False) -> SmoothedStates:
 
     res : the forward pass (:func:`estimator.pose_filter.run_pose_filter`).
     reverse : the filter's ``params.reverse`` (False: smoothed speeds are kept >= 0).
-    Returns :class:`SmoothedStates` with states (n, 5) and covariances (n, 5, 5).
+    Returns :class:`SmoothedStates` with states (n, 6) and covariances (n, 6, 6).
     """
     if not isinstance(res, PoseFilterResult):
         raise TypeError(f"res: expected a PoseFilterResult, got {type(res).__name__}")
@@ -160,4 +160,4 @@ def smoothed_heading(t: np.ndarray, obs: np.ndarray, config: SensorConfig,
     res = run_pose_filter(t, obs, cfg.body_positions - cfg.cg_body, p)
     sm = (rts_smooth(res, p.reverse) if lag_s is None
           else fixed_lag_smooth(res, np.asarray(t, dtype=float), lag_s, p.reverse))
-    return sm.states[:, 2].copy()
+    return sm.states[:, YAW].copy()

@@ -610,5 +610,5 @@ def _run_filter(tt, o, cfg, s, params, method):
     c, sn = np.cos(X[:, 2]), np.sin(X[:, 2])
     R = np.stack([np.stack([c, -sn], -1), np.stack([sn, c], -1)], -2)  # (N, 2, 2)
     pos = X[:, None, :2] + np.einsum("nab,mb->nma", R, r_m)
-    extra = {"speed": X[:, 3], "yaw_rate": X[:, 4], **extra}
+    extra = {"speed": X[:, 3], "yaw_rate": X[:, 5], **extra}
     return pos, X[:, 2].copy(), np.asarray(status[k0:], dtype=object), extra
