@@ -23,10 +23,9 @@ harness's estimators are compared (issue 14). Factor graph, per epoch k:
   :data:`NHC_SIGMA_MPS` (the EKF has it as an exact constraint).
 
 - with ``displacements=True`` (default), the EKF's second measurement: each antenna's
-  displacement since its previous fix (at most ``MAX_STEP_GAP`` sample intervals earlier),
-  ``(X_k r_i) - (X_j r_i) = z_i(t_k) - z_i(t_j)``, sd ``sigma_step sqrt(max(1, tau /
-  dt_median))``, Huber as the fixes; a ``CustomFactor`` (the only factor evaluated in
-  Python; Jacobians ``[R, R J r]`` in each pose's tangent space).
+  displacement between consecutive epochs, ``(X_k r_i) - (X_(k-1) r_i) = z_i(t_k) -
+  z_i(t_(k-1))``, sd ``sigma_step``, Huber as the fixes; a ``CustomFactor`` (the only factor
+  evaluated in Python; Jacobians ``[R, R J r]`` in each pose's tangent space).
 
 Why the displacements: with ``displacements=False`` (the textbook formulation of the issue,
 lever-arm fixes plus a motion prior) the peer treats the fixes' errors as white, but GNSS
@@ -57,7 +56,6 @@ import numpy as np
 from estimator._checks import check_real
 from estimator.orientation import wrap_angle
 from estimator.pose_filter import (
-    MAX_STEP_GAP,
     NX,
     OMEGA,
     V,
@@ -157,7 +155,6 @@ def run_gtsam_peer(t: np.ndarray, obs: np.ndarray, offsets: np.ndarray,
     sigma_abs = params.sigma_abs_m if params.sigma_abs_m is not None else sa
     sigma_step = params.sigma_step_m if params.sigma_step_m is not None else ss
     dt_med = float(np.median(np.diff(tt))) if n > 1 else 1.0
-    max_gap = MAX_STEP_GAP * dt_med * (1.0 + 1e-9)
     qa = (0.5 * params.max_accel_mps2) ** 2 * dt_med
     qy = (0.5 * params.max_yaw_accel_radps2) ** 2 * dt_med
     qc = np.array([qa, NHC_SIGMA_MPS ** 2 / dt_med, qy])
@@ -166,6 +163,7 @@ def run_gtsam_peer(t: np.ndarray, obs: np.ndarray, offsets: np.ndarray,
                                               gtsam.noiseModel.Isotropic.Sigma(2, sd))
 
     huber = robust(sigma_abs)
+    step_noise = robust(sigma_step)
     nhc = gtsam.noiseModel.Diagonal.Sigmas(np.array([1e6, NHC_SIGMA_MPS, 1e6]))
     X = lambda k: gtsam.symbol("x", k)  # noqa: E731
     Vk = lambda k: gtsam.symbol("v", k)  # noqa: E731
@@ -177,8 +175,8 @@ def run_gtsam_peer(t: np.ndarray, obs: np.ndarray, offsets: np.ndarray,
     starter = FilterStart(tt, obs, r_m, sigma_abs, params)
     smoother = None
     pose = twist = None
+    start = -1
     pending = []           # epochs whose fixed-lag estimate is not final yet
-    last = np.full(m, -1)  # each antenna's previous fix (epoch), for the displacements
     spent = 0.0
 
     def state_of(est, k):
@@ -197,6 +195,7 @@ def run_gtsam_peer(t: np.ndarray, obs: np.ndarray, offsets: np.ndarray,
             if got is None:
                 continue
             x0, P0 = got
+            start = k
             params_isam = gtsam.ISAM2Params()
             params_isam.setRelinearizeThreshold(RELINEARIZE_THRESHOLD)
             params_isam.relinearizeSkip = 1
@@ -222,12 +221,9 @@ def run_gtsam_peer(t: np.ndarray, obs: np.ndarray, offsets: np.ndarray,
         graph.add(gtsam.PriorFactorVector(Vk(k), np.zeros(3), nhc))
         for i in ik:
             graph.add(gtsam.KnownLandmarkFactorPose2(X(k), obs[k, i], r_m[i], huber))
-            j = last[i]
-            if displacements and j >= 0 and tt[k] - tt[j] <= min(max_gap, lag + dt_med):
-                sd = sigma_step * math.sqrt(max(1.0, (tt[k] - tt[j]) / dt_med))
-                graph.add(_displacement_factor(gtsam, robust(sd), X(j), X(k), r_m[i],
-                                               obs[k, i] - obs[j, i]))
-            last[i] = k
+            if displacements and k > start and np.isfinite(obs[k - 1, i, 0]):
+                graph.add(_displacement_factor(gtsam, step_noise, X(k - 1), X(k), r_m[i],
+                                               obs[k, i] - obs[k - 1, i]))
         values.insert(X(k), pose)
         values.insert(Vk(k), twist)
         stamps.insert((X(k), tt[k]))

@@ -8,41 +8,58 @@ the filter is built to hold its heading on any wheeled platform, from a 0.2 m/s 
 
 State and non-holonomic constraint
 ----------------------------------
-``x = (px, py, yaw, v, omega)``: position (m) of the platform's *no-slip point* M, heading
-(rad, CCW from +x), speed of M along the heading (m/s) and yaw rate (rad/s). M is the point of
-the body whose velocity has no lateral component: the middle of the driven axle of a
-differential drive (the rover's axle passes under its CG), the middle of the rear axle of a
-car. Writing the velocity of M as ``v (cos yaw, sin yaw)`` with no lateral term IS the
-non-holonomic constraint, exactly (a hard constraint, not a soft prior). Every other body point
-moves sideways in a turn: the CG, ``b_cg - b_M`` ahead of M, has lateral speed
-``omega (b_cg - b_M)_x``. M is given in :attr:`PoseFilterParams.no_slip_point_m` (body frame,
-relative to the configuration's CG; (0, 0) for the rover). Tyre slip (a car's few degrees of
-slip angle at high lateral acceleration) violates the constraint; it enters as model error.
+``x = (px, py, yaw, v, a, omega)``: position (m) of the platform's *no-slip point* M,
+heading (rad, CCW from +x), speed of M along the heading (m/s), its rate of change (m/s^2)
+and the yaw rate (rad/s). M is the point of the body whose velocity has no lateral
+component: the middle of the driven axle of a differential drive (the rover's axle passes
+under its CG), the middle of the rear axle of a car. Writing the velocity of M as
+``v (cos yaw, sin yaw)`` with no lateral term IS the non-holonomic constraint, exactly (a
+hard constraint, not a soft prior). Every other body point moves sideways in a turn: the
+CG, ``b_cg - b_M`` ahead of M, at ``omega (b_cg - b_M)_x``. M is given in
+:attr:`PoseFilterParams.no_slip_point_m` (body frame, relative to the configuration's CG;
+(0, 0) for the rover, (-1.3, 0) for models/car.xml). Tyre slip (a real car's rear axle slides
+by a few tenths of a degree to a few degrees at high lateral acceleration) violates the
+constraint and enters as model error.
 
-Motion model: constant turn rate and velocity (CTRV),
+Motion model: constant turn rate and acceleration (CTRA) over each step, integrated exactly.
+With ``q = omega dt`` and ``F_k(q) = integral_0^1 u^(k-1) exp(i q u) du`` (complex, x + i y;
+:func:`motion_integrals`),
 
-    px' = px + v dt (cos(yaw) f1 - sin(yaw) f2),  py' = py + v dt (sin(yaw) f1 + cos(yaw) f2)
-    yaw' = yaw + omega dt,   v' = v,   omega' = omega,
-    f1 = sin(q)/q, f2 = (1 - cos q)/q, q = omega dt (series below |q| = 1e-4),
+    p' = p + exp(i yaw) (v dt F1(q) + a dt^2 F2(q)),  yaw' = yaw + q,  v' = v + a dt,
+    a' = a,  omega' = omega.
 
-driven by white longitudinal acceleration (sd ``sigma_accel``) and yaw acceleration
-(``sigma_yaw_accel``): ``Q = G diag(sa^2, sy^2) G^T`` with ``G = [[dt^2/2 cos yaw, 0],
-[dt^2/2 sin yaw, 0], [0, dt^2/2], [dt, 0], [0, dt]]`` (discrete white-noise acceleration).
+The acceleration is in the state because a vehicle accelerates at its limit for seconds
+(a car from 5 to 15 m/s at 3 m/s^2): a constant-velocity filter then lags, and at 10 Hz with
+centimetre fixes it fails its own gates (measured on models/paths/car_block.toml: ~100
+restarts per run with constant velocity, none with CTRA).
 
 Process noise and gates from the platform's limits (never tuned on truth)
 -------------------------------------------------------------------------
-``sigma_accel = max_accel_mps2 / 2`` and ``sigma_yaw_accel = max_yaw_accel_radps2 / 2``: the
-rule for the white-noise acceleration model of Bar-Shalom, Li and Kirubarajan, *Estimation
-with Applications to Tracking and Navigation* (2001), Section 6.3.2: the noise sd "of the order
-of the maximum acceleration magnitude a_M", in ``[0.5 a_M, a_M]``; we take the lower end since
-a ground vehicle spends most of its time below its limits. The turn rate is bounded by the
-platform: ``|omega| <= min(max_turn_rate_radps, max_lateral_accel_mps2 / |v|)`` (the
-lateral-acceleration limit ``|v omega| <= a_lat``), enforced by projection after each update.
-Gates are chi-square tests on the innovation covariance, which carries that process noise, so
-they widen with the platform's agility and the time since the last update. The limits come
-from the vehicle: the path file's ``max_accel_mps2``, ``max_turn_rate_radps``,
-``max_lateral_accel_mps2`` and the controller's yaw-acceleration limit (the sweep reads them
-from the simulated vehicle; :meth:`PoseFilterParams.from_limits`).
+Bar-Shalom, Li and Kirubarajan, *Estimation with Applications to Tracking and Navigation*
+(2001), Section 6.3: discrete-time process noise whose sd is "of the order of" the largest
+change the platform can make, in ``[0.5, 1]`` of it; we take the lower end, a ground
+vehicle spending most of its time below its limits:
+
+- along the heading, the discrete Wiener-process acceleration model (6.3.3): the
+  acceleration changes between samples by a random increment of sd ``max_accel_mps2 / 2``
+  (it can switch from 0 to the limit from one sample to the next), gain
+  ``(dt^2/2 cos yaw, dt^2/2 sin yaw, 0, dt, 1, 0)``; over a longer gap the increments add
+  (variance times ``dt / dt_median``);
+- in yaw, the discrete white-noise acceleration model (6.3.2): a yaw acceleration of sd
+  ``max_yaw_accel_radps2 / 2``, constant over the sample (the rate-limited turn command of
+  a wheeled platform changes smoothly over a turn, which lasts longer than a sample), gain
+  ``(-v dt^3/6 sin yaw, v dt^3/6 cos yaw, dt^2/2, 0, 0, dt)``: it turns the platform and,
+  through the turn over the sample, moves M sideways (at 1 Hz and 1.5 m/s by 0.125 m per
+  sd; without that term the filter is sure of its lateral position at the onset of a sharp
+  turn and rejects centimetre fixes that are right).
+
+The limits also bound the state, by projection after each update: ``|a| <= max_accel_mps2``
+and ``|omega| <= min(max_turn_rate_radps, max_lateral_accel_mps2 / |v|)`` (the lateral
+acceleration ``v omega``). Gates are chi-square tests on the innovation covariance, which
+carries that process noise, so they widen with the platform's agility and the time since
+the last update. The limits come from the vehicle: the path file's ``max_accel_mps2``,
+``max_turn_rate_radps``, ``max_lateral_accel_mps2`` and the controller's yaw-acceleration
+limit (the sweep reads them from the simulated vehicle; :meth:`PoseFilterParams.from_limits`).
 
 Measurements
 ------------
@@ -51,10 +68,10 @@ For every antenna ``i`` with body offset ``r_i`` from M:
 - its fix, ``z_i = p + R(yaw) r_i + e``, ``e ~ N(0, sigma_abs^2 I)``; Jacobian
   ``[I, J R r_i, 0, 0]`` (J the 90 degree rotation);
 - its displacement since its last accepted fix ``tau`` seconds earlier (at most
-  :data:`MAX_STEP_GAP` sample intervals), as a function of the current state through the CTRV
-  motion run backwards: ``z_i(t) - z_i(t - tau) = R(yaw) u_i`` with
-  ``u_i = (v tau f1 + (1 - cos q) r_x - sin q r_y, -v tau f2 + sin q r_x + (1 - cos q) r_y)``,
-  ``q = omega tau``; noise sd ``sigma_step * sqrt(max(1, tau / dt_median))``.
+  :data:`MAX_STEP_GAP` sample intervals), as a function of the current state through the
+  CTRA motion run backwards: ``z_i(t) - z_i(t - tau) = exp(i yaw) (v tau conj(F1) -
+  a tau^2 conj(F2) + (1 - exp(-i q)) r_i)``, ``q = omega tau``; noise sd
+  ``sigma_step * sqrt(max(1, tau / dt_median))``.
 
 Why the displacements: GNSS position errors are strongly correlated in time (multipath and
 atmosphere change over minutes; the dissertation's Section 4.3 sees no "sharp jaggedness"),
@@ -78,10 +95,16 @@ the receivers' values instead.
 Forward speed that cannot flip silently
 ---------------------------------------
 With ``reverse=False`` (a platform that does not reverse: the default) the speed is
-non-negative. After each update a negative speed is either insignificant (``v > -3 sd``:
-projected to 0) or means the heading is off by pi: then ``yaw += pi, v = -v`` (the same
-motion, the covariance mapped by ``diag(1, 1, 1, -1, 1)``) and the epoch's status is
-``"flip_corrected"``: reported, never silent. With ``reverse=True`` the speed is signed
+non-negative: after each update a negative speed is projected to 0. A heading that is off
+by pi shows as sustained backward travel: when the distance travelled backwards over
+consecutive epochs of negative speed exceeds the start's motion threshold
+(:data:`INIT_MOTION_SIGMAS` sd of a displacement between two fits) and the layout's own
+size (its largest antenna distance: with centimetre fixes the statistical threshold alone is
+a few centimetres, which a transient after a restart can exceed), the state is turned
+around, ``yaw += pi, v = -v, a = -a`` (the same motion, the covariance mapped by
+``diag(1, 1, 1, -1, -1, 1)``), and the epoch's status is ``"flip_corrected"``: reported,
+never silent. (A single significant negative speed is not enough: a car standing still
+with centimetre fixes shows -1 cm/s at 3 sd now and then.) With ``reverse=True`` the speed is signed
 (negative = reversing) and the direction is decided by the configuration: a running
 log-likelihood ratio of the antennas' fixes under the heading and under the heading + pi
 (exponential forgetting over ``flip_memory_s``) flips the state when the reversed pose is
@@ -91,7 +114,8 @@ Initialisation waits for data, resets are reported
 --------------------------------------------------
 The filter starts at the first epoch where the heading is known: either the configuration
 fixes it (heading sd ``sigma_abs / sqrt(sum |r_i|^2)`` below :data:`INIT_MAX_YAW_SD`, e.g.
-centimetre receivers) or the platform has moved, relative to the first fix, by more than
+centimetre receivers; then at the second of two consecutive epochs with fits, which give the
+speed) or the platform has moved, relative to the first fix, by more than
 :data:`INIT_MOTION_SIGMAS` times the sd of that displacement (then heading = course). Before
 that, rows are NaN with status ``"waiting"`` (``"no_data"`` when no antenna reported), so a
 recording that starts inside an outage, or a receiver that starts late, simply starts later.
@@ -115,7 +139,7 @@ __all__ = [
     "FilterStart",
     "INIT_MAX_YAW_SD",
     "INIT_MOTION_SIGMAS",
-    "MAX_STEP_GAP",
+    "MAX_ITERATIONS",
     "PoseFilterParams",
     "PoseFilterResult",
     "antenna_jacobians",
@@ -132,8 +156,8 @@ INIT_MAX_YAW_SD = 0.1
 #: Otherwise it starts once the CG has moved this many sd from the first fix (heading =
 #: course, error below ~1/5 rad, which the filter then removes).
 INIT_MOTION_SIGMAS = 5.0
-#: Displacements span at most this many median sample intervals (a longer gap: fix only).
-MAX_STEP_GAP = 5
+#: Most relinearisations of one update (iterated EKF, see the loop).
+MAX_ITERATIONS = 4
 #: Numerical floor of the estimated noise levels, m (noise-free data would give 0).
 NOISE_FLOOR_M = 1e-3
 
@@ -217,21 +241,21 @@ class PoseFilterResult:
 
     states (n, 6) and covariances (n, 6, 6): filtered state of the no-slip point
     ``(px, py, yaw, v, a, omega)`` and its covariance (NaN where the filter was not
-    running). pred_states / pred_covariances (n, 6) / (n, 6, 6): the prediction into each
-    epoch from the previous one, transition (n, 6, 6) its Jacobian F (row k maps epoch k-1
-    to k; NaN at segment starts).
-    segment_start (n,) bool: the filter (re)started here, or the state was flipped (a smoother
-    never crosses such an epoch). status (n,) str (:data:`STATUSES`). n_used / n_gated (n,):
-    antenna fixes accepted / rejected; n_steps (n,): displacements accepted.
+    running). prev_states (n, 6), prev_covariances (n, 6, 6): the previous epoch's state
+    re-estimated with this epoch's data (the clone after the update, ``x_{k-1|k}``), and
+    cross_covariances (n, 6, 6): ``cov(x_k, x_{k-1} | data to k)`` (NaN at segment starts).
+    segment_start (n,) bool: the filter (re)started here, or the state was flipped (a
+    smoother never crosses such an epoch). status (n,) str (:data:`STATUSES`). n_used /
+    n_gated (n,): antenna fixes accepted / rejected; n_steps (n,): displacements accepted.
     sigma_abs_m, sigma_step_m: the noise levels used. cg_offset (2,): CG in the body frame
     relative to the no-slip point (CG = p + R(yaw) cg_offset).
     """
 
     states: np.ndarray
     covariances: np.ndarray
-    pred_states: np.ndarray
-    pred_covariances: np.ndarray
-    transition: np.ndarray
+    prev_states: np.ndarray
+    prev_covariances: np.ndarray
+    cross_covariances: np.ndarray
     segment_start: np.ndarray
     status: np.ndarray
     n_used: np.ndarray
@@ -255,10 +279,17 @@ class PoseFilterResult:
 PX, PY, YAW, V, A, OMEGA = range(6)
 NX = 6
 
-#: Below this |q| = |omega tau| the integrals F_k are summed as series (module docstring).
-SERIES_BELOW = 0.25
-_SERIES_TERMS = 12
-_FACT = np.array([math.factorial(n) for n in range(_SERIES_TERMS)], dtype=float)
+#: Below this |q| = |omega tau| the integrals F_k are summed as series (module docstring):
+#: the closed forms lose digits to cancellation below it (6.6e-15 at q = 0.25, 5.8e-13 at
+#: q = 0.05, against 40-digit quadrature), the 20-term series is exact to 1e-16 up to it.
+SERIES_BELOW = 1.0
+_SERIES_TERMS = 20
+# F_k(q) = sum_n (iq)^n / (n! (n + k)): real part from the even n, imaginary from the odd n,
+# each a polynomial in q^2 (coefficients highest power first, for Horner)
+_EVEN = tuple(tuple((-1) ** (j % 2) / (math.factorial(2 * j) * (2 * j + k))
+                    for j in range(_SERIES_TERMS // 2 - 1, -1, -1)) for k in (1, 2, 3))
+_ODD = tuple(tuple((-1) ** (j % 2) / (math.factorial(2 * j + 1) * (2 * j + 1 + k))
+                   for j in range(_SERIES_TERMS // 2 - 1, -1, -1)) for k in (1, 2, 3))
 
 
 def motion_integrals(q: np.ndarray | float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -268,8 +299,8 @@ def motion_integrals(q: np.ndarray | float) -> tuple[np.ndarray, np.ndarray, np.
     ``exp(i yaw) (v tau F1 + a tau^2 F2)`` (x + i y), and ``dF_k/dq = i F_(k+1)``.
     Closed forms ``F1 = (e^iq - 1)/(iq)``, ``F2 = (e^iq - F1)/(iq)``,
     ``F3 = (e^iq - 2 F2)/(iq)`` for |q| >= :data:`SERIES_BELOW`; below, where they cancel,
-    the series ``sum_n (iq)^n / (n! (n + k))`` to n = 11 (truncation < 1e-16 there).
-    q : any shape; returns three complex arrays of that shape.
+    the series ``sum_n (iq)^n / (n! (n + k))`` to n = 19 (truncation < 1e-19 there).
+    q : any shape; returns three complex arrays of that shape (NaN for non-finite q).
     """
     q = np.asarray(q, dtype=float)
     small = np.abs(q) < SERIES_BELOW
@@ -279,11 +310,14 @@ def motion_integrals(q: np.ndarray | float) -> tuple[np.ndarray, np.ndarray, np.
     f2 = (e - f1) / (1j * qs)
     f3 = (e - 2.0 * f2) / (1j * qs)
     if small.any():
-        z = (1j * np.where(small, q, 0.0))[..., None] ** np.arange(_SERIES_TERMS) / _FACT
-        n = np.arange(_SERIES_TERMS)
-        f1 = np.where(small, (z / (n + 1)).sum(-1), f1)
-        f2 = np.where(small, (z / (n + 2)).sum(-1), f2)
-        f3 = np.where(small, (z / (n + 3)).sum(-1), f3)
+        qq = np.where(small, q, 0.0)
+        q2 = qq * qq
+        out = []
+        for k, f in enumerate((f1, f2, f3)):
+            re = np.polyval(_EVEN[k], q2)
+            im = qq * np.polyval(_ODD[k], q2)
+            out.append(np.where(small, re + 1j * im, f))
+        f1, f2, f3 = out
     return f1, f2, f3
 
 
@@ -295,14 +329,15 @@ def _integrals_scalar(q: float) -> tuple[complex, complex, complex]:
         f1 = (e - 1.0) / iq
         f2 = (e - f1) / iq
         return f1, f2, (e - 2.0 * f2) / iq
-    f1 = f2 = f3 = 0j
-    term = 1.0 + 0j                    # (iq)^n / n!
-    for n in range(_SERIES_TERMS):
-        f1 += term / (n + 1)
-        f2 += term / (n + 2)
-        f3 += term / (n + 3)
-        term *= 1j * q / (n + 1)
-    return f1, f2, f3
+    q2 = q * q
+    out = []
+    for k in range(3):
+        re = im = 0.0
+        for ce, co in zip(_EVEN[k], _ODD[k]):
+            re = re * q2 + ce
+            im = im * q2 + co
+        out.append(complex(re, q * im))
+    return out[0], out[1], out[2]
 
 
 def _predict(x: np.ndarray, P: np.ndarray, dt: float, qa: float, qy: float
@@ -325,11 +360,12 @@ def _predict(x: np.ndarray, P: np.ndarray, dt: float, qa: float, qy: float
     # discrete process noise (module docstring): the acceleration changes by a random
     # increment (variance qa, per sample) along the heading, the yaw acceleration is a
     # random constant (variance qy) over the sample
-    c, s = rot.real, rot.imag
     h = 0.5 * dt * dt
-    ga = np.array([h * c, h * s, 0.0, dt, 1.0, 0.0])
-    gy = np.array([0.0, 0.0, h, 0.0, 0.0, dt])
-    Q = qa * np.outer(ga, ga) + qy * np.outer(gy, gy)
+    g = v * dt * h / 3.0                  # a yaw acceleration alpha moves M sideways by
+    G = np.array([[h * rot.real, -g * rot.imag],     # v alpha dt^3 / 6
+                  [h * rot.imag, g * rot.real],
+                  [0.0, h], [dt, 0.0], [1.0, 0.0], [0.0, dt]])
+    Q = (G * (qa, qy)) @ G.T
     Pn = F @ P @ F.T + Q
     xn = np.array([x[PX] + d.real, x[PY] + d.imag, _wrap(yaw + om * dt), v + acc * dt, acc,
                    om])
@@ -358,50 +394,56 @@ _TWO_PI = 2.0 * math.pi
 
 
 # ----------------------------------------------------------------------------- measurements
-def antenna_jacobians(x: np.ndarray, r: np.ndarray, tau: np.ndarray | None = None
+def antenna_jacobians(x: np.ndarray, r: np.ndarray, x_prev: np.ndarray | None = None
                       ) -> tuple[np.ndarray, np.ndarray]:
     """Predicted measurements and Jacobians for antennas at body offsets r (k, 2) from M.
 
-    tau None: fixes, ``h (k, 2) = p + R(yaw) r``. tau (k,) seconds: displacements since
-    ``tau`` ago under CTRA (module docstring), ``h = exp(i yaw) (v tau conj(F1) -
-    a tau^2 conj(F2) + (1 - exp(-iq)) r)``. Returns h (k, 2) and H (k, 2, 6).
+    x_prev None: fixes, ``h (k, 2) = p + R(yaw) r``, H (k, 2, 6). x_prev (6,): each
+    antenna's displacement from the state x_prev to the state x, ``h = (p + R(yaw) r) -
+    (p' + R(yaw') r)``, H (k, 2, 12) over the stacked state ``(x, x_prev)``.
     """
     x = np.asarray(x, dtype=float)
     r = np.asarray(r, dtype=float)
-    c, s = math.cos(x[YAW]), math.sin(x[YAW])
-    k = r.shape[0]
-    H = np.zeros((k, 2, NX))
-    h = np.empty((k, 2))
-    if tau is None:
-        rx = c * r[:, 0] - s * r[:, 1]
-        ry = s * r[:, 0] + c * r[:, 1]
-        H[:, 0, PX] = 1.0
-        H[:, 1, PY] = 1.0
-        H[:, 0, YAW] = -ry
-        H[:, 1, YAW] = rx
-        h[:, 0] = x[PX] + rx
-        h[:, 1] = x[PY] + ry
-        return h, H
-    tau = np.asarray(tau, dtype=float)
-    v, acc, om = x[V], x[A], x[OMEGA]
-    rc = r[:, 0] + 1j * r[:, 1]
-    if tau.size and (tau == tau[0]).all():   # the usual case: one sample interval for all
-        f1, f2, f3 = (np.conj(f) for f in _integrals_scalar(om * float(tau[0])))
-        eq = complex(math.cos(om * tau[0]), -math.sin(om * tau[0]))
-    else:
-        f1, f2, f3 = (np.conj(f) for f in motion_integrals(om * tau))
-        eq = np.exp(-1j * om * tau)
-    rot = complex(c, s)
-    u = rot * (v * tau * f1 - acc * tau * tau * f2 + (1.0 - eq) * rc)
-    du_v = rot * tau * f1 * np.ones(k)
-    du_a = -rot * tau * tau * f2 * np.ones(k)
-    # d/domega = tau d/dq; d conj(F_k)/dq = -i conj(F_(k+1)), d(1 - e^-iq)/dq = i e^-iq
-    du_q = rot * tau * (-1j * v * tau * f2 + 1j * acc * tau * tau * f3 + 1j * eq * rc)
-    h[:, 0], h[:, 1] = u.real, u.imag
-    H[:, 0, YAW], H[:, 1, YAW] = -u.imag, u.real           # d/dyaw = J h
-    H[:, 0, V], H[:, 1, V] = du_v.real, du_v.imag
-    H[:, 0, A], H[:, 1, A] = du_a.real, du_a.imag
-    H[:, 0, OMEGA], H[:, 1, OMEGA] = du_q.real, du_q.imag
+    if x_prev is None:
+        h, H = _measurements(np.concatenate((x, x)), r, r[:0])
+        return h, H[:, :, :NX]
+    return _measurements(np.concatenate((x, np.asarray(x_prev, dtype=float))), r[:0], r)
+
+
+def _measurements(y: np.ndarray, ra: np.ndarray, rd: np.ndarray
+                  ) -> tuple[np.ndarray, np.ndarray]:
+    """Fixes of the antennas at offsets ra (ka, 2) and displacements since the previous
+    epoch of those at rd (kd, 2), stacked, for the stacked state ``y = (x, x_prev)`` (12,):
+    h (ka + kd, 2) and H (ka + kd, 2, 12) (a fix touches x only, a displacement both)."""
+    ka, kd = ra.shape[0], rd.shape[0]
+    c, s = math.cos(y[YAW]), math.sin(y[YAW])
+    H = np.zeros((ka + kd, 2, 2 * NX))
+    h = np.empty((ka + kd, 2))
+    if ka:
+        rx = c * ra[:, 0] - s * ra[:, 1]
+        ry = s * ra[:, 0] + c * ra[:, 1]
+        H[:ka, 0, PX] = 1.0
+        H[:ka, 1, PY] = 1.0
+        H[:ka, 0, YAW] = -ry
+        H[:ka, 1, YAW] = rx
+        h[:ka, 0] = y[PX] + rx
+        h[:ka, 1] = y[PY] + ry
+    if kd:
+        cp, sp = math.cos(y[NX + YAW]), math.sin(y[NX + YAW])
+        rx = c * rd[:, 0] - s * rd[:, 1]
+        ry = s * rd[:, 0] + c * rd[:, 1]
+        px = cp * rd[:, 0] - sp * rd[:, 1]
+        py = sp * rd[:, 0] + cp * rd[:, 1]
+        h[ka:, 0] = y[PX] - y[NX + PX] + rx - px
+        h[ka:, 1] = y[PY] - y[NX + PY] + ry - py
+        H[ka:, 0, PX] = 1.0
+        H[ka:, 1, PY] = 1.0
+        H[ka:, 0, YAW] = -ry
+        H[ka:, 1, YAW] = rx
+        H[ka:, 0, NX + PX] = -1.0
+        H[ka:, 1, NX + PY] = -1.0
+        H[ka:, 0, NX + YAW] = py
+        H[ka:, 1, NX + YAW] = -px
     return h, H
 
 
@@ -417,23 +459,31 @@ def _quad2(M: np.ndarray, e: np.ndarray, guard: bool = False) -> np.ndarray:
     return np.divide(num, det, out=np.zeros_like(num), where=det > 1e-12 * np.abs(a * c))
 
 
-def _info_update(x: np.ndarray, Pinv: np.ndarray, nu: np.ndarray, H: np.ndarray,
-                 w: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Information-form update with the measurements given (H (a, 2, n), weights w (a,))."""
+def _gain_update(x: np.ndarray, P: np.ndarray, nu: np.ndarray, H: np.ndarray,
+                 var: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Gain-form update with the measurements given (H (a, 2, n), per-axis variances var
+    (a,)): ``K = P H^T S^-1``, ``S = H P H^T + R``; Joseph form for P+ (stays symmetric
+    positive semi-definite to rounding even for centimetre measurements on a metre prior)."""
     Hf = H.reshape(-1, H.shape[-1])
-    HtW = Hf.T * np.repeat(w, 2)                            # (n, 2a)
-    Pn = np.linalg.inv(Pinv + HtW @ Hf)
-    Pn = 0.5 * (Pn + Pn.T)
-    return x + Pn @ (HtW @ nu.reshape(-1)), Pn
+    PHt = P @ Hf.T
+    S = Hf @ PHt
+    S[np.diag_indices_from(S)] += np.repeat(var, 2)
+    K = np.linalg.solve(S, PHt.T).T                         # S symmetric: K = P H^T S^-1
+    IKH = -K @ Hf
+    IKH[np.diag_indices_from(IKH)] += 1.0
+    Pn = IKH @ P @ IKH.T + (K * np.repeat(var, 2)) @ K.T
+    return x + K @ nu.reshape(-1), 0.5 * (Pn + Pn.T)
 
 
 def kalman_update(x: np.ndarray, P: np.ndarray, nu: np.ndarray, H: np.ndarray,
-                  var: np.ndarray, gate: float = math.inf, max_deleted: int = 3
+                  var: np.ndarray, gate: float = math.inf, max_deleted: int = 3,
+                  accept: np.ndarray | None = None
                   ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Joint EKF update with k two-dimensional measurements, robustly gated.
 
     nu (k, 2) innovations, H (k, 2, n) Jacobians, var (k,) per-axis noise variances (R_i =
-    var_i I). Two tests, both at the chi-square(2) quantile ``gate``:
+    var_i I); P may be singular (the filter's stacked state of two epochs is). Two tests,
+    both at the chi-square(2) quantile ``gate``:
 
     1. prior gate: a measurement whose NIS ``nu_i^T S_i^-1 nu_i`` (``S_i = H_i P H_i^T +
        R_i``) exceeds ``gate`` is left out;
@@ -445,15 +495,18 @@ def kalman_update(x: np.ndarray, P: np.ndarray, nu: np.ndarray, H: np.ndarray,
        alone cannot (e.g. a displacement from an outlying fix while the platform's agility
        makes the predicted spread wide).
 
-    The accepted measurements update in information form, ``P+ = (P^-1 + sum H_i^T H_i /
-    var_i)^-1``, ``x+ = x + P+ sum H_i^T nu_i / var_i``, the same update as the textbook
-    gain form (tested against FilterPy) with n x n inverses only. The yaw component of x+
-    is not wrapped here. Returns (x+, P+, accepted (k,)).
+    The accepted measurements update jointly in gain form (tested against FilterPy). The
+    yaw component of x+ is not wrapped here. ``accept`` (k,) bool replaces test 1 (the
+    caller's own choice of candidates; test 2 still runs). Returns (x+, P+, accepted (k,)).
     """
     k = nu.shape[0]
     if k == 0:
         return x, P, np.zeros(0, dtype=bool)
-    if gate != math.inf:
+    if accept is not None:
+        acc = np.array(accept, dtype=bool)
+        if not acc.any():
+            return x, P, acc
+    elif gate != math.inf:
         S = (H @ P) @ H.transpose(0, 2, 1)
         S[:, 0, 0] += var
         S[:, 1, 1] += var
@@ -462,15 +515,13 @@ def kalman_update(x: np.ndarray, P: np.ndarray, nu: np.ndarray, H: np.ndarray,
             return x, P, acc
     else:
         acc = np.ones(k, dtype=bool)
-    Pinv = np.linalg.inv(P)
-    w = 1.0 / var
     if acc.all():
-        xn, Pn = _info_update(x, Pinv, nu, H, w)
+        xn, Pn = _gain_update(x, P, nu, H, var)
         ia, Ha, nua, vara = np.arange(k), H, nu, var
     else:
         ia = np.flatnonzero(acc)
         Ha, nua, vara = H[ia], nu[ia], var[ia]
-        xn, Pn = _info_update(x, Pinv, nua, Ha, w[ia])
+        xn, Pn = _gain_update(x, P, nua, Ha, vara)
     for _ in range(max_deleted if gate != math.inf else 0):
         if ia.size < 2:
             break
@@ -484,7 +535,7 @@ def kalman_update(x: np.ndarray, P: np.ndarray, nu: np.ndarray, H: np.ndarray,
         acc[ia[worst]] = False
         keep = np.arange(ia.size) != worst
         ia, Ha, nua, vara = ia[keep], Ha[keep], nua[keep], vara[keep]
-        xn, Pn = _info_update(x, Pinv, nua, Ha, 1.0 / vara)
+        xn, Pn = _gain_update(x, P, nua, Ha, vara)
     return xn, Pn, acc
 
 
@@ -583,18 +634,19 @@ class FilterStart:
         sa, p = self.sigma_abs, self.params
         yaw_sd = sa / math.sqrt(self.r2[self.present[k]].sum())
         if yaw_sd < INIT_MAX_YAW_SD:
-            # the configuration fixes the heading; speed along it from the previous
-            # epoch's fit if there is one (a restart on the move must not start at rest)
+            # the configuration fixes the heading; the speed along it comes from the
+            # previous epoch's fit, so wait for two consecutive fits (a start on the move,
+            # e.g. after an outage, must not assume the platform at rest)
+            if k == 0 or self.cnt[k - 1] < 2:
+                return None
             yaw0, ysd = float(self.yaw[k]), yaw_sd
-            v0, vsd = 0.0, p.max_accel_mps2
-            if k > 0 and self.cnt[k - 1] >= 2:
-                dt = self.t[k] - self.t[k - 1]
-                d = self.origin[k] - self.origin[k - 1]
-                v0 = (d[0] * math.cos(yaw0) + d[1] * math.sin(yaw0)) / dt
-                vsd = math.hypot(p.max_accel_mps2 * dt, sa * math.sqrt(
-                    1.0 / self.cnt[k] + 1.0 / self.cnt[k - 1]) / dt)
-                if not p.reverse:
-                    v0 = max(v0, 0.0)
+            dt = self.t[k] - self.t[k - 1]
+            d = self.origin[k] - self.origin[k - 1]
+            v0 = (d[0] * math.cos(yaw0) + d[1] * math.sin(yaw0)) / dt
+            vsd = math.hypot(p.max_accel_mps2 * dt, sa * math.sqrt(
+                1.0 / self.cnt[k] + 1.0 / self.cnt[k - 1]) / dt)
+            if not p.reverse:
+                v0 = max(v0, 0.0)
         elif self.anchor < 0:
             self.anchor = k
             return None
@@ -619,6 +671,41 @@ class FilterStart:
         P = np.diag([pvar, pvar, ysd ** 2, vsd ** 2, p.max_accel_mps2 ** 2,
                      (0.5 * p.max_turn_rate_radps) ** 2])
         return x, P
+
+
+def _iterated_update(y, Y, z, var, gate, ra, rd, lever2, tol):
+    """One epoch's update of the stacked state ``y = (x, x_prev)`` (12,), covariance Y:
+    iterated EKF (Gauss-Newton on the same cost; Bell and Cathey 1993) with robust
+    acceptance.
+
+    The first pass gates against the prior (:func:`kalman_update`, tests 1 and 2). While a
+    step turns a heading so far that R(yaw)'s linearisation error (``dyaw^2/2 |r|``)
+    exceeds ``tol / 2`` (a tenth of the fix sd), the measurements are relinearised at the new
+    estimate; each pass also re-admits the measurements the prior gate had rejected if they
+    agree with the current posterior (a prior far off, e.g. at the onset of a sharp turn
+    sampled at 1 Hz, must not discard centimetre fixes that agree with each other), and the
+    deleted-residual test removes the ones that contradict the rest.
+    """
+    yl = y
+    acc = y1 = Y1 = None
+    for _ in range(MAX_ITERATIONS):
+        h, H = _measurements(yl, ra, rd)
+        nu = z - h if yl is y else z - h - H @ (y - yl)
+        if acc is not None and not acc.all():
+            out = np.flatnonzero(~acc)
+            Ho = H[out]
+            S = (Ho @ Y1) @ Ho.transpose(0, 2, 1)
+            S[:, 0, 0] += var[out]
+            S[:, 1, 1] += var[out]
+            acc[out[_quad2(S, nu[out] - Ho @ (y1 - y)) <= gate]] = True
+        y1, Y1, acc = kalman_update(y, Y, nu, H, var, gate, accept=acc)
+        if not acc.any():
+            break
+        turn = max(abs(_wrap(y1[YAW] - yl[YAW])), abs(_wrap(y1[NX + YAW] - yl[NX + YAW])))
+        if turn * turn * lever2 < tol * tol:
+            break
+        yl = y1
+    return y1, Y1, acc
 
 
 def _check_run_args(t, obs, offsets, params):
@@ -664,18 +751,18 @@ def run_pose_filter(t: np.ndarray, obs: np.ndarray, offsets: np.ndarray,
     sigma_step = params.sigma_step_m if params.sigma_step_m is not None else ss
     va, vs = sigma_abs ** 2, sigma_step ** 2
     dt_med = float(np.median(np.diff(tt))) if n > 1 else 1.0
-    max_gap = MAX_STEP_GAP * dt_med * (1.0 + 1e-9)
     gate = float(chi2.ppf(params.gate_prob, 2)) if params.gate_prob < 1 else math.inf
     flip_thr = float(chi2.ppf(params.gate_prob, 1)) if params.gate_prob < 1 else 10.83
     qa, qy = params.sigma_accel_step ** 2, params.sigma_yaw_accel ** 2
     om_max, alat = params.max_turn_rate_radps, params.max_lateral_accel_mps2
     a_max = params.max_accel_mps2
+    lever2 = float((r_m ** 2).sum(1).max()) if m else 0.0
 
     X = np.full((n, NX), np.nan)
     PP = np.full((n, NX, NX), np.nan)
-    XP = np.full((n, NX), np.nan)
-    PPp = np.full((n, NX, NX), np.nan)
-    FF = np.full((n, NX, NX), np.nan)
+    XC = np.full((n, NX), np.nan)
+    PC = np.full((n, NX, NX), np.nan)
+    PX_ = np.full((n, NX, NX), np.nan)
     seg = np.zeros(n, dtype=bool)
     status = np.full(n, "", dtype=object)
     n_used = np.zeros(n, dtype=int)
@@ -691,9 +778,9 @@ def run_pose_filter(t: np.ndarray, obs: np.ndarray, offsets: np.ndarray,
     llr = 0.0             # reverse mode: log-likelihood ratio for the flipped heading
     back = 0.0            # forward mode: backward travel over consecutive epochs, m
     n_alive = max(int(present.any(axis=0).sum()), 1)
-    flip_dist = INIT_MOTION_SIGMAS * sigma_abs * math.sqrt(2.0 / n_alive)
-    last_t = np.full(m, np.nan)
-    last_z = np.full((m, 2), np.nan)
+    flip_dist = max(INIT_MOTION_SIGMAS * sigma_abs * math.sqrt(2.0 / n_alive), _extent(off))
+    J = np.zeros((2 * NX, NX))                  # (x_k, x_{k-1}) = J x_{k-1} + noise
+    J[NX:, :] = np.eye(NX)
     for k in range(n):
         ik = np.flatnonzero(present[k])
         if x is None:
@@ -709,32 +796,25 @@ def run_pose_filter(t: np.ndarray, obs: np.ndarray, offsets: np.ndarray,
             X[k], PP[k], seg[k] = x, P, True
             status[k] = "reset" if lost else "init"
             n_used[k] = ik.size
-            last_t[:] = np.nan
-            last_t[ik] = tt[k]
-            last_z[ik] = obs[k, ik]
             rej_abs, rej_step, llr, back = 0, 0, 0.0, 0.0
             continue
         # -------------------------------------------------------------------- running
+        # stochastic cloning: predict x_k and keep x_{k-1} beside it, jointly Gaussian
         dt = tt[k] - tt[k - 1]
         # the acceleration's increments add up over a longer gap (random walk)
-        x, P, F = _predict(x, P, dt, qa * max(1.0, dt / dt_med), qy)
-        XP[k], PPp[k], FF[k] = x, P, F
+        xp, Pp, F = _predict(x, P, dt, qa * max(1.0, dt / dt_med), qy)
+        y = np.concatenate((xp, x))
+        J[:NX] = F
+        Y = J @ P @ J.T
+        Y[:NX, :NX] = Pp
         st = "predicted"
         if ik.size:
-            h, H = antenna_jacobians(x, r_m[ik])
-            nu = obs[k, ik] - h
-            tau = tt[k] - last_t[ik]
-            sel = np.isfinite(tau) & (tau <= max_gap)
-            js = ik[sel]
-            if js.size:
-                hd, Hd = antenna_jacobians(x, r_m[js], tau[sel])
-                nu = np.concatenate((nu, obs[k, js] - last_z[js] - hd))
-                H = np.concatenate((H, Hd))
-                var = np.concatenate((np.full(ik.size, va),
-                                      vs * np.maximum(1.0, tau[sel] / dt_med)))
-            else:
-                var = np.full(ik.size, va)
-            x1, P1, acc = kalman_update(x, P, nu, H, var, gate)
+            js = np.flatnonzero(present[k] & present[k - 1])   # displacements since k-1
+            zk = obs[k, ik]
+            z = np.concatenate((zk, obs[k, js] - obs[k - 1, js])) if js.size else zk
+            var = np.concatenate((np.full(ik.size, va), np.full(js.size, vs)))
+            y1, Y1, acc = _iterated_update(y, Y, z, var, gate, r_m[ik], r_m[js], lever2,
+                                           0.2 * sigma_abs)
             acc_abs, acc_step = acc[:ik.size], acc[ik.size:]
             n_used[k] = int(acc_abs.sum())
             n_gated[k] = ik.size - n_used[k]
@@ -749,12 +829,14 @@ def run_pose_filter(t: np.ndarray, obs: np.ndarray, offsets: np.ndarray,
                 status[k] = "waiting"
                 continue
             if acc.any():
-                x, P, st = x1, P1, "ok"
-                x[YAW] = _wrap(x[YAW])
-            good = ik[acc_abs]
-            last_t[good] = tt[k]
-            last_z[good] = obs[k, good]
+                y, Y, st = y1, Y1, "ok"
+                y[YAW] = _wrap(y[YAW])
+                y[NX + YAW] = _wrap(y[NX + YAW])
+        x, P = y[:NX].copy(), Y[:NX, :NX].copy()
+        XC[k], PC[k], PX_[k] = y[NX:], Y[NX:, NX:], Y[:NX, NX:]
+        if ik.size:
             # ------------------------------------------------------- direction of travel
+            good = ik[acc_abs]
             if not params.reverse:
                 # backward travel accumulates over consecutive epochs of negative speed;
                 # beyond the start's motion threshold the heading is off by pi: flip
@@ -775,7 +857,7 @@ def run_pose_filter(t: np.ndarray, obs: np.ndarray, offsets: np.ndarray,
                 if llr > flip_thr:
                     x, P = _flip(x, P)
                     st, llr = "flip_corrected", 0.0
-        # turn-rate limit of the platform (projection)
+        # limits of the platform (projection)
         lim = om_max if x[V] == 0 else min(om_max, alat / abs(x[V]))
         if abs(x[OMEGA]) > lim:
             x[OMEGA] = math.copysign(lim, x[OMEGA])
@@ -784,11 +866,17 @@ def run_pose_filter(t: np.ndarray, obs: np.ndarray, offsets: np.ndarray,
         X[k], PP[k], status[k] = x, P, st
         if st == "flip_corrected":
             seg[k] = True
-    return PoseFilterResult(states=X, covariances=PP, pred_states=XP, pred_covariances=PPp,
-                            transition=FF, segment_start=seg, status=status.astype(str),
-                            n_used=n_used, n_gated=n_gated, n_steps=n_steps,
-                            sigma_abs_m=float(sigma_abs), sigma_step_m=float(sigma_step),
-                            cg_offset=cg_offset)
+    return PoseFilterResult(states=X, covariances=PP, prev_states=XC, prev_covariances=PC,
+                            cross_covariances=PX_, segment_start=seg,
+                            status=status.astype(str), n_used=n_used, n_gated=n_gated,
+                            n_steps=n_steps, sigma_abs_m=float(sigma_abs),
+                            sigma_step_m=float(sigma_step), cg_offset=cg_offset)
+
+
+def _extent(offsets: np.ndarray) -> float:
+    """Largest distance between two antennas of the layout, m."""
+    d = offsets[:, None, :] - offsets[None, :, :]
+    return float(np.sqrt((d * d).sum(-1)).max()) if len(offsets) else 0.0
 
 
 def _flip(x: np.ndarray, P: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

@@ -1,19 +1,27 @@
 """Smoothers on the pose filter: full-batch Rauch-Tung-Striebel and fixed-lag.
 
-Both run backwards over the forward pass of :func:`estimator.pose_filter.run_pose_filter`
-(its filtered and predicted states and covariances and the transition Jacobians F), the
-extended RTS smoother (Rauch, Tung and Striebel 1965; Saerkkae, *Bayesian Filtering and
-Smoothing*, 2013, Algorithm 9.5 "extended RTS smoother"):
+Both run backwards over the forward pass of :func:`estimator.pose_filter.run_pose_filter`.
+That filter keeps the previous epoch's state beside the current one (stochastic cloning),
+so after each update it holds the joint Gaussian of ``(x_k, x_{k-1})`` given the data up to
+k: the current estimate ``x_{k|k}``, ``P_{k|k}``, the re-estimated previous state
+``x_{k-1|k}``, ``P_{k-1|k}`` and their cross-covariance ``B_k = cov(x_k, x_{k-1})``. The
+measurements after k do not involve ``x_{k-1}`` once ``x_k`` is given (a displacement
+links only consecutive epochs), so the smoothing recursion (the RTS recursion, Rauch, Tung
+and Striebel 1965; Saerkkae, *Bayesian Filtering and Smoothing*, 2013, Section 8.2, written
+with the one-step smoothed quantities) is
 
-    C_k   = P_{k|k} F_{k+1}^T P_{k+1|k}^-1
-    x_k^s = x_{k|k} + C_k (x_{k+1}^s - x_{k+1|k})            (heading difference wrapped)
-    P_k^s = P_{k|k} + C_k (P_{k+1}^s - P_{k+1|k}) C_k^T
+    C_k   = B_{k+1}^T P_{k+1|k+1}^-1
+    x_k^s = x_{k|k+1} + C_k (x_{k+1}^s - x_{k+1|k+1})        (heading difference wrapped)
+    P_k^s = P_{k|k+1} + C_k (P_{k+1}^s - P_{k+1|k+1}) C_k^T
+
+(for a filter whose measurements each involve one epoch this is the textbook RTS
+smoother; tested against FilterPy's ``rts_smoother``).
 
 - :func:`rts_smooth`: every epoch smoothed with all the data of its segment (offline).
 - :func:`fixed_lag_smooth`: the estimate of epoch k using the data up to ``t_k + lag_s``,
-  available ``lag_s`` seconds after the fact (on-line with a latency). For a linear-Gaussian
-  model this recursion started from the filtered state at the lag's end is exactly the
-  fixed-lag smoother; here it is the extended (linearised) one, as RTS.
+  available ``lag_s`` seconds after the fact (on-line with a latency): the same recursion
+  started from the filtered state at the lag's end (exact for a linear-Gaussian model; here
+  the extended, linearised version, as the RTS smoother).
 
 A segment is a stretch between filter (re)starts and flip corrections
 (``PoseFilterResult.segment_start``); no smoother crosses its boundary. For a platform
@@ -52,21 +60,21 @@ def _gains(res: PoseFilterResult) -> tuple[np.ndarray, np.ndarray]:
     n, nx = res.states.shape
     ok = np.zeros(n, dtype=bool)
     if n > 1:
-        ok[:-1] = (np.isfinite(res.states[:-1, 0]) & np.isfinite(res.pred_states[1:, 0])
+        ok[:-1] = (np.isfinite(res.states[:-1, 0]) & np.isfinite(res.prev_states[1:, 0])
                    & ~res.segment_start[1:])
     C = np.full((n, nx, nx), np.nan)
     k = np.flatnonzero(ok)
     if k.size:
-        # C = P_f F^T P_p^-1, via a solve with the symmetric P_p: C^T = P_p^-1 F P_f
-        Ct = np.linalg.solve(res.pred_covariances[k + 1],
-                             res.transition[k + 1] @ res.covariances[k])
+        # C = B^T P^-1 with the symmetric P = P_{k+1|k+1}: C^T = P^-1 B
+        Ct = np.linalg.solve(res.covariances[k + 1], res.cross_covariances[k + 1])
         C[k] = Ct.transpose(0, 2, 1)
     return C, ok
 
 
 def _step(xf: np.ndarray, C: np.ndarray, xs_next: np.ndarray, xp_next: np.ndarray
           ) -> np.ndarray:
-    """x_f + C (x_s' - x_p') for a batch (N, 6), the heading difference wrapped."""
+    """x_{k|k+1} + C (x_s' - x_{k+1|k+1}) for a batch (N, 6), the heading difference
+    wrapped (xf: the one-step smoothed states, xp_next: the filtered next states)."""
     d = xs_next - xp_next
     d[:, YAW] = wrap_angle(d[:, YAW])
     out = xf + np.einsum("nij,nj->ni", C, d)
@@ -96,9 +104,9 @@ def rts_smooth(res: PoseFilterResult, reverse: bool = False) -> SmoothedStates:
     for k in range(n - 2, -1, -1):
         if not ok[k]:
             continue
-        Xs[k] = _step(res.states[k:k + 1], C[k:k + 1], Xs[k + 1:k + 2].copy(),
-                      res.pred_states[k + 1:k + 2])[0]
-        Ps[k] = res.covariances[k] + C[k] @ (Ps[k + 1] - res.pred_covariances[k + 1]) @ C[k].T
+        Xs[k] = _step(res.prev_states[k + 1:k + 2], C[k:k + 1], Xs[k + 1:k + 2].copy(),
+                      res.states[k + 1:k + 2])[0]
+        Ps[k] = res.prev_covariances[k + 1] + C[k] @ (Ps[k + 1] - res.covariances[k + 1]) @ C[k].T
         Ps[k] = 0.5 * (Ps[k] + Ps[k].T)
     return SmoothedStates(states=_constrain(Xs, reverse), covariances=Ps)
 
@@ -134,7 +142,7 @@ def fixed_lag_smooth(res: PoseFilterResult, t: np.ndarray, lag_s: float,
     active = np.flatnonzero(j > np.arange(n))
     while active.size:
         jj = j[active] - 1
-        cur[active] = _step(res.states[jj], C[jj], cur[active], res.pred_states[jj + 1])
+        cur[active] = _step(res.prev_states[jj + 1], C[jj], cur[active], res.states[jj + 1])
         j[active] = jj
         active = active[jj > active]
     Xs = np.where(np.isfinite(res.states[:, :1]), cur, np.nan)

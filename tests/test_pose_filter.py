@@ -1,195 +1,527 @@
-"""EKF on the antennas: update against FilterPy, Jacobian against finite differences,
-gating and reset."""
+"""Pose filter (estimator.pose_filter) against independent references.
+
+Motion: the CTRA integrals against numerical quadrature on both sides of the series switch,
+the prediction against ODE integration, its Jacobian against finite differences, the process
+noise against the textbook discrete models written out here. Measurements: fixes and
+displacements against finite differences and against the difference of two predicted
+fixes. Update: against FilterPy's ExtendedKalmanFilter; the loop against FilterPy's update
+step by step. Behaviour: the start waits for data (outage, late receiver), the speed cannot
+flip silently (a forward platform under correlated GPS error; a platform that reverses;
+a car standing still), the car-like case, noise levels from the configuration, validation.
+"""
+
+import math
 
 import numpy as np
 import pytest
 from filterpy.kalman import ExtendedKalmanFilter
+from hypothesis import given, settings
+from hypothesis import strategies as st
+from pose_scenes import kinematic_truth, noisy
+from scipy.integrate import quad, solve_ivp
 
+from estimator.metrics import heading_error
+from estimator.orientation import wrap_angle
 from estimator.pose_filter import (
+    NX,
+    SERIES_BELOW,
     PoseFilterParams,
-    _h,
-    antenna_update,
-    ctrv_predict,
+    _predict,
+    antenna_jacobians,
+    ctra_predict,
+    estimate_noise,
+    kalman_update,
+    motion_integrals,
     run_pose_filter,
 )
+from estimator.pose_smoother import rts_smooth
+from estimator.tracking import track
 
 OFFSETS = np.array([[0.75, 0.5], [0.75, 0.0], [-0.75, 0.5], [-0.75, -0.5]])
 
 
-def test_update_matches_filterpy():
-    rng = np.random.default_rng(0)
-    x = np.array([3.0, -2.0, 0.4, 1.2, 0.1])
-    A = rng.normal(size=(5, 5))
-    P = A @ A.T + np.eye(5)
-    z = _h(x, OFFSETS)[0] + rng.normal(0, 0.5, (4, 2))
-    xn, Pn, acc = antenna_update(x, P, z, OFFSETS, sigma_meas=0.7)
-    ekf = ExtendedKalmanFilter(dim_x=5, dim_z=8)
-    ekf.x = x.copy()
-    ekf.P = P.copy()
-    ekf.update(z.reshape(-1), lambda s: _h(s, OFFSETS)[1], lambda s: _h(s, OFFSETS)[0].reshape(-1),
-               R=0.49 * np.eye(8))
-    assert acc.all()
-    # 1e-12 relative: the same algebra in a different order (solve vs inverse)
-    np.testing.assert_allclose(xn, ekf.x, rtol=1e-10, atol=1e-12)
-    np.testing.assert_allclose(Pn, ekf.P, rtol=1e-10, atol=1e-12)
+def _state(yaw=0.7, v=3.0, a=1.2, om=0.3):
+    return np.array([10.0, -4.0, yaw, v, a, om])
 
 
-@pytest.mark.parametrize("om", [0.3, -0.8, 1e-9, 0.0])
-def test_predict_jacobian_matches_finite_differences(om):
-    x = np.array([1.0, 2.0, 0.7, 1.5, om])
+def _spd(rng, n=NX):
+    A = rng.normal(size=(n, n))
+    return A @ A.T + 0.1 * np.eye(n)
+
+
+# --------------------------------------------------------------------------- motion
+def _quad_F(q, k):
+    re = quad(lambda u: u ** (k - 1) * math.cos(q * u), 0, 1, epsabs=1e-14, limit=200)[0]
+    im = quad(lambda u: u ** (k - 1) * math.sin(q * u), 0, 1, epsabs=1e-14, limit=200)[0]
+    return complex(re, im)
+
+
+@pytest.mark.parametrize("q", [0.0, 1e-9, -1e-5, 1e-4, 0.1, SERIES_BELOW * (1 - 1e-9),
+                               SERIES_BELOW, SERIES_BELOW * (1 + 1e-9), -SERIES_BELOW, 0.7,
+                               -2.5, 12.0])
+def test_motion_integrals_match_quadrature_on_both_sides_of_the_switch(q):
+    """Issue 18: the series/closed-form switch must be exact on both sides. A 2x error in
+    either branch would be ~1e-1 here (a wrong series term ~1e-3); scipy's quad certifies
+    ~1e-14 on these smooth integrands (measured against 40-digit mpmath quadrature: both
+    branches within 2e-16)."""
+    got = motion_integrals(q)
+    for k in (1, 2, 3):
+        assert abs(complex(got[k - 1]) - _quad_F(q, k)) < 1e-13
+
+
+def test_motion_integrals_scalar_and_vector_agree():
+    from estimator.pose_filter import _integrals_scalar
+
+    q = np.array([-3.0, -SERIES_BELOW, -1e-3, 0.0, 2e-6, SERIES_BELOW - 1e-12, 0.9])
+    vec = motion_integrals(q)
+    for i, qq in enumerate(q):
+        sc = _integrals_scalar(float(qq))
+        for k in range(3):
+            assert abs(sc[k] - vec[k][i]) < 1e-15
+
+
+@settings(max_examples=60, deadline=None)
+@given(st.floats(min_value=-1e6, max_value=1e6, allow_nan=False))
+def test_motion_integrals_bounded_and_differentiable(q):
+    """|F_k| <= 1/k (the integrand's modulus integrates to 1/k) and dF_k/dq = i F_(k+1)
+    (differentiate under the integral), checked by a central difference."""
+    F = motion_integrals(q)
+    for k in range(3):
+        assert abs(complex(F[k])) <= 1.0 / (k + 1) + 1e-12
+    if abs(q) < 1e3:
+        h = 1e-6 * max(1.0, abs(q))
+        Fp, Fm = motion_integrals(q + h), motion_integrals(q - h)
+        for k in range(2):
+            d = (complex(Fp[k]) - complex(Fm[k])) / (2 * h)
+            # central difference: truncation O(h^2), rounding ~1e-16/h
+            assert abs(d - 1j * complex(F[k + 1])) < 1e-6
+
+
+def test_motion_integrals_non_finite_give_nan_not_an_error():
+    F = motion_integrals(np.array([np.inf, -np.inf, np.nan]))
+    assert all(np.isnan(f).all() for f in F)
+
+
+@pytest.mark.parametrize("om", [0.0, 1e-7, 0.3, -2.0])
+@pytest.mark.parametrize("a", [0.0, 2.5, -3.0])
+def test_ctra_prediction_matches_ode_integration(om, a):
+    """The closed form against solve_ivp of dp/dt = (v + a t) (cos, sin)(yaw + omega t);
+    rtol 1e-12 in the integrator, so 1e-9 m is far above its error and far below a
+    modelling error (a missing a t^2/2 term is metres here)."""
+    x = _state(om=om, a=a)
+    dt = 1.7
+
+    def rhs(t, y):
+        th = x[2] + x[5] * t
+        return [(x[3] + x[4] * t) * math.cos(th), (x[3] + x[4] * t) * math.sin(th)]
+
+    sol = solve_ivp(rhs, (0.0, dt), x[:2], rtol=1e-12, atol=1e-12, method="DOP853")
+    xn, _ = ctra_predict(x, np.eye(NX), dt, 0.1, 0.1)
+    np.testing.assert_allclose(xn[:2], sol.y[:, -1], rtol=0, atol=1e-9)
+    assert xn[2] == pytest.approx(wrap_angle(x[2] + om * dt), abs=1e-15)
+    assert xn[3] == pytest.approx(x[3] + a * dt) and xn[4] == a and xn[5] == om
+
+
+@pytest.mark.parametrize("om", [0.3, -0.8, 1e-9, 0.0, SERIES_BELOW / 0.8 * 1.0000001])
+def test_prediction_jacobian_matches_finite_differences(om):
+    x = _state(om=om)
     dt = 0.8
-    P = np.eye(5)
-    _, Pn = ctrv_predict(x, P, dt, 1e-12, 1e-12)  # Q ~ 0: Pn = F F^T
+    _, _, F = _predict(x, np.eye(NX), dt, 0.0, 0.0)
     h = 1e-6
-    F = np.empty((5, 5))
-    for j in range(5):
-        e = np.zeros(5)
+    Fn = np.empty((NX, NX))
+    for j in range(NX):
+        e = np.zeros(NX)
         e[j] = h
-        a = ctrv_predict(x + e, P, dt, 1, 1)[0]
-        b = ctrv_predict(x - e, P, dt, 1, 1)[0]
-        F[:, j] = (a - b) / (2 * h)
-    # central differences: error O(h^2) plus rounding O(eps / h) ~ 1e-10
-    np.testing.assert_allclose(Pn, F @ F.T, atol=1e-6)
+        Fn[:, j] = (_predict(x + e, np.eye(NX), dt, 0, 0)[0]
+                    - _predict(x - e, np.eye(NX), dt, 0, 0)[0]) / (2 * h)
+    # central differences: O(h^2) truncation plus O(eps/h) ~ 1e-10 rounding
+    np.testing.assert_allclose(F, Fn, rtol=0, atol=1e-7)
 
 
-def test_predict_continuous_at_zero_yaw_rate():
-    x0 = np.array([0.0, 0.0, 1.0, 2.0, 0.0])
-    a = ctrv_predict(x0, np.eye(5), 1.0, 0.1, 0.1)[0]
-    b = ctrv_predict(x0 + np.array([0, 0, 0, 0, 1e-5]), np.eye(5), 1.0, 0.1, 0.1)[0]
-    np.testing.assert_allclose(a[:2], b[:2], atol=1e-4)
+def test_process_noise_is_the_discrete_models():
+    """Q = F 0 F^T + Q: the discrete Wiener-process acceleration along the heading (gain
+    (dt^2/2 cos, dt^2/2 sin, 0, dt, 1, 0), variance (a_max/2)^2) plus the discrete white
+    yaw acceleration (gain (0, 0, dt^2/2, 0, 0, dt), variance (alpha_max/2)^2), written
+    out independently (Bar-Shalom et al. 2001, Sections 6.3.2-6.3.3)."""
+    p = PoseFilterParams(max_accel_mps2=3.0, max_yaw_accel_radps2=1.0)
+    x = _state(yaw=0.4)
+    dt = 0.5
+    _, Q = ctra_predict(x, np.zeros((NX, NX)), dt, p.sigma_accel_step, p.sigma_yaw_accel)
+    ga = np.array([dt ** 2 / 2 * math.cos(0.4), dt ** 2 / 2 * math.sin(0.4), 0, dt, 1, 0])
+    gy = np.array([0, 0, dt ** 2 / 2, 0, 0, dt])
+    expect = 1.5 ** 2 * np.outer(ga, ga) + 0.5 ** 2 * np.outer(gy, gy)
+    np.testing.assert_allclose(Q, expect, rtol=1e-14, atol=1e-16)
 
 
-def test_gating_and_reset():
-    n = 30
-    t = np.arange(float(n))
-    x_true = np.c_[t, np.zeros(n)]
-    obs = x_true[:, None, :] + OFFSETS[None]
-    obs[20:] += 100.0  # the platform "teleports": every antenna fails the gate
-    x0 = np.array([0.0, 0.0, 0.0, 1.0, 0.0])
-    P0 = np.diag([1.0, 1.0, 0.1, 0.1, 0.01])
-    params = PoseFilterParams(sigma_meas=0.5, max_rejects=3)
-    res = run_pose_filter(t, obs, OFFSETS, x0, P0, 0, params)
-    assert res.status[0] == "init"
-    assert (res.status[1:20] == "ok").all()
-    np.testing.assert_array_equal(res.n_gated[20:22], [4, 4])
-    assert res.status[22] == "reset"  # third rejected epoch in a row
-    assert res.n_used[22] == 4
+# --------------------------------------------------------------------------- measurements
+@pytest.mark.parametrize("tau", [None, [0.1, 0.1, 0.1, 0.1], [0.1, 0.3, 1.0, 2.0]])
+def test_measurement_jacobians_match_finite_differences(tau):
+    x = _state(om=0.9)
+    T = None if tau is None else np.array(tau)
+    _, H = antenna_jacobians(x, OFFSETS, T)
+    h = 1e-6
+    Hn = np.empty_like(H)
+    for j in range(NX):
+        e = np.zeros(NX)
+        e[j] = h
+        Hn[:, :, j] = (antenna_jacobians(x + e, OFFSETS, T)[0]
+                       - antenna_jacobians(x - e, OFFSETS, T)[0]) / (2 * h)
+    np.testing.assert_allclose(H, Hn, rtol=0, atol=1e-8)
 
 
-def test_params_validation():
-    with pytest.raises(ValueError, match="sigma_meas"):
-        PoseFilterParams(sigma_meas=0)
-    with pytest.raises(ValueError, match="gate_prob"):
-        PoseFilterParams(gate_prob=1.5)
-    with pytest.raises(ValueError, match="max_rejects"):
-        PoseFilterParams(max_rejects=0)
+@pytest.mark.parametrize("om", [0.0, 1e-6, 0.4, -1.5])
+def test_displacement_is_the_difference_of_two_predicted_fixes(om):
+    """Run the motion forward by tau from x0 to x1; each antenna's displacement predicted
+    from x1 alone (backwards) equals its fix at x1 minus its fix at x0."""
+    x0 = _state(om=om, a=-1.1)
+    for tau in (0.1, 1.0, 3.0):
+        x1 = ctra_predict(x0, np.eye(NX), tau, 0.1, 0.1)[0]
+        d = antenna_jacobians(x1, OFFSETS)[0] - antenna_jacobians(x0, OFFSETS)[0]
+        got = antenna_jacobians(x1, OFFSETS, np.full(len(OFFSETS), tau))[0]
+        np.testing.assert_allclose(got, d, rtol=0, atol=1e-12)
 
 
-# --------------------------------------------------------------- equivalence with the reference
-def _scene(seed, n=400, outliers=True):
-    """Random antenna fixes around a CTRV-like track: NaN dropouts, a dead antenna, uneven
-    time steps and (optionally) bursts of gross errors that trigger gating and resets."""
-    import _ref_pose_filter  # noqa: F401  (import check: tests/ is on sys.path)
-
-    rng = np.random.default_rng(seed)
-    off = np.array([[0.75, 0.5], [0.75, 0.0], [-0.75, 0.5], [-0.75, -0.5], [0.0, 0.3]])
-    t = np.cumsum(rng.uniform(0.3, 2.0, n))
-    yaw = 0.3 + np.cumsum(rng.normal(0, 0.05, n))
-    cg = np.cumsum(np.c_[np.cos(yaw), np.sin(yaw)] * 0.5, axis=0)
-    c, s = np.cos(yaw), np.sin(yaw)
-    obs = np.stack([cg[:, None, 0] + c[:, None] * off[:, 0] - s[:, None] * off[:, 1],
-                    cg[:, None, 1] + s[:, None] * off[:, 0] + c[:, None] * off[:, 1]], -1)
-    obs += rng.normal(0, 1.0, obs.shape)
-    obs[rng.random((n, 5)) < 0.1] = np.nan
-    obs[:, 4] = np.nan  # dead antenna
-    if outliers:
-        obs[150:160] += 80.0  # every antenna off: gated, then reset
-        obs[rng.random((n, 5)) < 0.03] += 30.0
-    x0 = np.array([cg[0, 0], cg[0, 1], yaw[0], 0.5, 0.0])
-    P0 = np.diag([4.0, 4.0, 0.25, 1.0, 0.25])
-    return t, obs, off, x0, P0
+# --------------------------------------------------------------------------- update
+def test_update_matches_filterpy_extended_kalman_filter():
+    rng = np.random.default_rng(0)
+    x = _state()
+    P = _spd(rng)
+    tau = np.full(len(OFFSETS), 0.5)
+    h1, H1 = antenna_jacobians(x, OFFSETS)
+    h2, H2 = antenna_jacobians(x, OFFSETS, tau)
+    z = np.concatenate((h1 + rng.normal(0, 0.5, h1.shape), h2 + rng.normal(0, 0.05, h2.shape)))
+    H = np.concatenate((H1, H2))
+    var = np.r_[np.full(len(OFFSETS), 0.25), np.full(len(OFFSETS), 0.0025)]
+    xn, Pn, acc = kalman_update(x, P, z - np.concatenate((h1, h2)), H, var)
+    ekf = ExtendedKalmanFilter(dim_x=NX, dim_z=2 * len(z))
+    ekf.x, ekf.P = x.copy(), P.copy()
+    ekf.update(z.reshape(-1), lambda s: H.reshape(-1, NX),
+               lambda s: np.concatenate((h1, h2)).reshape(-1), R=np.diag(np.repeat(var, 2)))
+    assert acc.all()
+    # the same algebra (information vs gain form): agreement to rounding, 1e-9 relative
+    np.testing.assert_allclose(xn, ekf.x, rtol=1e-9, atol=1e-10)
+    np.testing.assert_allclose(Pn, ekf.P, rtol=1e-9, atol=1e-10)
 
 
-@pytest.mark.parametrize("seed", [0, 1, 2])
-@pytest.mark.parametrize("gate_prob", [0.999, 1.0])
-def test_run_matches_reference_implementation(seed, gate_prob):
-    """The scalar-math loop reproduces the numpy implementation it replaced (kept in
-    tests/_ref_pose_filter.py). Same algebra, except that the covariance update goes
-    through a closed-form 3x3 inverse instead of two 5x5 inverses (rounding differs);
-    1e-9 absolute on states and covariances (values are O(1-100); measured differences
-    ~3e-12 over 2000 epochs). Without gating the gross errors are left out of the scene: an
-    ungated filter fed 30-80 m outliers is so sensitive that the two implementations'
-    last-bit differences grow to metres (measured 5 m on seed 1), for either one against
-    any reordering of its own arithmetic."""
-    import _ref_pose_filter as ref
-
-    t, obs, off, x0, P0 = _scene(seed, outliers=gate_prob < 1)
-    params = PoseFilterParams(sigma_meas=1.5, gate_prob=gate_prob, max_rejects=3)
-    new = run_pose_filter(t, obs, off, x0, P0, 2, params)
-    old = ref.run_pose_filter(t, obs, off, x0, P0, 2, params)
-    np.testing.assert_array_equal(new.status, old.status)
-    np.testing.assert_array_equal(new.n_used, old.n_used)
-    np.testing.assert_array_equal(new.n_gated, old.n_gated)
-    if gate_prob < 1:
-        assert (new.status == "reset").any()
-    np.testing.assert_allclose(new.states, old.states, rtol=0, atol=1e-9)
-    np.testing.assert_allclose(new.covariances, old.covariances, rtol=0, atol=1e-9)
+def test_deleted_residual_removes_a_gross_error_the_prior_gate_lets_through():
+    """An agile prior (large speed and yaw-rate variance) makes the predicted spread of a
+    displacement wide; one displacement 0.6 m off passes that gate but contradicts the
+    three others (sd 5 mm). It must be removed, and the result equal the update without it."""
+    x = _state()
+    P = np.diag([0.01, 0.01, 0.01, 1.0, 1.0, 0.5])
+    tau = np.full(4, 1.0)
+    h, H = antenna_jacobians(x, OFFSETS, tau)
+    nu = np.zeros((4, 2))
+    nu[2] = [0.6, -0.3]
+    var = np.full(4, 0.005 ** 2)
+    gate = 13.8155  # chi2(0.999, 2)
+    S = H[2] @ P @ H[2].T + var[2] * np.eye(2)
+    assert nu[2] @ np.linalg.solve(S, nu[2]) < gate            # passes the prior gate
+    xn, Pn, acc = kalman_update(x, P, nu, H, var, gate)
+    assert acc.tolist() == [True, True, False, True]
+    keep = [0, 1, 3]
+    x2, P2, _ = kalman_update(x, P, nu[keep], H[keep], var[keep])
+    np.testing.assert_allclose(xn, x2, rtol=0, atol=1e-12)
+    np.testing.assert_allclose(Pn, P2, rtol=0, atol=1e-12)
 
 
-def test_public_steps_match_reference_implementation():
-    import _ref_pose_filter as ref
+# --------------------------------------------------------------------------- the loop
+def test_filter_loop_matches_filterpy_step_by_step():
+    """The loop's bookkeeping (which displacements, over which interval, with which
+    variance) against FilterPy's EKF update, with the prediction of ctra_predict (tested
+    above against ODE integration). No gating, a platform that never stops or exceeds a
+    limit, so no projection acts; 1e-8 on states and covariances (rounding in two update
+    forms over 120 epochs)."""
+    truth, cfg, limits = kinematic_truth("square20", "rover_gps4")
+    rng = np.random.default_rng(3)
+    obs = truth.sensor_positions[:, :, :2] + rng.normal(0, 0.2, (truth.n, cfg.m, 2))
+    obs[rng.random((truth.n, cfg.m)) < 0.15] = np.nan
+    t = truth.t
+    # limits wide enough that no projection acts (checked below), so the loop is a pure EKF
+    p = PoseFilterParams(max_accel_mps2=5.0, max_turn_rate_radps=5.0,
+                         max_lateral_accel_mps2=20.0, sigma_abs_m=0.2, sigma_step_m=0.28,
+                         gate_prob=1.0)
+    off = cfg.body_positions - cfg.cg_body
+    res = run_pose_filter(t, obs, off, p)
+    k0 = int(np.flatnonzero(res.status == "init")[0])
+    assert not np.isin(res.status, ["reset", "flip_corrected"]).any()
+    run = np.isfinite(res.states[:, 0])
+    assert (np.abs(res.states[run, 4]) < 5.0).all() and (res.states[run, 3] > 0).all()
+    del limits
+    ekf = ExtendedKalmanFilter(dim_x=NX, dim_z=2)
+    ekf.x, ekf.P = res.states[k0].copy(), res.covariances[k0].copy()
+    last = {i: k0 for i in range(cfg.m) if np.isfinite(obs[k0, i, 0])}
+    dt_med = float(np.median(np.diff(t)))
+    for k in range(k0 + 1, t.size):
+        dt = t[k] - t[k - 1]
+        ekf.x, ekf.P = ctra_predict(ekf.x, ekf.P, dt,
+                                    p.sigma_accel_step * math.sqrt(max(1.0, dt / dt_med)),
+                                    p.sigma_yaw_accel)
+        rows, zs, var = [], [], []
+        ik = [i for i in range(cfg.m) if np.isfinite(obs[k, i, 0])]
+        for i in ik:
+            rows.append((i, None))
+            zs.append(obs[k, i])
+            var.append(p.sigma_abs_m ** 2)
+        for i in ik:
+            if i in last and t[k] - t[last[i]] <= 5 * dt_med * (1 + 1e-9):
+                tau = t[k] - t[last[i]]
+                rows.append((i, tau))
+                zs.append(obs[k, i] - obs[last[i], i])
+                var.append(p.sigma_step_m ** 2 * max(1.0, tau / dt_med))
+        for i in ik:
+            last[i] = k
+        if not rows:
+            continue
 
+        def hx(s, rows=rows):
+            return np.concatenate([antenna_jacobians(s, off[[i]], None if tau is None else
+                                                     np.array([tau]))[0] for i, tau in rows])
+
+        def jac(s, rows=rows):
+            return np.concatenate([antenna_jacobians(s, off[[i]], None if tau is None else
+                                                     np.array([tau]))[1] for i, tau in rows]
+                                  ).reshape(-1, NX)
+
+        ekf.update(np.concatenate(zs), jac, lambda s: hx(s).reshape(-1),
+                   R=np.diag(np.repeat(var, 2)))
+        ekf.x[2] = wrap_angle(ekf.x[2])
+        np.testing.assert_allclose(res.states[k], ekf.x, rtol=0, atol=1e-8)
+        np.testing.assert_allclose(res.covariances[k], ekf.P, rtol=0, atol=1e-8)
+
+
+# --------------------------------------------------------------------------- behaviour
+def test_start_waits_inside_an_all_antenna_outage():
+    truth, cfg, limits = kinematic_truth("square20", "rover_gps8")
+    obs = noisy(truth, cfg, "gps_rtk", 0)
+    obs[:15] = np.nan                                   # every antenna out at the start
+    res = run_pose_filter(truth.t, obs, cfg.body_positions - cfg.cg_body)
+    assert (res.status[:15] == "no_data").all() and np.isnan(res.states[:15]).all()
+    # the configuration fixes the heading (centimetre fixes); the speed needs a second fit
+    assert res.status[15] == "waiting" and res.status[16] == "init"
+    assert np.isfinite(res.states[16:]).all()
+    assert set(res.status[16:]) <= {"init", "ok", "predicted"}
+    # the same through track: rows before the start are NaN, no error (issue 13)
+    df = track(truth.t, obs, cfg, window=1, method="ekf")
+    assert df["solver_status"].iloc[0] == "no_data" and np.isnan(df["cg_x"].iloc[0])
+    late = df["t"].to_numpy() > truth.t[20]
+    k = np.searchsorted(truth.t, df["t"].to_numpy()[late])
+    # centimetre fixes: the heading is the configuration's within a few degrees
+    assert heading_error(df["yaw"].to_numpy()[late], truth.yaw[k]).max() < 0.05
+
+
+def test_receiver_that_starts_late_is_waited_for():
+    """Issue 13: fewer than 2 sensors in the first epochs used to raise."""
+    truth, cfg, _ = kinematic_truth("square20", "rover_gps8")
+    obs = noisy(truth, cfg, "gps_rtk", 1)
+    obs[:10, 1:] = np.nan                               # only the first antenna reports
+    df = track(truth.t, obs, cfg, window=5, method="ekf")
+    st_ = df["solver_status"].to_numpy()
+    assert (st_[:6] == "waiting").all() and "init" in st_
+    assert np.isfinite(df["cg_x"].to_numpy()[8:]).all()
+
+
+@pytest.mark.parametrize("seed", [0, 3, 9])
+def test_forward_platform_never_points_backwards_under_correlated_gps_error(seed):
+    """Regression (issue 14): the old filter settled driving backwards with the heading off
+    by pi on 3 of 10 seeds of Path 1. A 0.2 m/s rover with the dissertation's eight
+    antennas and correlated consumer-GPS error: after the start the speed is >= 0 and the
+    heading within 90 degrees of the truth at every epoch."""
+    truth, cfg, limits = kinematic_truth("square20", "rover_gps8",
+                                         overrides={"cruise_speed_mps": 0.2})
+    obs = noisy(truth, cfg, "gps_stationary", seed)
+    res = run_pose_filter(truth.t, obs, cfg.body_positions - cfg.cg_body,
+                          PoseFilterParams.from_limits(limits))
+    run = np.isfinite(res.states[:, 0])
+    assert run.sum() > 0.9 * truth.n
+    assert (res.states[run, 3] >= 0).all()
+    assert (heading_error(res.states[run, 2], truth.yaw[run]) < np.pi / 2).all()
+
+
+def _back_and_forth(n_leg=200, dt=0.1, speed=2.0):
+    """A car-like layout driving 20 s forward along +x, then 20 s backwards (same heading)."""
+    from estimator.configuration import SensorConfig
+
+    cfg = SensorConfig.load("car_rtk4").planar()
+    t = np.arange(2 * n_leg) * dt
+    x = np.where(t < n_leg * dt, speed * t, speed * (2 * n_leg * dt - t))
+    cg = np.c_[x, np.zeros_like(x)]
+    off = cfg.body_positions - cfg.cg_body
+    pos = cg[:, None, :] + off[None]
+    return cfg, t, cg, pos
+
+
+def test_forward_mode_reports_a_reversing_platform_as_a_flip():
+    """With reverse=False a platform that backs up is taken to drive forward the other way:
+    the heading is turned by pi once the backward travel is significant, and that epoch is
+    reported ("flip_corrected"), never silently; the speed stays >= 0."""
+    cfg, t, cg, pos = _back_and_forth()
+    rng = np.random.default_rng(0)
+    obs = pos + rng.normal(0, 0.01, pos.shape)
+    res = run_pose_filter(t, obs, cfg.body_positions - cfg.cg_body,
+                          PoseFilterParams(max_accel_mps2=3.0))
+    flips = np.flatnonzero(res.status == "flip_corrected")
+    assert flips.size >= 1 and 200 <= flips[0] < 220
+    assert (res.states[np.isfinite(res.states[:, 3]), 3] >= 0).all()
+    assert heading_error(res.states[flips[0] + 5:, 2], np.full(400 - flips[0] - 5, 0.0)
+                         ).min() > 3.0
+
+
+def test_reverse_mode_keeps_the_heading_and_a_negative_speed():
+    cfg, t, cg, pos = _back_and_forth()
+    rng = np.random.default_rng(0)
+    obs = pos + rng.normal(0, 0.01, pos.shape)
+    res = run_pose_filter(t, obs, cfg.body_positions - cfg.cg_body,
+                          PoseFilterParams(max_accel_mps2=3.0, reverse=True))
+    assert "flip_corrected" not in set(res.status)
+    assert heading_error(res.states[:, 2], np.zeros(t.size)).max() < 0.02
+    assert (res.states[260:, 3] < -1.5).all()
+
+
+def test_a_car_standing_still_never_flips():
+    """With centimetre fixes a standing car shows a significantly negative speed now and
+    then; that alone must not turn the heading around."""
+    from estimator.configuration import SensorConfig
+
+    cfg = SensorConfig.load("car_rtk4").planar()
+    t = np.arange(600) * 0.1
+    pos = np.broadcast_to((cfg.body_positions - cfg.cg_body)[None], (600, 4, 2)).copy()
     rng = np.random.default_rng(5)
-    for _ in range(20):
-        x = rng.normal(size=5) * [10, 10, 2, 1, 0.5]
-        A = rng.normal(size=(5, 5))
-        P = A @ A.T + 0.1 * np.eye(5)
-        dt = rng.uniform(0.1, 3)
-        a, b = ctrv_predict(x, P, dt, 0.7, 0.05), ref.ctrv_predict(x, P, dt, 0.7, 0.05)
-        np.testing.assert_allclose(a[0], b[0], rtol=0, atol=1e-12)
-        np.testing.assert_allclose(a[1], b[1], rtol=1e-13, atol=1e-12)
-        z = rng.normal(size=(4, 2)) * 3 + x[:2]
-        for gate in (np.inf, 5.0):
-            a = antenna_update(x, P, z, OFFSETS, 0.9, gate)
-            b = ref.antenna_update(x, P, z, OFFSETS, 0.9, gate)
-            np.testing.assert_array_equal(a[2], b[2])
-            np.testing.assert_allclose(a[0], b[0], rtol=0, atol=1e-10)
-            np.testing.assert_allclose(a[1], b[1], rtol=1e-12, atol=1e-12)
+    obs = pos + rng.normal(0, 0.01, pos.shape)
+    res = run_pose_filter(t, obs, cfg.body_positions - cfg.cg_body,
+                          PoseFilterParams(max_accel_mps2=3.0))
+    assert "flip_corrected" not in set(res.status)
+    assert heading_error(res.states[:, 2], np.zeros(600)).max() < 0.05
+
+
+def test_car_like_case_heading_and_position():
+    """The car-like case (models/paths/car_block.toml, first 45 s: accelerating to 15 m/s,
+    braking, three corners) with four RTK antennas on a 0.8 m frame, the CG 1.3 m ahead of
+    the no-slip rear axle. Bounds: the configuration alone gives the heading to ~0.6 deg RMS
+    per epoch (1.4 cm fixes on a 0.8 m frame); the filter must beat it by using the motion
+    (measured 0.16 deg causal, 0.08 deg smoothed over the whole run), and never restart or
+    turn around. Position within 3 cm (fixes 1.5 cm per axis)."""
+    truth, cfg, limits = kinematic_truth("car_block", "car_rtk4", cg_ahead_m=1.3)
+    n = 450
+    obs = noisy(truth, cfg, "gps_rtk", 2)[:n]
+    t = truth.t[:n]
+    p = PoseFilterParams.from_limits(limits, no_slip_point_m=(-1.3, 0.0))
+    res = run_pose_filter(t, obs, cfg.body_positions - cfg.cg_body, p)
+    assert set(res.status) <= {"init", "ok"}
+    e_f = np.degrees(heading_error(res.states[:, 2], truth.yaw[:n]))
+    sm = rts_smooth(res).states
+    e_s = np.degrees(heading_error(sm[:, 2], truth.yaw[:n]))
+    assert np.sqrt(np.mean(e_f ** 2)) < 0.4 and np.sqrt(np.mean(e_s ** 2)) < 0.25
+    assert np.hypot(*(res.cg() - truth.cg[:n, :2]).T).mean() < 0.03
+
+
+# --------------------------------------------------------------------------- noise levels
+def test_estimate_noise_recovers_white_noise_levels():
+    """White noise of sd s on every antenna: each fix has sd s, each one-sample displacement
+    sd s sqrt(2); the rigid fit's residuals, corrected for the 3 fitted parameters, must
+    give both within the estimator's sampling error (MAD of ~10^4 values: ~1 %; 4 %)."""
+    truth, cfg, _ = kinematic_truth("square20", "rover_gps8")
+    rng = np.random.default_rng(11)
+    reps = [truth.sensor_positions[:, :, :2] + rng.normal(0, 0.3, (truth.n, cfg.m, 2))
+            for _ in range(40)]
+    obs = np.concatenate(reps)
+    obs[:, ~cfg.alive_mask] = np.nan
+    sa, ss = estimate_noise(obs, cfg.body_positions)
+    assert sa == pytest.approx(0.3, rel=0.04)
+    assert ss == pytest.approx(0.3 * math.sqrt(2), rel=0.04)
+
+
+def test_estimate_noise_needs_three_fixes_somewhere():
+    obs = np.full((5, 4, 2), np.nan)
+    obs[:, :2] = 1.0
+    with pytest.raises(ValueError, match="sigma_abs_m"):
+        estimate_noise(obs, OFFSETS)
+
+
+def test_noise_levels_are_translation_invariant_and_the_filter_too():
+    """UTM-sized coordinates (5e5, 4e6 m) must change nothing but the position."""
+    truth, cfg, limits = kinematic_truth("square20", "rover_gps4")
+    obs = noisy(truth, cfg, "gps_rtk", 4)
+    off = cfg.body_positions - cfg.cg_body
+    shift = np.array([5e5, 4e6])
+    a = run_pose_filter(truth.t, obs, off)
+    b = run_pose_filter(truth.t, obs + shift, off)
+    assert a.sigma_abs_m == pytest.approx(b.sigma_abs_m, rel=1e-6)
+    np.testing.assert_array_equal(a.status, b.status)
+    ok = np.isfinite(a.states[:, 0])
+    # 4e6 m carries ~1e-9 m of rounding per operation; headings agree to 1e-6 rad
+    assert np.abs(wrap_angle(a.states[ok, 2] - b.states[ok, 2])).max() < 1e-6
+    np.testing.assert_allclose(b.states[ok, :2] - shift, a.states[ok, :2], atol=1e-5)
+
+
+# --------------------------------------------------------------------------- validation
+@pytest.mark.parametrize("field", ["max_accel_mps2", "max_yaw_accel_radps2",
+                                   "max_turn_rate_radps", "max_lateral_accel_mps2",
+                                   "flip_memory_s", "lag_s", "sigma_abs_m", "sigma_step_m"])
+@pytest.mark.parametrize("bad", [0.0, -1.0, math.nan, math.inf, True, "1"])
+def test_params_reject_bad_values_naming_the_field(field, bad):
+    with pytest.raises((ValueError, TypeError), match=field):
+        PoseFilterParams(**{field: bad})
+
+
+@settings(max_examples=40, deadline=None)
+@given(st.floats(min_value=1e-300, max_value=1e300, allow_nan=False, allow_infinity=False))
+def test_params_accept_any_positive_finite_limit(v):
+    p = PoseFilterParams(max_accel_mps2=v, max_yaw_accel_radps2=v)
+    assert p.sigma_accel_step == 0.5 * v and p.sigma_yaw_accel == 0.5 * v
+
+
+@pytest.mark.parametrize("kw, field", [({"gate_prob": 0.0}, "gate_prob"),
+                                       ({"gate_prob": 1.5}, "gate_prob"),
+                                       ({"max_rejects": 0}, "max_rejects"),
+                                       ({"max_rejects": 2.0}, "max_rejects"),
+                                       ({"reverse": 1}, "reverse"),
+                                       ({"no_slip_point_m": (1.0,)}, "no_slip_point_m"),
+                                       ({"no_slip_point_m": (0.0, math.nan)},
+                                        r"no_slip_point_m\[1\]")])
+def test_params_reject_other_bad_values(kw, field):
+    with pytest.raises((ValueError, TypeError), match=field):
+        PoseFilterParams(**kw)
 
 
 def _valid_args():
     n = 6
     t = np.arange(float(n))
     obs = np.c_[t, np.zeros(n)][:, None, :] + OFFSETS[None]
-    x0 = np.array([0.0, 0.0, 0.0, 1.0, 0.0])
-    P0 = np.diag([1.0, 1.0, 0.1, 0.1, 0.01])
-    return {"t": t, "obs": obs, "offsets": OFFSETS, "x0": x0, "P0": P0, "k0": 0}
+    return {"t": t, "obs": obs, "offsets": OFFSETS}
 
 
 @pytest.mark.parametrize("field, bad", [
-    ("x0", np.zeros(4)),                       # used to run with a 4-element state
-    ("x0", np.zeros((5, 1))),
-    ("x0", np.array([0.0, 0.0, np.nan, 1.0, 0.0])),
-    ("P0", np.eye(4)),
-    ("P0", np.eye(5)[:, :, None]),
-    ("P0", np.diag([1.0, 1.0, np.inf, 1.0, 1.0])),
     ("offsets", OFFSETS[:, :1]),
     ("offsets", OFFSETS[:-1]),
+    ("offsets", np.where(OFFSETS > 0.7, np.inf, OFFSETS)),
     ("obs", np.zeros((6, 4))),
+    ("obs", np.full((6, 4, 2), np.inf)),
     ("t", np.arange(5.0)),                    # wrong length
     ("t", np.r_[0.0, 1.0, np.nan, 3.0, 4.0, 5.0]),
-    ("k0", 6),
-    ("k0", -1),
-    ("k0", 1.0),
+    ("params", "fast"),
 ])
 def test_run_pose_filter_rejects_bad_arguments_naming_the_field(field, bad):
     args = {**_valid_args(), field: bad}
-    with pytest.raises(ValueError, match=rf"^{field}:"):
+    with pytest.raises((ValueError, TypeError), match=rf"^{field}"):
         run_pose_filter(**args)
 
 
-def test_run_pose_filter_docstring_states_the_arguments():
-    doc = run_pose_filter.__doc__
-    for text in ("x0 : (5,)", "P0 : (5, 5)", "offsets : (m, 2)", "obs : (n, m, 2)",
-                 "t : (n,)", "k0 :", "params :"):
-        assert text in doc, text
+@settings(max_examples=30, deadline=None)
+@given(n=st.integers(1, 25), m=st.integers(2, 4), scale=st.sampled_from([1e-3, 1.0, 1e6]),
+       miss=st.floats(0.0, 1.0), seed=st.integers(0, 2 ** 16))
+def test_run_pose_filter_returns_a_row_per_epoch_whatever_the_data(n, m, scale, miss, seed):
+    """Random scenes (1 to 25 epochs, up to every fix missing, millimetre to megametre
+    scales): never an exception, one row per epoch, statuses from the documented set,
+    rows either all finite or all NaN."""
+    rng = np.random.default_rng(seed)
+    off = rng.normal(0, 1, (m, 2))
+    obs = rng.normal(0, scale, (n, m, 2))
+    obs[rng.random((n, m)) < miss] = np.nan
+    p = PoseFilterParams(sigma_abs_m=scale, sigma_step_m=scale)
+    res = run_pose_filter(np.arange(n, dtype=float), obs, off, p)
+    assert res.states.shape == (n, NX)
+    assert set(res.status) <= {"no_data", "waiting", "init", "reset", "ok", "predicted",
+                               "flip_corrected"}
+    fin = np.isfinite(res.states)
+    assert (fin.all(axis=1) | ~fin.any(axis=1)).all()
