@@ -119,9 +119,10 @@ speed) or the platform has moved, relative to the first fix, by more than
 :data:`INIT_MOTION_SIGMAS` times the sd of that displacement (then heading = course). Before
 that, rows are NaN with status ``"waiting"`` (``"no_data"`` when no antenna reported), so a
 recording that starts inside an outage, or a receiver that starts late, simply starts later.
-If every fix (or every displacement) is rejected for ``max_rejects`` consecutive epochs the
-track is lost: the filter returns to waiting and restarts from the data (status ``"reset"`` on
-the restart epoch).
+If every fix (or every displacement) is rejected for ``max_rejects`` consecutive epochs, or the
+heading's sd has grown beyond :data:`LOST_YAW_SD` (a few seconds without any fix: the
+prediction, acceleration included, means nothing any more), the track is lost: the filter
+returns to waiting and restarts from the data (status ``"reset"`` on the restart epoch).
 """
 
 from __future__ import annotations
@@ -139,6 +140,7 @@ __all__ = [
     "FilterStart",
     "INIT_MAX_YAW_SD",
     "INIT_MOTION_SIGMAS",
+    "LOST_YAW_SD",
     "MAX_ITERATIONS",
     "PoseFilterParams",
     "PoseFilterResult",
@@ -156,6 +158,9 @@ INIT_MAX_YAW_SD = 0.1
 #: Otherwise it starts once the CG has moved this many sd from the first fix (heading =
 #: course, error below ~1/5 rad, which the filter then removes).
 INIT_MOTION_SIGMAS = 5.0
+#: Heading sd (rad) beyond which a track is lost (45 degrees: R(yaw) is no longer near its
+#: linearisation within 2 sd); reached after a few seconds without data.
+LOST_YAW_SD = math.pi / 4
 #: Most relinearisations of one update (iterated EKF, see the loop).
 MAX_ITERATIONS = 4
 #: Numerical floor of the estimated noise levels, m (noise-free data would give 0).
@@ -459,20 +464,18 @@ def _quad2(M: np.ndarray, e: np.ndarray, guard: bool = False) -> np.ndarray:
     return np.divide(num, det, out=np.zeros_like(num), where=det > 1e-12 * np.abs(a * c))
 
 
-def _gain_update(x: np.ndarray, P: np.ndarray, nu: np.ndarray, H: np.ndarray,
-                 var: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Gain-form update with the measurements given (H (a, 2, n), per-axis variances var
-    (a,)): ``K = P H^T S^-1``, ``S = H P H^T + R``; Joseph form for P+ (stays symmetric
-    positive semi-definite to rounding even for centimetre measurements on a metre prior)."""
-    Hf = H.reshape(-1, H.shape[-1])
-    PHt = P @ Hf.T
-    S = Hf @ PHt
-    S[np.diag_indices_from(S)] += np.repeat(var, 2)
-    K = np.linalg.solve(S, PHt.T).T                         # S symmetric: K = P H^T S^-1
-    IKH = -K @ Hf
-    IKH[np.diag_indices_from(IKH)] += 1.0
-    Pn = IKH @ P @ IKH.T + (K * np.repeat(var, 2)) @ K.T
-    return x + K @ nu.reshape(-1), 0.5 * (Pn + Pn.T)
+def _block_quad(M: np.ndarray, e: np.ndarray, guard: bool = False) -> np.ndarray:
+    """e_i^T B_i^-1 e_i for the 2 x 2 diagonal blocks B_i of the symmetric M (2k, 2k) and
+    e (k, 2) (see :func:`_quad2`)."""
+    d = np.diagonal(M)
+    a, c = d[0::2], d[1::2]
+    b = np.diagonal(M, 1)[0::2]
+    ex, ey = e[:, 0], e[:, 1]
+    det = a * c - b * b
+    num = c * ex * ex - 2.0 * b * ex * ey + a * ey * ey
+    if not guard:
+        return num / det
+    return np.divide(num, det, out=np.zeros_like(num), where=det > 1e-12 * np.abs(a * c))
 
 
 def kalman_update(x: np.ndarray, P: np.ndarray, nu: np.ndarray, H: np.ndarray,
@@ -482,61 +485,61 @@ def kalman_update(x: np.ndarray, P: np.ndarray, nu: np.ndarray, H: np.ndarray,
     """Joint EKF update with k two-dimensional measurements, robustly gated.
 
     nu (k, 2) innovations, H (k, 2, n) Jacobians, var (k,) per-axis noise variances (R_i =
-    var_i I); P may be singular (the filter's stacked state of two epochs is). Two tests,
-    both at the chi-square(2) quantile ``gate``:
+    var_i I); P may be singular (the filter's stacked state of two epochs is). Gain form:
+    ``S = H P H^T + R`` over the accepted measurements, ``x+ = x + P H^T S^-1 nu``,
+    ``P+ = P - P H^T S^-1 H P`` (tested against FilterPy). Two tests, both at the
+    chi-square(2) quantile ``gate``:
 
-    1. prior gate: a measurement whose NIS ``nu_i^T S_i^-1 nu_i`` (``S_i = H_i P H_i^T +
-       R_i``) exceeds ``gate`` is left out;
-    2. deleted residual (the dissertation's Section 3.3.2 idea on the filter): after the
-       update, each accepted measurement's residual ``e_i = nu_i - H_i (x+ - x)`` against
-       ``C_i = R_i - H_i P+ H_i^T`` is the test of that measurement against all the others
-       and the prior (leave-one-out); the worst one above ``gate`` is removed and the update
-       redone, at most ``max_deleted`` times. This catches a gross error that the prior
-       alone cannot (e.g. a displacement from an outlying fix while the platform's agility
-       makes the predicted spread wide).
+    1. prior gate: a measurement whose NIS ``nu_i^T S_ii^-1 nu_i`` exceeds ``gate`` is left
+       out;
+    2. deleted residual (the dissertation's Section 3.3.2 idea on the filter): each
+       accepted measurement's residual after the joint update, ``e_i = (R S^-1 nu)_i``,
+       against its covariance ``C_i = (R S^-1 R)_ii`` is the test of that measurement
+       against all the others and the prior (leave-one-out); with ``u = S^-1 nu`` the
+       statistic is ``u_i^T ((S^-1)_ii)^-1 u_i``. The worst one above ``gate`` is removed
+       and the update redone, at most ``max_deleted`` times. This catches a gross error
+       that the prior alone cannot (e.g. a displacement from an outlying fix while the
+       platform's agility makes the predicted spread wide).
 
-    The accepted measurements update jointly in gain form (tested against FilterPy). The
-    yaw component of x+ is not wrapped here. ``accept`` (k,) bool replaces test 1 (the
+    The yaw component of x+ is not wrapped here. ``accept`` (k,) bool replaces test 1 (the
     caller's own choice of candidates; test 2 still runs). Returns (x+, P+, accepted (k,)).
     """
     k = nu.shape[0]
     if k == 0:
         return x, P, np.zeros(0, dtype=bool)
+    Hf = H.reshape(2 * k, -1)
+    PHt = P @ Hf.T
+    S = Hf @ PHt
+    S.flat[::2 * k + 1] += np.repeat(var, 2)
     if accept is not None:
         acc = np.array(accept, dtype=bool)
-        if not acc.any():
-            return x, P, acc
     elif gate != math.inf:
-        S = (H @ P) @ H.transpose(0, 2, 1)
-        S[:, 0, 0] += var
-        S[:, 1, 1] += var
-        acc = _quad2(S, nu) <= gate
-        if not acc.any():
-            return x, P, acc
+        acc = _block_quad(S, nu) <= gate
     else:
         acc = np.ones(k, dtype=bool)
-    if acc.all():
-        xn, Pn = _gain_update(x, P, nu, H, var)
-        ia, Ha, nua, vara = np.arange(k), H, nu, var
-    else:
+    nuf = nu.reshape(-1)
+    deletions = max_deleted if gate != math.inf else 0
+    while acc.any():
         ia = np.flatnonzero(acc)
-        Ha, nua, vara = H[ia], nu[ia], var[ia]
-        xn, Pn = _gain_update(x, P, nua, Ha, vara)
-    for _ in range(max_deleted if gate != math.inf else 0):
-        if ia.size < 2:
-            break
-        C = -((Ha @ Pn) @ Ha.transpose(0, 2, 1))
-        C[:, 0, 0] += vara
-        C[:, 1, 1] += vara
-        stat = _quad2(C, nua - Ha @ (xn - x), guard=True)
-        worst = int(stat.argmax())
-        if not stat[worst] > gate:
-            break
-        acc[ia[worst]] = False
-        keep = np.arange(ia.size) != worst
-        ia, Ha, nua, vara = ia[keep], Ha[keep], nua[keep], vara[keep]
-        xn, Pn = _gain_update(x, P, nua, Ha, vara)
-    return xn, Pn, acc
+        if ia.size < k:
+            rows = np.empty(2 * ia.size, dtype=int)
+            rows[0::2], rows[1::2] = 2 * ia, 2 * ia + 1
+            Sa = S[np.ix_(rows, rows)]
+        else:
+            rows, Sa = slice(None), S
+        Sinv = np.linalg.inv(Sa)
+        u = Sinv @ nuf[rows]
+        if deletions and ia.size >= 2:
+            stat = _block_quad(Sinv, u.reshape(-1, 2), guard=True)
+            worst = int(stat.argmax())
+            if stat[worst] > gate:
+                acc[ia[worst]] = False
+                deletions -= 1
+                continue
+        K = PHt[:, rows]
+        Pn = P - K @ Sinv @ K.T
+        return x + K @ u, 0.5 * (Pn + Pn.T), acc
+    return x, P, acc
 
 
 # ----------------------------------------------------------------------------- noise levels
@@ -857,6 +860,14 @@ def run_pose_filter(t: np.ndarray, obs: np.ndarray, offsets: np.ndarray,
                 if llr > flip_thr:
                     x, P = _flip(x, P)
                     st, llr = "flip_corrected", 0.0
+        if P[YAW, YAW] > LOST_YAW_SD ** 2:
+            # predicted so long without data that the heading means nothing: lost; wait
+            # for data and restart (e.g. a long outage)
+            x = P = None
+            starter.reset()
+            lost = True
+            status[k] = "waiting"
+            continue
         # limits of the platform (projection)
         lim = om_max if x[V] == 0 else min(om_max, alat / abs(x[V]))
         if abs(x[OMEGA]) > lim:

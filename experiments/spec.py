@@ -47,8 +47,10 @@ Axes (scalar or list; the dict-valued ones take a table or a list of tables):
   (:data:`TECHNIQUES`), ``solver`` (:data:`SOLVERS`), ``dyn_window`` (small window of the
   dynamic technique, default 1), ``turning`` ("controller" flag or estimate-based "detector").
   Axes that do not apply to a technique are recorded as "-" (0 for ``dyn_window``): the
-  solver for motion_compensated / ekf / naive, the weighting for ekf / naive, and
-  dyn_window / turning for techniques without the dynamic window.
+  solver for motion_compensated / naive and the pose-filter family (ekf, ekf_fixed_lag,
+  ekf_smoother, gtsam), the weighting for naive and that family, and dyn_window / turning
+  for techniques without the dynamic window. The filter family takes the platform's limits
+  and no-slip point from the simulated vehicle (the path file and the vehicle model).
 
 Names resolve to files at load time, and each cell's identity includes a hash of the files'
 contents, so editing a configuration invalidates exactly the cells that used it.
@@ -69,6 +71,7 @@ from typing import Any
 
 __all__ = [
     "AXES",
+    "FILTER_TECHNIQUES",
     "MASKS",
     "PRESETS_DIR",
     "SOLVERS",
@@ -93,15 +96,18 @@ _HUFF_T = re.compile(r"^huff:(\d+(\.\d+)?)$")
 #: "lc_course" is the lag correction with the course (direction of the estimated velocity)
 #: in place of the platform orientation (estimator.lag, variant "course").
 TECHNIQUES = ("none", "lc", "dyn", "lc+dyn", "lc_course", "lc_course+dyn", "motion_compensated",
-              "ekf", "naive")
+              "ekf", "naive", "ekf_fixed_lag", "ekf_smoother", "gtsam")
+#: Issue 14: the pose filter's fixed-lag and full RTS smoothers, and the GTSAM fixed-lag
+#: factor-graph peer (optional dependency gtsam; a spec naming it fails on load without it).
+FILTER_TECHNIQUES = ("ekf", "ekf_fixed_lag", "ekf_smoother", "gtsam")
 SOLVERS = ("procrustes", "slsqp", "ccp")
 MASKS = ("full", "no_turns")
 TURNING = ("controller", "detector")
 
 #: Techniques that do not use the window solver / take no weights / no dynamic window: the
 #: axis value is recorded as "-" (not applicable) so such cells are not duplicated.
-NO_SOLVER = ("motion_compensated", "ekf", "naive")
-NO_WEIGHTS = ("ekf", "naive")
+NO_SOLVER = ("motion_compensated", "ekf", "naive", "ekf_fixed_lag", "ekf_smoother", "gtsam")
+NO_WEIGHTS = ("ekf", "naive", "ekf_fixed_lag", "ekf_smoother", "gtsam")
 DYNAMIC = ("dyn", "lc+dyn", "lc_course+dyn")
 
 #: Every axis and its default when neither [defaults] nor a grid block sets it.
@@ -506,6 +512,12 @@ def _check_axis(axis: str, v: object, where: str, base: Path, *, scalar: bool) -
     elif axis == "technique":
         if v not in TECHNIQUES:
             raise SpecError(f"{where}: unknown technique {v!r}; allowed: {list(TECHNIQUES)}")
+        if v == "gtsam":
+            import importlib.util
+
+            if importlib.util.find_spec("gtsam") is None:
+                raise SpecError(f"{where}: technique 'gtsam' needs the optional dependency "
+                                "gtsam: pip install -e '.[gtsam]'")
     elif axis == "solver":
         if v not in SOLVERS:
             raise SpecError(f"{where}: unknown solver {v!r}; allowed: {list(SOLVERS)}")

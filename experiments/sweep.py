@@ -61,6 +61,7 @@ __all__ = [
     "cell_rng",
     "code_version",
     "evaluate_cell",
+    "filter_params_for",
     "main",
     "run",
     "simulate_truth",
@@ -168,7 +169,23 @@ _TECHNIQUE_KW = {
     "motion_compensated": {"method": "motion_compensated"},
     "ekf": {"method": "ekf"},
     "naive": {"method": "naive"},
+    "ekf_fixed_lag": {"method": "ekf_fixed_lag"},
+    "ekf_smoother": {"method": "ekf_smoother"},
+    "gtsam": {"method": "gtsam"},
 }
+
+
+def filter_params_for(truth):
+    """The pose filter's parameters for a simulated vehicle (issue 14): its limits (the
+    path's speed, acceleration, turn-rate and lateral-acceleration limits and the
+    controller's yaw-acceleration limit, as the simulator drove them) and its no-slip point
+    (the driven axle's midpoint, read from the vehicle model by the simulator). Nothing
+    here is fitted to the truth's trajectory."""
+    from estimator.pose_filter import PoseFilterParams
+
+    ns = truth.meta.get("no_slip_point_m", (0.0, 0.0))
+    return PoseFilterParams.from_limits(truth.meta["params"]["controller"],
+                                        no_slip_point_m=(float(ns[0]), float(ns[1])))
 
 
 def _observations(cell: Cell, truth, config, ctx: CellContext) -> np.ndarray:
@@ -303,6 +320,8 @@ def evaluate_cell(cell: Cell, truth, ctx: CellContext) -> CellOutput:
         kw["dynamic_window"] = cell.dyn_window
         turning = truth.turning.astype(bool) if cell.turning == "controller" else "detect"
     weighting, extra = cell.weighting, {}
+    if kw.get("method") in ("ekf", "ekf_fixed_lag", "ekf_smoother", "gtsam"):
+        extra["filter_params"] = filter_params_for(truth)
     if weighting == "-":
         weighting = "none"
     elif weighting.startswith("huff:"):
