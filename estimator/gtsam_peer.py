@@ -187,11 +187,7 @@ def run_gtsam_peer(t: np.ndarray, obs: np.ndarray, offsets: np.ndarray,
     for k in range(n):
         ik = np.flatnonzero(present[k])
         if smoother is None:
-            if ik.size == 0:
-                status[k] = "no_data"
-                continue
-            status[k] = "waiting"
-            got = starter.offer(k)
+            status[k], got = starter.wait(k)
             if got is None:
                 continue
             x0, P0 = got

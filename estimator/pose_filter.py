@@ -456,30 +456,26 @@ def _measurements(y: np.ndarray, ra: np.ndarray, rd: np.ndarray
     return h, H
 
 
-def _quad2(M: np.ndarray, e: np.ndarray, guard: bool = False) -> np.ndarray:
-    """e_i^T M_i^-1 e_i for symmetric 2 x 2 matrices M (k, 2, 2) and vectors e (k, 2).
-    With ``guard``, 0 where M_i is singular to rounding (no redundancy left to test)."""
-    a, b, c = M[:, 0, 0], M[:, 0, 1], M[:, 1, 1]
+def _quad_form(a, b, c, e: np.ndarray, guard: bool) -> np.ndarray:
+    """e_i^T [[a, b], [b, c]]_i^-1 e_i, vectorised; with ``guard``, 0 where the matrix is
+    singular to rounding (no redundancy left to test against)."""
     ex, ey = e[:, 0], e[:, 1]
     det = a * c - b * b
     num = c * ex * ex - 2.0 * b * ex * ey + a * ey * ey
     if not guard:
         return num / det
     return np.divide(num, det, out=np.zeros_like(num), where=det > 1e-12 * np.abs(a * c))
+
+
+def _quad2(M: np.ndarray, e: np.ndarray, guard: bool = False) -> np.ndarray:
+    """e_i^T M_i^-1 e_i for symmetric 2 x 2 matrices M (k, 2, 2) and vectors e (k, 2)."""
+    return _quad_form(M[:, 0, 0], M[:, 0, 1], M[:, 1, 1], e, guard)
 
 
 def _block_quad(M: np.ndarray, e: np.ndarray, guard: bool = False) -> np.ndarray:
-    """e_i^T B_i^-1 e_i for the 2 x 2 diagonal blocks B_i of the symmetric M (2k, 2k) and
-    e (k, 2) (see :func:`_quad2`)."""
+    """e_i^T B_i^-1 e_i for the 2 x 2 diagonal blocks B_i of the symmetric M (2k, 2k)."""
     d = np.diagonal(M)
-    a, c = d[0::2], d[1::2]
-    b = np.diagonal(M, 1)[0::2]
-    ex, ey = e[:, 0], e[:, 1]
-    det = a * c - b * b
-    num = c * ex * ex - 2.0 * b * ex * ey + a * ey * ey
-    if not guard:
-        return num / det
-    return np.divide(num, det, out=np.zeros_like(num), where=det > 1e-12 * np.abs(a * c))
+    return _quad_form(d[0::2], np.diagonal(M, 1)[0::2], d[1::2], e, guard)
 
 
 def kalman_update(x: np.ndarray, P: np.ndarray, nu: np.ndarray, H: np.ndarray,
@@ -633,6 +629,13 @@ class FilterStart:
     def reset(self) -> None:
         """Forget the anchor (after a lost track)."""
         self.anchor = -1
+
+    def wait(self, k: int) -> tuple[str, tuple[np.ndarray, np.ndarray] | None]:
+        """One waiting epoch: ("no_data", None) without any fix, else ("waiting", None) or
+        ("waiting", (x0, P0)) when the filter starts here (:meth:`offer`)."""
+        if not self.present[k].any():
+            return "no_data", None
+        return "waiting", self.offer(k)
 
     def offer(self, k: int) -> tuple[np.ndarray, np.ndarray] | None:
         """The start state at epoch k, or None to keep waiting."""
@@ -790,11 +793,7 @@ def run_pose_filter(t: np.ndarray, obs: np.ndarray, offsets: np.ndarray,
         ik = np.flatnonzero(present[k])
         if x is None:
             # ---------------------------------------------------------------- waiting
-            if ik.size == 0:
-                status[k] = "no_data"
-                continue
-            status[k] = "waiting"
-            got = starter.offer(k)
+            status[k], got = starter.wait(k)
             if got is None:
                 continue
             x, P = got
