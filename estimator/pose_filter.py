@@ -163,6 +163,8 @@ INIT_MOTION_SIGMAS = 5.0
 LOST_YAW_SD = math.pi / 4
 #: Most relinearisations of one update (iterated EKF, see the loop).
 MAX_ITERATIONS = 4
+#: Fewest displacement values for their robust scale (MAD of 50 values: ~15 % sd).
+MIN_NOISE_SAMPLES = 50
 #: Numerical floor of the estimated noise levels, m (noise-free data would give 0).
 NOISE_FLOOR_M = 1e-3
 
@@ -583,8 +585,10 @@ def estimate_noise(obs: np.ndarray, offsets: np.ndarray) -> tuple[float, float]:
     ``1 / sqrt(1 - 3 / (2k))`` (3 pose parameters taken from 2k numbers) and
     ``sigma_abs = 1.4826 median |residual|`` (MAD, robust to outliers). ``sigma_step`` is the
     same statistic of one antenna's residual change between consecutive epochs with the same
-    antennas reporting (its fit removes the shared motion). The error every antenna shares is
-    invisible to both (it moves the fit). Both are floored at :data:`NOISE_FLOOR_M`.
+    antennas reporting (its fit removes the shared motion); with fewer than
+    :data:`MIN_NOISE_SAMPLES` such values, ``sqrt(2) sigma_abs`` (white noise). The error
+    every antenna shares is invisible to both (it moves the fit). Both are floored at
+    :data:`NOISE_FLOOR_M`.
     Raises ValueError if no epoch has 3 or more fixes (nothing to estimate from).
     """
     obs = np.asarray(obs, dtype=float)
@@ -602,7 +606,10 @@ def estimate_noise(obs: np.ndarray, offsets: np.ndarray) -> tuple[float, float]:
     same = good[1:] & good[:-1] & np.all(present[1:] == present[:-1], axis=1)
     d = ((res[1:] - res[:-1]) * scale[1:, None, None])[same].ravel()
     d = d[np.isfinite(d)]
-    sigma_step = 1.4826 * float(np.median(np.abs(d))) if d.size else sigma_abs * math.sqrt(2)
+    # too few displacement samples for a robust scale: the white-noise relation (an upper
+    # value: time-correlated errors change less between samples)
+    sigma_step = (1.4826 * float(np.median(np.abs(d))) if d.size >= MIN_NOISE_SAMPLES
+                  else sigma_abs * math.sqrt(2))
     return max(sigma_abs, NOISE_FLOOR_M), max(sigma_step, NOISE_FLOOR_M)
 
 
