@@ -474,10 +474,14 @@ def _quad2(M: np.ndarray, e: np.ndarray, guard: bool = False) -> np.ndarray:
     return _quad_form(M[:, 0, 0], M[:, 0, 1], M[:, 1, 1], e, guard)
 
 
-def _block_quad(M: np.ndarray, e: np.ndarray, guard: bool = False) -> np.ndarray:
-    """e_i^T B_i^-1 e_i for the 2 x 2 diagonal blocks B_i of the symmetric M (2k, 2k)."""
-    d = np.diagonal(M)
-    return _quad_form(d[0::2], np.diagonal(M, 1)[0::2], d[1::2], e, guard)
+def _block_quad(M: np.ndarray, e: np.ndarray) -> np.ndarray:
+    """e_i^T B_i^-1 e_i for the 2 x 2 diagonal blocks B_i of the symmetric positive
+    definite M (2k, 2k)."""
+    d = M.ravel()[::M.shape[0] + 1]
+    a, c = d[0::2], d[1::2]
+    b = M.ravel()[1::2 * M.shape[0] + 2]
+    ex, ey = e[:, 0], e[:, 1]
+    return (c * ex * ex - 2.0 * b * ex * ey + a * ey * ey) / (a * c - b * b)
 
 
 def kalman_update(x: np.ndarray, P: np.ndarray, nu: np.ndarray, H: np.ndarray,
@@ -532,7 +536,8 @@ def kalman_update(x: np.ndarray, P: np.ndarray, nu: np.ndarray, H: np.ndarray,
         Sinv = np.linalg.inv(Sa)
         u = Sinv @ nuf[rows]
         if deletions and ia.size >= 2:
-            stat = _block_quad(Sinv, u.reshape(-1, 2), guard=True)
+            # S^-1 is positive definite, so are its diagonal blocks: no singular case
+            stat = _block_quad(Sinv, u.reshape(-1, 2))
             worst = int(stat.argmax())
             if stat[worst] > gate:
                 acc[ia[worst]] = False
