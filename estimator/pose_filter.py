@@ -96,11 +96,14 @@ Forward speed that cannot flip silently
 ---------------------------------------
 With ``reverse=False`` (a platform that does not reverse: the default) the speed is
 non-negative: after each update a negative speed is projected to 0. A heading that is off
-by pi shows as sustained backward travel: when the distance travelled backwards over
-consecutive epochs of negative speed exceeds the start's motion threshold
-(:data:`INIT_MOTION_SIGMAS` sd of a displacement between two fits) and the layout's own
-size (its largest antenna distance: with centimetre fixes the statistical threshold alone is
-a few centimetres, which a transient after a restart can exceed), the state is turned
+by pi shows as sustained backward travel: when the distance the no-slip point travelled
+backwards (its displacement from the previous pose along the heading, both re-estimated with
+the epoch's data) over consecutive intervals exceeds the start's motion threshold
+(:data:`INIT_MOTION_SIGMAS` sd of a displacement between two fits), the layout's own
+size (its largest antenna distance) and the travel of one sample at the acceleration limit
+(``a_max dt^2``: the filter's own overshoot when the platform stops; with centimetre fixes
+the statistical threshold alone is a few centimetres, which such a transient exceeds), the
+state is turned
 around, ``yaw += pi, v = -v, a = -a`` (the same motion, the covariance mapped by
 ``diag(1, 1, 1, -1, -1, 1)``), and the epoch's status is ``"flip_corrected"``: reported,
 never silent. (A single significant negative speed is not enough: a car standing still
@@ -695,14 +698,15 @@ class FilterStart:
         return x, P
 
 
-def _iterated_update(y, Y, z, var, gate, ra, rd, lever2, tol):
+def _iterated_update(y, Y, z, var, gate, ra, rd, lever, tol):
     """One epoch's update of the stacked state ``y = (x, x_prev)`` (12,), covariance Y:
     iterated EKF (Gauss-Newton on the same cost; Bell and Cathey 1993) with robust
     acceptance.
 
     The first pass gates against the prior (:func:`kalman_update`, tests 1 and 2). While a
-    step turns a heading so far that R(yaw)'s linearisation error (``dyaw^2/2 |r|``)
-    exceeds ``tol / 2`` (a tenth of the fix sd), the measurements are relinearised at the new
+    step turns a heading so far that R(yaw)'s linearisation error (``dyaw^2/2 |r|``, ``|r|``
+    the longest lever arm) exceeds ``tol`` (a tenth of the fix sd), the measurements are
+    relinearised at the new
     estimate; each pass also re-admits the measurements the prior gate had rejected if they
     agree with the current posterior (a prior far off, e.g. at the onset of a sharp turn
     sampled at 1 Hz, must not discard centimetre fixes that agree with each other), and the
@@ -724,7 +728,7 @@ def _iterated_update(y, Y, z, var, gate, ra, rd, lever2, tol):
         if not acc.any():
             break
         turn = max(abs(_wrap(y1[YAW] - yl[YAW])), abs(_wrap(y1[NX + YAW] - yl[NX + YAW])))
-        if turn * turn * lever2 < tol * tol:
+        if 0.5 * turn * turn * lever < tol:      # R(yaw) r's second-order term
             break
         yl = y1
     return y1, Y1, acc
@@ -778,7 +782,7 @@ def run_pose_filter(t: np.ndarray, obs: np.ndarray, offsets: np.ndarray,
     qa, qy = params.sigma_accel_step ** 2, params.sigma_yaw_accel ** 2
     om_max, alat = params.max_turn_rate_radps, params.max_lateral_accel_mps2
     a_max = params.max_accel_mps2
-    lever2 = float((r_m ** 2).sum(1).max()) if m else 0.0
+    lever = float(np.sqrt((r_m ** 2).sum(1).max())) if m else 0.0
 
     X = np.full((n, NX), np.nan)
     PP = np.full((n, NX, NX), np.nan)
@@ -800,7 +804,8 @@ def run_pose_filter(t: np.ndarray, obs: np.ndarray, offsets: np.ndarray,
     llr = 0.0             # reverse mode: log-likelihood ratio for the flipped heading
     back = 0.0            # forward mode: backward travel over consecutive epochs, m
     n_alive = max(int(present.any(axis=0).sum()), 1)
-    flip_dist = max(INIT_MOTION_SIGMAS * sigma_abs * math.sqrt(2.0 / n_alive), _extent(off))
+    flip_dist = max(INIT_MOTION_SIGMAS * sigma_abs * math.sqrt(2.0 / n_alive), _extent(off),
+                    a_max * dt_med * dt_med)
     for k in range(n):
         ik = np.flatnonzero(present[k])
         if x is None:
@@ -829,8 +834,8 @@ def run_pose_filter(t: np.ndarray, obs: np.ndarray, offsets: np.ndarray,
             zk = obs[k, ik]
             z = np.concatenate((zk, obs[k, js] - obs[k - 1, js])) if js.size else zk
             var = np.concatenate((np.full(ik.size, va), np.full(js.size, vs)))
-            y1, Y1, acc = _iterated_update(y, Y, z, var, gate, r_m[ik], r_m[js], lever2,
-                                           0.2 * sigma_abs)
+            y1, Y1, acc = _iterated_update(y, Y, z, var, gate, r_m[ik], r_m[js], lever,
+                                           0.1 * sigma_abs)
             acc_abs, acc_step = acc[:ik.size], acc[ik.size:]
             n_used[k] = int(acc_abs.sum())
             n_gated[k] = ik.size - n_used[k]
@@ -854,9 +859,14 @@ def run_pose_filter(t: np.ndarray, obs: np.ndarray, offsets: np.ndarray,
             # ------------------------------------------------------- direction of travel
             good = ik[acc_abs]
             if not params.reverse:
-                # backward travel accumulates over consecutive epochs of negative speed;
-                # beyond the start's motion threshold the heading is off by pi: flip
-                back = back - x[V] * dt if x[V] < 0.0 else 0.0
+                # backward travel of the no-slip point over consecutive intervals (its
+                # displacement from the previous pose, re-estimated with this epoch's data,
+                # along the mean heading: the speed itself may swing when only the mean
+                # over each interval is well measured); beyond the threshold: flip
+                mh = y[YAW] + 0.5 * _wrap(y[NX + YAW] - y[YAW])
+                step = ((y[PX] - y[NX + PX]) * math.cos(mh)
+                        + (y[PY] - y[NX + PY]) * math.sin(mh))
+                back = back - step if step < 0.0 else 0.0
                 if back > flip_dist:
                     x, P = _flip(x, P)
                     st, back = "flip_corrected", 0.0
