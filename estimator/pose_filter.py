@@ -143,6 +143,8 @@ import math
 from dataclasses import dataclass, field
 
 import numpy as np
+from scipy.linalg.lapack import dgetrf as _dgetrf
+from scipy.linalg.lapack import dgetri as _dgetri
 from scipy.stats import chi2
 
 from estimator._checks import check_array, check_fields, check_increasing_times, check_int
@@ -364,6 +366,9 @@ def _integrals_scalar(q: float) -> tuple[complex, complex, complex]:
     return out[0], out[1], out[2]
 
 
+_EYE = np.eye(NX)
+
+
 def _predict(x: np.ndarray, P: np.ndarray, dt: float, qa: float, qy: float
              ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """CTRA prediction: (x', P', F). See :func:`ctra_predict`."""
@@ -374,7 +379,7 @@ def _predict(x: np.ndarray, P: np.ndarray, dt: float, qa: float, qy: float
     dv = rot * dt * f1
     da = rot * dt * dt * f2
     dq = rot * 1j * (v * dt * f2 + acc * dt * dt * f3) * dt   # d/domega = dt d/dq
-    F = np.eye(NX)
+    F = _EYE.copy()
     F[PX, YAW], F[PY, YAW] = -d.imag, d.real              # d/dyaw = J d
     F[PX, V], F[PY, V] = dv.real, dv.imag
     F[PX, A], F[PY, A] = da.real, da.imag
@@ -486,6 +491,18 @@ def _quad2(M: np.ndarray, e: np.ndarray, guard: bool = False) -> np.ndarray:
     return _quad_form(M[:, 0, 0], M[:, 0, 1], M[:, 1, 1], e, guard)
 
 
+def _inv(S: np.ndarray) -> np.ndarray:
+    """Inverse of a small non-singular matrix through LAPACK's LU (dgetrf/dgetri): half the
+    time of numpy.linalg.inv at the 10-30 rows of an innovation covariance (its per-call
+    overhead dominates there); numpy's on the rare failure, which then raises."""
+    lu, piv, info = _dgetrf(S)
+    if info == 0:
+        inv, info = _dgetri(lu, piv)
+        if info == 0:
+            return inv
+    return np.linalg.inv(S)
+
+
 def _block_quad(M: np.ndarray, e: np.ndarray) -> np.ndarray:
     """e_i^T B_i^-1 e_i for the 2 x 2 diagonal blocks B_i of the symmetric positive
     definite M (2k, 2k)."""
@@ -545,7 +562,7 @@ def kalman_update(x: np.ndarray, P: np.ndarray, nu: np.ndarray, H: np.ndarray,
             Sa = S[np.ix_(rows, rows)]
         else:
             rows, Sa = slice(None), S
-        Sinv = np.linalg.inv(Sa)
+        Sinv = _inv(Sa)
         u = Sinv @ nuf[rows]
         if deletions and ia.size >= 2:
             # S^-1 is positive definite, so are its diagonal blocks: no singular case
@@ -593,35 +610,57 @@ def _rigid_fits(obs: np.ndarray, offsets: np.ndarray
     return origin, yaw, cnt, res
 
 
+def _studentize(offsets: np.ndarray, present: np.ndarray, yaw: np.ndarray) -> np.ndarray:
+    """1 / sqrt(1 - h) per residual component (n, m, 2) of the rigid fits (linearised):
+    the fit's hat matrix for antenna i has the translation part 1/k and the rotation part
+    ``(J R rt_i)(J R rt_i)^T / sum_j |rt_j|^2`` (rt: offsets about the present antennas'
+    centroid), so ``h_xx = 1/k + (R rt_i)_y^2 / S``, ``h_yy = 1/k + (R rt_i)_x^2 / S``."""
+    w = present.astype(float)
+    k = w.sum(1)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        rc = (offsets[None] * w[..., None]).sum(1) / k[:, None]
+        rt = offsets[None] - rc[:, None]                      # (n, m, 2)
+        c, s = np.cos(yaw)[:, None], np.sin(yaw)[:, None]
+        wx = c * rt[..., 0] - s * rt[..., 1]
+        wy = s * rt[..., 0] + c * rt[..., 1]
+        S = ((wx * wx + wy * wy) * w).sum(1)[:, None]
+        hx = 1.0 / k[:, None] + wy * wy / S
+        hy = 1.0 / k[:, None] + wx * wx / S
+        return np.stack([1.0 / np.sqrt(1.0 - hx), 1.0 / np.sqrt(1.0 - hy)], -1)
+
+
 def estimate_noise(obs: np.ndarray, offsets: np.ndarray) -> tuple[float, float]:
     """Per-axis noise sd of one antenna's fix and of its one-sample displacement, metres,
     from the data alone through the configuration (module docstring).
 
     obs (n, m, 2) metres, NaN = missing; offsets (m, 2) body positions (any origin).
-    Each epoch with k >= 2 fixes is fitted rigidly (2-D Kabsch); its residuals are scaled by
-    ``1 / sqrt(1 - 3 / (2k))`` (3 pose parameters taken from 2k numbers) and
+    Each epoch with k >= 3 fixes is fitted rigidly (2-D Kabsch); each residual component is
+    studentised by its leverage in the fit, ``1 / sqrt(1 - h)`` (:func:`_studentize`: the 3
+    pose parameters take 3 of the 2k degrees of freedom, unevenly between antennas), and
     ``sigma_abs = 1.4826 median |residual|`` (MAD, robust to outliers). ``sigma_step`` is the
     same statistic of one antenna's residual change between consecutive epochs with the same
     antennas reporting (its fit removes the shared motion); with fewer than
     :data:`MIN_NOISE_SAMPLES` such values, ``sqrt(2) sigma_abs`` (white noise). The error
     every antenna shares is invisible to both (it moves the fit). Both are floored at
-    :data:`NOISE_FLOOR_M`.
+    :data:`NOISE_FLOOR_M`. The leverages are those of the linearised fit, for noise small
+    next to the layout; when the noise is as large as the layout (consumer GPS on a 1.5 m
+    roof) the fitted rotation absorbs less of it and the estimate is high by up to
+    ``sqrt((1 - 2/(2k)) / (1 - 3/(2k)))`` (4 % with 7 fixes, 15 % with 3).
     Raises ValueError if no epoch has 3 or more fixes (nothing to estimate from).
     """
     obs = np.asarray(obs, dtype=float)
     off = np.asarray(offsets, dtype=float)
-    _, _, cnt, res = _rigid_fits(obs, off)
-    with np.errstate(divide="ignore", invalid="ignore"):
-        scale = 1.0 / np.sqrt(1.0 - 3.0 / (2.0 * cnt))
+    _, yaw, cnt, res = _rigid_fits(obs, off)
     good = cnt >= 3
     if not good.any():
         raise ValueError("obs: no epoch has 3 or more antenna fixes, the noise levels cannot "
                          "be estimated; give sigma_abs_m and sigma_step_m")
-    r = (res[good] * scale[good, None, None]).ravel()
+    scale = _studentize(off, np.isfinite(obs[..., 0]), yaw)
+    r = (res[good] * scale[good]).ravel()
     sigma_abs = 1.4826 * float(np.median(np.abs(r[np.isfinite(r)])))
     present = np.isfinite(obs[..., 0])
     same = good[1:] & good[:-1] & np.all(present[1:] == present[:-1], axis=1)
-    d = ((res[1:] - res[:-1]) * scale[1:, None, None])[same].ravel()
+    d = ((res[1:] - res[:-1]) * scale[1:])[same].ravel()
     d = d[np.isfinite(d)]
     # too few displacement samples for a robust scale: the white-noise relation (an upper
     # value: time-correlated errors change less between samples)

@@ -88,27 +88,35 @@ def _constrain(X: np.ndarray, reverse: bool) -> np.ndarray:
     return X
 
 
-def rts_smooth(res: PoseFilterResult, reverse: bool = False) -> SmoothedStates:
+def rts_smooth(res: PoseFilterResult, reverse: bool = False, covariances: bool = True
+               ) -> SmoothedStates:
     """Full-batch extended RTS smoother over a filter pass (module docstring).
 
     res : the forward pass (:func:`estimator.pose_filter.run_pose_filter`).
     reverse : the filter's ``params.reverse`` (False: smoothed speeds are kept >= 0).
-    Returns :class:`SmoothedStates` with states (n, 6) and covariances (n, 6, 6).
+    covariances : also smooth the covariances (False: states only, a third of the time).
+    Returns :class:`SmoothedStates` with states (n, 6) and covariances (n, 6, 6) or None.
     """
     if not isinstance(res, PoseFilterResult):
         raise TypeError(f"res: expected a PoseFilterResult, got {type(res).__name__}")
     C, ok = _gains(res)
     Xs = res.states.copy()
-    Ps = res.covariances.copy()
-    n = Xs.shape[0]
-    for k in range(n - 2, -1, -1):
-        if not ok[k]:
-            continue
-        Xs[k] = _step(res.prev_states[k + 1:k + 2], C[k:k + 1], Xs[k + 1:k + 2].copy(),
-                      res.states[k + 1:k + 2])[0]
-        Ps[k] = res.prev_covariances[k + 1] + C[k] @ (Ps[k + 1] - res.covariances[k + 1]) @ C[k].T
-        Ps[k] = 0.5 * (Ps[k] + Ps[k].T)
+    Ps = res.covariances.copy() if covariances else None
+    for k in np.flatnonzero(ok)[::-1]:
+        d = Xs[k + 1] - res.states[k + 1]
+        d[YAW] = _wrap1(d[YAW])
+        xs = res.prev_states[k + 1] + C[k] @ d
+        xs[YAW] = _wrap1(xs[YAW])
+        Xs[k] = xs
+        if covariances:
+            Pk = res.prev_covariances[k + 1] + C[k] @ (Ps[k + 1] - res.covariances[k + 1]) @ C[k].T
+            Ps[k] = 0.5 * (Pk + Pk.T)
     return SmoothedStates(states=_constrain(Xs, reverse), covariances=Ps)
+
+
+def _wrap1(a: float) -> float:
+    """One angle to (-pi, pi] (scalar :func:`estimator.orientation.wrap_angle`)."""
+    return float(wrap_angle(float(a)))
 
 
 def fixed_lag_smooth(res: PoseFilterResult, t: np.ndarray, lag_s: float,

@@ -601,7 +601,7 @@ def _run_filter(tt, o, cfg, s, params, method):
         res = run_pose_filter(tt, o, offsets, params)
         X, status = res.states, res.status
         if method == "ekf_smoother":
-            X = _smoother.rts_smooth(res, params.reverse).states
+            X = _smoother.rts_smooth(res, params.reverse, covariances=False).states
         elif method == "ekf_fixed_lag":
             X = _smoother.fixed_lag_smooth(res, tt, params.lag_s, params.reverse).states
         extra = {"n_used": res.n_used[k0:], "n_gated": res.n_gated[k0:],
