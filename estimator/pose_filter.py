@@ -2,114 +2,413 @@
 
 The dissertation's future work (000_8f82f8df647bf685.txt, Section 5.2): "a system that takes
 advantage of extended Kalman Filter and the quadratic optimization framework using sensor
-configuration knowledge". Here the configuration enters the measurement model directly:
+configuration knowledge". Here the configuration enters the measurement model directly, and
+the filter is built to hold its heading on any wheeled platform, from a 0.2 m/s rover to a
+20 m/s car (issue 14). Its smoother (fixed-lag and full RTS) is :mod:`estimator.pose_smoother`.
 
-State ``x = (px, py, yaw, v, omega)``: CG position (m), heading (rad, CCW from +x), speed
-along the heading (m/s, negative = reversing) and yaw rate (rad/s). Motion model: constant
-turn rate and velocity (CTRV),
+State and non-holonomic constraint
+----------------------------------
+``x = (px, py, yaw, v, a, omega)``: position (m) of the platform's *no-slip point* M,
+heading (rad, CCW from +x), speed of M along the heading (m/s), its rate of change (m/s^2)
+and the yaw rate (rad/s). M is the point of the body whose velocity has no lateral
+component: the middle of the driven axle of a differential drive (the rover's axle passes
+under its CG), the middle of the rear axle of a car. Writing the velocity of M as
+``v (cos yaw, sin yaw)`` with no lateral term IS the non-holonomic constraint, exactly (a
+hard constraint, not a soft prior). Every other body point moves sideways in a turn: the
+CG, ``b_cg - b_M`` ahead of M, at ``omega (b_cg - b_M)_x``. M is given in
+:attr:`PoseFilterParams.no_slip_point_m` (body frame, relative to the configuration's CG;
+(0, 0) for the rover, (-1.3, 0) for models/car.xml). Tyre slip (a real car's rear axle slides
+by a few tenths of a degree to a few degrees at high lateral acceleration) violates the
+constraint and enters as model error.
 
-    px' = px + v/omega (sin(yaw + omega dt) - sin yaw)   (v cos(yaw) dt as omega -> 0)
-    py' = py + v/omega (cos yaw - cos(yaw + omega dt))   (v sin(yaw) dt as omega -> 0)
-    yaw' = yaw + omega dt,   v' = v,   omega' = omega,
+Motion model: constant turn rate and acceleration (CTRA) over each step, integrated exactly.
+With ``q = omega dt`` and ``F_k(q) = integral_0^1 u^(k-1) exp(i q u) du`` (complex, x + i y;
+:func:`motion_integrals`),
 
-driven by white longitudinal acceleration (``sigma_accel``, m/s^2) and yaw acceleration
-(``sigma_yaw_accel``, rad/s^2): ``Q = G diag(sa^2, sy^2) G^T`` with
-``G = [[dt^2/2 cos yaw, 0], [dt^2/2 sin yaw, 0], [0, dt^2/2], [dt, 0], [0, dt]]``.
+    p' = p + exp(i yaw) (v dt F1(q) + a dt^2 F2(q)),  yaw' = yaw + q,  v' = v + a dt,
+    a' = a,  omega' = omega.
 
-Measurements: every antenna ``i`` that reported, ``z_i = p + R(yaw) r_i + noise``, with
-``r_i = b_i - cg_body`` its known body offset from the CG and noise ``N(0, sigma_meas^2 I)``;
-Jacobian ``[I, R(yaw) J r_i, 0, 0]`` with J the 90 degree rotation. So the filter uses the
-configuration as the window fit does, sample by sample, with every antenna at its own time.
+The acceleration is in the state because a vehicle accelerates at its limit for seconds
+(a car from 5 to 15 m/s at 3 m/s^2): a constant-velocity filter then lags, and at 10 Hz with
+centimetre fixes it fails its own gates (measured on models/paths/car_block.toml: ~100
+restarts per run with constant velocity, none with CTRA).
 
-Robust gating: each antenna's innovation is tested against the predicted covariance,
-``nu_i^T S_i^{-1} nu_i <= chi2_2(gate_prob)`` (13.8 at 0.999); failures are dropped from the
-update (counted in ``n_gated``). If every reporting antenna fails for ``max_rejects``
-consecutive epochs the filter has lost track: the covariance is reset to its initial value
-and the epoch's antennas are used (status "reset"); a warning sign, reported, not hidden.
+Process noise and gates from the platform's limits (never tuned on truth)
+-------------------------------------------------------------------------
+Bar-Shalom, Li and Kirubarajan, *Estimation with Applications to Tracking and Navigation*
+(2001), Section 6.3: discrete-time process noise whose sd is "of the order of" the largest
+change the platform can make, in ``[0.5, 1]`` of it; we take the lower end, a ground
+vehicle spending most of its time below its limits:
 
-Initialisation (by :func:`estimator.tracking.track`): the motion-compensated window fit
-(:mod:`estimator.motion`, constant velocity) over the first ``s`` epochs gives position,
-heading and the speed along it.
+- along the heading, the discrete Wiener-process acceleration model (6.3.3): the
+  acceleration changes between samples by a random increment of sd ``max_accel_mps2 / 2``
+  (it can switch from 0 to the limit from one sample to the next), gain
+  ``(dt^2/2 cos yaw, dt^2/2 sin yaw, 0, dt, 1, 0)``; over a longer gap the increments add
+  (variance times ``dt / dt_median``);
+- in yaw, the discrete white-noise acceleration model (6.3.2): a yaw acceleration of sd
+  ``max_yaw_accel_radps2 / 2``, constant over the sample (the rate-limited turn command of
+  a wheeled platform changes smoothly over a turn, which lasts longer than a sample), gain
+  ``(-v dt^3/6 sin yaw, v dt^3/6 cos yaw, dt^2/2, 0, 0, dt)``: it turns the platform and,
+  through the turn over the sample, moves M sideways (at 1 Hz and 1.5 m/s by 0.125 m per
+  sd; without that term the filter is sure of its lateral position at the onset of a sharp
+  turn and rejects centimetre fixes that are right).
 
-Tuning (done once, on synthetic data; ``tests/tune_pose_filter.py`` reruns it, ~4 min): Path
-1 (square100 at 0.2 m/s, 1985 epochs at 1 Hz) driven by the MuJoCo rover with the rover_gps8
-layout, GPS errors from models/noise/gps_stationary.toml (2 m per axis, half common-mode,
-smooth Gauss-Markov, plateaus, outliers, bursty dropouts) in 4000 s sessions replayed onto
-the truth; four sessions spawned from seed 20261122, which no test and no sweep preset uses.
-Criterion: mean Euclidean CG error over the whole path, averaged over the sessions. First
-grid sigma_meas {0.5, 1, 2, 3} m x sigma_accel {0.2, 0.5, 1, 2} m/s^2 x sigma_yaw_accel
-{0.02, 0.05, 0.1, 0.2} rad/s^2: best 1.621 m at (3, 2, 0.05), worst 2.217 m; second grid {2,
-3, 4, 6} x {0.5, 1, 2} x {0.005, 0.01, 0.02, 0.05}: best 1.563 m at the defaults below (3,
-0.5, 0.01), worst 1.702 m. Same data: window-1 fit 1.535 m, motion-compensated window 10
-with yaw rate 1.533 m, window 10 1.688 m, naive window 10 1.850 m. With errors this time-
-correlated (the filter's white-noise model is wrong, and the common mode is invisible to any
-configuration method) the EKF does not beat the window-1 fit on position; its heading,
-carried by the motion model, is far better (median 0.18 rad against ~0.8 rad for the window
-fits on one such session). ``TUNING`` holds these numbers.
+The limits also bound the state, by projection after each update: ``|a| <= max_accel_mps2``
+and ``|omega| <= min(max_turn_rate_radps, max_lateral_accel_mps2 / |v|)`` (the lateral
+acceleration ``v omega``). Gates are chi-square tests on the innovation covariance, which
+carries that process noise, so they widen with the platform's agility and the time since
+the last update. The limits come from the vehicle: the path file's ``max_accel_mps2``,
+``max_turn_rate_radps``, ``max_lateral_accel_mps2`` and the controller's yaw-acceleration
+limit (the sweep reads them from the simulated vehicle; :meth:`PoseFilterParams.from_limits`).
+
+Measurements and stochastic cloning
+-----------------------------------
+For every antenna ``i`` with body offset ``r_i`` from M:
+
+- its fix, ``z_i = p + R(yaw) r_i + e``, ``e ~ N(0, sigma_abs^2 I)``; Jacobian
+  ``[I, J R r_i, 0, 0, 0]`` (J the 90 degree rotation);
+- if it also reported at the previous epoch, its displacement, ``z_i(t_k) - z_i(t_(k-1)) =
+  (p_k + R(yaw_k) r_i) - (p_(k-1) + R(yaw_(k-1)) r_i) + e``, sd ``sigma_step``.
+
+The displacement involves two epochs, so the filter keeps the previous state beside the
+current one (stochastic cloning, Roumeliotis and Burdick 2002): each epoch predicts
+``x_k`` from ``x_(k-1)`` and updates the stacked ``(x_k, x_(k-1))``, whose covariance
+``[[F P F^T + Q, F P], [P F^T, P]]`` is singular (the update is in gain form). The
+displacement is then exact, whatever the platform did between the samples; the motion
+model enters only through the prediction and its process noise. (Expressing the
+displacement through the current speed and yaw rate instead needs constant motion over the
+sample; at 1 Hz a platform entering a sharp turn breaks that, measured on square20 with
+centimetre fixes: the track was lost at every corner.) Updates are robust
+(:func:`kalman_update`: prior gate and leave-one-out test) and iterated while they turn the
+heading far (:func:`_iterated_update`).
+
+Why the displacements: GNSS position errors are strongly correlated in time (multipath and
+atmosphere change over minutes; the dissertation's Section 4.3 sees no "sharp jaggedness"),
+so one antenna's error changes little from one sample to the next even when it is metres
+large. Its epoch-to-epoch displacement therefore measures the platform's motion far better
+than two absolute fixes do, and with the non-holonomic constraint the direction of motion is
+the heading; differences between antennas' displacements measure the turn through the
+configuration. (The correlation of consecutive displacements through their shared fix, and
+the slow drift of the error, are left out of the model; the first is small next to the
+absolute fixes' noise, the second is what limits the heading, see the README.)
+
+Noise levels from the data through the configuration (no truth, no tuning)
+--------------------------------------------------------------------------
+``sigma_abs`` and ``sigma_step`` default to :func:`estimate_noise`: the rigid fit of the
+configuration to every epoch leaves residuals that are each antenna's own error (the error
+all antennas share moves the fit and cancels); their robust scale is ``sigma_abs``, and the
+robust scale of each antenna's residual change between consecutive epochs is ``sigma_step``.
+This is a calibration over the whole recording (two numbers); a strictly on-line user passes
+the receivers' values instead.
+
+Forward speed that cannot flip silently
+---------------------------------------
+With ``reverse=False`` (a platform that does not reverse: the default) the speed is
+non-negative: after each update a negative speed is projected to 0. A heading that is off
+by pi shows as sustained backward travel: when the distance the no-slip point travelled
+backwards (its displacement from the previous pose along the heading, both re-estimated with
+the epoch's data) over consecutive intervals exceeds the start's motion threshold
+(:data:`INIT_MOTION_SIGMAS` sd of a displacement between two fits), the layout's own
+size (its largest antenna distance) and the travel of one sample at the acceleration limit
+(``a_max dt^2``: the filter's own overshoot when the platform stops; with centimetre fixes
+the statistical threshold alone is a few centimetres, which such a transient exceeds), the
+state is turned around, ``yaw += pi, v = -v, a = -a`` (the same motion, the covariance mapped by
+``diag(1, 1, 1, -1, -1, 1)``), and the epoch's status is ``"flip_corrected"``: reported,
+never silent. (A single significant negative speed is not enough: a car standing still
+with centimetre fixes shows -1 cm/s at 3 sd now and then.) With ``reverse=True`` the speed
+is signed
+(negative = reversing) and the direction is decided by the configuration: a running
+log-likelihood ratio of the antennas' fixes under the heading and under the heading + pi
+(exponential forgetting over ``flip_memory_s``) flips the state when the reversed pose is
+more likely by ``chi2_1(gate_prob)``; also reported as ``"flip_corrected"``.
+
+Initialisation waits for data, resets are reported
+--------------------------------------------------
+The filter starts at the first epoch where the heading is known: either the configuration
+fixes it (heading sd ``sigma_abs / sqrt(sum |r_i|^2)`` below :data:`INIT_MAX_YAW_SD`, e.g.
+centimetre receivers; then at the second of two consecutive epochs with fits, which give the
+speed) or the platform has moved, relative to the first fix, by more than
+:data:`INIT_MOTION_SIGMAS` times the sd of that displacement (then heading = course). Before
+that, rows are NaN with status ``"waiting"`` (``"no_data"`` when no antenna reported), so a
+recording that starts inside an outage, or a receiver that starts late, simply starts later.
+If every fix (or every displacement) is rejected for ``max_rejects`` consecutive epochs, or the
+heading's sd has grown beyond :data:`LOST_YAW_SD` (a few seconds without any fix: the
+prediction, acceleration included, means nothing any more), the track is lost: the filter
+returns to waiting and restarts from the data (status ``"reset"`` on the restart epoch).
 """
 
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
+from scipy.linalg.lapack import dgetrf as _dgetrf
+from scipy.linalg.lapack import dgetri as _dgetri
 from scipy.stats import chi2
 
-from estimator._checks import check_increasing_times
+from estimator._checks import check_array, check_fields, check_increasing_times, check_int
+from estimator._checks import check_real
 
 __all__ = [
-    "TUNING",
+    "FilterStart",
+    "INIT_MAX_YAW_SD",
+    "INIT_MOTION_SIGMAS",
+    "LOST_YAW_SD",
+    "MAX_ITERATIONS",
     "PoseFilterParams",
     "PoseFilterResult",
-    "antenna_update",
-    "ctrv_predict",
+    "antenna_jacobians",
+    "ctra_predict",
+    "motion_integrals",
+    "estimate_noise",
+    "kalman_update",
     "run_pose_filter",
 ]
+
+#: Heading sd (rad) from the configuration alone below which the filter starts at once.
+#: 0.1 rad: the EKF's linearisation of R(yaw) is good to ~0.5 % there.
+INIT_MAX_YAW_SD = 0.1
+#: Otherwise it starts once the CG has moved this many sd from the first fix (heading =
+#: course, error below ~1/5 rad, which the filter then removes).
+INIT_MOTION_SIGMAS = 5.0
+#: Heading sd (rad) beyond which a track is lost (45 degrees: R(yaw) is no longer near its
+#: linearisation within 2 sd); reached after a few seconds without data.
+LOST_YAW_SD = math.pi / 4
+#: Most relinearisations of one update (iterated EKF, see the loop).
+MAX_ITERATIONS = 4
+#: Fewest displacement values for their robust scale (MAD of 50 values: ~15 % sd).
+MIN_NOISE_SAMPLES = 50
+#: Numerical floor of the estimated noise levels, m (noise-free data would give 0).
+NOISE_FLOOR_M = 1e-3
+
+STATUSES = ("", "no_data", "waiting", "init", "reset", "ok", "predicted", "flip_corrected")
 
 
 @dataclass(frozen=True)
 class PoseFilterParams:
-    """Noise and gating parameters (SI units). See the module docstring for the tuning."""
+    """Platform limits and measurement model of the pose filter (SI units).
 
-    sigma_meas: float = 3.0
-    sigma_accel: float = 0.5
-    sigma_yaw_accel: float = 0.01
+    Limits (module docstring; defaults: the rover of models/paths/square100.toml and the
+    controller's yaw-acceleration limit, sim.controllers): ``max_accel_mps2`` (longitudinal),
+    ``max_yaw_accel_radps2``, ``max_turn_rate_radps``, ``max_lateral_accel_mps2``.
+    ``sigma_abs_m`` / ``sigma_step_m``: per-axis sd of an antenna fix and of its displacement
+    over one sample interval; None = :func:`estimate_noise` on the recording.
+    ``no_slip_point_m``: (x, y) of the no-slip point in the body frame relative to the
+    configuration's CG. ``reverse``: the platform may drive backwards (signed speed).
+    ``gate_prob``: chi-square gate probability (1 = no gating). ``max_rejects``: consecutive
+    all-rejected epochs before the track is declared lost. ``flip_memory_s``: memory of the
+    configuration's heading test (reverse mode). ``lag_s``: latency of the fixed-lag smoother
+    (:mod:`estimator.pose_smoother`), s.
+    """
+
+    max_accel_mps2: float = 0.5
+    max_yaw_accel_radps2: float = 1.0
+    max_turn_rate_radps: float = 0.8
+    max_lateral_accel_mps2: float = 0.8
+    sigma_abs_m: float | None = None
+    sigma_step_m: float | None = None
+    no_slip_point_m: tuple[float, float] = (0.0, 0.0)
+    reverse: bool = False
     gate_prob: float = 0.999
     max_rejects: int = 5
+    flip_memory_s: float = 30.0
+    lag_s: float = 10.0
 
     def __post_init__(self) -> None:
-        for name in ("sigma_meas", "sigma_accel", "sigma_yaw_accel"):
-            v = getattr(self, name)
-            if not (isinstance(v, (int, float)) and np.isfinite(v) and v > 0):
-                raise ValueError(f"{name}: must be a positive number, got {v!r}")
-        if not (0.0 < self.gate_prob <= 1.0):
-            raise ValueError(f"gate_prob: must be in (0, 1], got {self.gate_prob!r}")
-        if int(self.max_rejects) != self.max_rejects or self.max_rejects < 1:
-            raise ValueError(f"max_rejects: must be an integer >= 1, got {self.max_rejects!r}")
+        check_fields(self, ("max_accel_mps2", "max_yaw_accel_radps2", "max_turn_rate_radps",
+                            "max_lateral_accel_mps2", "flip_memory_s", "lag_s"))
+        for name in ("sigma_abs_m", "sigma_step_m"):
+            if getattr(self, name) is not None:
+                check_real(getattr(self, name), name, lo=0.0, lo_open=True)
+        check_real(self.gate_prob, "gate_prob", lo=0.0, hi=1.0, lo_open=True)
+        check_int(self.max_rejects, "max_rejects", lo=1)
+        if not isinstance(self.reverse, bool):
+            raise TypeError(f"reverse: must be True or False, got {self.reverse!r}")
+        ns = self.no_slip_point_m
+        if not isinstance(ns, (tuple, list)) or len(ns) != 2:
+            raise ValueError(f"no_slip_point_m: must be (x, y) metres, got {ns!r}")
+        object.__setattr__(self, "no_slip_point_m", (
+            check_real(ns[0], "no_slip_point_m[0]"), check_real(ns[1], "no_slip_point_m[1]")))
 
+    @property
+    def sigma_accel_step(self) -> float:
+        """sd of the longitudinal acceleration's change over one sample interval, m/s^2:
+        half the limit (module docstring, discrete Wiener-process acceleration)."""
+        return 0.5 * self.max_accel_mps2
 
-#: Measured tuning results (module docstring; mean Euclidean CG error in metres).
-TUNING: dict[str, object] = {
-    "data": "square100 rover truth (0.2 m/s, 1985 epochs), gps_stationary replay, "
-            "4 sessions from seed 20261122",
-    "best": {"sigma_meas": 3.0, "sigma_accel": 0.5, "sigma_yaw_accel": 0.01,
-             "mean_cg_error_m": 1.563},
-    "references_m": {"window_1": 1.535, "motion_compensated_yaw_rate_10": 1.533,
-                     "window_10": 1.688, "naive_10": 1.850},
-}
+    @property
+    def sigma_yaw_accel(self) -> float:
+        """sd of the yaw acceleration, constant over a sample interval, rad/s^2: half the
+        limit (module docstring, discrete white-noise acceleration)."""
+        return 0.5 * self.max_yaw_accel_radps2
+
+    @classmethod
+    def from_limits(cls, limits: dict, **overrides: object) -> PoseFilterParams:
+        """Parameters from a platform's limits, e.g. a path file's fields plus the
+        controller's: keys ``max_accel_mps2``, ``max_yaw_accel_radps2``,
+        ``max_turn_rate_radps``, ``max_lateral_accel_mps2`` (absent or None: the default);
+        other keys are ignored. ``overrides`` set any field."""
+        kw = {k: limits[k] for k in ("max_accel_mps2", "max_yaw_accel_radps2",
+                                     "max_turn_rate_radps", "max_lateral_accel_mps2")
+              if limits.get(k) is not None}
+        kw.update(overrides)
+        return cls(**kw)
 
 
 @dataclass(frozen=True)
 class PoseFilterResult:
-    """states (n, 5), covariances (n, 5, 5), status (n,) str ("init" | "ok" | "predicted" |
-    "reset"), n_used (n,) antennas used in the update, n_gated (n,) antennas rejected."""
+    """The filter's forward pass, everything the smoother needs.
+
+    states (n, 6) and covariances (n, 6, 6): filtered state of the no-slip point
+    ``(px, py, yaw, v, a, omega)`` and its covariance (NaN where the filter was not
+    running). prev_states (n, 6), prev_covariances (n, 6, 6): the previous epoch's state
+    re-estimated with this epoch's data (the clone after the update, ``x_{k-1|k}``), and
+    cross_covariances (n, 6, 6): ``cov(x_k, x_{k-1} | data to k)`` (NaN at segment starts).
+    segment_start (n,) bool: the filter (re)started here, or the state was flipped (a
+    smoother never crosses such an epoch). status (n,) str (:data:`STATUSES`). n_used /
+    n_gated (n,): antenna fixes accepted / rejected; n_steps (n,): displacements accepted.
+    sigma_abs_m, sigma_step_m: the noise levels used. cg_offset (2,): CG in the body frame
+    relative to the no-slip point (CG = p + R(yaw) cg_offset).
+    """
 
     states: np.ndarray
     covariances: np.ndarray
+    prev_states: np.ndarray
+    prev_covariances: np.ndarray
+    cross_covariances: np.ndarray
+    segment_start: np.ndarray
     status: np.ndarray
     n_used: np.ndarray
     n_gated: np.ndarray
+    n_steps: np.ndarray
+    sigma_abs_m: float
+    sigma_step_m: float
+    cg_offset: np.ndarray = field(default_factory=lambda: np.zeros(2))
+
+    def cg(self, states: np.ndarray | None = None) -> np.ndarray:
+        """CG (n, 2) metres of ``states`` (default the filtered ones)."""
+        X = self.states if states is None else states
+        c, s = np.cos(X[:, 2]), np.sin(X[:, 2])
+        ox, oy = self.cg_offset
+        return np.c_[X[:, 0] + c * ox - s * oy, X[:, 1] + s * ox + c * oy]
+
+
+# ----------------------------------------------------------------------------- motion
+#: State layout: position of the no-slip point (m), heading (rad), speed (m/s),
+#: longitudinal acceleration (m/s^2), yaw rate (rad/s).
+PX, PY, YAW, V, A, OMEGA = range(6)
+NX = 6
+
+#: Below this |q| = |omega tau| the integrals F_k are summed as series (module docstring):
+#: the closed forms lose digits to cancellation below it (6.6e-15 at q = 0.25, 5.8e-13 at
+#: q = 0.05, against 40-digit quadrature), the 20-term series is exact to 1e-16 up to it.
+SERIES_BELOW = 1.0
+_SERIES_TERMS = 20
+# F_k(q) = sum_n (iq)^n / (n! (n + k)): real part from the even n, imaginary from the odd n,
+# each a polynomial in q^2 (coefficients highest power first, for Horner)
+_EVEN = tuple(tuple((-1) ** (j % 2) / (math.factorial(2 * j) * (2 * j + k))
+                    for j in range(_SERIES_TERMS // 2 - 1, -1, -1)) for k in (1, 2, 3))
+_ODD = tuple(tuple((-1) ** (j % 2) / (math.factorial(2 * j + 1) * (2 * j + 1 + k))
+                   for j in range(_SERIES_TERMS // 2 - 1, -1, -1)) for k in (1, 2, 3))
+
+
+def motion_integrals(q: np.ndarray | float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """``F_k(q) = integral_0^1 u^(k-1) exp(i q u) du`` for k = 1, 2, 3 (complex).
+
+    The CTRA motion over tau (turn q = omega tau) moves the platform by
+    ``exp(i yaw) (v tau F1 + a tau^2 F2)`` (x + i y), and ``dF_k/dq = i F_(k+1)``.
+    Closed forms ``F1 = (e^iq - 1)/(iq)``, ``F2 = (e^iq - F1)/(iq)``,
+    ``F3 = (e^iq - 2 F2)/(iq)`` for |q| >= :data:`SERIES_BELOW`; below, where they cancel,
+    the series ``sum_n (iq)^n / (n! (n + k))`` to n = 19 (truncation < 1e-19 there).
+    q : any shape; returns three complex arrays of that shape (NaN for non-finite q).
+    """
+    q = np.asarray(q, dtype=float)
+    small = np.abs(q) < SERIES_BELOW
+    qs = np.where(small, 1.0, q)
+    e = np.exp(1j * qs)
+    f1 = (e - 1.0) / (1j * qs)
+    f2 = (e - f1) / (1j * qs)
+    f3 = (e - 2.0 * f2) / (1j * qs)
+    if small.any():
+        qq = np.where(small, q, 0.0)
+        q2 = qq * qq
+        out = []
+        for k, f in enumerate((f1, f2, f3)):
+            re = np.polyval(_EVEN[k], q2)
+            im = qq * np.polyval(_ODD[k], q2)
+            out.append(np.where(small, re + 1j * im, f))
+        f1, f2, f3 = out
+    return f1, f2, f3
+
+
+def _integrals_scalar(q: float) -> tuple[complex, complex, complex]:
+    """:func:`motion_integrals` for one q (Python complex numbers, same formulas; the series
+    is cut where its next term is below 1e-17 for this |q|: 6 terms below |q| = 0.01, 10
+    below 0.1, 14 below 0.5, else 20)."""
+    aq = abs(q)
+    if aq >= SERIES_BELOW:
+        e = complex(math.cos(q), math.sin(q))
+        iq = 1j * q
+        f1 = (e - 1.0) / iq
+        f2 = (e - f1) / iq
+        return f1, f2, (e - 2.0 * f2) / iq
+    half = 3 if aq < 0.01 else 5 if aq < 0.1 else 7 if aq < 0.5 else _SERIES_TERMS // 2
+    q2 = q * q
+    out = []
+    for k in range(3):
+        ev, od = _EVEN[k], _ODD[k]
+        re = im = 0.0
+        for j in range(len(ev) - half, len(ev)):
+            re = re * q2 + ev[j]
+            im = im * q2 + od[j]
+        out.append(complex(re, q * im))
+    return out[0], out[1], out[2]
+
+
+_EYE = np.eye(NX)
+
+
+def _predict(x: np.ndarray, P: np.ndarray, dt: float, qa: float, qy: float
+             ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """CTRA prediction: (x', P', F). See :func:`ctra_predict`."""
+    yaw, v, acc, om = float(x[YAW]), float(x[V]), float(x[A]), float(x[OMEGA])
+    f1, f2, f3 = _integrals_scalar(om * dt)
+    rot = complex(math.cos(yaw), math.sin(yaw))
+    d = rot * (v * dt * f1 + acc * dt * dt * f2)          # displacement
+    dv = rot * dt * f1
+    da = rot * dt * dt * f2
+    dq = rot * 1j * (v * dt * f2 + acc * dt * dt * f3) * dt   # d/domega = dt d/dq
+    F = _EYE.copy()
+    F[PX, YAW], F[PY, YAW] = -d.imag, d.real              # d/dyaw = J d
+    F[PX, V], F[PY, V] = dv.real, dv.imag
+    F[PX, A], F[PY, A] = da.real, da.imag
+    F[PX, OMEGA], F[PY, OMEGA] = dq.real, dq.imag
+    F[YAW, OMEGA] = dt
+    F[V, A] = dt
+    # discrete process noise (module docstring): the acceleration changes by a random
+    # increment (variance qa, per sample) along the heading, the yaw acceleration is a
+    # random constant (variance qy) over the sample
+    h = 0.5 * dt * dt
+    g = v * dt * h / 3.0                  # a yaw acceleration alpha moves M sideways by
+    G = np.array([[h * rot.real, -g * rot.imag],     # v alpha dt^3 / 6
+                  [h * rot.imag, g * rot.real],
+                  [0.0, h], [dt, 0.0], [1.0, 0.0], [0.0, dt]])
+    Pn = F @ P @ F.T + (G * (qa, qy)) @ G.T
+    xn = np.array([x[PX] + d.real, x[PY] + d.imag, _wrap(yaw + om * dt), v + acc * dt, acc,
+                   om])
+    return xn, Pn, F
+
+
+def ctra_predict(x: np.ndarray, P: np.ndarray, dt: float, sigma_accel_step: float,
+                 sigma_yaw_accel: float) -> tuple[np.ndarray, np.ndarray]:
+    """CTRA prediction of state (6,) and covariance (6, 6) over dt seconds (module
+    docstring: motion model and Q); sigma_accel_step (m/s^2): sd of the acceleration's
+    change over this step, sigma_yaw_accel (rad/s^2): sd of the yaw acceleration.
+    Returns (x', P')."""
+    xn, Pn, _ = _predict(np.asarray(x, dtype=float), np.asarray(P, dtype=float), float(dt),
+                         float(sigma_accel_step) ** 2, float(sigma_yaw_accel) ** 2)
+    return xn, Pn
 
 
 def _wrap(a: float) -> float:
@@ -122,259 +421,552 @@ def _wrap(a: float) -> float:
 _TWO_PI = 2.0 * math.pi
 
 
-def _predict(x: list, P: np.ndarray, dt: float, qa: float, qy: float
-             ) -> tuple[list, np.ndarray]:
-    """CTRV prediction on a state list [px, py, yaw, v, omega] (see :func:`ctrv_predict`)."""
-    px, py, yaw, v, om = x
-    # exact CTRV written with f1 = sin(q)/q, f2 = (1 - cos q)/q, q = omega dt, which are
-    # smooth through omega = 0 (no branch, so state and Jacobian always agree)
-    q = om * dt
-    if abs(q) > 1e-4:
-        sq, cq = math.sin(q), math.cos(q)
-        f1 = sq / q
-        f2 = (1.0 - cq) / q
-        g1 = (q * cq - sq) / (q * q)  # d f1 / d q
-        g2 = (q * sq - (1.0 - cq)) / (q * q)  # d f2 / d q
-    else:  # series: f1 = 1 - q^2/6, f2 = q/2 - q^3/24
-        f1 = 1.0 - q * q / 6.0
-        f2 = 0.5 * q - q * q * q / 24.0
-        g1 = -q / 3.0
-        g2 = 0.5 - q * q / 8.0
-    c0, s0 = math.cos(yaw), math.sin(yaw)
-    ax = c0 * f1 - s0 * f2  # displacement direction / (v dt)
-    ay = s0 * f1 + c0 * f2
-    vdt = v * dt
-    F = np.array([
-        [1.0, 0.0, -vdt * ay, dt * ax, vdt * dt * (c0 * g1 - s0 * g2)],
-        [0.0, 1.0, vdt * ax, dt * ay, vdt * dt * (s0 * g1 + c0 * g2)],
-        [0.0, 0.0, 1.0, 0.0, dt],
-        [0.0, 0.0, 0.0, 1.0, 0.0],
-        [0.0, 0.0, 0.0, 0.0, 1.0],
-    ])
-    Pn = F @ P @ F.T
-    # + Q = qa ga ga^T + qy gy gy^T, ga = [h c0, h s0, 0, dt, 0], gy = [0, 0, h, 0, dt]
-    # (added entry by entry: the outer products are sparse)
-    h = 0.5 * dt * dt
-    hc, hs = h * c0, h * s0
-    qhc, qhs, qdt = qa * hc, qa * hs, qa * dt
-    Pn[0, 0] += qhc * hc
-    Pn[0, 1] += qhc * hs
-    Pn[1, 0] += qhs * hc
-    Pn[1, 1] += qhs * hs
-    Pn[0, 3] += qhc * dt
-    Pn[3, 0] += qdt * hc
-    Pn[1, 3] += qhs * dt
-    Pn[3, 1] += qdt * hs
-    Pn[3, 3] += qdt * dt
-    qh, qyd = qy * h, qy * dt
-    Pn[2, 2] += qh * h
-    Pn[2, 4] += qh * dt
-    Pn[4, 2] += qyd * h
-    Pn[4, 4] += qyd * dt
-    return [px + vdt * ax, py + vdt * ay, _wrap(yaw + q), v, om], Pn
+# ----------------------------------------------------------------------------- measurements
+def antenna_jacobians(x: np.ndarray, r: np.ndarray, x_prev: np.ndarray | None = None
+                      ) -> tuple[np.ndarray, np.ndarray]:
+    """Predicted measurements and Jacobians for antennas at body offsets r (k, 2) from M.
 
-
-def ctrv_predict(x: np.ndarray, P: np.ndarray, dt: float, sigma_accel: float,
-                 sigma_yaw_accel: float) -> tuple[np.ndarray, np.ndarray]:
-    """CTRV prediction of state (5,) and covariance (5, 5) over dt seconds (EKF).
-
-    Scalar math on purpose: this runs once per epoch in a Python loop.
+    x_prev None: fixes, ``h (k, 2) = p + R(yaw) r``, H (k, 2, 6). x_prev (6,): each
+    antenna's displacement from the state x_prev to the state x, ``h = (p + R(yaw) r) -
+    (p' + R(yaw') r)``, H (k, 2, 12) over the stacked state ``(x, x_prev)``.
     """
-    xn, Pn = _predict([float(e) for e in x], np.asarray(P, dtype=float), float(dt),
-                      sigma_accel**2, sigma_yaw_accel**2)
-    return np.array(xn), Pn
+    x = np.asarray(x, dtype=float)
+    r = np.asarray(r, dtype=float)
+    if x_prev is None:
+        h, H = _measurements(np.concatenate((x, x)), r, r[:0])
+        return h, H[:, :, :NX]
+    return _measurements(np.concatenate((x, np.asarray(x_prev, dtype=float))), r[:0], r)
 
 
-def _h(x: np.ndarray, r: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Predicted antenna positions (k, 2) and stacked Jacobian (2k, 5) for offsets r (k, 2)."""
-    c, s = np.cos(x[2]), np.sin(x[2])
-    Rr = np.stack([c * r[:, 0] - s * r[:, 1], s * r[:, 0] + c * r[:, 1]], axis=1)
-    z = x[:2] + Rr
-    k = r.shape[0]
-    H = np.zeros((2 * k, 5))
-    H[0::2, 0] = 1.0
-    H[1::2, 1] = 1.0
-    H[0::2, 2] = -Rr[:, 1]  # d/dyaw R r = J R r = (-(Rr)_y, (Rr)_x)
-    H[1::2, 2] = Rr[:, 0]
-    return z, H
+def _measurements(y: np.ndarray, ra: np.ndarray, rd: np.ndarray
+                  ) -> tuple[np.ndarray, np.ndarray]:
+    """Fixes of the antennas at offsets ra (ka, 2) and displacements since the previous
+    epoch of those at rd (kd, 2), stacked, for the stacked state ``y = (x, x_prev)`` (12,):
+    h (ka + kd, 2) and H (ka + kd, 2, 12) (a fix touches x only, a displacement both)."""
+    ka, kd = ra.shape[0], rd.shape[0]
+    c, s = math.cos(y[YAW]), math.sin(y[YAW])
+    H = np.zeros((ka + kd, 2, 2 * NX))
+    h = np.empty((ka + kd, 2))
+    if ka:
+        rx = c * ra[:, 0] - s * ra[:, 1]
+        ry = s * ra[:, 0] + c * ra[:, 1]
+        H[:ka, 0, PX] = 1.0
+        H[:ka, 1, PY] = 1.0
+        H[:ka, 0, YAW] = -ry
+        H[:ka, 1, YAW] = rx
+        h[:ka, 0] = y[PX] + rx
+        h[:ka, 1] = y[PY] + ry
+    if kd:
+        cp, sp = math.cos(y[NX + YAW]), math.sin(y[NX + YAW])
+        rx = c * rd[:, 0] - s * rd[:, 1]
+        ry = s * rd[:, 0] + c * rd[:, 1]
+        px = cp * rd[:, 0] - sp * rd[:, 1]
+        py = sp * rd[:, 0] + cp * rd[:, 1]
+        h[ka:, 0] = y[PX] - y[NX + PX] + rx - px
+        h[ka:, 1] = y[PY] - y[NX + PY] + ry - py
+        H[ka:, 0, PX] = 1.0
+        H[ka:, 1, PY] = 1.0
+        H[ka:, 0, YAW] = -ry
+        H[ka:, 1, YAW] = rx
+        H[ka:, 0, NX + PX] = -1.0
+        H[ka:, 1, NX + PY] = -1.0
+        H[ka:, 0, NX + YAW] = py
+        H[ka:, 1, NX + YAW] = -px
+    return h, H
 
 
-def _update(x: list, P: np.ndarray, zs: list, rs: list, r2: float, gate: float
-            ) -> tuple[list, np.ndarray, list]:
-    """Information-form update (see :func:`antenna_update`) on Python scalars: x a state
-    list, zs/rs lists of (x, y) fixes and body offsets. Returns (x, P, accepted flags)."""
-    c, s = math.cos(x[2]), math.sin(x[2])
-    x0, x1 = x[0], x[1]
-    if gate != math.inf:
-        P00, P01, P02 = float(P[0, 0]), float(P[0, 1]), float(P[0, 2])
-        P11, P12, P22 = float(P[1, 1]), float(P[1, 2]), float(P[2, 2])
-    acc = []
-    k = 0
-    sx = sy = sr = sny = snx = s3 = 0.0
-    for (zx, zy), (r0, r1) in zip(zs, rs):
-        rx = c * r0 - s * r1  # R(yaw) r, world frame
-        ry = s * r0 + c * r1
-        nux = zx - (x0 + rx)
-        nuy = zy - (x1 + ry)
-        if gate != math.inf:
-            # S_i = h_i P[:3, :3] h_i^T + sigma^2 I with h_i = [[1, 0, -ry], [0, 1, rx]]
-            a = P00 - 2.0 * ry * P02 + ry * ry * P22 + r2
-            b = P01 + rx * P02 - ry * P12 - rx * ry * P22
-            d = P11 + 2.0 * rx * P12 + rx * rx * P22 + r2
-            ok = (d * nux * nux - 2.0 * b * nux * nuy + a * nuy * nuy) / (a * d - b * b) <= gate
-        else:
-            ok = True
-        acc.append(ok)
-        if ok:  # running sums in antenna order (numpy's order for these short sums)
-            k += 1
-            sy += ry
-            sx += rx
-            sr += rx * rx + ry * ry
-            snx += nux
-            sny += nuy
-            s3 += rx * nuy - ry * nux
+def _quad_form(a, b, c, e: np.ndarray, guard: bool) -> np.ndarray:
+    """e_i^T [[a, b], [b, c]]_i^-1 e_i, vectorised; with ``guard``, 0 where the matrix is
+    singular to rounding (no redundancy left to test against)."""
+    ex, ey = e[:, 0], e[:, 1]
+    det = a * c - b * b
+    num = c * ex * ex - 2.0 * b * ex * ey + a * ey * ey
+    if not guard:
+        return num / det
+    return np.divide(num, det, out=np.zeros_like(num), where=det > 1e-12 * np.abs(a * c))
+
+
+def _quad2(M: np.ndarray, e: np.ndarray, guard: bool = False) -> np.ndarray:
+    """e_i^T M_i^-1 e_i for symmetric 2 x 2 matrices M (k, 2, 2) and vectors e (k, 2)."""
+    return _quad_form(M[:, 0, 0], M[:, 0, 1], M[:, 1, 1], e, guard)
+
+
+def _inv(S: np.ndarray) -> np.ndarray:
+    """Inverse of a small non-singular matrix through LAPACK's LU (dgetrf/dgetri): half the
+    time of numpy.linalg.inv at the 10-30 rows of an innovation covariance (its per-call
+    overhead dominates there); numpy's on the rare failure, which then raises."""
+    lu, piv, info = _dgetrf(S)
+    if info == 0:
+        inv, info = _dgetri(lu, piv)
+        if info == 0:
+            return inv
+    return np.linalg.inv(S)
+
+
+def _block_quad(M: np.ndarray, e: np.ndarray) -> np.ndarray:
+    """e_i^T B_i^-1 e_i for the 2 x 2 diagonal blocks B_i of the symmetric positive
+    definite M (2k, 2k)."""
+    d = M.ravel()[::M.shape[0] + 1]
+    a, c = d[0::2], d[1::2]
+    b = M.ravel()[1::2 * M.shape[0] + 2]
+    ex, ey = e[:, 0], e[:, 1]
+    return (c * ex * ex - 2.0 * b * ex * ey + a * ey * ey) / (a * c - b * b)
+
+
+def kalman_update(x: np.ndarray, P: np.ndarray, nu: np.ndarray, H: np.ndarray,
+                  var: np.ndarray, gate: float = math.inf, max_deleted: int = 3,
+                  accept: np.ndarray | None = None
+                  ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Joint EKF update with k two-dimensional measurements, robustly gated.
+
+    nu (k, 2) innovations, H (k, 2, n) Jacobians, var (k,) per-axis noise variances (R_i =
+    var_i I); P may be singular (the filter's stacked state of two epochs is). Gain form:
+    ``S = H P H^T + R`` over the accepted measurements, ``x+ = x + P H^T S^-1 nu``,
+    ``P+ = P - P H^T S^-1 H P`` (tested against FilterPy). Two tests, both at the
+    chi-square(2) quantile ``gate``:
+
+    1. prior gate: a measurement whose NIS ``nu_i^T S_ii^-1 nu_i`` exceeds ``gate`` is left
+       out;
+    2. deleted residual (the dissertation's Section 3.3.2 idea on the filter): each
+       accepted measurement's residual after the joint update, ``e_i = (R S^-1 nu)_i``,
+       against its covariance ``C_i = (R S^-1 R)_ii`` is the test of that measurement
+       against all the others and the prior (leave-one-out); with ``u = S^-1 nu`` the
+       statistic is ``u_i^T ((S^-1)_ii)^-1 u_i``. The worst one above ``gate`` is removed
+       and the update redone, at most ``max_deleted`` times. This catches a gross error
+       that the prior alone cannot (e.g. a displacement from an outlying fix while the
+       platform's agility makes the predicted spread wide).
+
+    The yaw component of x+ is not wrapped here. ``accept`` (k,) bool replaces test 1 (the
+    caller's own choice of candidates; test 2 still runs). Returns (x+, P+, accepted (k,)).
+    """
+    k = nu.shape[0]
     if k == 0:
-        return x, P, acc
-    # P+ = (P^-1 + E M3 E^T / r2)^-1 with E the first three unit vectors and
-    # M3 = [[k, 0, -sy], [0, k, sx], [-sy, sx, sr]]; by the push-through identity
-    # P+ = P - P E G E^T P with G = (r2 I + M3 P3)^-1 M3 (P3 = E^T P E): one 3x3 inverse
-    # (closed form, adjugate) instead of two 5x5 inverses; valid for any k >= 1 (M3 is
-    # singular for k = 1).
-    kf = float(k)
-    if gate == math.inf:
-        P00, P01, P02 = float(P[0, 0]), float(P[0, 1]), float(P[0, 2])
-        P11, P12, P22 = float(P[1, 1]), float(P[1, 2]), float(P[2, 2])
-    c00 = kf * P00 - sy * P02 + r2
-    c01 = kf * P01 - sy * P12
-    c02 = kf * P02 - sy * P22
-    c10 = kf * P01 + sx * P02
-    c11 = kf * P11 + sx * P12 + r2
-    c12 = kf * P12 + sx * P22
-    c20 = -sy * P00 + sx * P01 + sr * P02
-    c21 = -sy * P01 + sx * P11 + sr * P12
-    c22 = -sy * P02 + sx * P12 + sr * P22 + r2
-    i00 = c11 * c22 - c12 * c21
-    i01 = c02 * c21 - c01 * c22
-    i02 = c01 * c12 - c02 * c11
-    i10 = c12 * c20 - c10 * c22
-    i11 = c00 * c22 - c02 * c20
-    i12 = c02 * c10 - c00 * c12
-    i20 = c10 * c21 - c11 * c20
-    i21 = c01 * c20 - c00 * c21
-    i22 = c00 * c11 - c01 * c10
-    det = c00 * i00 + c01 * i10 + c02 * i20
-    G = np.array([[kf * i00 - sy * i02, kf * i01 + sx * i02, -sy * i00 + sx * i01 + sr * i02],
-                  [kf * i10 - sy * i12, kf * i11 + sx * i12, -sy * i10 + sx * i11 + sr * i12],
-                  [kf * i20 - sy * i22, kf * i21 + sx * i22, -sy * i20 + sx * i21 + sr * i22]])
-    PE = P[:, :3]
-    Pn = P - (PE @ (G / det)) @ PE.T
-    Pn = 0.5 * (Pn + Pn.T)
-    dx = Pn[:, :3] @ [snx / r2, sny / r2, s3 / r2]
-    xn = [x[0] + dx[0], x[1] + dx[1], _wrap(x[2] + dx[2]), x[3] + dx[3], x[4] + dx[4]]
-    return xn, Pn, acc
+        return x, P, np.zeros(0, dtype=bool)
+    Hf = H.reshape(2 * k, -1)
+    PHt = P @ Hf.T
+    S = Hf @ PHt
+    S.flat[::2 * k + 1] += np.repeat(var, 2)
+    if accept is not None:
+        acc = np.array(accept, dtype=bool)
+    elif gate != math.inf:
+        acc = _block_quad(S, nu) <= gate
+    else:
+        acc = np.ones(k, dtype=bool)
+    nuf = nu.reshape(-1)
+    deletions = max_deleted if gate != math.inf else 0
+    while acc.any():
+        ia = np.flatnonzero(acc)
+        if ia.size < k:
+            rows = np.empty(2 * ia.size, dtype=int)
+            rows[0::2], rows[1::2] = 2 * ia, 2 * ia + 1
+            Sa = S[np.ix_(rows, rows)]
+        else:
+            rows, Sa = slice(None), S
+        Sinv = _inv(Sa)
+        u = Sinv @ nuf[rows]
+        if deletions and ia.size >= 2:
+            # S^-1 is positive definite, so are its diagonal blocks: no singular case
+            stat = _block_quad(Sinv, u.reshape(-1, 2))
+            worst = int(stat.argmax())
+            if stat[worst] > gate:
+                acc[ia[worst]] = False
+                deletions -= 1
+                continue
+        K = PHt[:, rows]
+        Pn = P - K @ Sinv @ K.T
+        return x + K @ u, 0.5 * (Pn + Pn.T), acc
+    return x, P, acc
 
 
-def antenna_update(x: np.ndarray, P: np.ndarray, z: np.ndarray, r: np.ndarray,
-                   sigma_meas: float, gate: float = np.inf
-                   ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """EKF update with antenna fixes z (k, 2) at body offsets r (k, 2) from the CG.
+# ----------------------------------------------------------------------------- noise levels
+def _rigid_fits(obs: np.ndarray, offsets: np.ndarray
+                ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Closed-form 2-D rigid fit of the offsets to every epoch's fixes (Kabsch in 2-D).
 
-    Antennas whose innovation NIS (2 dof, predicted covariance) exceeds ``gate`` are left
-    out. The joint update of the accepted antennas is done in information form, which is
-    the same update as the textbook gain form (tested against FilterPy) without a 2k x 2k
-    innovation covariance: each antenna's Jacobian ``[I, J R r_i, 0, 0]`` touches
-    (px, py, yaw) only, so the k antennas add ``M = sum H_i^T H_i / sigma^2`` (a 3x3 block)
-    to the information and ``b = sum H_i^T nu_i / sigma^2`` to the information vector:
-    ``P+ = (P^-1 + M)^-1``, ``x+ = x + P+ b``; ``P+`` is evaluated through the 3x3 block
-    (push-through identity, one closed-form 3x3 inverse). Returns (x (5,), P (5, 5),
-    accepted (k,)).
+    Returns origin (n, 2) (the world position of offset (0, 0)), yaw (n,), number of fixes
+    (n,) and residuals (n, m, 2) (NaN where absent); epochs with < 2 fixes are NaN.
     """
-    P = np.asarray(P, dtype=float)
-    xn, Pn, acc = _update([float(e) for e in x], P, np.asarray(z, dtype=float).tolist(),
-                          np.asarray(r, dtype=float).tolist(), float(sigma_meas) ** 2,
-                          float(gate))
-    return np.array(xn, dtype=float), Pn, np.array(acc, dtype=bool)
+    present = np.isfinite(obs[..., 0])
+    cnt = present.sum(axis=1)
+    w = present.astype(float)
+    z = np.where(present[..., None], obs, 0.0)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        zc = (z * w[..., None]).sum(1) / cnt[:, None]
+        rc = (offsets[None] * w[..., None]).sum(1) / cnt[:, None]
+    dz = (z - zc[:, None]) * w[..., None]
+    dr = (offsets[None] - rc[:, None]) * w[..., None]
+    yaw = np.arctan2((dr[..., 0] * dz[..., 1] - dr[..., 1] * dz[..., 0]).sum(1),
+                     (dr * dz).sum(-1).sum(1))
+    c, s = np.cos(yaw), np.sin(yaw)
+    origin = zc - np.c_[c * rc[:, 0] - s * rc[:, 1], s * rc[:, 0] + c * rc[:, 1]]
+    fit = origin[:, None] + np.stack([c[:, None] * offsets[None, :, 0]
+                                      - s[:, None] * offsets[None, :, 1],
+                                      s[:, None] * offsets[None, :, 0]
+                                      + c[:, None] * offsets[None, :, 1]], -1)
+    bad = cnt < 2
+    origin[bad] = np.nan
+    yaw[bad] = np.nan
+    res = np.where(present[..., None] & ~bad[:, None, None], obs - fit, np.nan)
+    return origin, yaw, cnt, res
 
 
-def run_pose_filter(t: np.ndarray, obs: np.ndarray, offsets: np.ndarray, x0: np.ndarray,
-                    P0: np.ndarray, k0: int, params: PoseFilterParams = PoseFilterParams()
-                    ) -> PoseFilterResult:
-    """Run the filter from epoch ``k0`` (state x0, covariance P0 there) to the end.
+def _studentize(offsets: np.ndarray, present: np.ndarray, yaw: np.ndarray) -> np.ndarray:
+    """1 / sqrt(1 - h) per residual component (n, m, 2) of the rigid fits (linearised):
+    the fit's hat matrix for antenna i has the translation part 1/k and the rotation part
+    ``(J R rt_i)(J R rt_i)^T / sum_j |rt_j|^2`` (rt: offsets about the present antennas'
+    centroid), so ``h_xx = 1/k + (R rt_i)_y^2 / S``, ``h_yy = 1/k + (R rt_i)_x^2 / S``."""
+    w = present.astype(float)
+    k = w.sum(1)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        rc = (offsets[None] * w[..., None]).sum(1) / k[:, None]
+        rt = offsets[None] - rc[:, None]                      # (n, m, 2)
+        c, s = np.cos(yaw)[:, None], np.sin(yaw)[:, None]
+        wx = c * rt[..., 0] - s * rt[..., 1]
+        wy = s * rt[..., 0] + c * rt[..., 1]
+        S = ((wx * wx + wy * wy) * w).sum(1)[:, None]
+        hx = 1.0 / k[:, None] + wy * wy / S
+        hy = 1.0 / k[:, None] + wx * wx / S
+        return np.stack([1.0 / np.sqrt(1.0 - hx), 1.0 / np.sqrt(1.0 - hy)], -1)
 
-    t : (n,) s, finite and strictly increasing (uneven steps are fine: each prediction uses
-        its own dt).
-    obs : (n, m, 2) metres (world x east, y north), NaN = the antenna did not report.
-    offsets : (m, 2) metres, body offsets ``r_i = b_i - cg_body`` of the antennas from the CG
-        (body x forward, y left); dead antennas simply never report.
-    x0 : (5,) the state at epoch k0, ``(px m, py m, yaw rad CCW from +x, v m/s,
-        omega rad/s)`` (module docstring), finite.
-    P0 : (5, 5) its covariance in the same units, finite; also the covariance a "reset"
-        restarts from.
-    k0 : int in [0, n - 1], the first epoch. params : :class:`PoseFilterParams`.
 
-    Returns a :class:`PoseFilterResult` of n rows; row k0 holds x0, P0 with status "init",
-    rows before k0 are NaN (status ""). Wrong shapes or values raise ValueError naming the
-    field.
+def estimate_noise(obs: np.ndarray, offsets: np.ndarray) -> tuple[float, float]:
+    """Per-axis noise sd of one antenna's fix and of its one-sample displacement, metres,
+    from the data alone through the configuration (module docstring).
+
+    obs (n, m, 2) metres, NaN = missing; offsets (m, 2) body positions (any origin).
+    Each epoch with k >= 3 fixes is fitted rigidly (2-D Kabsch); each residual component is
+    studentised by its leverage in the fit, ``1 / sqrt(1 - h)`` (:func:`_studentize`: the 3
+    pose parameters take 3 of the 2k degrees of freedom, unevenly between antennas), and
+    ``sigma_abs = 1.4826 median |residual|`` (MAD, robust to outliers). ``sigma_step`` is the
+    same statistic of one antenna's residual change between consecutive epochs with the same
+    antennas reporting (its fit removes the shared motion); with fewer than
+    :data:`MIN_NOISE_SAMPLES` such values, ``sqrt(2) sigma_abs`` (white noise). The error
+    every antenna shares is invisible to both (it moves the fit). Both are floored at
+    :data:`NOISE_FLOOR_M`. The leverages are those of the linearised fit, for noise small
+    next to the layout; when the noise is as large as the layout (consumer GPS on a 1.5 m
+    roof) the fitted rotation absorbs less of it and the estimate is high by up to
+    ``sqrt((1 - 2/(2k)) / (1 - 3/(2k)))`` (4 % with 7 fixes, 15 % with 3).
+    Raises ValueError if no epoch has 3 or more fixes (nothing to estimate from).
     """
     obs = np.asarray(obs, dtype=float)
+    off = np.asarray(offsets, dtype=float)
+    _, yaw, cnt, res = _rigid_fits(obs, off)
+    good = cnt >= 3
+    if not good.any():
+        raise ValueError("obs: no epoch has 3 or more antenna fixes, the noise levels cannot "
+                         "be estimated; give sigma_abs_m and sigma_step_m")
+    scale = _studentize(off, np.isfinite(obs[..., 0]), yaw)
+    r = (res[good] * scale[good]).ravel()
+    sigma_abs = 1.4826 * float(np.median(np.abs(r[np.isfinite(r)])))
+    present = np.isfinite(obs[..., 0])
+    same = good[1:] & good[:-1] & np.all(present[1:] == present[:-1], axis=1)
+    d = ((res[1:] - res[:-1]) * scale[1:])[same].ravel()
+    d = d[np.isfinite(d)]
+    # too few displacement samples for a robust scale: the white-noise relation (an upper
+    # value: time-correlated errors change less between samples)
+    sigma_step = (1.4826 * float(np.median(np.abs(d))) if d.size >= MIN_NOISE_SAMPLES
+                  else sigma_abs * math.sqrt(2))
+    return max(sigma_abs, NOISE_FLOOR_M), max(sigma_step, NOISE_FLOOR_M)
+
+
+# ----------------------------------------------------------------------------- the filter
+class FilterStart:
+    """When and where the filter starts (module docstring, "Initialisation waits for data").
+
+    t (n,), obs (n, m, 2), r (m, 2) antenna offsets from the no-slip point, sigma_abs (m),
+    params. :meth:`offer` is asked epoch by epoch while waiting; it returns (x0 (6,),
+    P0 (6, 6)) at the start epoch, else None. Shared by the EKF and the GTSAM peer
+    (:mod:`estimator.gtsam_peer`), so both start at the same epoch from the same state.
+    """
+
+    def __init__(self, t: np.ndarray, obs: np.ndarray, r: np.ndarray, sigma_abs: float,
+                 params: PoseFilterParams) -> None:
+        self.t = t
+        self.origin, self.yaw, self.cnt, _ = _rigid_fits(obs, r)   # origin = no-slip point
+        self.present = np.isfinite(obs[..., 0])
+        self.r2 = (r ** 2).sum(1)
+        self.sigma_abs = sigma_abs
+        self.params = params
+        self.anchor = -1
+
+    def reset(self) -> None:
+        """Forget the anchor (after a lost track)."""
+        self.anchor = -1
+
+    def wait(self, k: int) -> tuple[str, tuple[np.ndarray, np.ndarray] | None]:
+        """One waiting epoch: ("no_data", None) without any fix, else ("waiting", None) or
+        ("waiting", (x0, P0)) when the filter starts here (:meth:`offer`)."""
+        if not self.present[k].any():
+            return "no_data", None
+        return "waiting", self.offer(k)
+
+    def offer(self, k: int) -> tuple[np.ndarray, np.ndarray] | None:
+        """The start state at epoch k, or None to keep waiting."""
+        if self.cnt[k] < 2:
+            return None
+        sa, p = self.sigma_abs, self.params
+        yaw_sd = sa / math.sqrt(self.r2[self.present[k]].sum())
+        if yaw_sd < INIT_MAX_YAW_SD:
+            # the configuration fixes the heading; the speed along it comes from the
+            # previous epoch's fit, so wait for two consecutive fits (a start on the move,
+            # e.g. after an outage, must not assume the platform at rest)
+            if k == 0 or self.cnt[k - 1] < 2:
+                return None
+            yaw0, ysd = float(self.yaw[k]), yaw_sd
+            dt = self.t[k] - self.t[k - 1]
+            d = self.origin[k] - self.origin[k - 1]
+            v0 = (d[0] * math.cos(yaw0) + d[1] * math.sin(yaw0)) / dt
+            vsd = math.hypot(p.max_accel_mps2 * dt, sa * math.sqrt(
+                1.0 / self.cnt[k] + 1.0 / self.cnt[k - 1]) / dt)
+            if not p.reverse:
+                v0 = max(v0, 0.0)
+        elif self.anchor < 0:
+            self.anchor = k
+            return None
+        else:
+            # heading = course once the platform has clearly moved from the anchor fix
+            a = self.anchor
+            d = self.origin[k] - self.origin[a]
+            dist = math.hypot(d[0], d[1])
+            sd = sa * math.sqrt(1.0 / self.cnt[k] + 1.0 / self.cnt[a])
+            if dist <= INIT_MOTION_SIGMAS * sd:
+                return None
+            course = math.atan2(d[1], d[0])
+            sp = dist / (self.t[k] - self.t[a])
+            ysd, vsd = sd / dist, max(sp, p.max_accel_mps2)
+            if p.reverse and math.cos(course - self.yaw[k]) < 0:
+                yaw0, v0 = course + math.pi, -sp
+            else:
+                yaw0, v0 = course, sp
+        self.anchor = -1
+        pvar = sa * sa / self.cnt[k]
+        x = np.array([self.origin[k, 0], self.origin[k, 1], _wrap(yaw0), v0, 0.0, 0.0])
+        P = np.diag([pvar, pvar, ysd ** 2, vsd ** 2, p.max_accel_mps2 ** 2,
+                     (0.5 * p.max_turn_rate_radps) ** 2])
+        return x, P
+
+
+def _iterated_update(y, Y, z, var, gate, ra, rd, lever, tol):
+    """One epoch's update of the stacked state ``y = (x, x_prev)`` (12,), covariance Y:
+    iterated EKF (Gauss-Newton on the same cost; Bell and Cathey 1993) with robust
+    acceptance.
+
+    The first pass gates against the prior (:func:`kalman_update`, tests 1 and 2). While a
+    step turns a heading so far that R(yaw)'s linearisation error (``dyaw^2/2 |r|``, ``|r|``
+    the longest lever arm) exceeds ``tol`` (a tenth of the fix sd), the measurements are
+    relinearised at the new
+    estimate; each pass also re-admits the measurements the prior gate had rejected if they
+    agree with the current posterior (a prior far off, e.g. at the onset of a sharp turn
+    sampled at 1 Hz, must not discard centimetre fixes that agree with each other), and the
+    deleted-residual test removes the ones that contradict the rest.
+    """
+    yl = y
+    acc = y1 = Y1 = None
+    for _ in range(MAX_ITERATIONS):
+        h, H = _measurements(yl, ra, rd)
+        nu = z - h if yl is y else z - h - H @ (y - yl)
+        if acc is not None and not acc.all():
+            out = np.flatnonzero(~acc)
+            Ho = H[out]
+            S = (Ho @ Y1) @ Ho.transpose(0, 2, 1)
+            S[:, 0, 0] += var[out]
+            S[:, 1, 1] += var[out]
+            acc[out[_quad2(S, nu[out] - Ho @ (y1 - y)) <= gate]] = True
+        y1, Y1, acc = kalman_update(y, Y, nu, H, var, gate, accept=acc)
+        if not acc.any():
+            break
+        turn = max(abs(_wrap(y1[YAW] - yl[YAW])), abs(_wrap(y1[NX + YAW] - yl[NX + YAW])))
+        if 0.5 * turn * turn * lever < tol:      # R(yaw) r's second-order term
+            break
+        yl = y1
+    return y1, Y1, acc
+
+
+def _check_run_args(t, obs, offsets, params):
+    obs = check_array(obs, "obs", allow_nan=True)
     if obs.ndim != 3 or obs.shape[2] != 2:
         raise ValueError(f"obs: expected shape (n, m, 2) metres, got {obs.shape}")
     n, m = obs.shape[:2]
-    check_increasing_times(t, "t", n=n)
-    off_arr = np.asarray(offsets, dtype=float)
-    if off_arr.shape != (m, 2) or not np.all(np.isfinite(off_arr)):
-        raise ValueError(f"offsets: expected finite values of shape ({m}, 2) metres, got "
-                         f"shape {off_arr.shape}")
-    x0_arr = np.asarray(x0, dtype=float)
-    if x0_arr.shape != (5,) or not np.all(np.isfinite(x0_arr)):
-        raise ValueError(f"x0: expected 5 finite values (px, py, yaw, v, omega), got "
-                         f"{x0_arr.tolist() if x0_arr.size <= 5 else x0_arr.shape}")
-    P0_arr = np.asarray(P0, dtype=float)
-    if P0_arr.shape != (5, 5) or not np.all(np.isfinite(P0_arr)):
-        raise ValueError(f"P0: expected a finite (5, 5) covariance, got shape {P0_arr.shape}")
-    if isinstance(k0, bool) or not isinstance(k0, (int, np.integer)) or not 0 <= k0 < n:
-        raise ValueError(f"k0: must be an integer in [0, {n - 1}], got {k0!r}")
+    tt = check_increasing_times(t, "t", n=n, min_size=1)
+    off = check_array(offsets, "offsets", shape=(m, 2))
     if not isinstance(params, PoseFilterParams):
-        raise ValueError(  # noqa: TRY004 (bad input is ValueError by contract)
-            f"params: expected a PoseFilterParams, got {type(params).__name__}")
-    X = np.full((n, 5), np.nan)
-    PP = np.full((n, 5, 5), np.nan)
+        raise TypeError(f"params: expected a PoseFilterParams, got {type(params).__name__}")
+    nan = np.isnan(obs)
+    if np.any(nan[..., 0] != nan[..., 1]):
+        k, i = np.argwhere(nan[..., 0] != nan[..., 1])[0]
+        raise ValueError(f"obs: epoch {k}, antenna {i} has one coordinate NaN; a missing fix "
+                         f"must be NaN in both")
+    return tt, obs, off
+
+
+def run_pose_filter(t: np.ndarray, obs: np.ndarray, offsets: np.ndarray,
+                    params: PoseFilterParams = PoseFilterParams()) -> PoseFilterResult:
+    """Run the filter over a recording (module docstring for the model).
+
+    t : (n,) s, finite and strictly increasing (uneven steps are fine).
+    obs : (n, m, 2) metres (world x east, y north), NaN = the antenna did not report.
+    offsets : (m, 2) metres, antenna body positions relative to the configuration's CG
+        (body x forward, y left); dead antennas simply never report.
+    params : :class:`PoseFilterParams` (limits, noise levels or None = estimated, no-slip
+        point, reverse mode, gates).
+
+    Returns a :class:`PoseFilterResult` of n rows; rows before the start are NaN with status
+    "waiting" or "no_data". Wrong shapes or values raise ValueError/TypeError naming the
+    argument.
+    """
+    tt, obs, off = _check_run_args(t, obs, offsets, params)
+    n, m = obs.shape[:2]
+    ns = np.asarray(params.no_slip_point_m, dtype=float)
+    r_m = off - ns                         # antenna offsets from the no-slip point
+    cg_offset = -ns                        # CG relative to the no-slip point
+    if params.sigma_abs_m is None or params.sigma_step_m is None:
+        sa, ss = estimate_noise(obs, off)
+    sigma_abs = params.sigma_abs_m if params.sigma_abs_m is not None else sa
+    sigma_step = params.sigma_step_m if params.sigma_step_m is not None else ss
+    va, vs = sigma_abs ** 2, sigma_step ** 2
+    dt_med = float(np.median(np.diff(tt))) if n > 1 else 1.0
+    gate = float(chi2.ppf(params.gate_prob, 2)) if params.gate_prob < 1 else math.inf
+    flip_thr = float(chi2.ppf(params.gate_prob, 1)) if params.gate_prob < 1 else 10.83
+    qa, qy = params.sigma_accel_step ** 2, params.sigma_yaw_accel ** 2
+    om_max, alat = params.max_turn_rate_radps, params.max_lateral_accel_mps2
+    a_max = params.max_accel_mps2
+    lever = float(np.sqrt((r_m ** 2).sum(1).max())) if m else 0.0
+
+    X = np.full((n, NX), np.nan)
+    PP = np.full((n, NX, NX), np.nan)
+    XC = np.full((n, NX), np.nan)
+    PC = np.full((n, NX, NX), np.nan)
+    PX_ = np.full((n, NX, NX), np.nan)
+    seg = np.zeros(n, dtype=bool)
     status = np.full(n, "", dtype=object)
     n_used = np.zeros(n, dtype=int)
     n_gated = np.zeros(n, dtype=int)
-    gate = float(chi2.ppf(params.gate_prob, 2)) if params.gate_prob < 1 else np.inf
-    present = np.all(np.isfinite(obs), axis=-1)
-    x = [float(e) for e in np.asarray(x0, dtype=float)]
-    P = np.asarray(P0, dtype=float).copy()
-    X[k0], PP[k0], status[k0] = x, P, "init"
-    # per-epoch Python lists of the reporting antennas' fixes and offsets (scalar math in
-    # the loop: numpy's per-call overhead dominates arrays of <= m elements)
-    off = np.asarray(offsets, dtype=float).tolist()
-    zl = obs.tolist()
-    idx = [np.flatnonzero(p).tolist() for p in present]
-    tl = np.asarray(t, dtype=float).tolist()
-    qa, qy, r2 = params.sigma_accel**2, params.sigma_yaw_accel**2, params.sigma_meas**2
-    rejects = 0
-    for k in range(k0 + 1, n):
-        x, P = _predict(x, P, tl[k] - tl[k - 1], qa, qy)
-        ik = idx[k]
+    n_steps = np.zeros(n, dtype=int)
+
+    present = np.isfinite(obs[..., 0])
+    starter = FilterStart(tt, obs, r_m, sigma_abs, params)
+
+    x = P = None
+    lost = False          # the next start is a restart
+    rej_abs = rej_step = 0
+    llr = 0.0             # reverse mode: log-likelihood ratio for the flipped heading
+    back = 0.0            # forward mode: backward travel over consecutive epochs, m
+    n_alive = max(int(present.any(axis=0).sum()), 1)
+    flip_dist = max(INIT_MOTION_SIGMAS * sigma_abs * math.sqrt(2.0 / n_alive), _extent(off),
+                    a_max * dt_med * dt_med)
+    for k in range(n):
+        ik = np.flatnonzero(present[k])
+        if x is None:
+            # ---------------------------------------------------------------- waiting
+            status[k], got = starter.wait(k)
+            if got is None:
+                continue
+            x, P = got
+            X[k], PP[k], seg[k] = x, P, True
+            status[k] = "reset" if lost else "init"
+            n_used[k] = ik.size
+            rej_abs, rej_step, llr, back = 0, 0, 0.0, 0.0
+            continue
+        # -------------------------------------------------------------------- running
+        # stochastic cloning: predict x_k and keep x_{k-1} beside it, jointly Gaussian
+        dt = tt[k] - tt[k - 1]
+        # the acceleration's increments add up over a longer gap (random walk)
+        xp, Pp, F = _predict(x, P, dt, qa * max(1.0, dt / dt_med), qy)
+        y = np.concatenate((xp, x))
+        FP = F @ P
+        Y = np.empty((2 * NX, 2 * NX))
+        Y[:NX, :NX], Y[:NX, NX:], Y[NX:, :NX], Y[NX:, NX:] = Pp, FP, FP.T, P
         st = "predicted"
-        if ik:
-            zs = [zl[k][i] for i in ik]
-            rs = [off[i] for i in ik]
-            x1, P1, acc = _update(x, P, zs, rs, r2, gate)
-            na = sum(acc)
-            if na:
-                x, P, rejects, st = x1, P1, 0, "ok"
-                n_used[k] = na
-                n_gated[k] = len(ik) - na
-            else:
-                rejects += 1
-                n_gated[k] = len(ik)
-                if rejects >= params.max_rejects:
-                    P = np.asarray(P0, dtype=float).copy()
-                    x, P, acc = _update(x, P, zs, rs, r2, math.inf)
-                    n_used[k], n_gated[k], rejects, st = len(ik), 0, 0, "reset"
+        if ik.size:
+            js = np.flatnonzero(present[k] & present[k - 1])   # displacements since k-1
+            zk = obs[k, ik]
+            z = np.concatenate((zk, obs[k, js] - obs[k - 1, js])) if js.size else zk
+            var = np.concatenate((np.full(ik.size, va), np.full(js.size, vs)))
+            y1, Y1, acc = _iterated_update(y, Y, z, var, gate, r_m[ik], r_m[js], lever,
+                                           0.1 * sigma_abs)
+            acc_abs, acc_step = acc[:ik.size], acc[ik.size:]
+            n_used[k] = int(acc_abs.sum())
+            n_gated[k] = ik.size - n_used[k]
+            n_steps[k] = int(acc_step.sum())
+            rej_abs = rej_abs + 1 if n_used[k] == 0 else 0
+            rej_step = rej_step + 1 if (js.size >= 2 and n_steps[k] == 0) else 0
+            if max(rej_abs, rej_step) >= params.max_rejects:
+                # lost: back to waiting, restart from the data (reported on the restart)
+                x = P = None
+                starter.reset()
+                lost = True
+                status[k] = "waiting"
+                continue
+            if acc.any():
+                y, Y, st = y1, Y1, "ok"
+                y[YAW] = _wrap(y[YAW])
+                y[NX + YAW] = _wrap(y[NX + YAW])
+        x, P = y[:NX].copy(), Y[:NX, :NX].copy()
+        XC[k], PC[k], PX_[k] = y[NX:], Y[NX:, NX:], Y[:NX, NX:]
+        if ik.size:
+            # ------------------------------------------------------- direction of travel
+            good = ik[acc_abs]
+            if not params.reverse:
+                # backward travel of the no-slip point over consecutive intervals (its
+                # displacement from the previous pose, re-estimated with this epoch's data,
+                # along the mean heading: the speed itself may swing when only the mean
+                # over each interval is well measured); beyond the threshold: flip
+                mh = y[YAW] + 0.5 * _wrap(y[NX + YAW] - y[YAW])
+                step = ((y[PX] - y[NX + PX]) * math.cos(mh)
+                        + (y[PY] - y[NX + PY]) * math.sin(mh))
+                back = back - step if step < 0.0 else 0.0
+                if back > flip_dist:
+                    x, P = _flip(x, P)
+                    st, back = "flip_corrected", 0.0
+                elif x[V] < 0.0:
+                    x[V] = 0.0
+            elif good.size >= 2:
+                # configuration's evidence for yaw + pi: residuals of the accepted fixes
+                # with R(yaw) r and -R(yaw) r; LLR = (|e+|^2 - |e-|^2) / (2 var)
+                hz, _ = antenna_jacobians(x, r_m[good])
+                e_plus = obs[k, good] - hz
+                e_minus = e_plus + 2.0 * (hz - x[:2])
+                llr = llr * math.exp(-dt / params.flip_memory_s) + float(
+                    ((e_plus ** 2).sum() - (e_minus ** 2).sum()) / (2.0 * va))
+                if llr > flip_thr:
+                    x, P = _flip(x, P)
+                    st, llr = "flip_corrected", 0.0
+        if P[YAW, YAW] > LOST_YAW_SD ** 2:
+            # predicted so long without data that the heading means nothing: lost; wait
+            # for data and restart (e.g. a long outage)
+            x = P = None
+            starter.reset()
+            lost = True
+            status[k] = "waiting"
+            continue
+        # limits of the platform (projection)
+        lim = om_max if x[V] == 0 else min(om_max, alat / abs(x[V]))
+        if abs(x[OMEGA]) > lim:
+            x[OMEGA] = math.copysign(lim, x[OMEGA])
+        if abs(x[A]) > a_max:
+            x[A] = math.copysign(a_max, x[A])
         X[k], PP[k], status[k] = x, P, st
-    return PoseFilterResult(states=X, covariances=PP, status=status.astype(str),
-                            n_used=n_used, n_gated=n_gated)
+        if st == "flip_corrected":
+            seg[k] = True
+    return PoseFilterResult(states=X, covariances=PP, prev_states=XC, prev_covariances=PC,
+                            cross_covariances=PX_, segment_start=seg,
+                            status=status.astype(str), n_used=n_used, n_gated=n_gated,
+                            n_steps=n_steps, sigma_abs_m=float(sigma_abs),
+                            sigma_step_m=float(sigma_step), cg_offset=cg_offset)
+
+
+def _extent(offsets: np.ndarray) -> float:
+    """Largest distance between two antennas of the layout, m."""
+    d = offsets[:, None, :] - offsets[None, :, :]
+    return float(np.sqrt((d * d).sum(-1)).max()) if len(offsets) else 0.0
+
+
+def _flip(x: np.ndarray, P: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The same motion with the heading turned by pi: (yaw + pi, -v, -a); P mapped by
+    diag(1, 1, 1, -1, -1, 1) (the no-slip point's position and the yaw rate are kept)."""
+    xn = x.copy()
+    xn[YAW] = _wrap(x[YAW] + math.pi)
+    xn[V] = -x[V]
+    xn[A] = -x[A]
+    J = np.array([1.0, 1.0, 1.0, -1.0, -1.0, 1.0])
+    return xn, P * J[:, None] * J[None, :]

@@ -47,9 +47,14 @@ Beyond the dissertation (each selectable, each a row in tables):
 - ``method="motion_compensated"``: the pose at the newest epoch of each window under a
   constant-velocity model, with ``yaw_rate=True`` also a constant yaw rate
   (:mod:`estimator.motion`).
-- ``method="ekf"``: an EKF on the antennas with the configuration as measurement model and
-  outlier gating (:mod:`estimator.pose_filter`), initialised from the motion-compensated fit
-  of the first ``window`` epochs (heading = course when moving at >= 0.2 m/s, moving forward).
+- ``method="ekf"``: an EKF on the antennas with the configuration as measurement model
+  (each antenna's fix and its displacement since the previous fix), the non-holonomic
+  constraint, process noise from the platform's limits, robust gating and a forward speed
+  that cannot flip silently (:mod:`estimator.pose_filter`); it starts when the data allow
+  (rows before that are NaN, status "waiting"/"no_data"). ``"ekf_fixed_lag"``: its
+  fixed-lag smoother (latency ``filter_params.lag_s``); ``"ekf_smoother"``: its full RTS
+  smoother (:mod:`estimator.pose_smoother`). ``"gtsam"``: the GTSAM fixed-lag factor-graph
+  peer on the same measurements (:mod:`estimator.gtsam_peer`; optional dependency).
 - ``method="naive"``: no configuration knowledge; CG = mean of the CG antennas' own window
   means (Eq. 3.8 on raw means), no heading (NaN). What the configuration buys. A naive
   estimate needs every CG antenna observed at least once in the window: averaging only the
@@ -72,6 +77,7 @@ import numpy as np
 import pandas as pd
 
 from estimator import lag as _lag
+from estimator import pose_smoother as _smoother
 from estimator import turns as _turns
 from estimator import weights as _weights
 from estimator._checks import check_increasing_times
@@ -79,11 +85,12 @@ from estimator.configuration import LayoutWarning, SensorConfig
 from estimator.elastic import elastic_batch
 from estimator.layout_check import check_layout
 from estimator.motion import motion_compensated_batch, motion_compensated_series
-from estimator.orientation import law_of_cosines_heading, wrap_angle
+from estimator.orientation import law_of_cosines_heading
 from estimator.pose_filter import PoseFilterParams, run_pose_filter
 from estimator.window import SOLVERS, fit_window, procrustes_batch, window_means, window_moments
 
 __all__ = [
+    "FILTER_METHODS",
     "GROWTH_RULES",
     "LAG_OPTIONS",
     "METHODS",
@@ -94,7 +101,10 @@ __all__ = [
     "track",
 ]
 
-METHODS = ("window", "motion_compensated", "ekf", "naive")
+METHODS = ("window", "motion_compensated", "ekf", "naive", "ekf_fixed_lag", "ekf_smoother",
+           "gtsam")
+#: The pose-filter family (one forward pass; smoothers and the GTSAM peer on top).
+FILTER_METHODS = ("ekf", "ekf_fixed_lag", "ekf_smoother", "gtsam")
 WEIGHTINGS = ("none", "random", "huff", "huber", "huff_huber")
 LAG_OPTIONS = (False, True, "pose", "course")
 #: How a dynamic window grows back after a turn (module docstring).
@@ -102,10 +112,6 @@ GROWTH_RULES = ("jump", "refill")
 
 #: Windows stacked per weight/solver call: keeps memory ~ this many samples x m x 2 floats.
 _CHUNK_SAMPLES = 200_000
-
-#: EKF start: below this speed (m/s) over the first window the heading comes from the
-#: configuration, above it from the course (see _run_ekf).
-_EKF_INIT_MIN_SPEED = 0.2
 
 #: Defaults of the turn detector used by ``turning="detect"`` (see :mod:`estimator.turns`).
 #: Chosen once on synthetic data (Path 1 rover truth at 0.2 m/s, turns at ~0.056 rad/s,
@@ -535,11 +541,13 @@ def track(t: Any, obs: Any, config: SensorConfig, window: int = 10, weighting: s
         model's constant yaw rate (default False: constant velocity and heading; on Path 1
         under gps_stationary noise the yaw rate changed the mean CG error by < 0.01 m for
         windows 5-30 at 6-9x the time). omega_max (rad/s) bounds it.
-        filter_params : :class:`PoseFilterParams` for "ekf".
+        filter_params : :class:`PoseFilterParams` for the filter methods (platform limits,
+        noise levels, no-slip point, reverse mode, smoother lag); default the rover's.
 
     Returns a DataFrame with columns ``t, cg_x, cg_y, yaw, yaw_loc, window, solver_status,
     turning, lag_dx, lag_dy`` then ``x_<name>, y_<name>`` per sensor, plus ``speed,
-    yaw_rate`` for "motion_compensated" and "ekf" and ``n_used, n_gated`` for "ekf".
+    yaw_rate`` for "motion_compensated" and the filter methods and ``n_used, n_gated, n_steps``
+    for the EKF family (fixes accepted / rejected, displacements accepted).
     ``yaw`` is the fitted pose's heading (atan2, CCW from +x, (-pi, pi]); ``yaw_loc`` the
     law-of-cosines heading (Section 3.2); ``lag_dx/lag_dy`` the applied lag shift (0 when
     off, NaN where it could not be computed and the estimate is left uncorrected).
@@ -576,7 +584,7 @@ def track(t: Any, obs: Any, config: SensorConfig, window: int = 10, weighting: s
     lag_mode = {False: None, True: "pose"}.get(lag_correction, lag_correction)
     if lag_mode is not None and method != "window":
         raise ValueError(f"lag_correction: applies to method='window' only (got method={method!r})")
-    if method in ("ekf", "naive") and weighting != "none":
+    if (method in FILTER_METHODS or method == "naive") and weighting != "none":
         raise ValueError(f"weighting: method={method!r} takes no weights, got {weighting!r}")
     if velocity_span is not None:
         velocity_span = _check_int(velocity_span, "velocity_span", 1, n)
@@ -602,8 +610,8 @@ def track(t: Any, obs: Any, config: SensorConfig, window: int = 10, weighting: s
     # turning / dynamic window
     flags = np.zeros(n, dtype=bool)
     if dynamic_window is not None:
-        if method == "ekf":
-            raise ValueError("dynamic_window: not applicable to method='ekf'")
+        if method in FILTER_METHODS:
+            raise ValueError(f"dynamic_window: not applicable to method={method!r}")
         small = _check_int(dynamic_window, "dynamic_window", 1, s)
         if turning is None:
             raise ValueError("turning: dynamic_window needs turning flags (a (n,) bool array) "
@@ -674,8 +682,9 @@ def track(t: Any, obs: Any, config: SensorConfig, window: int = 10, weighting: s
         full = (cnt[:, cfg.cg_mask] > 0).all(axis=1)
         pos = np.where(full[:, None, None], means, np.nan)
         status = np.where(full, "ok", "insufficient_data").astype(object)
-    else:  # ekf
-        pos, yaw, status, extra = _run_ekf(tt, o, cfg, s, filter_params or PoseFilterParams())
+    else:  # the pose-filter family
+        pos, yaw, status, extra = _run_filter(tt, o, cfg, s, filter_params or PoseFilterParams(),
+                                              method)
 
     # CG (Eq. 3.8; naive: of the raw window means, all CG members present or NaN)
     cg = cfg.cg_from_positions(pos)
@@ -750,34 +759,33 @@ def _lag_correct(tt, o, cfg, ends, wsize, pos, cg, heading, s, mode, span, dynam
     return _lag.lag_shift(tt, pos, first, fidx, tt[ends], vel, heading, wsize, mode)
 
 
-def _run_ekf(tt, o, cfg, s, params):
-    """EKF rows from epoch s-1 (see :mod:`estimator.pose_filter`)."""
+def _run_filter(tt, o, cfg, s, params, method):
+    """Rows from epoch s-1 of the pose filter, its smoothers or the GTSAM peer (module
+    docstring; :mod:`estimator.pose_filter`)."""
+    if not isinstance(params, PoseFilterParams):
+        raise TypeError(f"filter_params: expected a PoseFilterParams, got "
+                        f"{type(params).__name__}")
     k0 = s - 1
-    st = o[None, :s]
-    fit = motion_compensated_batch((tt[:s] - tt[k0])[None], st, cfg, yaw_rate=False)
-    if fit.status[0] != "ok":
-        raise ValueError(f"window: the first {s} epochs hold fewer than 2 sensors with data; "
-                         f"the EKF cannot be initialised (use a larger window)")
-    # heading: the course when the platform is clearly moving (with metre-level noise the
-    # configuration alone leaves the heading of a small platform nearly unobservable, and a
-    # filter started backwards settles on v < 0 with every antenna rotated by pi); else the
-    # fitted configuration's heading with v = 0
-    vel = fit.velocity[0]
-    speed = float(np.hypot(vel[0], vel[1]))
-    if speed >= _EKF_INIT_MIN_SPEED:
-        # arctan2(-0.0, x < 0) = -pi: wrap to (-pi, pi] (the state's first row is x0)
-        yaw0, v0 = float(wrap_angle(np.arctan2(vel[1], vel[0]))), speed
-    else:
-        yaw0, v0 = float(fit.yaw[0]), 0.0
-    x0 = np.array([fit.cg[0, 0], fit.cg[0, 1], yaw0, v0, 0.0])
-    sp = params.sigma_meas
-    P0 = np.diag([sp**2, sp**2, 0.5**2, 1.0**2, 0.5**2])
     offsets = cfg.body_positions - cfg.cg_body
-    res = run_pose_filter(tt, o, offsets, x0, P0, k0, params)
-    X = res.states[k0:]
+    r_m = offsets - np.asarray(params.no_slip_point_m)
+    if method == "gtsam":
+        from estimator.gtsam_peer import run_gtsam_peer
+
+        res = run_gtsam_peer(tt, o, offsets, params)
+        X, status = res.fixed_lag, res.status
+        extra = {}
+    else:
+        res = run_pose_filter(tt, o, offsets, params)
+        X, status = res.states, res.status
+        if method == "ekf_smoother":
+            X = _smoother.rts_smooth(res, params.reverse, covariances=False).states
+        elif method == "ekf_fixed_lag":
+            X = _smoother.fixed_lag_smooth(res, tt, params.lag_s, params.reverse).states
+        extra = {"n_used": res.n_used[k0:], "n_gated": res.n_gated[k0:],
+                 "n_steps": res.n_steps[k0:]}
+    X = X[k0:]
     c, sn = np.cos(X[:, 2]), np.sin(X[:, 2])
     R = np.stack([np.stack([c, -sn], -1), np.stack([sn, c], -1)], -2)  # (N, 2, 2)
-    pos = X[:, None, :2] + np.einsum("nab,mb->nma", R, offsets)
-    extra = {"speed": X[:, 3], "yaw_rate": X[:, 4], "n_used": res.n_used[k0:],
-             "n_gated": res.n_gated[k0:]}
-    return pos, X[:, 2].copy(), res.status[k0:].astype(object), extra
+    pos = X[:, None, :2] + np.einsum("nab,mb->nma", R, r_m)
+    extra = {"speed": X[:, 3], "yaw_rate": X[:, 5], **extra}
+    return pos, X[:, 2].copy(), np.asarray(status[k0:], dtype=object), extra

@@ -64,8 +64,11 @@ Axes (scalar or list; the dict-valued ones take a table or a list of tables):
   ``dyn_growth`` (how the dynamic window grows back after a turn: "jump", default, or
   "refill", one epoch per step, :data:`DYN_GROWTH`).
   Axes that do not apply to a technique are recorded as "-" (0 for ``dyn_window``): the
-  solver for motion_compensated / ekf / naive, the weighting for ekf / naive, and
-  dyn_window / turning / dyn_growth for techniques without the dynamic window.
+  solver for motion_compensated / naive and the pose-filter family (ekf, ekf_fixed_lag,
+  ekf_smoother, gtsam), the weighting for naive and that family, and dyn_window / turning /
+  dyn_growth for techniques without the dynamic window. The filter family takes the
+  platform's limits and no-slip point from the simulated vehicle (the path file and the
+  vehicle model).
 - ``masks`` (top level): "full", "no_turns" (estimates dated at an epoch that is not
   turning), "no_turns_window" (estimates whose whole window is free of turning epochs).
 - Oracle techniques (:data:`ORACLE_TECHNIQUES`) use the simulator's truth and are reported
@@ -95,6 +98,7 @@ from estimator.model_files import SOURCE_CHECKOUT
 __all__ = [
     "AXES",
     "DYN_GROWTH",
+    "FILTER_TECHNIQUES",
     "MASKS",
     "ORACLE_TECHNIQUES",
     "PRESETS_DIR",
@@ -121,7 +125,10 @@ _HUFF_T = re.compile(r"^huff:(\d+(\.\d+)?)$")
 #: "lc_course" is the lag correction with the course (direction of the estimated velocity)
 #: in place of the platform orientation (estimator.lag, variant "course").
 TECHNIQUES = ("none", "lc", "dyn", "lc+dyn", "lc_course", "lc_course+dyn", "motion_compensated",
-              "ekf", "naive")
+              "ekf", "naive", "ekf_fixed_lag", "ekf_smoother", "gtsam")
+#: Issue 14: the pose filter's fixed-lag and full RTS smoothers, and the GTSAM fixed-lag
+#: factor-graph peer (optional dependency gtsam; a spec naming it fails on load without it).
+FILTER_TECHNIQUES = ("ekf", "ekf_fixed_lag", "ekf_smoother", "gtsam")
 #: Oracle techniques (issue 15): the lag correction of Section 3.4.2 fed the simulator's
 #: heading instead of the estimated one ("LC (simulator heading)", alone and with the
 #: dynamic window). They use the truth, so they are diagnostics, never estimator results.
@@ -139,8 +146,8 @@ DYN_GROWTH = ("jump", "refill")
 
 #: Techniques that do not use the window solver / take no weights / no dynamic window: the
 #: axis value is recorded as "-" (not applicable) so such cells are not duplicated.
-NO_SOLVER = ("motion_compensated", "ekf", "naive")
-NO_WEIGHTS = ("ekf", "naive")
+NO_SOLVER = ("motion_compensated", "ekf", "naive", "ekf_fixed_lag", "ekf_smoother", "gtsam")
+NO_WEIGHTS = ("ekf", "naive", "ekf_fixed_lag", "ekf_smoother", "gtsam")
 DYNAMIC = ("dyn", "lc+dyn", "lc_course+dyn", "lc_sim_heading+dyn")
 
 #: Every axis and its default when neither [defaults] nor a grid block sets it.
@@ -693,6 +700,12 @@ def _check_axis(axis: str, v: object, where: str, base: Path, *, scalar: bool) -
     elif axis == "technique":
         if v not in TECHNIQUES:
             raise SpecError(f"{where}: unknown technique {v!r}; allowed: {list(TECHNIQUES)}")
+        if v == "gtsam":
+            import importlib.util
+
+            if importlib.util.find_spec("gtsam") is None:
+                raise SpecError(f"{where}: technique 'gtsam' needs the optional dependency "
+                                "gtsam: pip install -e '.[gtsam]'")
     elif axis == "solver":
         if v not in SOLVERS:
             raise SpecError(f"{where}: unknown solver {v!r}; allowed: {list(SOLVERS)}")

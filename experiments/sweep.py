@@ -63,6 +63,7 @@ import pandas as pd
 
 from experiments.provenance import code_version
 from experiments.spec import (
+    FILTER_TECHNIQUES,
     REPO,
     RESULTS_ROOT,
     Cell,
@@ -79,6 +80,7 @@ __all__ = [
     "cell_rng",
     "code_version",
     "evaluate_cell",
+    "filter_params_for",
     "main",
     "run",
     "simulate_truth",
@@ -191,10 +193,26 @@ _TECHNIQUE_KW = {
     "motion_compensated": {"method": "motion_compensated"},
     "ekf": {"method": "ekf"},
     "naive": {"method": "naive"},
+    "ekf_fixed_lag": {"method": "ekf_fixed_lag"},
+    "ekf_smoother": {"method": "ekf_smoother"},
+    "gtsam": {"method": "gtsam"},
     # oracles (experiments.spec.ORACLE_TECHNIQUES): the truth's heading in step 5 of 3.4.2
     "lc_sim_heading": {"lag_correction": True, "heading": "truth"},
     "lc_sim_heading+dyn": {"lag_correction": True, "heading": "truth", "dynamic": True},
 }
+
+
+def filter_params_for(truth):
+    """The pose filter's parameters for a simulated vehicle (issue 14): its limits (the
+    path's speed, acceleration, turn-rate and lateral-acceleration limits and the
+    controller's yaw-acceleration limit, as the simulator drove them) and its no-slip point
+    (the driven axle's midpoint, read from the vehicle model by the simulator). Nothing
+    here is fitted to the truth's trajectory."""
+    from estimator.pose_filter import PoseFilterParams
+
+    ns = truth.meta.get("no_slip_point_m", (0.0, 0.0))
+    return PoseFilterParams.from_limits(truth.meta["params"]["controller"],
+                                        no_slip_point_m=(float(ns[0]), float(ns[1])))
 
 
 def _observations(cell: Cell, truth, config, ctx: CellContext) -> np.ndarray:
@@ -330,8 +348,11 @@ def evaluate_cell(cell: Cell, truth, ctx: CellContext) -> CellOutput:
     config = ctx.memo[ckey]
     obs = _observations(cell, truth, config, ctx)
     t1 = time.perf_counter()
+    extra = {}
+    if cell.technique in FILTER_TECHNIQUES:
+        extra["filter_params"] = filter_params_for(truth)
     df = _track_cell(cell, truth.t, obs, config, truth.turning.astype(bool), ctx,
-                     true_yaw=np.asarray(truth.yaw, dtype=float), layout_check=False)
+                     true_yaw=np.asarray(truth.yaw, dtype=float), layout_check=False, **extra)
     t2 = time.perf_counter()
     rows, ep = score_track(df, truth, obs, config, ctx.masks, epochs=ctx.want_epochs)
     # the models' own names (a spec may name them by file, e.g. "rects/rect30.toml"): tables

@@ -38,6 +38,7 @@ from sim.atomic import atomic_write, atomic_write_text
 __all__ = [
     "BEYOND_ROWS",
     "GROWTH_ORDER",
+    "HEADING_ROWS",
     "ORACLE_ROWS",
     "PATH_LABELS",
     "READING_ROWS",
@@ -46,6 +47,7 @@ __all__ = [
     "aggregate",
     "faithful",
     "fmt_ci",
+    "heading_table",
     "orientation_table",
     "seed_ci",
     "side_studies",
@@ -88,8 +90,21 @@ BEYOND_ROWS = {
     "LC (course)": ("lc_course", "full"),
     "LC (course) + Dyn SW": ("lc_course+dyn", "full"),
     "Motion-compensated": ("motion_compensated", "full"),
-    "CV Kalman (EKF)": ("ekf", "full"),
+    "EKF (causal)": ("ekf", "full"),
     "Naive CG mean": ("naive", "full"),
+    # issue 14: the pose filter's smoothers and the GTSAM factor-graph peer
+    "EKF fixed-lag smoother": ("ekf_fixed_lag", "full"),
+    "EKF RTS smoother": ("ekf_smoother", "full"),
+    "GTSAM fixed-lag (peer)": ("gtsam", "full"),
+}
+#: Rows of the heading table (issue 14): the pose-filter family and the window fits.
+HEADING_ROWS = {
+    "EKF (causal)": "ekf",
+    "EKF fixed-lag smoother": "ekf_fixed_lag",
+    "EKF RTS smoother": "ekf_smoother",
+    "GTSAM fixed-lag (peer)": "gtsam",
+    "Window fit": "none",
+    "Motion-compensated": "motion_compensated",
 }
 
 # Published values, Table 4.1 (x) and Table 4.2 (y): (window, row) -> (mean, median, std).
@@ -454,11 +469,58 @@ def orientation_table(cells: pd.DataFrame, technique: str = "none") -> pd.DataFr
     sub = select(cells, technique=technique, mask="full").copy()
     if sub.empty or "eh_mean" not in sub:
         return pd.DataFrame()
-    for s in ("mean", "median", "p95", "max"):
-        sub[f"eh_{s}_deg"] = np.degrees(sub[f"eh_{s}"])
+    for s in ("mean", "median", "rmse", "p95", "max"):
+        if f"eh_{s}" in sub:
+            sub[f"eh_{s}_deg"] = np.degrees(sub[f"eh_{s}"])
     sub["eh_outliers_pct"] = 100 * sub["eh_outliers"]
     return aggregate(sub, ["path", "weighting", "window"],
-                     ["eh_mean_deg", "eh_median_deg", "eh_p95_deg", "eh_outliers_pct"])
+                     ["eh_mean_deg", "eh_median_deg", "eh_rmse_deg", "eh_p95_deg",
+                      "eh_outliers_pct"])
+
+
+def heading_table(cells: pd.DataFrame) -> pd.DataFrame:
+    """Heading side by side (issue 14): the pose filter (causal), its fixed-lag and RTS
+    smoothers, the GTSAM peer and the window fits, per path, full path.
+
+    One row per (path, :data:`HEADING_ROWS` technique, window, weighting) present: over
+    seeds, the mean and 95 % interval of the heading RMS (Eq. 4.2 errors, degrees), the
+    heading p95 (degrees), the mean Euclidean CG error (m), the time per epoch of the
+    estimator (``t_track_s / n_epochs``, microseconds), and ``flip_seeds``: the number of
+    seeds with a heading error above 90 degrees at some epoch. The filter family ignores the
+    window (it only sets the first row), so only its smallest window is listed; window fits
+    and the motion-compensated window are listed at every window, with Huff weights where
+    present (else none).
+    """
+    sub = select(cells, mask="full", technique=list(HEADING_ROWS.values())).copy()
+    if sub.empty or "eh_rmse" not in sub:
+        return pd.DataFrame()
+    sub["eh_rmse_deg"] = np.degrees(sub["eh_rmse"])
+    sub["eh_p95_deg"] = np.degrees(sub["eh_p95"])
+    sub["us_per_epoch"] = 1e6 * sub["t_track_s"] / sub["n_epochs"].clip(lower=1)
+    rows = []
+    label_of = {v: k for k, v in HEADING_ROWS.items()}
+    for path in dict.fromkeys(sub["path"]):
+        sp = sub[sub["path"] == path]
+        for tech in HEADING_ROWS.values():
+            st = sp[sp["technique"] == tech]
+            if st.empty:
+                continue
+            wts = set(st["weighting"])
+            wt = "-" if "-" in wts else ("huff" if "huff" in wts else sorted(wts)[0])
+            st = st[st["weighting"] == wt]
+            windows = sorted(set(st["window"]))
+            if tech in ("ekf", "ekf_fixed_lag", "ekf_smoother", "gtsam"):
+                windows = windows[:1]
+            for w in windows:
+                g = st[st["window"] == w]
+                row = {"path": path, "estimator": label_of[tech], "technique": tech,
+                       "window": int(w), "weighting": wt, "n_seeds": int(g["seed"].nunique()),
+                       "flip_seeds": int((g["eh_max"] > np.pi / 2).sum())}
+                for col in ("eh_rmse_deg", "eh_p95_deg", "eu_mean", "us_per_epoch"):
+                    m, lo, hi, _ = seed_ci(g[col])
+                    row[col], row[f"{col}_lo"], row[f"{col}_hi"] = m, lo, hi
+                rows.append(row)
+    return pd.DataFrame(rows)
 
 
 # --------------------------------------------------------------------------- markdown
@@ -559,8 +621,23 @@ def _variant_tables(cells: pd.DataFrame, out: Path, vlabel: str) -> list[str]:
         md += [_md(ot, [("Path", lambda r: PATH_LABELS.get(r["path"], r["path"])),
                         ("Weights", "weighting"), ("Window", "window"),
                         ("mean", _ci("eh_mean_deg", 1)), ("median", _ci("eh_median_deg", 1)),
-                        ("p95", _ci("eh_p95_deg", 1)),
+                        ("RMS", _ci("eh_rmse_deg", 1)), ("p95", _ci("eh_p95_deg", 1)),
                         ("outliers %", _ci("eh_outliers_pct", 1))]), ""]
+    ht = heading_table(cells)
+    if not ht.empty:
+        atomic_write(out / f"heading{tag}.csv", lambda p: ht.to_csv(p, index=False))
+        md += ["## Heading: pose filter, smoothers, GTSAM peer and window fits (issue 14)", "",
+               ("Full path. Heading RMS and p95 of the Eq. 4.2 error in degrees, mean "
+                "Euclidean CG error in metres, estimator time per epoch in microseconds "
+                "(this run's machine and load); 95 % intervals over seeds. \"flips\": seeds "
+                "with a heading error above 90 degrees at some epoch."), ""]
+        md += [_md(ht, [("Path", lambda r: PATH_LABELS.get(r["path"], r["path"])),
+                        ("Estimator", "estimator"), ("Window", "window"),
+                        ("Weights", "weighting"), ("Heading RMS (deg)", _ci("eh_rmse_deg", 2)),
+                        ("Heading p95 (deg)", _ci("eh_p95_deg", 2)),
+                        ("CG error (m)", _ci("eu_mean", 3)),
+                        ("Time/epoch (us)", _ci("us_per_epoch", 0)),
+                        ("Flips", lambda r: f"{r['flip_seeds']}/{r['n_seeds']}")]), ""]
     return md
 
 
@@ -590,7 +667,8 @@ def _side_study_md(study: pd.DataFrame, out: Path) -> list[str]:
 
 def write_tables(cells: pd.DataFrame, out_dir: str | Path) -> Path:
     """Write tables.md and the CSVs (table_4_1*.csv, table_4_2*.csv, weighting.csv,
-    orientation.csv, by_cell.csv) to ``out_dir``; returns the path of tables.md."""
+    orientation.csv, heading.csv, by_cell.csv) to ``out_dir``; returns the path of
+    tables.md."""
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     n_seeds = int(cells["seed"].nunique())
@@ -616,7 +694,7 @@ def write_tables(cells: pd.DataFrame, out_dir: str | Path) -> Path:
             "weighting", "technique", "window", "dyn_window", "turning", "dyn_growth", "mask"]
     by = aggregate(cells, [a for a in axes if a in cells.columns],
                    ["ex_mean", "ex_median", "ex_std", "ey_mean", "ey_median", "ey_std",
-                    "eu_mean", "eu_rmse", "eh_median", "along_mean", "jitter_rms"])
+                    "eu_mean", "eu_rmse", "eh_median", "eh_rmse", "along_mean", "jitter_rms"])
     from experiments.spec import ORACLE_TECHNIQUES
 
     by["oracle"] = by["technique"].isin(ORACLE_TECHNIQUES)   # truth-fed: not a result

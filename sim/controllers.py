@@ -14,7 +14,12 @@ Section 4.9). Here that is a pure-pursuit follower of the path's polyline:
   heading and ``l`` its distance.
 - Speed: cruise speed, reduced so that ``v^2 |kappa| <= max_lateral_accel`` and
   ``v |kappa| <= max_turn_rate``, and on the final segment to ``sqrt(2 a d)`` so the platform
-  stops at the route's end point (``d`` = distance left along the segment).
+  stops at the route's end point (``d`` = distance left along the segment). With
+  ``corner_speed_mps`` set (a car at speed, models/paths/car_block.toml) also to
+  ``sqrt(v_c^2 + 2 a' d)`` before each corner, ``d`` = distance to the corner's target area:
+  the platform brakes before the corner as a driver does, instead of entering it at cruise
+  speed and turning wide under the lateral-acceleration limit. (``a' = 0.8 a`` as for the
+  stop.) Off by default: the rover's paths do not set it.
 - Commands (v, omega) are rate-limited (``max_accel_mps2``, ``max_yaw_accel_radps2``), so
   the wheel speeds ``(v -/+ omega b/2)/r`` are rate-limited too (no wheel skid at waypoint
   switches, ../shared/notes/mujoco.md).
@@ -59,6 +64,7 @@ class PurePursuitParams:
     target_radius_m : radius of the target area around each waypoint (Section 4.9).
     cruise_speed_mps, max_turn_rate_radps, max_lateral_accel_mps2, max_accel_mps2 :
         speed and limits. max_yaw_accel_radps2 : rate limit of the turn-rate command.
+    corner_speed_mps : speed to brake to before each corner (None: no anticipation).
     turning_curvature_per_m : the turning flag is set while ``|omega_cmd| >
         turning_curvature_per_m * cruise_speed_mps`` (1/m). Default 1/15 (a 15 m turn
         radius; 0.1 rad/s at 1.5 m/s, 0.013 rad/s at 0.2 m/s): the corners peak at a
@@ -79,9 +85,12 @@ class PurePursuitParams:
     max_yaw_accel_radps2: float = 1.0
     turning_curvature_per_m: float = 1.0 / 15.0
     stop_tolerance_m: float = 0.02
+    corner_speed_mps: float | None = None
 
     def __post_init__(self) -> None:
         for k, v in asdict(self).items():
+            if v is None and k == "corner_speed_mps":
+                continue
             if not (isinstance(v, (int, float)) and not isinstance(v, bool)
                     and math.isfinite(v) and v > 0):
                 raise ValueError(f"{k}: must be a finite number > 0, got {v!r}")
@@ -92,7 +101,7 @@ class PurePursuitParams:
         kw: dict[str, float] = {"target_radius_m": path.target_radius_m,
                                 "cruise_speed_mps": path.cruise_speed_mps}
         for k in ("lookahead_m", "max_turn_rate_radps", "max_lateral_accel_mps2",
-                  "max_accel_mps2"):
+                  "max_accel_mps2", "corner_speed_mps"):
             v = getattr(path, k)
             if v is not None:
                 kw[k] = v
@@ -178,6 +187,12 @@ def pure_pursuit_step(state: PurePursuitState, x: float, y: float, yaw: float,
     gy = ay + (along + p.lookahead_m) * uy
     kappa = pure_pursuit_curvature(x, y, yaw, gx, gy)
     v_target = speed_limit(kappa, p)
+    if p.corner_speed_mps is not None and state.segment < last:
+        # brake before the next corner: v <= sqrt(v_c^2 + 2 a' d), d = distance to its
+        # target area (the turn starts there), a' = 0.8 a as for the final stop
+        d = max(seg_len - along - p.target_radius_m, 0.0)
+        v_target = min(v_target, math.sqrt(p.corner_speed_mps ** 2
+                                            + 2.0 * 0.8 * p.max_accel_mps2 * d))
     if state.segment == last:
         remaining = seg_len - along
         if remaining <= p.stop_tolerance_m:

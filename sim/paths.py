@@ -24,6 +24,10 @@ name the file and the field)::
     max_accel_mps2 = 0.5
     lookahead_m = 3.0                  # pure-pursuit lookahead distance
     altitude_m = 1.5                   # quadcopter: flight altitude for 2-D waypoints (finite)
+    corner_speed_mps = 5.0             # optional, > 0: brake before each corner to this speed
+                                       # (a driver's anticipation; absent = no anticipation)
+    vehicle = "car"                    # optional: MuJoCo model models/<vehicle>.xml that
+                                       # drives the path (absent = models/rover.xml)
 
 Conventions: the first waypoint is the start. With ``closed = true`` the route returns to the
 first waypoint at the end (do not repeat it; a repeated start point is rejected as ambiguous).
@@ -58,7 +62,7 @@ PATHS_DIR = MODELS_DIR / "paths"
 
 _REQUIRED = ("name", "waypoints", "closed", "target_radius_m", "cruise_speed_mps")
 _POSITIVE_OPTIONAL = ("max_turn_rate_radps", "max_lateral_accel_mps2", "max_accel_mps2",
-                      "lookahead_m")
+                      "lookahead_m", "corner_speed_mps")
 #: Physical ranges of the numeric fields (units in the names). A value outside is a typo
 #: (km/h for m/s, ms for s) and would make a simulation run for days or never move.
 _RANGES = {
@@ -69,11 +73,12 @@ _RANGES = {
     "max_lateral_accel_mps2": (1e-3, 100.0),    # 10 g
     "max_accel_mps2": (1e-3, 100.0),
     "lookahead_m": (1e-2, 1e4),
+    "corner_speed_mps": (1e-2, 100.0),
 }
 #: Longest route a path may describe at its cruise speed (simulated time, s): 7 days.
 MAX_ROUTE_S = 7 * 86400.0
 _ALLOWED = set(_REQUIRED) | set(_POSITIVE_OPTIONAL) | {"description", "sample_rate_hz",
-                                                        "altitude_m"}
+                                                        "altitude_m", "vehicle"}
 
 
 class PathError(ValueError):
@@ -99,6 +104,9 @@ class Path:
     description : str
     altitude_m, max_turn_rate_radps, max_lateral_accel_mps2, max_accel_mps2, lookahead_m :
         float or None (None = the simulator's own default).
+    corner_speed_mps : float or None, speed to brake to before each corner (None = none).
+    vehicle : str or None, the MuJoCo model ``models/<vehicle>.xml`` driving the path
+        (None = the rover).
     source : str, the file the path was read from (or "<dict>").
     """
 
@@ -114,6 +122,8 @@ class Path:
     max_lateral_accel_mps2: float | None = None
     max_accel_mps2: float | None = None
     lookahead_m: float | None = None
+    corner_speed_mps: float | None = None
+    vehicle: str | None = None
     source: str = field(default="<dict>", compare=False)
 
     def __post_init__(self) -> None:
@@ -147,6 +157,10 @@ class Path:
                 raise PathError(f"{src}: {key} = {v!r} is outside its physical range "
                                 f"[{lo:g}, {hi:g}]")
             object.__setattr__(self, key, float(v))
+        if self.vehicle is not None and not (isinstance(self.vehicle, str)
+                                             and self.vehicle.isidentifier()):
+            raise PathError(f"{src}: vehicle must be a model name such as \"car\" "
+                            f"(models/<vehicle>.xml), got {self.vehicle!r}")
         if self.altitude_m is not None:
             if not _is_number(self.altitude_m) or not math.isfinite(self.altitude_m):
                 raise PathError(f"{src}: altitude_m must be a finite number, got {self.altitude_m!r}")
@@ -214,7 +228,7 @@ class Path:
             "target_radius_m": self.target_radius_m, "cruise_speed_mps": self.cruise_speed_mps,
             "sample_rate_hz": self.sample_rate_hz,
         }
-        for key in ("altitude_m", *_POSITIVE_OPTIONAL):
+        for key in ("altitude_m", *_POSITIVE_OPTIONAL, "vehicle"):
             v = getattr(self, key)
             if v is not None:
                 out[key] = v

@@ -16,6 +16,15 @@ so the layout has one source of truth: site = (x, y, mount_height_m) in the chas
 2-D configuration, (x, y, mount_height_m + z) for a 3-D one. A model that already contains
 ``gps_`` sites is refused.
 
+Other vehicles: a path may name its MuJoCo model (``vehicle = "car"`` in the path file:
+``models/car.xml``, a car-sized platform driven by its rear axle, see that file for why it is
+built this way); any such model has the rover's named parts (body "chassis" with free joint
+"root", wheel bodies, geoms and velocity actuators "wheel_left"/"wheel_right"). The
+controller steers the midpoint of the driven wheels (the axle's no-slip point; on the rover
+it is the chassis origin, so the rover's numbers are unchanged by this generality), and
+``meta["no_slip_point_m"]`` records that point in the chassis frame (x forward, y left, m),
+for estimators that model the non-holonomic constraint (estimator.pose_filter).
+
 Reference point ("CG" in the Truth): the chassis body origin, on the ground plane directly
 below the roof centre. For ``rover_gps8`` that is the mean of antennas 2, 3, 6, 7 (Eq. 3.8)
 projected to the ground (z ~ 0; the contacts sink the wheels by about 0.03 mm). The chassis
@@ -160,7 +169,7 @@ def simulate_rover(
     control_rate_hz: float | None = None,
     timestep_s: float | None = None,
     controller: dict[str, float] | None = None,
-    xml_path: str | FsPath = ROVER_XML,
+    xml_path: str | FsPath | None = None,
     max_duration_s: float | None = None,
 ) -> Truth:
     """Drive ``path`` with the rover carrying ``config``'s antennas; return the exact Truth.
@@ -179,8 +188,9 @@ def simulate_rover(
         rates enter the cache key (through the compiled XML and the run parameters).
     controller : overrides of :class:`~sim.controllers.PurePursuitParams` fields
         (e.g. ``{"turning_curvature_per_m": 0.1}``); the rest comes from the path.
-    xml_path : the MJCF model (default models/rover.xml); it must have a body "chassis",
-        hinge joints and velocity actuators named "wheel_left"/"wheel_right".
+    xml_path : the MJCF model (default: ``models/<path.vehicle>.xml`` if the path names a
+        vehicle, else models/rover.xml); it must have a body "chassis", hinge joints and
+        velocity actuators named "wheel_left"/"wheel_right".
     max_duration_s : give up (RuntimeError) if the route is not finished by then; default
         ``2 * length / cruise + 120`` s.
 
@@ -205,6 +215,10 @@ def simulate_rover(
             math.isfinite(rate) and rate > 0):
         raise ValueError(f"sample_rate_hz: must be a finite number > 0, got {rate!r}")
     params = PurePursuitParams.from_path(path, **(controller or {}))
+    if xml_path is None:
+        xml_path = ROVER_XML if path.vehicle is None else MODELS_DIR / f"{path.vehicle}.xml"
+        if not FsPath(xml_path).is_file():
+            raise ValueError(f"path: vehicle {path.vehicle!r} has no model {xml_path}")
     model, xml = build_rover_model(config, xml_path, timestep_s=timestep_s)
     dt = float(model.opt.timestep)
     if control_rate_hz is None:
@@ -267,11 +281,17 @@ def _run(model: mujoco.MjModel, config: SensorConfig, path: Path, params: PurePu
     # bodies, radius = the wheel geom's size
     track = float(np.linalg.norm(model.body_pos[wheel_l] - model.body_pos[wheel_r]))
     radius = float(model.geom_size[name2id(model, obj.mjOBJ_GEOM, "wheel_left"), 0])
+    # the controlled point: the driven axle's midpoint in the chassis frame (the rover's
+    # is the chassis origin: (0, 0), and adding 0.0 below changes no bit of its numbers)
+    axle_x, axle_y = (float(v) for v in
+                      0.5 * (model.body_pos[wheel_l, :2] + model.body_pos[wheel_r, :2]))
 
-    # initial pose: start point, facing the first segment
+    # initial pose: the controlled point on the start point, facing the first segment
     verts = [(float(a), float(b)) for a, b in path.polyline[:, :2]]
     yaw0 = math.atan2(verts[1][1] - verts[0][1], verts[1][0] - verts[0][0])
-    data.qpos[root:root + 3] = [verts[0][0], verts[0][1], 0.0]
+    c0, s0 = math.cos(yaw0), math.sin(yaw0)
+    data.qpos[root:root + 3] = [verts[0][0] - (c0 * axle_x - s0 * axle_y),
+                                verts[0][1] - (s0 * axle_x + c0 * axle_y), 0.0]
     data.qpos[root + 3:root + 7] = [math.cos(yaw0 / 2), 0.0, 0.0, math.sin(yaw0 / 2)]
     mujoco.mj_forward(model, data)
     mujoco.mj_step(model, data, round(_SETTLE_S / dt))   # let the contacts settle
@@ -318,8 +338,10 @@ def _run(model: mujoco.MjModel, config: SensorConfig, path: Path, params: PurePu
                                    f"max_duration_s = {max_duration_s} s")
             next_sample = round(k * steps_per_sample)
         if step == next_ctrl:
-            x, y = float(qpos[root]), float(qpos[root + 1])
             yaw = _yaw_of_quat(*qpos[root + 3:root + 7])
+            cy, sy = math.cos(yaw), math.sin(yaw)
+            x = float(qpos[root]) + (cy * axle_x - sy * axle_y)
+            y = float(qpos[root + 1]) + (sy * axle_x + cy * axle_y)
             trace.append((x, y))
             v, omega, turning = pure_pursuit_step(state, x, y, yaw, verts, params, ctrl_dt)
             ctrl[act_l], ctrl[act_r] = diff_drive_wheel_speeds(v, omega, track, radius)
@@ -334,9 +356,12 @@ def _run(model: mujoco.MjModel, config: SensorConfig, path: Path, params: PurePu
     wall = time.perf_counter() - wall0
     n = k
     cg = cg_log[:n].copy()
-    trace.append((float(cg[-1, 0]), float(cg[-1, 1])))
+    ye = float(yaw_log[n - 1])
+    trace.append((float(cg[-1, 0]) + (math.cos(ye) * axle_x - math.sin(ye) * axle_y),
+                  float(cg[-1, 1]) + (math.sin(ye) * axle_x + math.cos(ye) * axle_y)))
     errors = path_errors(np.array(trace), path)   # at the control rate: 1 Hz is too coarse
-    meta = {**meta, "sim_seconds": float(t_log[n - 1]), "wall_seconds": wall,
+    meta = {**meta, "no_slip_point_m": [axle_x, axle_y],
+            "sim_seconds": float(t_log[n - 1]), "wall_seconds": wall,
             "sim_seconds_per_wall_second": float(t_log[n - 1]) / wall,
             "path_errors": errors.as_dict()}
     return Truth(t=t_log[:n].copy(), sensor_positions=sp_log[:n].copy(),
