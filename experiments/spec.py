@@ -129,6 +129,9 @@ TECHNIQUES = ("none", "lc", "dyn", "lc+dyn", "lc_course", "lc_course+dyn", "moti
 #: Issue 14: the pose filter's fixed-lag and full RTS smoothers, and the GTSAM fixed-lag
 #: factor-graph peer (optional dependency gtsam; a spec naming it fails on load without it).
 FILTER_TECHNIQUES = ("ekf", "ekf_fixed_lag", "ekf_smoother", "gtsam")
+#: Beyond the dissertation (issue 14): the lag correction of Section 3.4.2 with the pose
+#: filter's RTS-smoothed heading (from the same observations) in place of the estimated one.
+TECHNIQUES = TECHNIQUES + ("lc_smoothed_heading",)
 #: Oracle techniques (issue 15): the lag correction of Section 3.4.2 fed the simulator's
 #: heading instead of the estimated one ("LC (simulator heading)", alone and with the
 #: dynamic window). They use the truth, so they are diagnostics, never estimator results.

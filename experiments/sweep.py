@@ -199,6 +199,8 @@ _TECHNIQUE_KW = {
     # oracles (experiments.spec.ORACLE_TECHNIQUES): the truth's heading in step 5 of 3.4.2
     "lc_sim_heading": {"lag_correction": True, "heading": "truth"},
     "lc_sim_heading+dyn": {"lag_correction": True, "heading": "truth", "dynamic": True},
+    # beyond (issue 14): the pose filter's RTS-smoothed heading in step 5 of 3.4.2
+    "lc_smoothed_heading": {"lag_correction": True, "heading": "smoothed"},
 }
 
 
@@ -348,11 +350,11 @@ def evaluate_cell(cell: Cell, truth, ctx: CellContext) -> CellOutput:
     config = ctx.memo[ckey]
     obs = _observations(cell, truth, config, ctx)
     t1 = time.perf_counter()
-    extra = {}
-    if cell.technique in FILTER_TECHNIQUES:
-        extra["filter_params"] = filter_params_for(truth)
+    fp = (filter_params_for(truth) if cell.technique in FILTER_TECHNIQUES
+          or _TECHNIQUE_KW[cell.technique].get("heading") == "smoothed" else None)
     df = _track_cell(cell, truth.t, obs, config, truth.turning.astype(bool), ctx,
-                     true_yaw=np.asarray(truth.yaw, dtype=float), layout_check=False, **extra)
+                     true_yaw=np.asarray(truth.yaw, dtype=float), filter_params=fp,
+                     layout_check=False)
     t2 = time.perf_counter()
     rows, ep = score_track(df, truth, obs, config, ctx.masks, epochs=ctx.want_epochs)
     # the models' own names (a spec may name them by file, e.g. "rects/rect30.toml"): tables
@@ -389,11 +391,14 @@ def _noise_name(cell: Cell) -> str:
 
 
 def _track_cell(cell: Cell, t: np.ndarray, obs: np.ndarray, config, turning, ctx: CellContext,
-                true_yaw: np.ndarray | None = None, **kw_extra: Any) -> pd.DataFrame:
+                true_yaw: np.ndarray | None = None, filter_params=None,
+                **kw_extra: Any) -> pd.DataFrame:
     """:func:`estimator.tracking.track` with the cell's window, weighting, technique and
     solver; ``turning`` is the "controller" flag (n,) bool (None: none available, the
     dynamic window then uses the detector); ``true_yaw`` (n,) rad the reference heading the
-    oracle techniques hand to the lag correction (None: no reference, such a cell fails)."""
+    oracle techniques hand to the lag correction (None: no reference, such a cell fails);
+    ``filter_params`` the pose filter's parameters (the filter techniques, and the smoothed
+    heading of "lc_smoothed_heading"; None = the rover's defaults)."""
     from estimator.tracking import track
 
     kw = dict(_TECHNIQUE_KW[cell.technique])
@@ -402,11 +407,20 @@ def _track_cell(cell: Cell, t: np.ndarray, obs: np.ndarray, config, turning, ctx
         kw["dynamic_window"] = cell.dyn_window
         kw["window_growth"] = cell.dyn_growth
         flags = turning if cell.turning == "controller" and turning is not None else "detect"
-    if kw.pop("heading", None) == "truth":
+    heading = kw.pop("heading", None)
+    if heading == "truth":
         if true_yaw is None:
             raise ValueError(f"technique {cell.technique!r}: an oracle row needs the reference "
                              "heading, and this cell has none")
         kw["lag_heading"] = true_yaw
+    elif heading == "smoothed":
+        # "smoothed": an estimator of its own (issue 14): the pose filter's RTS heading from
+        # the same observations replaces the law-of-cosines heading in step 5 of 3.4.2
+        from estimator.pose_smoother import smoothed_heading
+
+        kw["lag_heading"] = smoothed_heading(t, obs, config, filter_params)
+    if cell.technique in FILTER_TECHNIQUES and filter_params is not None:
+        kw["filter_params"] = filter_params
     weighting, extra = cell.weighting, {}
     if weighting == "-":
         weighting = "none"

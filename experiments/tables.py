@@ -96,6 +96,7 @@ BEYOND_ROWS = {
     "EKF fixed-lag smoother": ("ekf_fixed_lag", "full"),
     "EKF RTS smoother": ("ekf_smoother", "full"),
     "GTSAM fixed-lag (peer)": ("gtsam", "full"),
+    "LC, smoothed heading": ("lc_smoothed_heading", "full"),
 }
 #: Rows of the heading table (issue 14): the pose-filter family and the window fits.
 HEADING_ROWS = {

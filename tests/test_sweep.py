@@ -475,3 +475,34 @@ def test_spec_without_epochs_says_which_figures_it_cannot_draw(tmp_path, capsys,
     run(spec, out=tmp_path / "out", jobs=1, progress=False, cache_dir=truth_cache)
     err = capsys.readouterr().err
     assert "no cell kept per-epoch estimates" in err and "[epochs]" in err
+
+
+def test_lc_with_smoothed_heading_is_an_estimator_row(tmp_path, truth_cache):
+    """Issue 14's "LC, smoothed heading": the pose filter's RTS heading from the same
+    observations feeds step 5 of the lag correction. It uses no truth (not an oracle) and,
+    on square20, its heading is closer to the truth than the law-of-cosines heading LC uses."""
+    spec = tmp_path / "s.toml"
+    spec.write_text('name = "lcs"\nseeds = 1\n[defaults]\nnoise = "gps_stationary"\n'
+                    '[[grid]]\npath = "square20"\nwindow = 10\nweighting = "huff"\n'
+                    'technique = ["lc", "lc_smoothed_heading"]\n[epochs]\nseeds = [0]\n')
+    r = run(spec, out=tmp_path / "out", jobs=1, progress=False, figures=False,
+            cache_dir=truth_cache)
+    assert r.n_failed == 0, r.errors
+    from experiments.spec import ORACLE_TECHNIQUES
+
+    assert "lc_smoothed_heading" not in ORACLE_TECHNIQUES
+    by = pd.read_csv(tmp_path / "out" / "by_cell.csv")
+    assert not by.loc[by["technique"] == "lc_smoothed_heading", "oracle"].any()
+    ep = {t: pd.read_parquet(next((tmp_path / "out" / "epochs").glob(f"{k}.parquet")))
+          for t, k in r.cells.drop_duplicates("technique")[["technique", "key"]].values}
+    # the shift's direction follows the heading it is given: compare it with the truth's
+    shift = {t: e[["lag_dx", "lag_dy"]].to_numpy() for t, e in ep.items()}
+    assert np.isfinite(shift["lc_smoothed_heading"]).all(axis=1).mean() > 0.9
+    err = {}
+    for t, d in shift.items():
+        e = ep[t]
+        ang = np.arctan2(d[:, 1], d[:, 0])
+        off = np.angle(np.exp(1j * (ang - e["truth_yaw"].to_numpy())))
+        ok = np.isfinite(off) & (np.hypot(d[:, 0], d[:, 1]) > 0.5)
+        err[t] = np.sqrt(np.mean(np.minimum(np.abs(off[ok]), np.pi - np.abs(off[ok])) ** 2))
+    assert err["lc_smoothed_heading"] < 0.5 * err["lc"], err
