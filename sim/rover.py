@@ -68,6 +68,7 @@ from typing import Any
 import mujoco
 import numpy as np
 
+from estimator._checks import check_real
 from estimator.configuration import MODELS_DIR, SensorConfig
 from sim.cache import cached, key_hash, truth_key
 from sim.controllers import (
@@ -104,6 +105,8 @@ def default_control_steps(cruise_speed_mps: float, timestep_s: float) -> int:
     straight-line error (at the final stop) and 20 Hz 0.8 mm for the same wall time (the
     controller is < 10 % of it), hence the 20 Hz floor.
     """
+    cruise_speed_mps = check_real(cruise_speed_mps, "cruise_speed_mps", lo=0.0, lo_open=True)
+    timestep_s = check_real(timestep_s, "timestep_s", lo=0.0, lo_open=True)
     by_travel = math.floor(_CTRL_TRAVEL_M / (cruise_speed_mps * timestep_s) + 1e-9)
     by_rate = math.floor(1.0 / (_MIN_CTRL_RATE_HZ * timestep_s) + 1e-9)
     return max(1, min(by_travel, by_rate))

@@ -233,7 +233,7 @@ def simulate_ranges(t: np.ndarray, tx_positions: np.ndarray, receivers: np.ndarr
 
     dropped = _markov_dropouts(n, c, model, rng)
     held = (rng.random((n, c)) < model.hold_rate) & ~dropped
-    held[0] = False                                 # nothing to repeat at the first sample
+    held[:1] = False                                # nothing to repeat at the first sample
     fresh = ~dropped & ~held
     spiked = (rng.random((n, c)) < model.spike_rate) & fresh
     size = rng.uniform(model.spike_min_m, model.spike_max_m, size=(n, c))
@@ -262,6 +262,11 @@ def simulate_ranges(t: np.ndarray, tx_positions: np.ndarray, receivers: np.ndarr
     return out, codes.reshape(n, T, k)
 
 
+#: Most samples :func:`sample_times` draws (a day at 100 Hz): more is a unit typo, refused
+#: before any allocation.
+MAX_SAMPLES = 10_000_000
+
+
 def sample_times(duration_s: float, model: UltrasonicNoiseModel,
                  rng: np.random.Generator, t0: float = 0.0) -> np.ndarray:
     """Uneven sample times in [t0, t0 + duration_s]: intervals uniform in
@@ -270,6 +275,10 @@ def sample_times(duration_s: float, model: UltrasonicNoiseModel,
     if not isinstance(rng, np.random.Generator):
         raise ValueError(f"rng: expected numpy.random.Generator, got {type(rng).__name__}")  # noqa: TRY004 (DESIGN: ValueError)
     m = int(np.ceil(duration_s / model.min_interval_s)) + 1
+    if m > MAX_SAMPLES:
+        raise ValueError(f"duration_s: {duration_s!r} s at >= {model.min_interval_s} s per "
+                         f"sample is more than {MAX_SAMPLES:.0e} samples; simulate a shorter "
+                         "flight")
     dts = rng.uniform(model.min_interval_s, model.max_interval_s, size=m)
     t = t0 + np.concatenate([[0.0], np.cumsum(dts)])
     return t[t <= t0 + duration_s]

@@ -101,3 +101,53 @@ def test_huge_session_is_refused_before_allocation():
         synthesize_session(GpsNoiseModel.load("gps_stationary"), cfg, 1e15, rng)
     with pytest.raises(ValueError, match="receiver-samples"):
         synthesize_session(GpsNoiseModel.load("gps_stationary"), cfg, 100.0, rng, rate_hz=1e300)
+
+
+# ------------------------------------------------------------------ sim helpers (issue 13)
+@SETTINGS
+@given(v=st.one_of(EXTREME, st.sampled_from(["x", None, True])),
+       n=st.integers(0, 6), seed=st.integers(0, 2**16))
+def test_sim_helpers_survive_extremes(v, n, seed):
+    from sim import controllers, gps, rover, ultrasonic
+    from sim.paths import load_path
+
+    rng = np.random.default_rng(seed)
+    pp = controllers.PurePursuitParams.from_path(load_path("square20"))
+    _ok(controllers.rate_limit, v, 0.0, 1.0, 0.1)
+    _ok(controllers.pure_pursuit_curvature, v, 0.0, 0.0, 1.0, 1.0)
+    _ok(controllers.speed_limit, v, pp)
+    _ok(controllers.diff_drive_wheel_speeds, 1.0, 0.1, v, 0.2)
+    steps = _ok(rover.default_control_steps, v, 0.005)
+    if steps is not None:
+        assert steps >= 1
+    model = ultrasonic.UltrasonicNoiseModel.load()
+    t = _ok(ultrasonic.sample_times, v, model, rng)
+    if t is not None:
+        assert np.all(np.diff(t) > 0)
+    tx = rng.normal(size=(n, 2, 3))
+    if n and isinstance(v, float):
+        tx[0, 0, 0] = v
+    r = _ok(ultrasonic.simulate_ranges, np.arange(n, dtype=float), tx, rng.normal(size=(6, 3)),
+            model, rng)
+    if r is not None:
+        assert r.shape == (n, 2, 6)
+    e = _ok(gps.receiver_errors, gps.GpsNoiseModel.load("gps_stationary"), 3, n, 1.0, rng)
+    if e is not None:
+        assert e[0].shape == (n, 3, 2)
+
+
+@SETTINGS
+@given(n=st.integers(1, 40), special=EXTREME, pos=st.integers(0, 10**6),
+       seed=st.integers(0, 2**16))
+def test_turn_flags_and_first_observations_survive_extremes(n, special, pos, seed):
+    from estimator.tracking import detect_turning
+
+    cfg = SensorConfig.load("rover_gps4").planar()
+    o = _arr(n, (cfg.m, 2), special, pos, seed)
+    t = np.arange(n, dtype=float)
+    f = _ok(detect_turning, t, o, cfg)
+    if f is not None:
+        assert f.dtype == bool and f.shape == (n,)
+    first, idx = lag.first_observations(np.where(np.isfinite(o), o, np.nan), np.array([0]),
+                                        np.array([n - 1]))
+    assert first.shape == (1, cfg.m, 2) and idx.shape == (1, cfg.m)
