@@ -32,6 +32,7 @@ from estimator._checks import check_increasing_times, check_real
 from estimator.orientation import wrap_angle
 
 __all__ = [
+    "MASKS",
     "STATISTICS",
     "align_to_truth",
     "along_cross_errors",
@@ -44,6 +45,9 @@ __all__ = [
 
 #: Summary statistics, in table order.
 STATISTICS = ("mean", "median", "std", "rmse", "p95", "max")
+#: Evaluation masks (:func:`evaluation_masks`): every estimate; those dated at an epoch that
+#: is not turning; those whose whole window is free of turning epochs.
+MASKS = ("full", "no_turns", "no_turns_window")
 
 
 def _as_xy(a: object, field: str) -> np.ndarray:

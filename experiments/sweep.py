@@ -61,9 +61,9 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
+from estimator.track_options import FILTER_METHODS
 from experiments.provenance import code_version
 from experiments.spec import (
-    FILTER_TECHNIQUES,
     REPO,
     RESULTS_ROOT,
     Cell,
@@ -72,6 +72,7 @@ from experiments.spec import (
     available_presets,
     load_spec,
 )
+from experiments.techniques import technique
 from sim.atomic import atomic_write, atomic_write_text
 
 __all__ = [
@@ -183,27 +184,6 @@ def simulate_truth(path_file: str, path_overrides: str, config_file: str, sim_se
 
 
 # --------------------------------------------------------------------------- cells
-_TECHNIQUE_KW = {
-    "none": {},
-    "lc": {"lag_correction": True},
-    "dyn": {"dynamic": True},
-    "lc+dyn": {"lag_correction": True, "dynamic": True},
-    "lc_course": {"lag_correction": "course"},
-    "lc_course+dyn": {"lag_correction": "course", "dynamic": True},
-    "motion_compensated": {"method": "motion_compensated"},
-    "ekf": {"method": "ekf"},
-    "naive": {"method": "naive"},
-    "ekf_fixed_lag": {"method": "ekf_fixed_lag"},
-    "ekf_smoother": {"method": "ekf_smoother"},
-    "gtsam": {"method": "gtsam"},
-    # oracles (experiments.spec.ORACLE_TECHNIQUES): the truth's heading in step 5 of 3.4.2
-    "lc_sim_heading": {"lag_correction": True, "heading": "truth"},
-    "lc_sim_heading+dyn": {"lag_correction": True, "heading": "truth", "dynamic": True},
-    # beyond (issue 14): the pose filter's RTS-smoothed heading in step 5 of 3.4.2
-    "lc_smoothed_heading": {"lag_correction": True, "heading": "smoothed"},
-}
-
-
 def filter_params_for(truth):
     """The pose filter's parameters for a simulated vehicle (issue 14): its limits (the
     path's speed, acceleration, turn-rate and lateral-acceleration limits and the
@@ -350,8 +330,7 @@ def evaluate_cell(cell: Cell, truth, ctx: CellContext) -> CellOutput:
     config = ctx.memo[ckey]
     obs = _observations(cell, truth, config, ctx)
     t1 = time.perf_counter()
-    fp = (filter_params_for(truth) if cell.technique in FILTER_TECHNIQUES
-          or _TECHNIQUE_KW[cell.technique].get("heading") == "smoothed" else None)
+    fp = filter_params_for(truth) if technique(cell.technique).uses_filter else None
     df = _track_cell(cell, truth.t, obs, config, truth.turning.astype(bool), ctx,
                      true_yaw=np.asarray(truth.yaw, dtype=float), filter_params=fp,
                      layout_check=False)
@@ -394,40 +373,35 @@ def _track_cell(cell: Cell, t: np.ndarray, obs: np.ndarray, config, turning, ctx
                 true_yaw: np.ndarray | None = None, filter_params=None,
                 **kw_extra: Any) -> pd.DataFrame:
     """:func:`estimator.tracking.track` with the cell's window, weighting, technique and
-    solver; ``turning`` is the "controller" flag (n,) bool (None: none available, the
-    dynamic window then uses the detector); ``true_yaw`` (n,) rad the reference heading the
-    oracle techniques hand to the lag correction (None: no reference, such a cell fails);
-    ``filter_params`` the pose filter's parameters (the filter techniques, and the smoothed
-    heading of "lc_smoothed_heading"; None = the rover's defaults)."""
+    solver, the technique's arguments from the registry
+    (:meth:`experiments.techniques.Technique.track_arguments`); ``turning`` is the
+    "controller" flag (n,) bool (None: none available, the dynamic window then uses the
+    detector); ``true_yaw`` (n,) rad the reference heading the oracle techniques hand to the
+    lag correction (None: no reference, such a cell fails); ``filter_params`` the pose
+    filter's parameters (the filter techniques, and the smoothed heading of
+    "lc_smoothed_heading"; None = the rover's defaults)."""
     from estimator.tracking import track
 
-    kw = dict(_TECHNIQUE_KW[cell.technique])
-    flags = None
-    if kw.pop("dynamic", False):
-        kw["dynamic_window"] = cell.dyn_window
-        kw["window_growth"] = cell.dyn_growth
-        flags = turning if cell.turning == "controller" and turning is not None else "detect"
-    heading = kw.pop("heading", None)
-    if heading == "truth":
-        if true_yaw is None:
-            raise ValueError(f"technique {cell.technique!r}: an oracle row needs the reference "
-                             "heading, and this cell has none")
-        kw["lag_heading"] = true_yaw
-    elif heading == "smoothed":
-        # "smoothed": an estimator of its own (issue 14): the pose filter's RTS heading from
-        # the same observations replaces the law-of-cosines heading in step 5 of 3.4.2
+    tech = technique(cell.technique)
+    heading = None
+    if tech.lag_heading == "truth":
+        heading = true_yaw
+    elif tech.lag_heading == "smoothed":
+        # an estimator of its own (issue 14): the pose filter's RTS heading from the same
+        # observations replaces the law-of-cosines heading in step 5 of 3.4.2
         from estimator.pose_smoother import smoothed_heading
 
-        kw["lag_heading"] = smoothed_heading(t, obs, config, filter_params)
-    if cell.technique in FILTER_TECHNIQUES and filter_params is not None:
+        heading = smoothed_heading(t, obs, config, filter_params)
+    kw = tech.track_arguments(dyn_window=cell.dyn_window, dyn_growth=cell.dyn_growth,
+                              heading=heading)
+    flags = None
+    if tech.dynamic:
+        flags = turning if cell.turning == "controller" and turning is not None else "detect"
+    if tech.method in FILTER_METHODS and filter_params is not None:
         kw["filter_params"] = filter_params
-    weighting, extra = cell.weighting, {}
-    if weighting == "-":
-        weighting = "none"
-    elif weighting.startswith("huff:"):
-        weighting, extra = "huff", {"huff_threshold": float(weighting[5:])}
-    return track(t, obs, config, window=cell.window, weighting=weighting, turning=flags,
-                 solver="procrustes" if cell.solver == "-" else cell.solver, **extra,
+    return track(t, obs, config, window=cell.window,
+                 weighting="none" if cell.weighting == "-" else cell.weighting, turning=flags,
+                 solver="procrustes" if cell.solver == "-" else cell.solver,
                  rng=cell_rng(ctx.spec_seed, cell.seed, STREAM_ESTIMATOR), **kw, **kw_extra)
 
 
@@ -654,7 +628,8 @@ def _parquet_readable(path: Path) -> bool:
 #: that other code produced instead of mixing results of two code versions.
 CELL_SOURCES = tuple(sorted(
     [*(REPO / "estimator").glob("*.py"), *(REPO / "sim").glob("*.py"),
-     REPO / "experiments" / "sweep.py", REPO / "experiments" / "spec.py"]))
+     REPO / "experiments" / "sweep.py", REPO / "experiments" / "spec.py",
+     REPO / "experiments" / "techniques.py"]))
 
 
 def cell_code_digest() -> str:
