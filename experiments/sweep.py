@@ -222,52 +222,32 @@ def _observations(cell: Cell, truth, config, ctx: CellContext) -> np.ndarray:
     return obs
 
 
-def _tukey_outlier_fraction(e: np.ndarray) -> float:
-    """Fraction of values above the upper box-plot whisker, Q3 + 1.5 IQR (Figs 4.114-4.123)."""
-    if e.size < 4:
-        return float("nan")
-    q1, q3 = np.percentile(e, [25, 75])
-    return float(np.mean(e > q3 + 1.5 * (q3 - q1)))
+#: Column prefixes of the error series in cells.parquet (estimator.metrics.TrackErrors).
+SERIES_COLUMNS = {"ex": "x", "ey": "y", "eu": "euclid", "eh": "heading"}
 
 
 def score_track(df: pd.DataFrame, truth, obs: np.ndarray, config, masks: Iterable[str],
                 epochs: bool = True) -> tuple[list[dict], pd.DataFrame | None]:
-    """Eq. 4.1/4.2 errors of a track against the truth, summarised per evaluation mask.
+    """Eq. 4.1/4.2 errors of a track against the truth, summarised per evaluation mask, all
+    by :mod:`estimator.metrics` (:func:`~estimator.metrics.track_errors`,
+    :func:`~estimator.metrics.summarize`, :func:`~estimator.metrics.jitter_rms`).
 
     Returns one dict per mask with, for each error series (``ex`` = |x| CG error, ``ey`` = |y|,
     ``eu`` = Euclidean, ``eh`` = heading, rad), the statistics mean, median, std (ddof 1),
     rmse, p95, max and the box-plot outlier fraction; plus the signed along-track error
-    (mean, median; negative = the estimate trails the truth, the lag of Section 3.4.2), the
+    (mean, median; negative = the estimate trails the truth, the lag of Section 3.4.2; along
+    the truth's direction of travel, :func:`estimator.metrics.travel_direction`), the
     epoch-to-epoch jitter (RMS change of the error vector between consecutive epochs, the
     "variation from one estimate to the next" of Section 4.10), the raw observations' own
     per-axis error for comparison, and counts. Also returns the per-epoch table (truth,
     errors, observations at the estimate times) when ``epochs`` is True, else None.
     """
-    from estimator.metrics import (
-        STATISTICS,
-        along_cross_errors,
-        cg_errors,
-        evaluation_masks,
-        heading_error,
-        summarize,
-    )
+    from estimator.metrics import STATISTICS, evaluation_masks, jitter_rms, summarize, track_errors
     from estimator.orientation import wrap_angle
 
-    t = df["t"].to_numpy(dtype=float)
-    idx = np.searchsorted(truth.t, t)
-    idx = np.clip(idx, 0, truth.n - 1)
-    if not np.allclose(truth.t[idx], t, rtol=0, atol=1e-6):
-        raise ValueError("track: output times do not match the truth's sample times")
-    est = df[["cg_x", "cg_y"]].to_numpy(dtype=float)
-    tru = truth.cg[idx, :2]
-    errs = cg_errors(est, tru)
-    eh = heading_error(df["yaw"].to_numpy(dtype=float), truth.yaw[idx])
-    course = truth.yaw[idx]
-    along, cross = along_cross_errors(est, tru, course)
-    d = est - tru
-    jump = np.full(len(t), np.nan)
-    if len(t) > 1:
-        jump[1:] = np.hypot(*(np.diff(d, axis=0).T))
+    err = track_errors(df["t"].to_numpy(dtype=float), df[["cg_x", "cg_y"]].to_numpy(dtype=float),
+                       df["yaw"].to_numpy(dtype=float), truth.t, truth.cg, truth.yaw)
+    idx = err.index
     ob = obs[idx] - truth.sensor_positions[idx, :, :2]            # (k, m, 2)
     obs_ex = np.nanmean(np.abs(ob[..., 0]), axis=1) if ob.size else np.array([])
     obs_ey = np.nanmean(np.abs(ob[..., 1]), axis=1) if ob.size else np.array([])
@@ -275,38 +255,32 @@ def score_track(df: pd.DataFrame, truth, obs: np.ndarray, config, masks: Iterabl
     win[idx] = df["window"].to_numpy(dtype=np.int64)
     mk_all = {k: v[idx] for k, v in evaluation_masks(truth.turning.astype(bool),
                                                       window=win).items()}
-    series = {"ex": errs["x"], "ey": errs["y"], "eu": errs["euclid"], "eh": eh}
+    dxy = err.dxy
     rows = []
     for mname in masks:
         mk = mk_all[mname]
         row: dict[str, Any] = {"mask": mname, "n_epochs": int(mk.sum())}
-        for sname, e in series.items():
-            s = summarize(e, mk)
-            for k in STATISTICS:
-                row[f"{sname}_{k}"] = s[k]
-            fin = e[mk]
-            fin = fin[np.isfinite(fin)]
-            row[f"{sname}_outliers"] = _tukey_outlier_fraction(fin)
+        for sname, q in SERIES_COLUMNS.items():
+            sm = summarize(getattr(err, q), mk)
+            for k in (*STATISTICS, "outliers"):
+                row[f"{sname}_{k}"] = sm[k]
             if sname == "ex":
-                row["n_valid"], row["n_nan"] = s["n"], s["n_nan"]
-        a = along[mk]
-        a = a[np.isfinite(a)]
-        row["along_mean"] = float(a.mean()) if a.size else float("nan")
-        row["along_median"] = float(np.median(a)) if a.size else float("nan")
-        jm = jump[mk & np.r_[False, mk[:-1]]] if len(mk) else jump[:0]
-        jm = jm[np.isfinite(jm)]
-        row["jitter_rms"] = float(np.sqrt(np.mean(jm ** 2))) if jm.size else float("nan")
+                row["n_valid"], row["n_nan"] = sm["n"], sm["n_nan"]
+        sa = summarize(err.along, mk, signed=True)
+        row["along_mean"], row["along_median"] = sa["mean"], sa["median"]
+        row["jitter_rms"] = jitter_rms(dxy, mk)
         with np.errstate(all="ignore"):
             row["obs_ex_mean"] = float(np.nanmean(obs_ex[mk])) if mk.any() else float("nan")
             row["obs_ey_mean"] = float(np.nanmean(obs_ey[mk])) if mk.any() else float("nan")
         rows.append(row)
     if not epochs:
         return rows, None
+    tru = truth.cg[idx, :2]
     cols: dict[str, Any] = {
         "truth_cg_x": tru[:, 0], "truth_cg_y": tru[:, 1], "truth_yaw": truth.yaw[idx],
-        "truth_turning": truth.turning[idx].astype(bool), "err_x": d[:, 0], "err_y": d[:, 1],
+        "truth_turning": truth.turning[idx].astype(bool), "err_x": err.dx, "err_y": err.dy,
         "err_yaw": wrap_angle(df["yaw"].to_numpy(float) - truth.yaw[idx]),
-        "along": along, "cross": cross, "no_turns_window": mk_all["no_turns_window"]}
+        "along": err.along, "cross": err.cross, "no_turns_window": mk_all["no_turns_window"]}
     # per-antenna truth and observations for plots: float32 (1e-5 m resolution at 200 m)
     # halves the files; the estimates, CG truth and errors stay float64
     for j, nm in enumerate(truth.sensor_names):
