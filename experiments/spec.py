@@ -677,11 +677,11 @@ def axis_help() -> str:
     technique (from the registry) and the estimators' vocabularies."""
     return "\n".join([
         "techniques (the technique axis):", techniques_help(),
-        f"weightings: {', '.join(WEIGHT_SCHEMES)}; 'huff:<m>' / 'huff_huber:<m>' adds a Huff "
-        "threshold in metres",
-        f"solvers: {', '.join(SOLVERS)};  masks: {', '.join(MASKS)} (default "
-        f"{', '.join(DEFAULT_MASKS)});  turning: {', '.join(TURNING)};  dyn_growth: "
-        f"{', '.join(DYN_GROWTH)}"])
+        (f"weightings: {', '.join(WEIGHT_SCHEMES)}; 'huff:<m>' / 'huff_huber:<m>' adds a Huff "
+         "threshold in metres"),
+        (f"solvers: {', '.join(SOLVERS)};  masks: {', '.join(MASKS)} (default "
+         f"{', '.join(DEFAULT_MASKS)});  turning: {', '.join(TURNING)};  dyn_growth: "
+         f"{', '.join(DYN_GROWTH)}")])
 
 
 def _check_axis(axis: str, v: object, where: str, base: Path, *, scalar: bool) -> Any:

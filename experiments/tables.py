@@ -33,6 +33,7 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
+from experiments.markdown import markdown_table
 from experiments.techniques import (
     FILTER_TECHNIQUES,
     ORACLE_TECHNIQUES,
@@ -507,15 +508,8 @@ def heading_table(cells: pd.DataFrame) -> pd.DataFrame:
 
 # --------------------------------------------------------------------------- markdown
 def _md(df: pd.DataFrame, cols: list[tuple[str, str]]) -> str:
-    head = "| " + " | ".join(h for h, _ in cols) + " |"
-    sep = "|" + "|".join("---" for _ in cols) + "|"
-    lines = [head, sep]
-    for _, r in df.iterrows():
-        cells = []
-        for _, c in cols:
-            cells.append(c(r) if callable(c) else str(r[c]))
-        lines.append("| " + " | ".join(cells) + " |")
-    return "\n".join(lines)
+    """A table of ``cols`` (header, column or function of the row); values as ``str``."""
+    return markdown_table(df, cols, floatfmt=None, nan=None)
 
 
 def _ci(prefix: str, digits: int = 3):
