@@ -62,6 +62,7 @@ import numpy as np
 import pandas as pd
 
 from estimator.track_options import FILTER_METHODS
+from estimator.window import SOLVERS
 from experiments.provenance import code_version
 from experiments.spec import (
     REPO,
@@ -947,7 +948,17 @@ _EPILOG = """examples:
 
 A rerun of the same spec resumes: finished cells are skipped (--force recomputes).
 presets: {presets}
+
+{axes}
 """
+
+
+def _epilog() -> str:
+    """The help's epilog: examples, presets and the values of the spec's named axes (from
+    the technique registry and the estimators' vocabularies, experiments.spec.axis_help)."""
+    from experiments.spec import axis_help
+
+    return _EPILOG.format(presets=", ".join(available_presets()), axes=axis_help())
 
 DEFAULT_PRESET = "thesis"
 
@@ -957,7 +968,7 @@ def build_parser() -> argparse.ArgumentParser:
         prog="python -m experiments.sweep",
         description="Run an experiment spec (TOML) as a parallel, resumable sweep and write "
                     "cells.parquet, tables.md/CSV, REPORT.md and figures to results/<name>/.",
-        epilog=_EPILOG.format(presets=", ".join(available_presets())),
+        epilog=_epilog(),
         formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("spec", nargs="?", help="spec TOML file (default: --preset thesis)")
     p.add_argument("--preset", metavar="NAME",
@@ -973,7 +984,7 @@ def build_parser() -> argparse.ArgumentParser:
                    help="Dask scheduler address for --backend dask, e.g. tcp://127.0.0.1:8786 "
                         "(default: start a LocalCluster of --jobs workers)")
     p.add_argument("--force", action="store_true", help="recompute finished cells")
-    p.add_argument("--solver", choices=("procrustes", "slsqp", "ccp", "elastic"),
+    p.add_argument("--solver", choices=SOLVERS,
                    help="override every cell's solver; results go to results/<name>-<solver>/, "
                         "e.g. --solver slsqp")
     p.add_argument("--seeds", type=int, metavar="N",
