@@ -77,3 +77,14 @@ def test_readme_presets_and_modules_exist():
         assert name in available_presets(), name
     for mod in set(re.findall(r"python -m (experiments\.\w+)", README)):
         assert (ROOT / (mod.replace(".", "/") + ".py")).exists(), mod
+
+
+def test_design_notes_name_every_module():
+    """docs/DESIGN-notes.md maps every module of estimator/, sim/ and experiments/ (a module
+    added without a line there fails here), and names no module that does not exist."""
+    notes = (ROOT / "docs" / "DESIGN-notes.md").read_text()
+    for pkg in ("estimator", "sim", "experiments"):
+        section = notes.split(f"`{pkg}/` (", 1)[1].split("\n\n`", 1)[0].split("\n## ", 1)[0]
+        named = set(re.findall(r"`(\w+)\.py`", section))
+        files = {p.stem for p in (ROOT / pkg).glob("*.py") if p.stem != "__init__"}
+        assert files == named, (pkg, sorted(files - named), sorted(named - files))
