@@ -283,3 +283,37 @@ def test_track_errors_hand_example_reversing():
         track_errors(tt[2:] + 0.5, cg[2:], None, tt, cg, yaw)
     with pytest.raises(ValueError, match="est_xy"):
         track_errors(tt[2:], cg[3:], None, tt, cg, yaw)
+
+
+def test_sweep_and_evaluate_track_are_one_scorer():
+    """The sweep's score_track and evaluate_track give the same numbers for the same track
+    (both are estimator.metrics): per-axis and Euclidean errors, heading, along-track (on a
+    platform whose CG is 0.5 m ahead of its no-slip axle, so course and heading differ in
+    the turns), and the sweep's outlier share and jitter agree with their definitions."""
+    from pose_scenes import kinematic_truth
+
+    from estimator.tracking import track
+    from experiments.sweep import score_track
+    from sim.gps import observe
+
+    truth, cfg, _ = kinematic_truth("square20", "rover_gps4", cg_ahead_m=0.5)
+    truth.turning[::7] = True                               # some epochs to leave out
+    obs = observe(truth, cfg, "gps_stationary", rng=np.random.default_rng(2), session_s=600.0)
+    df = track(truth.t, obs, cfg, window=5, layout_check=False)
+    rows, _ = score_track(df, truth, obs, cfg, ("full", "no_turns"), epochs=False)
+    ev = evaluate_track(df, truth.t, truth.cg, truth.yaw, truth.turning,
+                        heading_columns=("yaw",)).set_index(["mask", "quantity"])
+    for row in rows:
+        for col, q in (("ex", "x"), ("ey", "y"), ("eu", "euclid"), ("eh", "yaw")):
+            for stat in (*STATISTICS, "outliers"):
+                assert row[f"{col}_{stat}"] == ev.loc[(row["mask"], q), stat], (col, stat)
+        assert row["along_mean"] == ev.loc[(row["mask"], "along"), "mean"]
+        assert row["along_median"] == ev.loc[(row["mask"], "along"), "median"]
+    e = track_errors(df["t"], df[["cg_x", "cg_y"]].to_numpy(), None, truth.t, truth.cg,
+                     truth.yaw)
+    slip = np.abs(np.angle(np.exp(1j * (travel_direction(truth.t, truth.cg, truth.yaw)
+                                         - truth.yaw))))
+    assert slip.max() > 0.05                                # the course is not the heading
+    d = np.diff(e.dxy, axis=0)
+    assert rows[0]["jitter_rms"] == pytest.approx(np.sqrt(np.mean(np.sum(d * d, axis=1))),
+                                                  rel=1e-12)
