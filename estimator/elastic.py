@@ -65,11 +65,10 @@ from estimator._checks import check_array, check_int
 from estimator.configuration import SensorConfig
 from estimator.orientation import wrap_angle
 from estimator.window import (
-    MAX_COORD_M,
-    MAX_WEIGHT_SUM,
     PROX_WEIGHT,
     _check_eps,
     _geometry,
+    check_window_means,
     procrustes_batch,
 )
 
@@ -429,27 +428,6 @@ def _barrier_solve(Y: np.ndarray, Wn: np.ndarray, Z0: np.ndarray, a: np.ndarray,
 
 
 # ----------------------------------------------------------------------------- public
-def _check_batch(means: Any, axis_weight: Any, config: SensorConfig
-                 ) -> tuple[np.ndarray, np.ndarray]:
-    Y = check_array(means, "means", allow_nan=True, max_abs=MAX_COORD_M)
-    W = check_array(axis_weight, "axis_weight", max_abs=MAX_WEIGHT_SUM)
-    m, d = config.m, config.d
-    if Y.ndim != 3 or Y.shape[1:] != (m, d):
-        raise ValueError(f"means: expected shape (N, {m}, {d}) for config {config.name!r}, "
-                         f"got {Y.shape}")
-    if W.shape != Y.shape:
-        raise ValueError(f"axis_weight: expected shape {Y.shape} (one weight per window, "
-                         f"sensor and axis), got {W.shape}")
-    if (W < 0).any():
-        raise ValueError(f"axis_weight: must be >= 0, found minimum {W.min()!r}")
-    bad = np.isnan(Y) & (W > 0)
-    if bad.any():
-        k = tuple(int(i) for i in np.argwhere(bad)[0])
-        raise ValueError(f"means: must be finite wherever axis_weight > 0; means{list(k)} = "
-                         f"{Y[k]!r}")
-    return Y, W
-
-
 def _mirrored(Pc: np.ndarray, B: np.ndarray) -> np.ndarray:
     """(N,) True where the best orthogonal fit of the body B onto positions Pc (N, m, d) is
     improper (batched :func:`estimator.window._is_mirrored`)."""
@@ -516,7 +494,7 @@ def elastic_batch(means: Any, axis_weight: Any, config: SensorConfig, eps: float
     """
     if not isinstance(config, SensorConfig):
         raise TypeError(f"config: expected a SensorConfig, got {type(config).__name__}")
-    Y, W = _check_batch(means, axis_weight, config)
+    Y, W = check_window_means(means, axis_weight, config, "axis_weight", per_axis=True)
     e = _check_eps(eps, config)
     check_int(maxiter, "maxiter", lo=1)
     N, m, d = Y.shape

@@ -1,9 +1,16 @@
 """Tracking accuracy metrics of the GPS dissertation (000_8f82f8df647bf685.txt, Section 4.12).
 
 - Per-axis absolute CG error, Eq. 4.1: ``|x_hat - x|``, ``|y_hat - y|`` (metres), plus the
-  Euclidean error ``|p_hat - p|`` and, given the direction of travel, the signed along-track
-  and cross-track errors (the lag of a sliding window shows up as a negative along-track
-  error).
+  Euclidean error ``|p_hat - p|`` and the signed along-track and cross-track errors (the
+  lag of a sliding window shows up as a negative along-track error).
+- Along-track, one definition (:func:`travel_direction`): the component of the CG error
+  along the reference's direction of travel, the course of the reference CG (central
+  differences), and the reference heading only where the reference stands still. The
+  course, not the heading, because the trail of a window lies along the path the CG
+  travelled: the two differ by the side-slip of the CG in a turn, by pi when the platform
+  reverses, and a reference without heading (a CG-only recording reference) still has a
+  course. (On the simulated square paths they differ by < 0.01 rad, so the along-track
+  error moves by < 0.3 mm; see the commit of issue 18.)
 - Absolute heading error, Eq. 4.2: ``|theta - theta_hat|``, wrapped to [0, pi] first (the
   dissertation's Figure 4.118 shows why: a heading near +/-pi must not score 2 pi).
 - Summaries: mean, median and standard deviation (Tables 4.1/4.2; sample standard deviation,
@@ -13,7 +20,9 @@
   dissertation's "LC No Turns" column (Section 4.12.2) was made by "manually selecting
   sections of time-steps around which turning occurs": a window estimate still carries a
   turn for as long as the turn's samples are in its window, so "no_turns_window" is the
-  faithful reading and "no_turns" the lenient one.
+  faithful reading and "no_turns" the lenient one. Beside them the share of box-plot
+  outliers (above Q3 + 1.5 IQR, Figs 4.114-4.123) and the jitter of the error from one
+  estimate to the next (Section 4.10).
 
 Everything takes plain arrays, so estimates from any source (this package, a log, another
 tool) can be scored; :func:`align_to_truth` pairs a track's rows with truth samples by time.
@@ -23,7 +32,9 @@ report how many there were (``n_nan``) and are computed over the finite ones.
 
 from __future__ import annotations
 
+import math
 from collections.abc import Mapping
+from dataclasses import dataclass
 
 import numpy as np
 import pandas as pd
@@ -32,18 +43,26 @@ from estimator._checks import check_increasing_times, check_real
 from estimator.orientation import wrap_angle
 
 __all__ = [
+    "MASKS",
     "STATISTICS",
+    "TrackErrors",
     "align_to_truth",
     "along_cross_errors",
     "cg_errors",
     "evaluate_track",
     "evaluation_masks",
     "heading_error",
+    "jitter_rms",
     "summarize",
+    "track_errors",
+    "travel_direction",
 ]
 
 #: Summary statistics, in table order.
 STATISTICS = ("mean", "median", "std", "rmse", "p95", "max")
+#: Evaluation masks (:func:`evaluation_masks`): every estimate; those dated at an epoch that
+#: is not turning; those whose whole window is free of turning epochs.
+MASKS = ("full", "no_turns", "no_turns_window")
 
 
 def _as_xy(a: object, field: str) -> np.ndarray:
@@ -97,14 +116,39 @@ def along_cross_errors(est_xy: object, true_xy: object, direction: object
     return d[:, 0] * c + d[:, 1] * s, -d[:, 0] * s + d[:, 1] * c
 
 
-def summarize(errors: object, mask: object | None = None) -> dict[str, float]:
+def _percentile_sorted(srt: np.ndarray, q: float) -> float:
+    """``np.percentile(srt, q)`` (linear interpolation) of a sorted, finite, non-empty
+    array, the same floating-point operations as numpy's: one sort serves every quantile."""
+    v = (srt.size - 1) * (q / 100)
+    lo = math.floor(v)
+    hi = min(lo + 1, srt.size - 1)
+    a, b, g = float(srt[lo]), float(srt[hi]), v - lo
+    d = b - a
+    return b - d * (1 - g) if g >= 0.5 else a + d * g
+
+
+def _median_sorted(srt: np.ndarray) -> float:
+    """``np.median`` of a sorted, finite, non-empty array (the mean of the two middle values
+    when the size is even, as numpy computes it)."""
+    k = srt.size // 2
+    return float(srt[k]) if srt.size % 2 else float((srt[k - 1] + srt[k]) / 2)
+
+
+def summarize(errors: object, mask: object | None = None, *,
+              signed: bool = False) -> dict[str, float]:
     """Summary of an error series over a mask (Tables 4.1/4.2 and more).
 
-    errors : (n,) non-negative errors (NaN = no estimate). mask : (n,) bool or None (all).
+    errors : (n,) errors (NaN = no estimate); non-negative unless ``signed``.
+    mask : (n,) bool or None (all).
+    signed : the series is signed (along- or cross-track): mean, median and std are of the
+        signed values (the mean is the bias, e.g. the lag), rmse, p95, max and outliers of
+        their magnitudes.
     Returns {"n": finite count, "n_nan": NaN count inside the mask, "mean", "median",
     "std" (ddof = 1, the dissertation's sample standard deviation), "rmse",
-    "p95" (linear interpolation, numpy's default), "max"}. Statistics are NaN when no
-    finite error is inside the mask (std also when only one is).
+    "p95" (linear interpolation, numpy's default), "max", "outliers" (the share of values
+    above the upper box-plot whisker Q3 + 1.5 IQR, the outliers of Figs 4.114-4.123; NaN
+    with fewer than 4 values)}. Statistics are NaN when no finite error is inside the mask
+    (std also when only one is). Infinite errors count as NaN (no estimate to score).
     """
     e = np.asarray(errors, dtype=float)
     if e.ndim != 1:
@@ -118,15 +162,78 @@ def summarize(errors: object, mask: object | None = None) -> dict[str, float]:
     fin = e[np.isfinite(e)]
     out: dict[str, float] = {"n": int(fin.size), "n_nan": int(e.size - fin.size)}
     if fin.size == 0:
-        out.update({k: float("nan") for k in STATISTICS})
+        out.update({k: float("nan") for k in (*STATISTICS, "outliers")})
         return out
+    srt = np.sort(fin)
     out["mean"] = float(fin.mean())
-    out["median"] = float(np.median(fin))
+    out["median"] = _median_sorted(srt)
     out["std"] = float(fin.std(ddof=1)) if fin.size > 1 else float("nan")
     out["rmse"] = float(np.sqrt(np.mean(fin * fin)))
-    out["p95"] = float(np.percentile(fin, 95))
-    out["max"] = float(fin.max())
+    if signed:
+        srt = np.sort(np.abs(fin))
+    out["p95"] = _percentile_sorted(srt, 95)
+    out["max"] = float(srt[-1])
+    if srt.size < 4:
+        out["outliers"] = float("nan")
+    else:
+        q1, q3 = _percentile_sorted(srt, 25), _percentile_sorted(srt, 75)
+        above = srt.size - int(np.searchsorted(srt, q3 + 1.5 * (q3 - q1), side="right"))
+        out["outliers"] = above / srt.size
     return out
+
+
+def jitter_rms(error_xy: object, mask: object | None = None) -> float:
+    """Epoch-to-epoch jitter of a track's error: the RMS of ``|e_k - e_(k-1)|`` over the
+    consecutive pairs of estimates that are both inside ``mask`` (Section 4.10's "variation
+    from one estimate to the next").
+
+    error_xy : (k,) + (2,) signed CG errors (estimate - truth, metres), one row per estimate
+    in time order (NaN = no estimate). mask : (k,) bool or None (all).
+    Returns metres; NaN without a finite pair.
+    """
+    d = _as_xy(error_xy, "error_xy")
+    mk = np.ones(len(d), dtype=bool) if mask is None else np.asarray(mask)
+    if mk.shape != (len(d),) or mk.dtype != bool:
+        raise ValueError(f"mask: expected bool array of shape ({len(d)},), got {mk.dtype} "
+                         f"{mk.shape}")
+    if len(d) < 2:
+        return float("nan")
+    step = np.hypot(*(np.diff(d, axis=0).T))
+    jm = step[mk[1:] & mk[:-1]]
+    jm = jm[np.isfinite(jm)]
+    return float(np.sqrt(np.mean(jm ** 2))) if jm.size else float("nan")
+
+
+def travel_direction(t: object, cg: object, yaw: object | None = None, *,
+                     min_speed_mps: float = 0.0) -> np.ndarray:
+    """Direction of travel of a reference trajectory, (n,) rad (CCW from +x): the axis of
+    the along-track error (module docstring).
+
+    t : (n,) seconds, strictly increasing. cg : (n, 2) (or (n, 3), z ignored) reference CG,
+    metres (NaN = unknown). yaw : (n,) reference heading in radians, or None.
+    min_speed_mps : the course is used where the reference CG moves faster than this
+        (>= 0; default 0: wherever it moves at all, right for a noise-free reference; a
+        measured reference standing still has a random course, set the speed its noise
+        cannot fake there).
+    The course is ``atan2`` of the central-difference velocity (one-sided at the ends,
+    ``numpy.gradient`` on uneven times); where the CG does not move fast enough, or a
+    neighbour is NaN, the reference heading (NaN without one).
+    """
+    tt = check_increasing_times(t, "t", min_size=1)
+    g = _as_xy(cg, "cg")
+    if g.shape[0] != tt.size:
+        raise ValueError(f"cg: expected {tt.size} rows (one per time), got {g.shape[0]}")
+    y = np.full(tt.size, np.nan) if yaw is None else np.asarray(yaw, dtype=float)
+    if y.shape != tt.shape:
+        raise ValueError(f"yaw: expected shape {tt.shape}, got {y.shape}")
+    v_min = check_real(min_speed_mps, "min_speed_mps", lo=0.0)
+    if tt.size < 2:
+        return y.copy()
+    with np.errstate(invalid="ignore"):
+        vel = np.gradient(g, tt, axis=0)
+        speed = np.hypot(vel[:, 0], vel[:, 1])
+        moving = speed > v_min
+    return np.where(moving, np.arctan2(vel[:, 1], vel[:, 0]), y)
 
 
 def evaluation_masks(turning: object, t: object | None = None, margin_s: float = 0.0,
@@ -211,6 +318,68 @@ def align_to_truth(est_t: object, truth_t: object, *, tol: float = 1e-6) -> np.n
     return idx
 
 
+@dataclass(frozen=True)
+class TrackErrors:
+    """Errors of a track's estimates against a reference (Section 4.12), one per estimate.
+
+    index : (k,) the reference sample of each estimate (:func:`align_to_truth`).
+    dx, dy : signed CG error, estimate - reference, metres (NaN = no estimate).
+    x, y : Eq. 4.1 ``|dx|``, ``|dy|``. euclid : ``|(dx, dy)|``. heading : Eq. 4.2, radians
+    in [0, pi] (NaN without an estimated or a reference heading). along, cross : signed
+    along- and cross-track errors along :func:`travel_direction` (along > 0: ahead of the
+    reference, a lagging window gives along < 0; cross > 0: left of the direction of travel).
+    """
+
+    index: np.ndarray
+    dx: np.ndarray
+    dy: np.ndarray
+    x: np.ndarray
+    y: np.ndarray
+    euclid: np.ndarray
+    heading: np.ndarray
+    along: np.ndarray
+    cross: np.ndarray
+
+    @property
+    def dxy(self) -> np.ndarray:
+        """(k, 2) signed CG errors."""
+        return np.column_stack([self.dx, self.dy])
+
+
+def track_errors(est_t: object, est_xy: object, est_yaw: object | None, truth_t: object,
+                 truth_xy: object, truth_yaw: object | None = None, *, tol: float = 1e-6,
+                 min_speed_mps: float = 0.0) -> TrackErrors:
+    """Every per-estimate error of a track against a reference, the one scorer's core.
+
+    est_t (k,) s, est_xy (k, 2) m, est_yaw (k,) rad or None : the estimates (NaN = none).
+    truth_t (n,) s strictly increasing, truth_xy (n, 2|3) m, truth_yaw (n,) rad or None :
+    the reference, any superset of the estimates' times (matched within ``tol`` seconds,
+    :func:`align_to_truth`). min_speed_mps : of :func:`travel_direction`.
+    Returns :class:`TrackErrors`.
+    """
+    tt = check_increasing_times(truth_t, "truth_t", min_size=1)
+    g = _as_xy(truth_xy, "truth_xy")
+    if g.shape[0] != tt.size:
+        raise ValueError(f"truth_xy: expected {tt.size} rows (one per truth time), got "
+                         f"{g.shape[0]}")
+    idx = align_to_truth(est_t, tt, tol=tol)
+    est = _as_xy(est_xy, "est_xy")
+    if est.shape[0] != idx.size:
+        raise ValueError(f"est_xy: expected {idx.size} rows (one per estimate time), got "
+                         f"{est.shape[0]}")
+    ref = g[idx]
+    d = est - ref
+    direction = travel_direction(tt, g, truth_yaw, min_speed_mps=min_speed_mps)[idx]
+    along, cross = along_cross_errors(est, ref, direction)
+    if est_yaw is None or truth_yaw is None:
+        heading = np.full(idx.size, np.nan)
+    else:
+        heading = heading_error(est_yaw, np.asarray(truth_yaw, dtype=float)[idx])
+    return TrackErrors(index=idx, dx=d[:, 0], dy=d[:, 1], x=np.abs(d[:, 0]), y=np.abs(d[:, 1]),
+                       euclid=np.hypot(d[:, 0], d[:, 1]), heading=heading, along=along,
+                       cross=cross)
+
+
 def evaluate_track(track: pd.DataFrame, truth_t: object, truth_cg: object,
                    truth_yaw: object, turning: object | None = None, *,
                    margin_s: float = 0.0, masks: Mapping[str, object] | None = None,
@@ -224,8 +393,9 @@ def evaluate_track(track: pd.DataFrame, truth_t: object, truth_cg: object,
         "no_turns_window", see :func:`evaluation_masks`).
     masks : extra masks over the track's rows, name -> (k,) bool.
     Returns a long DataFrame, one row per (mask, quantity) with columns
-    ``mask, quantity, n, n_nan`` and :data:`STATISTICS`; quantities are ``x``, ``y``
-    (Eq. 4.1), ``euclid``, ``along`` (signed, along the true course; its mean is the lag),
+    ``mask, quantity, n, n_nan``, :data:`STATISTICS` and ``outliers``; quantities are ``x``,
+    ``y`` (Eq. 4.1), ``euclid``, ``along`` (signed, along the direction of travel of
+    :func:`travel_direction`; its mean is the lag; p95 / max / outliers of its magnitude),
     and ``<heading column>`` (Eq. 4.2, radians).
     """
     for col in ("t", "cg_x", "cg_y"):
@@ -237,15 +407,10 @@ def evaluate_track(track: pd.DataFrame, truth_t: object, truth_cg: object,
     if cg.ndim != 2 or cg.shape[0] != tt.shape[0] or yaw.shape != tt.shape:
         raise ValueError(f"truth_cg/truth_yaw: shapes {cg.shape}, {yaw.shape} do not match "
                          f"truth_t {tt.shape}")
-    idx = align_to_truth(track["t"].to_numpy(), tt)
-    est = track[["cg_x", "cg_y"]].to_numpy(dtype=float)
-    g = cg[idx, :2]
-    errs = cg_errors(est, g)
-    # direction of travel from the truth CG (central differences); falls back to the yaw
-    vel = np.gradient(cg[:, :2], tt, axis=0) if tt.size > 1 else np.zeros((1, 2))
-    course = np.where(np.hypot(vel[:, 0], vel[:, 1]) > 1e-9,
-                      np.arctan2(vel[:, 1], vel[:, 0]), yaw)[idx]
-    errs["along"] = along_cross_errors(est, g, course)[0]
+    te = track_errors(track["t"].to_numpy(), track[["cg_x", "cg_y"]].to_numpy(dtype=float),
+                      None, tt, cg, yaw)
+    idx = te.index
+    errs = {"x": te.x, "y": te.y, "euclid": te.euclid, "along": te.along}
     for col in heading_columns:
         if col in track.columns:
             errs[col] = heading_error(track[col].to_numpy(dtype=float), yaw[idx])
@@ -269,12 +434,7 @@ def evaluate_track(track: pd.DataFrame, truth_t: object, truth_cg: object,
         if mk.shape != (len(track),) or mk.dtype != bool:
             raise ValueError(f"masks[{name!r}]: expected bool array of shape ({len(track)},)")
         all_masks[name] = mk
-    rows = []
-    for mname, mk in all_masks.items():
-        for q, e in errs.items():
-            s = summarize(e, mk)
-            if q == "along":  # signed: mean/median/std of the signed error, p95/max of |e|
-                sa = summarize(np.abs(e), mk)
-                s["p95"], s["max"] = sa["p95"], sa["max"]
-            rows.append({"mask": mname, "quantity": q, **s})
-    return pd.DataFrame(rows, columns=["mask", "quantity", "n", "n_nan", *STATISTICS])
+    rows = [{"mask": mname, "quantity": q, **summarize(e, mk, signed=q == "along")}
+            for mname, mk in all_masks.items() for q, e in errs.items()]
+    return pd.DataFrame(rows, columns=["mask", "quantity", "n", "n_nan", *STATISTICS,
+                                       "outliers"])

@@ -7,12 +7,14 @@ Source: 000_8f82f8df647bf685.txt (GPS dissertation), Sections 3.1.2, 3.2, 3.4 an
 - Sliding window of size s (Section 3.4.1, Eq. 3.9): the window of epochs
   ``k-s+1 .. k``; the first estimate at epoch s (row index s-1), then one per epoch.
 - Weights computed on each window's data: ``"none"``, ``"random"`` (control), ``"huff"``
-  (3.3.3), ``"huber"`` (3.3.1, per axis), ``"huff_huber"`` (Eq. 3.14), from
-  :mod:`estimator.weights`, all windows stacked into one call.
+  (3.3.3; ``"huff:3.5"`` with a 3.5 m threshold), ``"huber"`` (3.3.1, per axis),
+  ``"huff_huber"`` (Eq. 3.14), from :mod:`estimator.weights` (:class:`Weighting`), all
+  windows stacked into one call.
 - Solvers from :mod:`estimator.window`: ``"procrustes"`` (closed form; all windows in one
   batched call, cumulative sums when unweighted), ``"elastic"`` (Eq. 3.9 with the eps slack,
   all windows of the track in one batched interior-point call, :mod:`estimator.elastic`),
-  ``"slsqp"``/``"ccp"`` (Eq. 3.9 with the eps slack, one window at a time, cold-started from procrustes; ``warm_start=True`` passes the
+  ``"slsqp"``/``"ccp"`` (Eq. 3.9 with the eps slack, one window at a time, cold-started
+  from procrustes; ``fit=FitOptions(warm_start=True)`` passes the
   previous row's fit as ``x0``, the dissertation's start, Section 3.1.2; with a dynamic
   window too, the rows are fitted in time order so the previous row may have either size;
   a row with insufficient data passes on the fit before it).
@@ -20,12 +22,14 @@ Source: 000_8f82f8df647bf685.txt (GPS dissertation), Sections 3.1.2, 3.2, 3.4 an
   atan2 (``yaw``) and by the law-of-cosines construction of Section 3.2 (``yaw_loc``,
   :func:`estimator.orientation.law_of_cosines_heading`, relative to the first estimate).
 - Lag correction (3.4.2, :mod:`estimator.lag`): ``lag_correction=True`` or ``"pose"`` as
-  written, ``"course"`` our variant.
+  written, ``"course"`` our variant; :class:`LagCorrection` for the velocity span and the
+  heading of step 5.
 - Dynamic window (3.4.2.1): ``dynamic_window=w_small`` with ``turning`` either a (n,) bool
   array (the simulator's controller flag: the dissertation's "control information") or
   ``"detect"`` (a detector on the estimates alone, :mod:`estimator.turns`, so it runs on
   real logs). Row k uses the small window when ``turning[k]`` is True. After a turn the
-  window grows back by one of two rules (``window_growth``, :data:`GROWTH_RULES`):
+  window grows back by one of two rules (``DynamicWindow(small, growth)``,
+  :data:`GROWTH_RULES`):
 
   - ``"jump"``: back to ``window`` at the first epoch that is not turning;
   - ``"refill"``: the first-in-first-out queue of Section 3.4.1 ("refreshed ... by deleting
@@ -36,8 +40,8 @@ Source: 000_8f82f8df647bf685.txt (GPS dissertation), Sections 3.1.2, 3.2, 3.4 an
     the outliers of LC + Dyn SW "back to the use of sliding window = 1 during the turning
     sections", which fits a window that is short for a while after each turn; the jump rule
     has no such stretch. :func:`dynamic_window_sizes` gives the sizes.
-- ``lag_heading``: a (n,) heading (rad) used by the lag correction in place of the
-  estimated law-of-cosines heading; row k uses ``lag_heading[k]`` of its newest epoch. It
+- ``LagCorrection(heading=...)``: a (n,) heading (rad) used by the lag correction in place
+  of the estimated law-of-cosines heading; row k uses ``heading[k]`` of its newest epoch. It
   separates the method from the heading it is fed: with the simulator's heading it is the
   oracle "LC (simulator heading)" (is Section 3.4.2 right when the heading is right?); with
   a smoothed heading series, an estimator of its own.
@@ -45,8 +49,8 @@ Source: 000_8f82f8df647bf685.txt (GPS dissertation), Sections 3.1.2, 3.2, 3.4 an
 Beyond the dissertation (each selectable, each a row in tables):
 
 - ``method="motion_compensated"``: the pose at the newest epoch of each window under a
-  constant-velocity model, with ``yaw_rate=True`` also a constant yaw rate
-  (:mod:`estimator.motion`).
+  constant-velocity model, with ``motion=MotionOptions(yaw_rate=True)`` also a constant
+  yaw rate (:mod:`estimator.motion`).
 - ``method="ekf"``: an EKF on the antennas with the configuration as measurement model
   (each antenna's fix and its displacement since the previous fix), the non-holonomic
   constraint, process noise from the platform's limits, robust gating and a forward speed
@@ -71,6 +75,7 @@ from __future__ import annotations
 import hashlib
 import warnings
 from collections import OrderedDict
+from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
@@ -80,13 +85,25 @@ from estimator import lag as _lag
 from estimator import pose_smoother as _smoother
 from estimator import turns as _turns
 from estimator import weights as _weights
-from estimator._checks import check_increasing_times
+from estimator._checks import check_increasing_times, check_int
 from estimator.configuration import LayoutWarning, SensorConfig
 from estimator.elastic import elastic_batch
 from estimator.layout_check import check_layout
 from estimator.motion import motion_compensated_batch, motion_compensated_series
 from estimator.orientation import law_of_cosines_heading
 from estimator.pose_filter import PoseFilterParams, run_pose_filter
+from estimator.track_options import (
+    FILTER_METHODS,
+    GROWTH_RULES,
+    LAG_OPTIONS,
+    METHODS,
+    WEIGHTED_METHODS,
+    DynamicWindow,
+    FitOptions,
+    LagCorrection,
+    MotionOptions,
+)
+from estimator.weights import WEIGHTINGS, Weighting
 from estimator.window import SOLVERS, fit_window, procrustes_batch, window_means, window_moments
 
 __all__ = [
@@ -95,20 +112,16 @@ __all__ = [
     "LAG_OPTIONS",
     "METHODS",
     "WEIGHTINGS",
+    "DynamicWindow",
+    "FitOptions",
+    "LagCorrection",
+    "MotionOptions",
+    "Weighting",
     "detect_turning",
     "dynamic_window_sizes",
     "heading_pair",
     "track",
 ]
-
-METHODS = ("window", "motion_compensated", "ekf", "naive", "ekf_fixed_lag", "ekf_smoother",
-           "gtsam")
-#: The pose-filter family (one forward pass; smoothers and the GTSAM peer on top).
-FILTER_METHODS = ("ekf", "ekf_fixed_lag", "ekf_smoother", "gtsam")
-WEIGHTINGS = ("none", "random", "huff", "huber", "huff_huber")
-LAG_OPTIONS = (False, True, "pose", "course")
-#: How a dynamic window grows back after a turn (module docstring).
-GROWTH_RULES = ("jump", "refill")
 
 #: Windows stacked per weight/solver call: keeps memory ~ this many samples x m x 2 floats.
 _CHUNK_SAMPLES = 200_000
@@ -143,12 +156,6 @@ def _check_inputs(t: Any, obs: Any, config: Any) -> tuple[np.ndarray, np.ndarray
         raise ValueError(f"obs: epoch {k}, sensor {cfg.names[i]!r} has one coordinate NaN; "
                          f"a missing observation must be NaN in both")
     return tt, o, cfg
-
-
-def _check_int(v: Any, name: str, lo: int, hi: int) -> int:
-    if isinstance(v, bool) or not isinstance(v, (int, np.integer)) or not lo <= int(v) <= hi:
-        raise ValueError(f"{name}: must be an integer in [{lo}, {hi}], got {v!r}")
-    return int(v)
 
 
 def heading_pair(config: SensorConfig) -> tuple[int, int, float]:
@@ -191,8 +198,8 @@ def dynamic_window_sizes(turning: Any, window: int, small: int, growth: str = "j
     fl = np.asarray(turning)
     if fl.ndim != 1 or fl.dtype != bool:
         raise ValueError(f"turning: expected a 1-D bool array, got {fl.dtype} {fl.shape}")
-    s = _check_int(window, "window", 1, np.iinfo(np.int64).max // 2)
-    w_small = _check_int(small, "dynamic_window", 1, s)
+    s = check_int(window, "window", 1, np.iinfo(np.int64).max // 2)
+    w_small = check_int(small, "dynamic_window", 1, s)
     if growth not in GROWTH_RULES:
         raise ValueError(f"window_growth: must be one of {list(GROWTH_RULES)}, got {growth!r}")
     sizes = np.full(fl.size, s, dtype=np.int64)
@@ -486,7 +493,7 @@ def detect_turning(t: np.ndarray, obs: np.ndarray, config: SensorConfig,
     tt, o, cfg = _check_inputs(t, obs, config)
     if "window" not in options:
         opt["window"] = min(DETECTOR_DEFAULTS["window"], tt.size)
-    w = _check_int(opt["window"], "detector.window", 1, tt.size)
+    w = check_int(opt["window"], "detector.window", 1, tt.size)
     if opt["source"] not in ("course", "pose"):
         raise ValueError(f"detector.source: must be 'course' or 'pose', got {opt['source']!r}")
     ends = np.arange(w - 1, tt.size)
@@ -504,44 +511,114 @@ def detect_turning(t: np.ndarray, obs: np.ndarray, config: SensorConfig,
 
 
 # ----------------------------------------------------------------------------- track
-def track(t: Any, obs: Any, config: SensorConfig, window: int = 10, weighting: str = "none",
-          lag_correction: bool | str = False, dynamic_window: int | None = None,
-          turning: Any = None, solver: str = "procrustes",
-          rng: np.random.Generator | None = None, *, method: str = "window",
-          eps: float = 0.01, huff_threshold: float | None = None, huber_c: float = 1.345,
-          warm_start: bool = False, velocity_span: int | None = None,
-          detector: dict | None = None, yaw_rate: bool = False, omega_max: float = 1.0,
-          filter_params: PoseFilterParams | None = None, fit_options: dict | None = None,
-          window_growth: str = "jump", lag_heading: Any = None,
+@dataclass(frozen=True)
+class _Options:
+    """track's arguments, validated against each other and the recording."""
+
+    weighting: Weighting
+    lag: LagCorrection | None
+    dyn: DynamicWindow | None
+    fit: FitOptions
+    motion: MotionOptions
+
+
+def _resolve_options(n: int, s: int, weighting: Any, lag_correction: Any, dynamic_window: Any,
+                     turning: Any, solver: Any, rng: Any, method: Any, fit: Any, motion: Any,
+                     filter_params: Any, layout_check: Any) -> _Options:
+    """The cross-checks of :func:`track` (each option object checks itself): which option
+    applies to which method and solver, and the lengths that depend on the recording."""
+    if not isinstance(layout_check, (bool, np.bool_)):
+        raise TypeError(f"layout_check: must be True or False, got {layout_check!r}")
+    if method not in METHODS:
+        raise ValueError(f"method: unknown {method!r}; choose one of {list(METHODS)}")
+    wt = Weighting.parse(weighting)
+    if wt.scheme != "none" and method not in WEIGHTED_METHODS:
+        raise ValueError(f"weighting: method={method!r} takes no weights, got {weighting!r}")
+    if wt.scheme == "random" and not isinstance(rng, np.random.Generator):
+        raise ValueError(f"rng: weighting='random' needs a numpy.random.Generator, got {rng!r}")
+    if solver not in SOLVERS:
+        raise ValueError(f"solver: unknown {solver!r}; choose one of {list(SOLVERS)}")
+    if method != "window" and solver != "procrustes":
+        raise ValueError(
+            f"solver: {solver!r} applies to method='window' only (got method={method!r})")
+    for name, value, kind, applies in (("fit", fit, FitOptions, method == "window"),
+                                       ("motion", motion, MotionOptions,
+                                        method == "motion_compensated"),
+                                       ("filter_params", filter_params, PoseFilterParams,
+                                        method in FILTER_METHODS)):
+        if value is None:
+            continue
+        if not isinstance(value, kind):
+            raise TypeError(f"{name}: expected a {kind.__name__}, got {type(value).__name__}")
+        if not applies:
+            raise ValueError(f"{name}: does not apply to method={method!r}")
+    fit = fit or FitOptions()
+    if fit.warm_start and solver == "elastic":
+        raise ValueError("warm_start: the batched elastic solver starts every window from "
+                         "its procrustes fit; warm_start applies to 'slsqp' and 'ccp'")
+    lag = LagCorrection.coerce(lag_correction)
+    if lag is not None:
+        if method != "window":
+            raise ValueError(f"lag_correction: applies to method='window' only (got "
+                             f"method={method!r})")
+        if lag.velocity_span is not None:
+            check_int(lag.velocity_span, "velocity_span", 1, n)
+        if lag.heading is not None and lag.heading.shape != (n,):
+            raise ValueError(f"lag_heading: expected a float array of shape ({n},) (radians), "
+                             f"got {lag.heading.dtype} {lag.heading.shape}")
+    dyn = DynamicWindow.coerce(dynamic_window)
+    if dyn is not None:
+        if method in FILTER_METHODS:
+            raise ValueError(f"dynamic_window: not applicable to method={method!r}")
+        check_int(dyn.small, "dynamic_window", 1, s)
+        if turning is None:
+            raise ValueError("turning: dynamic_window needs turning flags (a (n,) bool array) "
+                             "or turning='detect'")
+        if dyn.detector is not None and not isinstance(turning, str):
+            raise ValueError("detector: only used with turning='detect'")
+    elif turning is not None:
+        raise ValueError("turning: only used together with dynamic_window")
+    if isinstance(turning, str):
+        if turning != "detect":
+            raise ValueError(f"turning: must be a (n,) bool array or 'detect', got {turning!r}")
+    elif turning is not None:
+        fl = np.asarray(turning)
+        if fl.shape != (n,) or fl.dtype != bool:
+            raise ValueError(
+                f"turning: expected a bool array of shape ({n},), got {fl.dtype} {fl.shape}")
+    return _Options(wt, lag, dyn, fit, motion or MotionOptions())
+
+
+def track(t: Any, obs: Any, config: SensorConfig, window: int = 10,
+          weighting: str | Weighting = "none",
+          lag_correction: bool | str | LagCorrection = False,
+          dynamic_window: int | DynamicWindow | None = None, turning: Any = None,
+          solver: str = "procrustes", rng: np.random.Generator | None = None, *,
+          method: str = "window", fit: FitOptions | None = None,
+          motion: MotionOptions | None = None, filter_params: PoseFilterParams | None = None,
           layout_check: bool = True) -> pd.DataFrame:
     """Track the platform over a recording; one row per estimate.
 
     t : (n,) seconds, strictly increasing. obs : (n, m, 2) metres (world x east, y north),
     NaN = missing. config : the sensor configuration (m sensors).
     window : s >= 1; the first estimate is at epoch s (row index s-1), then one per epoch.
-    weighting : one of :data:`WEIGHTINGS`; ``rng`` (numpy Generator) is required for
-        ``"random"``. huff_threshold (m) and huber_c pass to :mod:`estimator.weights`.
-    lag_correction : False, True (= "pose", Section 3.4.2 as written) or "course"
-        (method "window" only). velocity_span : rows for the velocity estimate (default s).
-    dynamic_window : small window size (e.g. 1) used on turning epochs (Section 3.4.2.1);
-        requires ``turning``: a (n,) bool array or "detect" (options in ``detector``, see
-        :func:`detect_turning`). window_growth : "jump" (default) or "refill", how the
-        window grows back after a turn (:func:`dynamic_window_sizes`).
-    lag_heading : None or (n,) radians (CCW from +x; NaN allowed): the heading step 5 of the
-        lag correction uses, in place of the estimated law-of-cosines heading; row k takes
-        the value of its newest epoch, and a NaN leaves that row uncorrected (lag_dx NaN).
-        With ``lag_correction`` True / "pose" only. The simulator's heading here makes the
-        oracle rows "LC (simulator heading)"; a smoothed heading series is an estimator.
-    solver : "procrustes" | "slsqp" | "ccp" | "elastic" (method "window" only); eps (m),
-        warm_start (slsqp/ccp only) and fit_options (e.g. ``{"maxiter": 100}``) pass to
+    weighting : a :class:`estimator.weights.Weighting` or its text (:data:`WEIGHTINGS`,
+        ``"huff:3.5"`` = Huff with a 3.5 m threshold); ``rng`` (numpy Generator) is
+        required for ``"random"``. Methods "window" and "motion_compensated" only.
+    lag_correction : False, True (= "pose", Section 3.4.2 as written), "course" (our
+        variant) or a :class:`LagCorrection` (velocity span, the heading of step 5);
+        method "window" only.
+    dynamic_window : None, the small window size (e.g. 1) used on turning epochs (Section
+        3.4.2.1), or a :class:`DynamicWindow` (small window, growth rule "jump" / "refill"
+        after a turn, :func:`dynamic_window_sizes`, turn-detector options). Requires
+        ``turning``: a (n,) bool array or "detect" (:func:`detect_turning`).
+    solver : "procrustes" | "slsqp" | "ccp" | "elastic" (method "window" only); ``fit``
+        (:class:`FitOptions`: eps, warm start, iteration limit) passes to
         :func:`estimator.window.fit_window` (elastic: :func:`estimator.elastic.elastic_batch`).
     method : one of :data:`METHODS` (module docstring); "naive" gives a row only where every
-        CG sensor has data in the window, else NaN and "insufficient_data". yaw_rate : the
-        motion-compensated
-        model's constant yaw rate (default False: constant velocity and heading; on Path 1
-        under gps_stationary noise the yaw rate changed the mean CG error by < 0.01 m for
-        windows 5-30 at 6-9x the time). omega_max (rad/s) bounds it.
-        filter_params : :class:`PoseFilterParams` for the filter methods (platform limits,
+        CG sensor has data in the window, else NaN and "insufficient_data".
+        motion : :class:`MotionOptions` of "motion_compensated" (constant yaw rate or not).
+        filter_params : :class:`PoseFilterParams` of the filter methods (platform limits,
         noise levels, no-slip point, reverse mode, smoother lag); default the rover's.
 
     Returns a DataFrame with columns ``t, cg_x, cg_y, yaw, yaw_loc, window, solver_status,
@@ -561,87 +638,32 @@ def track(t: Any, obs: Any, config: SensorConfig, window: int = 10, weighting: s
     """
     tt, o, cfg = _check_inputs(t, obs, config)
     n, m = o.shape[:2]
-    s = _check_int(window, "window", 1, n)
-    if not isinstance(layout_check, (bool, np.bool_)):
-        raise TypeError(f"layout_check: must be True or False, got {layout_check!r}")
-    if method not in METHODS:
-        raise ValueError(f"method: unknown {method!r}; choose one of {list(METHODS)}")
-    if weighting not in WEIGHTINGS:
-        raise ValueError(f"weighting: unknown {weighting!r}; choose one of {list(WEIGHTINGS)}")
-    if weighting == "random" and not isinstance(rng, np.random.Generator):
-        raise ValueError(f"rng: weighting='random' needs a numpy.random.Generator, got {rng!r}")
-    if solver not in SOLVERS:
-        raise ValueError(f"solver: unknown {solver!r}; choose one of {list(SOLVERS)}")
-    if method != "window" and solver != "procrustes":
-        raise ValueError(
-            f"solver: {solver!r} applies to method='window' only (got method={method!r})")
-    if warm_start and solver == "elastic":
-        raise ValueError("warm_start: the batched elastic solver starts every window from "
-                         "its procrustes fit; warm_start applies to 'slsqp' and 'ccp'")
-    if lag_correction not in LAG_OPTIONS or (isinstance(lag_correction, (int, float))
-                                             and not isinstance(lag_correction, bool)):
-        raise ValueError(f"lag_correction: must be one of {LAG_OPTIONS}, got {lag_correction!r}")
-    lag_mode = {False: None, True: "pose"}.get(lag_correction, lag_correction)
-    if lag_mode is not None and method != "window":
-        raise ValueError(f"lag_correction: applies to method='window' only (got method={method!r})")
-    if (method in FILTER_METHODS or method == "naive") and weighting != "none":
-        raise ValueError(f"weighting: method={method!r} takes no weights, got {weighting!r}")
-    if velocity_span is not None:
-        velocity_span = _check_int(velocity_span, "velocity_span", 1, n)
-    heading_for_lag = None
-    if lag_heading is not None:
-        if lag_mode != "pose":
-            raise ValueError("lag_heading: only used with lag_correction=True or 'pose' (got "
-                             f"lag_correction={lag_correction!r})")
-        heading_for_lag = np.asarray(lag_heading)
-        if heading_for_lag.shape != (n,) or not np.issubdtype(heading_for_lag.dtype,
-                                                              np.floating):
-            raise ValueError(f"lag_heading: expected a float array of shape ({n},) (radians), "
-                             f"got {heading_for_lag.dtype} {heading_for_lag.shape}")
-        if np.isinf(heading_for_lag).any():
-            k = int(np.argmax(np.isinf(heading_for_lag)))
-            raise ValueError(f"lag_heading: lag_heading[{k}] = {heading_for_lag[k]!r} is "
-                             "infinite (use NaN where the heading is unknown)")
-    if window_growth not in GROWTH_RULES:
-        raise ValueError(f"window_growth: must be one of {list(GROWTH_RULES)}, got "
-                         f"{window_growth!r}")
-    if window_growth != "jump" and dynamic_window is None:
-        raise ValueError(f"window_growth: {window_growth!r} only applies with dynamic_window")
-    # turning / dynamic window
+    s = check_int(window, "window", 1, n)
+    opt = _resolve_options(n, s, weighting, lag_correction, dynamic_window, turning, solver,
+                           rng, method, fit, motion, filter_params, layout_check)
+    wt, lag, dyn, fo, mo = opt.weighting, opt.lag, opt.dyn, opt.fit, opt.motion
+    # the options as the internals take them
+    eps, warm_start, fit_options = fo.eps, fo.warm_start, fo.solver_kwargs()
+    lag_mode = None if lag is None else lag.mode
+    heading_for_lag = None if lag is None else lag.heading
+    velocity_span = None if lag is None else lag.velocity_span
     flags = np.zeros(n, dtype=bool)
-    if dynamic_window is not None:
-        if method in FILTER_METHODS:
-            raise ValueError(f"dynamic_window: not applicable to method={method!r}")
-        small = _check_int(dynamic_window, "dynamic_window", 1, s)
-        if turning is None:
-            raise ValueError("turning: dynamic_window needs turning flags (a (n,) bool array) "
-                             "or turning='detect'")
-    elif turning is not None:
-        raise ValueError("turning: only used together with dynamic_window")
     if isinstance(turning, str):
-        if turning != "detect":
-            raise ValueError(f"turning: must be a (n,) bool array or 'detect', got {turning!r}")
-        flags = detect_turning(tt, o, cfg, **(detector or {}))
+        flags = detect_turning(tt, o, cfg, **(dyn.detector or {}))
     elif turning is not None:
-        fl = np.asarray(turning)
-        if fl.shape != (n,) or fl.dtype != bool:
-            raise ValueError(
-                f"turning: expected a bool array of shape ({n},), got {fl.dtype} {fl.shape}")
-        flags = fl.copy()
-    if detector is not None and not isinstance(turning, str):
-        raise ValueError("detector: only used with turning='detect'")
+        flags = np.asarray(turning).copy()
 
     ends = np.arange(s - 1, n)
     N = ends.size
     wsize = np.full(N, s, dtype=int)
-    if dynamic_window is not None:
-        wsize = dynamic_window_sizes(flags[ends], s, small, window_growth)
+    if dyn is not None:
+        wsize = dynamic_window_sizes(flags[ends], s, dyn.small, dyn.growth)
     pos = np.full((N, m, 2), np.nan)
     yaw = np.full(N, np.nan)
     status = np.empty(N, dtype=object)
     extra: dict[str, np.ndarray] = {}
-    common = {"weighting": weighting, "rng": rng, "huff_threshold": huff_threshold,
-              "huber_c": huber_c}
+    common = {"weighting": wt.scheme, "rng": rng, "huff_threshold": wt.huff_threshold,
+              "huber_c": wt.huber_c}
 
     if method == "window":
         if warm_start and solver != "procrustes":
@@ -669,8 +691,8 @@ def track(t: Any, obs: Any, config: SensorConfig, window: int = 10, weighting: s
         extra = {k: np.full(N, np.nan) for k in ("yaw_rate", "vx", "vy")}
         for w in np.unique(wsize):
             sel = wsize == w
-            p, out, st = _motion_windows(tt, o, cfg, ends[sel], int(w), yaw_rate=yaw_rate,
-                                         omega_max=omega_max, **common)
+            p, out, st = _motion_windows(tt, o, cfg, ends[sel], int(w), yaw_rate=mo.yaw_rate,
+                                         omega_max=mo.omega_max, **common)
             pos[sel], yaw[sel], status[sel] = p, out["yaw"], st
             for k in extra:
                 extra[k][sel] = out[k]
@@ -701,7 +723,7 @@ def track(t: Any, obs: Any, config: SensorConfig, window: int = 10, weighting: s
     if lag_mode is not None:
         heading = yaw_loc if heading_for_lag is None else heading_for_lag[ends]
         shift = _lag_correct(tt, o, cfg, ends, wsize, pos, cg, heading, s, lag_mode,
-                             velocity_span or s, dynamic_window is not None, common, eps)
+                             velocity_span or s, dyn is not None, common, eps)
         ok = np.all(np.isfinite(shift), axis=1)
         pos = pos + np.where(ok[:, None], shift, 0.0)[:, None, :]
         cg = cg + np.where(ok[:, None], shift, 0.0)
@@ -719,13 +741,14 @@ def track(t: Any, obs: Any, config: SensorConfig, window: int = 10, weighting: s
     cols.update(extra)
     df = pd.DataFrame(cols)
     df.attrs["settings"] = {
-        "method": method, "window": s, "weighting": weighting,
-        "lag_correction": lag_mode or False, "dynamic_window": dynamic_window,
+        "method": method, "window": s, "weighting": wt.scheme,
+        "lag_correction": lag_mode or False,
+        "dynamic_window": None if dyn is None else dyn.small,
         "turning": ("detect" if isinstance(turning, str)
                     else "flags" if turning is not None else None),
-        "solver": solver, "eps": eps, "huff_threshold": huff_threshold, "huber_c": huber_c,
-        "warm_start": warm_start, "config": cfg.name,
-        "window_growth": window_growth if dynamic_window is not None else None,
+        "solver": solver, "eps": eps, "huff_threshold": wt.huff_threshold,
+        "huber_c": wt.huber_c, "warm_start": warm_start, "config": cfg.name,
+        "window_growth": None if dyn is None else dyn.growth,
         "lag_heading": "given" if heading_for_lag is not None else None,
     }
     if layout_check:

@@ -15,6 +15,8 @@ observations (NaN) always get weight 0 (never NaN), and every result feeds
 from __future__ import annotations
 
 import math
+import re
+from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
@@ -26,17 +28,29 @@ from estimator.window import MAX_COORD_M
 __all__ = [
     "HUBER_C",
     "MAD_CONSISTENCY",
+    "THRESHOLD_WEIGHTINGS",
+    "WEIGHTINGS",
+    "Weighting",
     "deleted_residual_mask",
     "huber_weights",
     "huff_huber_weights",
     "huff_weights",
     "random_weights",
+    "weights_for",
 ]
 
 #: Huber tuning constant (Section 3.3.1, step 3): 95 % efficiency at the normal
 HUBER_C = 1.345
 #: MAD / 0.6745 estimates the standard deviation of normal data (Section 3.3.1, step 1)
 MAD_CONSISTENCY = 0.6745
+#: Weighting schemes of the window fit (Section 3.3), the one vocabulary every caller uses:
+#: no weights, random weights (the control), Huff (3.3.3), Huber per axis (3.3.1) and the
+#: product Huff x Huber (Eq. 3.14). :class:`Weighting` adds their parameters.
+WEIGHTINGS = ("none", "random", "huff", "huber", "huff_huber")
+#: Schemes that take a Huff residual threshold, written ``"<scheme>:<metres>"`` (e.g.
+#: ``"huff:3.5"``, the threshold of Section 4.8.2).
+THRESHOLD_WEIGHTINGS = ("huff", "huff_huber")
+_NUMBER = re.compile(r"\d+(\.\d*)?([eE][+-]?\d+)?")
 
 
 def _obs(obs: Any) -> tuple[np.ndarray, np.ndarray]:
@@ -247,3 +261,91 @@ def random_weights(shape: tuple[int, ...] | int, rng: np.random.Generator) -> np
     except (MemoryError, ValueError) as exc:  # numpy refuses sizes it cannot allocate
         raise ValueError(f"shape: {shp} ({math.prod(shp)} weights) cannot be allocated: "
                          f"{exc}") from None
+
+
+@dataclass(frozen=True)
+class Weighting:
+    """A weighting scheme of Section 3.3 with its parameters (one spelling everywhere).
+
+    scheme : one of :data:`WEIGHTINGS`.
+    huff_threshold : Huff residual threshold in metres (steps 5 and 7 of Section 3.3.3),
+        > 0, or None for none; only for the schemes of :data:`THRESHOLD_WEIGHTINGS`.
+    huber_c : Huber tuning constant (Eq. 3.12), > 0; only "huber" and "huff_huber" use it,
+        so another value with another scheme is refused.
+
+    As text (specs, tables, the ``weighting`` argument of ``track``): the scheme name, or
+    ``"<scheme>:<threshold>"`` for a Huff threshold in metres, e.g. ``"huff:3.5"``;
+    :meth:`parse` reads it and ``str()`` writes it back.
+    """
+
+    scheme: str = "none"
+    huff_threshold: float | None = None
+    huber_c: float = HUBER_C
+
+    def __post_init__(self) -> None:
+        if self.scheme not in WEIGHTINGS:
+            raise ValueError(f"weighting: unknown weighting {self.scheme!r}; choose one of "
+                             f"{list(WEIGHTINGS)}, or '<scheme>:<threshold m>' for "
+                             f"{list(THRESHOLD_WEIGHTINGS)}")
+        if self.huff_threshold is not None:
+            if self.scheme not in THRESHOLD_WEIGHTINGS:
+                raise ValueError(f"huff_threshold: applies to {list(THRESHOLD_WEIGHTINGS)} "
+                                 f"only, not to weighting {self.scheme!r}")
+            object.__setattr__(self, "huff_threshold", check_real(
+                self.huff_threshold, "huff_threshold", lo=0.0, lo_open=True))
+        c = check_real(self.huber_c, "huber_c", lo=0.0, lo_open=True)
+        if c != HUBER_C and self.scheme not in ("huber", "huff_huber"):
+            raise ValueError(f"huber_c: applies to 'huber' and 'huff_huber' only, not to "
+                             f"weighting {self.scheme!r}")
+        object.__setattr__(self, "huber_c", c)
+
+    @classmethod
+    def parse(cls, value: str | Weighting) -> Weighting:
+        """A :class:`Weighting` from its text (``"huff"``, ``"huff:3.5"``, ...) or itself.
+
+        Raises ValueError naming ``weighting`` and the value for an unknown scheme, a
+        threshold on a scheme without one, or a threshold that is not a number > 0.
+        """
+        if isinstance(value, Weighting):
+            return value
+        if not isinstance(value, str):
+            raise TypeError(f"weighting: must be a string such as 'huff:3.5' or a Weighting, "
+                            f"got {type(value).__name__} {value!r}")
+        scheme, sep, thr = value.partition(":")
+        if not sep:
+            return cls(scheme)
+        if scheme not in THRESHOLD_WEIGHTINGS:
+            raise ValueError(f"weighting: {value!r}: a threshold applies to "
+                             f"{list(THRESHOLD_WEIGHTINGS)} only")
+        t = float(thr) if _NUMBER.fullmatch(thr) else math.nan
+        if not (math.isfinite(t) and t > 0):
+            raise ValueError(f"weighting: {value!r}: the threshold after ':' must be a number "
+                             f"of metres > 0")
+        return cls(scheme, huff_threshold=t)
+
+    def __str__(self) -> str:
+        if self.huff_threshold is None:
+            return self.scheme
+        return f"{self.scheme}:{self.huff_threshold!r}"
+
+
+def weights_for(obs: Any, config: SensorConfig, weighting: str | Weighting,
+                rng: np.random.Generator | None = None) -> np.ndarray | None:
+    """The weights of ``weighting`` for windows of observations: the one dispatcher.
+
+    obs : (..., s, m, d) metres, NaN = missing. weighting : a :class:`Weighting` or its
+    text. rng : numpy Generator, required by "random". Returns None for "none" (every
+    observation weighs 1), ``(..., s, m)`` for "random" (uniform, :func:`random_weights`)
+    and "huff" (:func:`huff_weights`), ``(..., s, m, d)`` for "huber" and "huff_huber"
+    (per axis, Eq. 3.12 and 3.14).
+    """
+    w = Weighting.parse(weighting)
+    if w.scheme == "none":
+        return None
+    if w.scheme == "random":
+        return random_weights(np.shape(obs)[:-1], rng)
+    if w.scheme == "huff":
+        return huff_weights(obs, config, w.huff_threshold)
+    if w.scheme == "huber":
+        return huber_weights(obs, w.huber_c)
+    return huff_huber_weights(obs, config, w.huff_threshold, w.huber_c)

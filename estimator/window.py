@@ -90,6 +90,7 @@ __all__ = [
     "STATUSES",
     "BatchFit",
     "WindowFit",
+    "check_window_means",
     "fit_stationary",
     "fit_window",
     "procrustes_batch",
@@ -307,6 +308,33 @@ def _body_collinear(Bc: np.ndarray, w: np.ndarray) -> np.ndarray:
     return ev[:, -2] <= 1e-12 * np.maximum(ev[:, -1], 1e-300)
 
 
+def check_window_means(means: Any, weight: Any, config: SensorConfig, weight_name: str,
+                       per_axis: bool = False) -> tuple[np.ndarray, np.ndarray]:
+    """The batched fits' input check: ``means`` (N, m, d) metres of ``config``'s sensors,
+    NaN only where the weight is 0, up to :data:`MAX_COORD_M`; ``weight`` (N, m) per sensor
+    or, ``per_axis``, (N, m, d) per axis, finite, >= 0, up to :data:`MAX_WEIGHT_SUM`.
+    Returns both as float arrays; ValueError naming ``means`` / ``weight_name`` otherwise."""
+    Y = check_array(means, "means", allow_nan=True, max_abs=MAX_COORD_M)
+    W = check_array(weight, weight_name, max_abs=MAX_WEIGHT_SUM)
+    m, d = config.m, config.d
+    if Y.ndim != 3 or Y.shape[1:] != (m, d):
+        raise ValueError(f"means: expected shape (N, {m}, {d}) for config {config.name!r}, "
+                         f"got {Y.shape}")
+    shape = Y.shape if per_axis else Y.shape[:2]
+    if W.shape != shape:
+        what = "sensor and axis" if per_axis else "sensor"
+        raise ValueError(f"{weight_name}: expected shape {shape} (one weight per window and "
+                         f"{what}), got {W.shape}")
+    if (W < 0).any():
+        raise ValueError(f"{weight_name}: must be >= 0, found minimum {W.min()!r}")
+    bad = np.isnan(Y) & ((W if per_axis else W[..., None]) > 0)
+    if bad.any():
+        k = tuple(int(i) for i in np.argwhere(bad)[0])
+        raise ValueError(f"means: must be finite wherever {weight_name} > 0; means{list(k)} = "
+                         f"{Y[k]!r}")
+    return Y, W
+
+
 def procrustes_batch(means: Any, sensor_weight: Any, config: SensorConfig) -> BatchFit:
     """Closed-form weighted rigid fit of ``config`` to N windows' means in one numpy call.
 
@@ -323,20 +351,9 @@ def procrustes_batch(means: Any, sensor_weight: Any, config: SensorConfig) -> Ba
     """
     if not isinstance(config, SensorConfig):
         raise TypeError(f"config: expected a SensorConfig, got {type(config).__name__}")
-    Y = check_array(means, "means", allow_nan=True, max_abs=MAX_COORD_M)
-    w = check_array(sensor_weight, "sensor_weight", max_abs=MAX_WEIGHT_SUM)
-    m, d = config.m, config.d
-    if Y.ndim != 3 or Y.shape[1:] != (m, d):
-        raise ValueError(f"means: expected shape (N, {m}, {d}) for config {config.name!r}, "
-                         f"got {Y.shape}")
-    if w.shape != Y.shape[:2]:
-        raise ValueError(f"sensor_weight: expected shape {Y.shape[:2]}, got {w.shape}")
-    if (w < 0).any():
-        raise ValueError(f"sensor_weight: must be >= 0, found minimum {w.min()!r}")
+    Y, w = check_window_means(means, sensor_weight, config, "sensor_weight")
     valid = w > 0
-    if np.isnan(Y[valid]).any():
-        raise ValueError("means: must be finite wherever sensor_weight > 0")
-    N = Y.shape[0]
+    N, d = Y.shape[0], config.d
     B = config.body_positions
     Y0 = np.where(valid[..., None], Y, 0.0)
     Wsum = w.sum(axis=1)

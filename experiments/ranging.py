@@ -38,9 +38,10 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
+from estimator.metrics import summarize
 from estimator.ranging import RangeStreams, RangingConfig, RangingResult, localize
+from experiments.markdown import markdown_table
 from experiments.provenance import git_describe
-from experiments.ultrasonic import markdown_table
 
 __all__ = [
     "METHODS",
@@ -224,12 +225,10 @@ def authors_metric(ref_t: np.ndarray, ref_xyz: np.ndarray, est_t: np.ndarray,
     ref = np.where((before < 0)[:, None], rp[a], ref)
     e2 = np.hypot(ref[:, 0] - ep[:, 0], ref[:, 1] - ep[:, 1])
     e3 = np.sqrt(e2 ** 2 + (ref[:, 2] + tag_height_m - ep[:, 2]) ** 2)
-    n = int(e2.size)
+    s2, s3 = summarize(e2), summarize(e3)      # NaN statistics when nothing is scored
     return {
-        "rmse_2d_m": float(np.sqrt(np.mean(e2 ** 2))) if n else float("nan"),
-        "rmse_3d_m": float(np.sqrt(np.mean(e3 ** 2))) if n else float("nan"),
-        "max_error_2d_m": float(np.max(e2)) if n else float("nan"),
-        "n": n, "window": (t0, t1), "t": et, "err_2d": e2, "err_3d": e3,
+        "rmse_2d_m": s2["rmse"], "rmse_3d_m": s3["rmse"], "max_error_2d_m": s2["max"],
+        "n": int(e2.size), "window": (t0, t1), "t": et, "err_2d": e2, "err_3d": e3,
     }
 
 
@@ -503,7 +502,7 @@ def published_scores(directory: Path) -> dict:
 
 
 def _md_table(df: pd.DataFrame) -> str:
-    return markdown_table(df, ".3f")
+    return markdown_table(df, floatfmt=".3f")
 
 
 def run(directories, out: str | Path = DEFAULT_OUT, *, trajectory: str | None = None,

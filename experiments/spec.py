@@ -58,8 +58,10 @@ Axes (scalar or list; the dict-valued ones take a table or a list of tables):
   ``config`` defaults to the recording's own and may be replaced in the block (same
   antenna names, e.g. a layout from measured distances to compare); turning "controller"
   means the reference's turn flags.
-- ``window`` (positive int), ``weighting`` (:data:`WEIGHTINGS`), ``technique``
-  (:data:`TECHNIQUES`), ``solver`` (:data:`SOLVERS`), ``dyn_window`` (small window of the
+- ``window`` (positive int), ``weighting`` (:data:`WEIGHTINGS`, or ``"huff:<t>"`` with a
+  Huff threshold of t metres, :class:`estimator.weights.Weighting`), ``technique``
+  (:data:`TECHNIQUES`, the registry :mod:`experiments.techniques` says what each runs and
+  which axes apply), ``solver`` (:data:`SOLVERS`), ``dyn_window`` (small window of the
   dynamic technique, default 1), ``turning`` ("controller" flag or estimate-based "detector"),
   ``dyn_growth`` (how the dynamic window grows back after a turn: "jump", default, or
   "refill", one epoch per step, :data:`DYN_GROWTH`).
@@ -92,11 +94,28 @@ from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
+from estimator.metrics import MASKS
 from estimator.model_files import MODELS_DIR as MODELS
 from estimator.model_files import SOURCE_CHECKOUT
+from estimator.track_options import GROWTH_RULES
+from estimator.weights import WEIGHTINGS as WEIGHT_SCHEMES
+from estimator.weights import Weighting
+from estimator.window import SOLVERS
+from experiments.techniques import (
+    DYNAMIC,
+    FILTER_TECHNIQUES,
+    NO_SOLVER,
+    NO_WEIGHTS,
+    ORACLE_TECHNIQUES,
+    TECHNIQUES,
+    TURNING_SOURCES,
+    techniques_help,
+)
+from experiments.techniques import technique as _technique
 
 __all__ = [
     "AXES",
+    "DEFAULT_MASKS",
     "DYN_GROWTH",
     "FILTER_TECHNIQUES",
     "MASKS",
@@ -109,6 +128,7 @@ __all__ = [
     "Spec",
     "SpecError",
     "available_presets",
+    "axis_help",
     "load_spec",
 ]
 
@@ -117,41 +137,16 @@ REPO = Path(__file__).resolve().parents[1]
 RESULTS_ROOT = (REPO if SOURCE_CHECKOUT else Path.cwd()) / "results"
 PRESETS_DIR = Path(__file__).resolve().parent / "presets"
 
-#: Weighting schemes (Section 3.3). "huff:<t>" is Huff with residual threshold t (4.8.2 uses 3.5).
-WEIGHTINGS = ("none", "random", "huff", "huff:3.5", "huber", "huff_huber")
-_HUFF_T = re.compile(r"^huff:(\d+(\.\d+)?)$")
-#: Techniques. Dissertation: none, lc (Section 3.4.2), dyn (3.4.2.1), lc+dyn (4.12.4).
-#: Beyond it (issue 5): motion-compensated window, constant-velocity EKF, naive CG average.
-#: "lc_course" is the lag correction with the course (direction of the estimated velocity)
-#: in place of the platform orientation (estimator.lag, variant "course").
-TECHNIQUES = ("none", "lc", "dyn", "lc+dyn", "lc_course", "lc_course+dyn", "motion_compensated",
-              "ekf", "naive", "ekf_fixed_lag", "ekf_smoother", "gtsam")
-#: Issue 14: the pose filter's fixed-lag and full RTS smoothers, and the GTSAM fixed-lag
-#: factor-graph peer (optional dependency gtsam; a spec naming it fails on load without it).
-FILTER_TECHNIQUES = ("ekf", "ekf_fixed_lag", "ekf_smoother", "gtsam")
-#: Beyond the dissertation (issue 14): the lag correction of Section 3.4.2 with the pose
-#: filter's RTS-smoothed heading (from the same observations) in place of the estimated one.
-TECHNIQUES = TECHNIQUES + ("lc_smoothed_heading",)
-#: Oracle techniques (issue 15): the lag correction of Section 3.4.2 fed the simulator's
-#: heading instead of the estimated one ("LC (simulator heading)", alone and with the
-#: dynamic window). They use the truth, so they are diagnostics, never estimator results.
-ORACLE_TECHNIQUES = ("lc_sim_heading", "lc_sim_heading+dyn")
-TECHNIQUES = TECHNIQUES + ORACLE_TECHNIQUES
-SOLVERS = ("procrustes", "slsqp", "ccp", "elastic")
-#: Evaluation masks: every estimate; those dated at an epoch that is not turning; those
-#: whose whole window is free of turning epochs (estimator.metrics.evaluation_masks).
-MASKS = ("full", "no_turns", "no_turns_window")
+#: Weightings, solvers, masks and growth rules are the estimators' vocabularies
+#: (estimator.weights, estimator.window, estimator.metrics, estimator.track_options);
+#: techniques, their applicable axes and the turning sources come from the technique
+#: registry (experiments.techniques). A weighting may carry a Huff threshold in metres,
+#: "huff:<t>" (4.8.2 uses 3.5): :meth:`estimator.weights.Weighting.parse`.
+WEIGHTINGS = WEIGHT_SCHEMES
 #: Masks of a spec that does not name any.
 DEFAULT_MASKS = ("full", "no_turns")
-TURNING = ("controller", "detector")
-#: How the dynamic window grows back after a turn (estimator.tracking.dynamic_window_sizes).
-DYN_GROWTH = ("jump", "refill")
-
-#: Techniques that do not use the window solver / take no weights / no dynamic window: the
-#: axis value is recorded as "-" (not applicable) so such cells are not duplicated.
-NO_SOLVER = ("motion_compensated", "ekf", "naive", "ekf_fixed_lag", "ekf_smoother", "gtsam")
-NO_WEIGHTS = ("ekf", "naive", "ekf_fixed_lag", "ekf_smoother", "gtsam")
-DYNAMIC = ("dyn", "lc+dyn", "lc_course+dyn", "lc_sim_heading+dyn")
+TURNING = TURNING_SOURCES
+DYN_GROWTH = GROWTH_RULES
 
 #: Every axis and its default when neither [defaults] nor a grid block sets it.
 AXES: dict[str, Any] = {
@@ -672,6 +667,23 @@ def _as_list(v: object, where: str) -> list:
     raise SpecError(f"{where}: must be a string or a list of strings, got {v!r}")
 
 
+#: Axes whose value is one of a vocabulary: axis -> (what it is, allowed values).
+_CHOICES = {"solver": ("solver", SOLVERS), "turning": ("turning source", TURNING),
+            "dyn_growth": ("growth rule", DYN_GROWTH)}
+
+
+def axis_help() -> str:
+    """The values of the spec axes that take a name, for the sweep's ``--help``: every
+    technique (from the registry) and the estimators' vocabularies."""
+    return "\n".join([
+        "techniques (the technique axis):", techniques_help(),
+        (f"weightings: {', '.join(WEIGHT_SCHEMES)}; 'huff:<m>' / 'huff_huber:<m>' adds a Huff "
+         "threshold in metres"),
+        (f"solvers: {', '.join(SOLVERS)};  masks: {', '.join(MASKS)} (default "
+         f"{', '.join(DEFAULT_MASKS)});  turning: {', '.join(TURNING)};  dyn_growth: "
+         f"{', '.join(DYN_GROWTH)}")])
+
+
 def _check_axis(axis: str, v: object, where: str, base: Path, *, scalar: bool) -> Any:
     """Validate one value of an axis; returns the canonical value."""
     if axis not in AXES:
@@ -696,31 +708,29 @@ def _check_axis(axis: str, v: object, where: str, base: Path, *, scalar: bool) -
     if not isinstance(v, str) or not v:
         raise SpecError(f"{where}: must be a non-empty string, got {v!r}")
     if axis == "weighting":
-        m = _HUFF_T.match(v)
-        if v not in WEIGHTINGS and not (m and float(m.group(1)) > 0):
-            raise SpecError(f"{where}: unknown weighting {v!r}; allowed: {list(WEIGHTINGS)} "
-                            "or 'huff:<threshold>'")
+        try:
+            Weighting.parse(v)
+        except ValueError as exc:
+            raise SpecError(f"{where}: {str(exc).removeprefix('weighting: ')}") from None
     elif axis == "technique":
-        if v not in TECHNIQUES:
-            raise SpecError(f"{where}: unknown technique {v!r}; allowed: {list(TECHNIQUES)}")
-        if v == "gtsam":
+        try:
+            tech = _technique(v)
+        except ValueError as exc:
+            raise SpecError(f"{where}: {str(exc).removeprefix('technique: ')}") from None
+        if tech.requires:
             import importlib.util
 
-            if importlib.util.find_spec("gtsam") is None:
-                raise SpecError(f"{where}: technique 'gtsam' needs the optional dependency "
-                                "gtsam: pip install -e '.[gtsam]'")
-    elif axis == "solver":
-        if v not in SOLVERS:
-            raise SpecError(f"{where}: unknown solver {v!r}; allowed: {list(SOLVERS)}")
-    elif axis == "turning":
-        if v not in TURNING:
-            raise SpecError(f"{where}: unknown turning source {v!r}; allowed: {list(TURNING)}")
+            module, extra = tech.requires
+            if importlib.util.find_spec(module) is None:
+                raise SpecError(f"{where}: technique {v!r} needs the optional dependency "
+                                f"{module}: pip install -e '.[{extra}]'")
+    elif axis in _CHOICES:
+        what, allowed = _CHOICES[axis]
+        if v not in allowed:
+            raise SpecError(f"{where}: unknown {what} {v!r}; allowed: {list(allowed)}")
     elif axis == "recording":
         if v != "-":
             _resolve_recording(v, base, where)
-    elif axis == "dyn_growth":
-        if v not in DYN_GROWTH:
-            raise SpecError(f"{where}: unknown growth rule {v!r}; allowed: {list(DYN_GROWTH)}")
     elif axis == "path":
         _resolve("paths", v, base, where)
     elif axis == "config":

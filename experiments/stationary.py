@@ -50,17 +50,12 @@ import numpy as np
 import pandas as pd
 
 from estimator.configuration import SensorConfig
+from estimator.metrics import cg_errors, heading_error, summarize
 from estimator.noise_stats import acf, ar1_fit, noise_summary, tau_from_phi
-from estimator.orientation import wrap_angle
-from estimator.weights import (
-    deleted_residual_mask,
-    huber_weights,
-    huff_huber_weights,
-    huff_weights,
-    random_weights,
-)
+from estimator.weights import Weighting, deleted_residual_mask, huber_weights, weights_for
 from estimator.window import fit_stationary, procrustes_batch, sliding_window_means
 from experiments import stationary_figures as figs
+from experiments.markdown import markdown_table
 from experiments.provenance import code_version
 from sim.gps import GpsNoiseModel, StationarySession, synthesize_session
 
@@ -84,9 +79,10 @@ REFERENCE_OUT = REPO / "results" / "stationary"
 DEFAULT_OUT = REPO / "results" / "local" / "stationary"
 #: Real logs of the reference run, where CI has them.
 REFERENCE_REAL_LOGS = REPO.parent / "shared" / "realdata"
-#: Sliding-window schemes of Figs 4.25-4.33 -> Huff threshold in metres (None: no Huff
-#: weights; "huff": Huff without threshold).
-WINDOW_SCHEMES = {"none": None, "huff": math.inf, "huff3.5": 3.5}
+#: Sliding-window schemes of Figs 4.25-4.33 (weightings of estimator.weights): no weights,
+#: Huff without threshold, Huff with a 3.5 m threshold. Only per-sample weights (none, Huff):
+#: they are computed once on the recording and every window shares them.
+WINDOW_SCHEMES = ("none", "huff", "huff:3.5")
 #: Tables and summary.json keep 12 significant digits: far below any effect, and above the
 #: last-bit differences of reductions (BLAS, summation order) that would otherwise make a
 #: rerun of the reference differ in the 16th digit.
@@ -118,14 +114,16 @@ class Scored:
 
 def _score(positions: np.ndarray, truth: np.ndarray | None, config: SensorConfig,
            alive: np.ndarray) -> tuple[float, float, float]:
+    """RMS position error over alive sensors, CG error (Eq. 4.1, Euclidean) and heading
+    error (Eq. 4.2, degrees) of one estimate of the antenna positions (estimator.metrics)."""
     if truth is None or not np.isfinite(positions[alive]).all():
         return math.nan, math.nan, math.nan
-    e = np.linalg.norm(positions[alive] - truth[alive], axis=-1)
-    cg = config.cg_from_positions(positions) - config.cg_from_positions(truth)
+    e = cg_errors(positions[alive], truth[alive])["euclid"]
+    cg = cg_errors(config.cg_from_positions(positions)[None],
+                   config.cg_from_positions(truth)[None])["euclid"][0]
     yaw = procrustes_batch(np.stack([positions, truth]), np.tile(alive.astype(float), (2, 1)),
                            config).yaw
-    return (float(np.sqrt((e * e).mean())), float(np.linalg.norm(cg)),
-            float(np.degrees(abs(wrap_angle(yaw[0] - yaw[1])))))
+    return (summarize(e)["rmse"], float(cg), float(np.degrees(heading_error(yaw[:1], yaw[1:])[0])))
 
 
 def weighting_estimates(session: StationarySession, config: SensorConfig,
@@ -135,8 +133,9 @@ def weighting_estimates(session: StationarySession, config: SensorConfig,
 
     Schemes: "means" (per-sensor means, no configuration: the baseline), "none" (4.17),
     "huber" (4.18), "huff" (4.19, no threshold), "huber_1_5" / "huber_1_8" (4.20 / 4.21:
-    only those two sensors' data), "huff_x_huber" (4.22), "deleted_residuals" (4.23),
-    "random" (control). obs (n, m, 2) are the session's; weights per estimator.weights.
+    only those two sensors' data), "huff_huber" (4.22, Eq. 3.14), "deleted_residuals"
+    (4.23), "random" (control); the weightings' names are those of
+    :class:`estimator.weights.Weighting`. obs (n, m, 2) are the session's.
     """
     obs = session.obs
     truth = session.truth_positions
@@ -154,13 +153,13 @@ def weighting_estimates(session: StationarySession, config: SensorConfig,
 
     schemes = {
         "none": (obs, None),
-        "huber": (obs, huber_weights(obs)),
-        "huff": (obs, huff_weights(obs, config)),
+        "huber": (obs, weights_for(obs, config, "huber")),
+        "huff": (obs, weights_for(obs, config, "huff")),
         "huber_1_5": (only(("1", "5")), huber_weights(only(("1", "5")))),
         "huber_1_8": (only(("1", "8")), huber_weights(only(("1", "8")))),
-        "huff_x_huber": (obs, huff_huber_weights(obs, config)),
+        "huff_huber": (obs, weights_for(obs, config, "huff_huber")),
         "deleted_residuals": (obs, deleted_residual_mask(obs).astype(float)),
-        "random": (obs, random_weights(obs.shape[:2], rng)),
+        "random": (obs, weights_for(obs, config, "random", rng)),
     }
     for name, (o, w) in schemes.items():
         if name.startswith("huber_1") and not {"1", "5", "8"} <= set(session.names):
@@ -174,6 +173,8 @@ def window_estimates(obs: np.ndarray, config: SensorConfig, s: int, scheme: str
                      ) -> tuple[np.ndarray, np.ndarray]:
     """Sliding-window estimates (Section 3.4.1): window k holds samples k-s+1..k, k >= s-1.
 
+    scheme : a weighting without per-window statistics, "none" or "huff" with or without a
+    threshold (e.g. "huff:3.5", :class:`estimator.weights.Weighting`).
     Closed-form procrustes per window on the weighted window means (exact distances; the
     eps slack changes positions by about 1.3 eps, ../shared/notes/window-solvers.md). Huff
     weights (Section 3.3.3) depend on their own sample only, so they are computed once on
@@ -181,10 +182,10 @@ def window_estimates(obs: np.ndarray, config: SensorConfig, s: int, scheme: str
     Returns positions (n-s+1, m, 2) (NaN where a window has insufficient data) and the
     status array.
     """
-    if scheme not in WINDOW_SCHEMES:
-        raise ValueError(f"scheme: unknown {scheme!r}; choose one of {list(WINDOW_SCHEMES)}")
-    thr = WINDOW_SCHEMES[scheme]
-    w = None if thr is None else huff_weights(obs, config, None if thr == math.inf else thr)
+    if Weighting.parse(scheme).scheme not in ("none", "huff"):
+        raise ValueError(f"scheme: {scheme!r} weighs each window by its own statistics; "
+                         f"choose 'none' or 'huff[:<threshold>]', e.g. {list(WINDOW_SCHEMES)}")
+    w = weights_for(obs, config, scheme)
     means, sw = sliding_window_means(obs, s, w)
     fit = procrustes_batch(means, sw, config)
     return fit.positions, fit.status
@@ -219,11 +220,14 @@ def window_spreads(session: StationarySession, config: SensorConfig,
                    "insufficient": float(1 - ok.mean()), "spread_m": spread,
                    "rmse_m": math.nan, "cg_rmse_m": math.nan, "yaw_rmse_deg": math.nan}
             if truth is not None:
-                row["rmse_m"] = float(np.sqrt(((p - truth[alive]) ** 2).sum(-1).mean()))
-                cg = config.cg_from_positions(pos[ok]) - cg_true
-                row["cg_rmse_m"] = float(np.sqrt((cg ** 2).sum(-1).mean()))
+                d = p - truth[alive]
+                row["rmse_m"] = summarize(np.hypot(d[..., 0], d[..., 1]).ravel())["rmse"]
+                cg = config.cg_from_positions(pos[ok])
+                row["cg_rmse_m"] = summarize(cg_errors(cg, np.broadcast_to(cg_true, cg.shape))
+                                             ["euclid"])["rmse"]
                 yaw = procrustes_batch(pos[ok], np.tile(alive.astype(float), (ok.sum(), 1)), config).yaw
-                row["yaw_rmse_deg"] = float(np.degrees(np.sqrt((wrap_angle(yaw - yaw_true) ** 2).mean())))
+                row["yaw_rmse_deg"] = float(np.degrees(summarize(
+                    heading_error(yaw, np.full(yaw.shape, yaw_true)))["rmse"]))
             rows.append(row)
     return pd.DataFrame(rows), est
 
@@ -348,15 +352,8 @@ def analyse(session: StationarySession, config: SensorConfig | None, out: Path,
 
 
 def _md(df: pd.DataFrame, floatfmt: str = ".3f") -> str:
-    cols = list(df.columns)
-    lines = ["| " + " | ".join(cols) + " |", "|" + "---|" * len(cols)]
-    for i in range(len(df)):
-        cells = []
-        for c in cols:
-            v = df[c].iloc[i]          # per column, so integer columns stay integers
-            cells.append(format(v, floatfmt) if isinstance(v, (float, np.floating)) else str(v))
-        lines.append("| " + " | ".join(cells) + " |")
-    return "\n".join(lines)
+    """The summaries' tables: floats with ``floatfmt``, NaN as "nan"."""
+    return markdown_table(df, floatfmt=floatfmt, nan=None)
 
 
 def _write_summary(out: Path, session: StationarySession, config: SensorConfig | None,

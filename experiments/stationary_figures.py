@@ -26,7 +26,7 @@ __all__ = ["DPI", "plot_all"]
 DPI = 110
 _STYLE = {"font.size": 10, "axes.titlesize": 10, "axes.labelsize": 10, "legend.fontsize": 9,
           "xtick.labelsize": 9, "ytick.labelsize": 9, "figure.titlesize": 12}
-_SCHEME_ORDER = ["none", "huff", "huff3.5"]
+_SCHEME_ORDER = ["none", "huff", "huff:3.5"]
 
 
 def _grid(k: int, ncols: int = 4, size: tuple[float, float] = (3.4, 2.7), **kw):

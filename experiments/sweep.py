@@ -61,9 +61,10 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
+from estimator.track_options import FILTER_METHODS
+from estimator.window import SOLVERS
 from experiments.provenance import code_version
 from experiments.spec import (
-    FILTER_TECHNIQUES,
     REPO,
     RESULTS_ROOT,
     Cell,
@@ -72,6 +73,7 @@ from experiments.spec import (
     available_presets,
     load_spec,
 )
+from experiments.techniques import technique
 from sim.atomic import atomic_write, atomic_write_text
 
 __all__ = [
@@ -183,27 +185,6 @@ def simulate_truth(path_file: str, path_overrides: str, config_file: str, sim_se
 
 
 # --------------------------------------------------------------------------- cells
-_TECHNIQUE_KW = {
-    "none": {},
-    "lc": {"lag_correction": True},
-    "dyn": {"dynamic": True},
-    "lc+dyn": {"lag_correction": True, "dynamic": True},
-    "lc_course": {"lag_correction": "course"},
-    "lc_course+dyn": {"lag_correction": "course", "dynamic": True},
-    "motion_compensated": {"method": "motion_compensated"},
-    "ekf": {"method": "ekf"},
-    "naive": {"method": "naive"},
-    "ekf_fixed_lag": {"method": "ekf_fixed_lag"},
-    "ekf_smoother": {"method": "ekf_smoother"},
-    "gtsam": {"method": "gtsam"},
-    # oracles (experiments.spec.ORACLE_TECHNIQUES): the truth's heading in step 5 of 3.4.2
-    "lc_sim_heading": {"lag_correction": True, "heading": "truth"},
-    "lc_sim_heading+dyn": {"lag_correction": True, "heading": "truth", "dynamic": True},
-    # beyond (issue 14): the pose filter's RTS-smoothed heading in step 5 of 3.4.2
-    "lc_smoothed_heading": {"lag_correction": True, "heading": "smoothed"},
-}
-
-
 def filter_params_for(truth):
     """The pose filter's parameters for a simulated vehicle (issue 14): its limits (the
     path's speed, acceleration, turn-rate and lateral-acceleration limits and the
@@ -242,52 +223,32 @@ def _observations(cell: Cell, truth, config, ctx: CellContext) -> np.ndarray:
     return obs
 
 
-def _tukey_outlier_fraction(e: np.ndarray) -> float:
-    """Fraction of values above the upper box-plot whisker, Q3 + 1.5 IQR (Figs 4.114-4.123)."""
-    if e.size < 4:
-        return float("nan")
-    q1, q3 = np.percentile(e, [25, 75])
-    return float(np.mean(e > q3 + 1.5 * (q3 - q1)))
+#: Column prefixes of the error series in cells.parquet (estimator.metrics.TrackErrors).
+SERIES_COLUMNS = {"ex": "x", "ey": "y", "eu": "euclid", "eh": "heading"}
 
 
 def score_track(df: pd.DataFrame, truth, obs: np.ndarray, config, masks: Iterable[str],
                 epochs: bool = True) -> tuple[list[dict], pd.DataFrame | None]:
-    """Eq. 4.1/4.2 errors of a track against the truth, summarised per evaluation mask.
+    """Eq. 4.1/4.2 errors of a track against the truth, summarised per evaluation mask, all
+    by :mod:`estimator.metrics` (:func:`~estimator.metrics.track_errors`,
+    :func:`~estimator.metrics.summarize`, :func:`~estimator.metrics.jitter_rms`).
 
     Returns one dict per mask with, for each error series (``ex`` = |x| CG error, ``ey`` = |y|,
     ``eu`` = Euclidean, ``eh`` = heading, rad), the statistics mean, median, std (ddof 1),
     rmse, p95, max and the box-plot outlier fraction; plus the signed along-track error
-    (mean, median; negative = the estimate trails the truth, the lag of Section 3.4.2), the
+    (mean, median; negative = the estimate trails the truth, the lag of Section 3.4.2; along
+    the truth's direction of travel, :func:`estimator.metrics.travel_direction`), the
     epoch-to-epoch jitter (RMS change of the error vector between consecutive epochs, the
     "variation from one estimate to the next" of Section 4.10), the raw observations' own
     per-axis error for comparison, and counts. Also returns the per-epoch table (truth,
     errors, observations at the estimate times) when ``epochs`` is True, else None.
     """
-    from estimator.metrics import (
-        STATISTICS,
-        along_cross_errors,
-        cg_errors,
-        evaluation_masks,
-        heading_error,
-        summarize,
-    )
+    from estimator.metrics import STATISTICS, evaluation_masks, jitter_rms, summarize, track_errors
     from estimator.orientation import wrap_angle
 
-    t = df["t"].to_numpy(dtype=float)
-    idx = np.searchsorted(truth.t, t)
-    idx = np.clip(idx, 0, truth.n - 1)
-    if not np.allclose(truth.t[idx], t, rtol=0, atol=1e-6):
-        raise ValueError("track: output times do not match the truth's sample times")
-    est = df[["cg_x", "cg_y"]].to_numpy(dtype=float)
-    tru = truth.cg[idx, :2]
-    errs = cg_errors(est, tru)
-    eh = heading_error(df["yaw"].to_numpy(dtype=float), truth.yaw[idx])
-    course = truth.yaw[idx]
-    along, cross = along_cross_errors(est, tru, course)
-    d = est - tru
-    jump = np.full(len(t), np.nan)
-    if len(t) > 1:
-        jump[1:] = np.hypot(*(np.diff(d, axis=0).T))
+    err = track_errors(df["t"].to_numpy(dtype=float), df[["cg_x", "cg_y"]].to_numpy(dtype=float),
+                       df["yaw"].to_numpy(dtype=float), truth.t, truth.cg, truth.yaw)
+    idx = err.index
     ob = obs[idx] - truth.sensor_positions[idx, :, :2]            # (k, m, 2)
     obs_ex = np.nanmean(np.abs(ob[..., 0]), axis=1) if ob.size else np.array([])
     obs_ey = np.nanmean(np.abs(ob[..., 1]), axis=1) if ob.size else np.array([])
@@ -295,38 +256,32 @@ def score_track(df: pd.DataFrame, truth, obs: np.ndarray, config, masks: Iterabl
     win[idx] = df["window"].to_numpy(dtype=np.int64)
     mk_all = {k: v[idx] for k, v in evaluation_masks(truth.turning.astype(bool),
                                                       window=win).items()}
-    series = {"ex": errs["x"], "ey": errs["y"], "eu": errs["euclid"], "eh": eh}
+    dxy = err.dxy
     rows = []
     for mname in masks:
         mk = mk_all[mname]
         row: dict[str, Any] = {"mask": mname, "n_epochs": int(mk.sum())}
-        for sname, e in series.items():
-            s = summarize(e, mk)
-            for k in STATISTICS:
-                row[f"{sname}_{k}"] = s[k]
-            fin = e[mk]
-            fin = fin[np.isfinite(fin)]
-            row[f"{sname}_outliers"] = _tukey_outlier_fraction(fin)
+        for sname, q in SERIES_COLUMNS.items():
+            sm = summarize(getattr(err, q), mk)
+            for k in (*STATISTICS, "outliers"):
+                row[f"{sname}_{k}"] = sm[k]
             if sname == "ex":
-                row["n_valid"], row["n_nan"] = s["n"], s["n_nan"]
-        a = along[mk]
-        a = a[np.isfinite(a)]
-        row["along_mean"] = float(a.mean()) if a.size else float("nan")
-        row["along_median"] = float(np.median(a)) if a.size else float("nan")
-        jm = jump[mk & np.r_[False, mk[:-1]]] if len(mk) else jump[:0]
-        jm = jm[np.isfinite(jm)]
-        row["jitter_rms"] = float(np.sqrt(np.mean(jm ** 2))) if jm.size else float("nan")
+                row["n_valid"], row["n_nan"] = sm["n"], sm["n_nan"]
+        sa = summarize(err.along, mk, signed=True)
+        row["along_mean"], row["along_median"] = sa["mean"], sa["median"]
+        row["jitter_rms"] = jitter_rms(dxy, mk)
         with np.errstate(all="ignore"):
             row["obs_ex_mean"] = float(np.nanmean(obs_ex[mk])) if mk.any() else float("nan")
             row["obs_ey_mean"] = float(np.nanmean(obs_ey[mk])) if mk.any() else float("nan")
         rows.append(row)
     if not epochs:
         return rows, None
+    tru = truth.cg[idx, :2]
     cols: dict[str, Any] = {
         "truth_cg_x": tru[:, 0], "truth_cg_y": tru[:, 1], "truth_yaw": truth.yaw[idx],
-        "truth_turning": truth.turning[idx].astype(bool), "err_x": d[:, 0], "err_y": d[:, 1],
+        "truth_turning": truth.turning[idx].astype(bool), "err_x": err.dx, "err_y": err.dy,
         "err_yaw": wrap_angle(df["yaw"].to_numpy(float) - truth.yaw[idx]),
-        "along": along, "cross": cross, "no_turns_window": mk_all["no_turns_window"]}
+        "along": err.along, "cross": err.cross, "no_turns_window": mk_all["no_turns_window"]}
     # per-antenna truth and observations for plots: float32 (1e-5 m resolution at 200 m)
     # halves the files; the estimates, CG truth and errors stay float64
     for j, nm in enumerate(truth.sensor_names):
@@ -350,8 +305,7 @@ def evaluate_cell(cell: Cell, truth, ctx: CellContext) -> CellOutput:
     config = ctx.memo[ckey]
     obs = _observations(cell, truth, config, ctx)
     t1 = time.perf_counter()
-    fp = (filter_params_for(truth) if cell.technique in FILTER_TECHNIQUES
-          or _TECHNIQUE_KW[cell.technique].get("heading") == "smoothed" else None)
+    fp = filter_params_for(truth) if technique(cell.technique).uses_filter else None
     df = _track_cell(cell, truth.t, obs, config, truth.turning.astype(bool), ctx,
                      true_yaw=np.asarray(truth.yaw, dtype=float), filter_params=fp,
                      layout_check=False)
@@ -394,40 +348,35 @@ def _track_cell(cell: Cell, t: np.ndarray, obs: np.ndarray, config, turning, ctx
                 true_yaw: np.ndarray | None = None, filter_params=None,
                 **kw_extra: Any) -> pd.DataFrame:
     """:func:`estimator.tracking.track` with the cell's window, weighting, technique and
-    solver; ``turning`` is the "controller" flag (n,) bool (None: none available, the
-    dynamic window then uses the detector); ``true_yaw`` (n,) rad the reference heading the
-    oracle techniques hand to the lag correction (None: no reference, such a cell fails);
-    ``filter_params`` the pose filter's parameters (the filter techniques, and the smoothed
-    heading of "lc_smoothed_heading"; None = the rover's defaults)."""
+    solver, the technique's arguments from the registry
+    (:meth:`experiments.techniques.Technique.track_arguments`); ``turning`` is the
+    "controller" flag (n,) bool (None: none available, the dynamic window then uses the
+    detector); ``true_yaw`` (n,) rad the reference heading the oracle techniques hand to the
+    lag correction (None: no reference, such a cell fails); ``filter_params`` the pose
+    filter's parameters (the filter techniques, and the smoothed heading of
+    "lc_smoothed_heading"; None = the rover's defaults)."""
     from estimator.tracking import track
 
-    kw = dict(_TECHNIQUE_KW[cell.technique])
-    flags = None
-    if kw.pop("dynamic", False):
-        kw["dynamic_window"] = cell.dyn_window
-        kw["window_growth"] = cell.dyn_growth
-        flags = turning if cell.turning == "controller" and turning is not None else "detect"
-    heading = kw.pop("heading", None)
-    if heading == "truth":
-        if true_yaw is None:
-            raise ValueError(f"technique {cell.technique!r}: an oracle row needs the reference "
-                             "heading, and this cell has none")
-        kw["lag_heading"] = true_yaw
-    elif heading == "smoothed":
-        # "smoothed": an estimator of its own (issue 14): the pose filter's RTS heading from
-        # the same observations replaces the law-of-cosines heading in step 5 of 3.4.2
+    tech = technique(cell.technique)
+    heading = None
+    if tech.lag_heading == "truth":
+        heading = true_yaw
+    elif tech.lag_heading == "smoothed":
+        # an estimator of its own (issue 14): the pose filter's RTS heading from the same
+        # observations replaces the law-of-cosines heading in step 5 of 3.4.2
         from estimator.pose_smoother import smoothed_heading
 
-        kw["lag_heading"] = smoothed_heading(t, obs, config, filter_params)
-    if cell.technique in FILTER_TECHNIQUES and filter_params is not None:
+        heading = smoothed_heading(t, obs, config, filter_params)
+    kw = tech.track_arguments(dyn_window=cell.dyn_window, dyn_growth=cell.dyn_growth,
+                              heading=heading)
+    flags = None
+    if tech.dynamic:
+        flags = turning if cell.turning == "controller" and turning is not None else "detect"
+    if tech.method in FILTER_METHODS and filter_params is not None:
         kw["filter_params"] = filter_params
-    weighting, extra = cell.weighting, {}
-    if weighting == "-":
-        weighting = "none"
-    elif weighting.startswith("huff:"):
-        weighting, extra = "huff", {"huff_threshold": float(weighting[5:])}
-    return track(t, obs, config, window=cell.window, weighting=weighting, turning=flags,
-                 solver="procrustes" if cell.solver == "-" else cell.solver, **extra,
+    return track(t, obs, config, window=cell.window,
+                 weighting="none" if cell.weighting == "-" else cell.weighting, turning=flags,
+                 solver="procrustes" if cell.solver == "-" else cell.solver,
                  rng=cell_rng(ctx.spec_seed, cell.seed, STREAM_ESTIMATOR), **kw, **kw_extra)
 
 
@@ -654,7 +603,8 @@ def _parquet_readable(path: Path) -> bool:
 #: that other code produced instead of mixing results of two code versions.
 CELL_SOURCES = tuple(sorted(
     [*(REPO / "estimator").glob("*.py"), *(REPO / "sim").glob("*.py"),
-     REPO / "experiments" / "sweep.py", REPO / "experiments" / "spec.py"]))
+     REPO / "experiments" / "sweep.py", REPO / "experiments" / "spec.py",
+     REPO / "experiments" / "techniques.py"]))
 
 
 def cell_code_digest() -> str:
@@ -998,7 +948,17 @@ _EPILOG = """examples:
 
 A rerun of the same spec resumes: finished cells are skipped (--force recomputes).
 presets: {presets}
+
+{axes}
 """
+
+
+def _epilog() -> str:
+    """The help's epilog: examples, presets and the values of the spec's named axes (from
+    the technique registry and the estimators' vocabularies, experiments.spec.axis_help)."""
+    from experiments.spec import axis_help
+
+    return _EPILOG.format(presets=", ".join(available_presets()), axes=axis_help())
 
 DEFAULT_PRESET = "thesis"
 
@@ -1008,7 +968,7 @@ def build_parser() -> argparse.ArgumentParser:
         prog="python -m experiments.sweep",
         description="Run an experiment spec (TOML) as a parallel, resumable sweep and write "
                     "cells.parquet, tables.md/CSV, REPORT.md and figures to results/<name>/.",
-        epilog=_EPILOG.format(presets=", ".join(available_presets())),
+        epilog=_epilog(),
         formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("spec", nargs="?", help="spec TOML file (default: --preset thesis)")
     p.add_argument("--preset", metavar="NAME",
@@ -1024,7 +984,7 @@ def build_parser() -> argparse.ArgumentParser:
                    help="Dask scheduler address for --backend dask, e.g. tcp://127.0.0.1:8786 "
                         "(default: start a LocalCluster of --jobs workers)")
     p.add_argument("--force", action="store_true", help="recompute finished cells")
-    p.add_argument("--solver", choices=("procrustes", "slsqp", "ccp", "elastic"),
+    p.add_argument("--solver", choices=SOLVERS,
                    help="override every cell's solver; results go to results/<name>-<solver>/, "
                         "e.g. --solver slsqp")
     p.add_argument("--seeds", type=int, metavar="N",

@@ -33,6 +33,15 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
+from experiments.markdown import markdown_table
+from experiments.techniques import (
+    FILTER_TECHNIQUES,
+    ORACLE_TECHNIQUES,
+    REGISTRY,
+    heading_rows,
+    reading_rows,
+    table_rows,
+)
 from sim.atomic import atomic_write, atomic_write_text
 
 __all__ = [
@@ -59,54 +68,27 @@ __all__ = [
 
 PATH_LABELS = {"square100": "Path 1", "square200": "Path 2"}
 
-#: Table rows: label -> (technique, mask), in the dissertation's order.
-THESIS_ROWS = {
-    "None": ("none", "full"),
-    "LC Full Path": ("lc", "full"),
-    "LC No Turns": ("lc", "no_turns_window"),
-    "Dyn SW": ("dyn", "full"),
-    "LC + Dyn SW": ("lc+dyn", "full"),
-}
+#: Table rows: label -> (technique, mask), in the dissertation's order (all rows come from
+#: the technique registry, experiments.techniques).
+THESIS_ROWS = table_rows("thesis")
 #: Masks of the faithful reading and what a sweep without them falls back to.
 MASK_FALLBACK = {"no_turns_window": "no_turns"}
 #: Dynamic-window growth rules, most faithful first (Section 3.4.1's first-in-first-out
 #: queue refills one epoch per step; see estimator.tracking.dynamic_window_sizes).
 GROWTH_ORDER = ("refill", "jump")
 #: The other readings of Table 4.1/4.2 rows: label -> (technique, mask, growth rule or None).
-READING_ROWS = {
-    "LC No Turns (turning epochs only)": ("lc", "no_turns", None),
-    "Dyn SW (jump back)": ("dyn", "full", "jump"),
-    "LC + Dyn SW (jump back)": ("lc+dyn", "full", "jump"),
-}
-#: Oracle rows (experiments.spec.ORACLE_TECHNIQUES): the lag correction fed the simulator's
-#: heading. Diagnostics: they use the truth and never count as estimator results.
-ORACLE_ROWS = {
-    "Oracle: LC (simulator heading)": ("lc_sim_heading", "full"),
-    "Oracle: LC (simulator heading) No Turns": ("lc_sim_heading", "no_turns_window"),
-    "Oracle: LC (simulator heading) + Dyn SW": ("lc_sim_heading+dyn", "full"),
-}
-#: Beyond-the-dissertation rows (issue 5), scored on the full path.
-BEYOND_ROWS = {
-    "LC (course)": ("lc_course", "full"),
-    "LC (course) + Dyn SW": ("lc_course+dyn", "full"),
-    "Motion-compensated": ("motion_compensated", "full"),
-    "EKF (causal)": ("ekf", "full"),
-    "Naive CG mean": ("naive", "full"),
-    # issue 14: the pose filter's smoothers and the GTSAM factor-graph peer
-    "EKF fixed-lag smoother": ("ekf_fixed_lag", "full"),
-    "EKF RTS smoother": ("ekf_smoother", "full"),
-    "GTSAM fixed-lag (peer)": ("gtsam", "full"),
-    "LC, smoothed heading": ("lc_smoothed_heading", "full"),
-}
+READING_ROWS = reading_rows()
+#: Oracle rows (experiments.techniques.ORACLE_TECHNIQUES): the lag correction fed the
+#: simulator's heading. Diagnostics: they use the truth and never count as estimator results.
+ORACLE_ROWS = table_rows("oracle")
+#: Beyond-the-dissertation rows (issues 5 and 14), scored on the full path.
+BEYOND_ROWS = table_rows("beyond")
 #: Rows of the heading table (issue 14): the pose-filter family and the window fits.
-HEADING_ROWS = {
-    "EKF (causal)": "ekf",
-    "EKF fixed-lag smoother": "ekf_fixed_lag",
-    "EKF RTS smoother": "ekf_smoother",
-    "GTSAM fixed-lag (peer)": "gtsam",
-    "Window fit": "none",
-    "Motion-compensated": "motion_compensated",
-}
+HEADING_ROWS = heading_rows()
+#: The dissertation's corrections of the window fit (LC, Dyn SW, LC + Dyn SW): Tables 4.1/4.2
+#: use the weighting they ran with.
+THESIS_CORRECTIONS = tuple(t.name for t in REGISTRY if t.kind == "thesis"
+                           and (t.lag is not None or t.dynamic))
 
 # Published values, Table 4.1 (x) and Table 4.2 (y): (window, row) -> (mean, median, std).
 _T41 = """5 None 1.095 0.950 0.795
@@ -359,7 +341,7 @@ def thesis_row(cells: pd.DataFrame, label: str) -> tuple[str, str]:
 
 
 def _default_weighting(cells: pd.DataFrame, path: str) -> str | None:
-    sub = select(cells, path=path, technique=["lc", "dyn", "lc+dyn"])
+    sub = select(cells, path=path, technique=list(THESIS_CORRECTIONS))
     if sub.empty:
         return None
     ws = sub["weighting"].unique().tolist()
@@ -510,7 +492,7 @@ def heading_table(cells: pd.DataFrame) -> pd.DataFrame:
             wt = "-" if "-" in wts else ("huff" if "huff" in wts else sorted(wts)[0])
             st = st[st["weighting"] == wt]
             windows = sorted(set(st["window"]))
-            if tech in ("ekf", "ekf_fixed_lag", "ekf_smoother", "gtsam"):
+            if tech in FILTER_TECHNIQUES:
                 windows = windows[:1]
             for w in windows:
                 g = st[st["window"] == w]
@@ -526,15 +508,8 @@ def heading_table(cells: pd.DataFrame) -> pd.DataFrame:
 
 # --------------------------------------------------------------------------- markdown
 def _md(df: pd.DataFrame, cols: list[tuple[str, str]]) -> str:
-    head = "| " + " | ".join(h for h, _ in cols) + " |"
-    sep = "|" + "|".join("---" for _ in cols) + "|"
-    lines = [head, sep]
-    for _, r in df.iterrows():
-        cells = []
-        for _, c in cols:
-            cells.append(c(r) if callable(c) else str(r[c]))
-        lines.append("| " + " | ".join(cells) + " |")
-    return "\n".join(lines)
+    """A table of ``cols`` (header, column or function of the row); values as ``str``."""
+    return markdown_table(df, cols, floatfmt=None, nan=None)
 
 
 def _ci(prefix: str, digits: int = 3):
@@ -644,8 +619,6 @@ def _variant_tables(cells: pd.DataFrame, out: Path, vlabel: str) -> list[str]:
 
 def _side_study_md(study: pd.DataFrame, out: Path) -> list[str]:
     """Side studies (:func:`side_studies`) as one table (full path) and ``side_studies.csv``."""
-    from experiments.spec import ORACLE_TECHNIQUES
-
     axes = [a for a in ("path", *VARIANT_AXES, "weighting", "technique", "window")
             if a in ("technique", "window") or a in study.columns
             and len(set(study[a]) - _NA) > 1]
@@ -696,8 +669,6 @@ def write_tables(cells: pd.DataFrame, out_dir: str | Path) -> Path:
     by = aggregate(cells, [a for a in axes if a in cells.columns],
                    ["ex_mean", "ex_median", "ex_std", "ey_mean", "ey_median", "ey_std",
                     "eu_mean", "eu_rmse", "eh_median", "eh_rmse", "along_mean", "jitter_rms"])
-    from experiments.spec import ORACLE_TECHNIQUES
-
     by["oracle"] = by["technique"].isin(ORACLE_TECHNIQUES)   # truth-fed: not a result
     atomic_write(out / "by_cell.csv", lambda p: by.to_csv(p, index=False))
     # wall times depend on the machine and its load: kept out of the tracked tables, in a

@@ -43,7 +43,8 @@ import numpy as np
 import pandas as pd
 
 from estimator import trilateration as tri
-from estimator.orientation import angle_diff, heading_from_points, unwrap_angle
+from estimator.metrics import heading_error, summarize
+from estimator.orientation import heading_from_points, unwrap_angle
 from estimator.ranging import (
     RangeStreams,
     RangingConfig,
@@ -51,6 +52,7 @@ from estimator.ranging import (
     filter_fixes,
     localize,
 )
+from experiments.markdown import markdown_table
 from experiments.provenance import git_describe
 from sim.ultrasonic import UltrasonicNoiseModel, load_receivers, simulate_ranges, true_ranges
 
@@ -202,25 +204,23 @@ def _heading(front, rear):
 
 
 def _score(stage, gate_mode, est, truth, yaw_est, yaw_true, flags=None):
-    """RMSE per axis (m) over finite rows, heading RMSE (deg, wrapped differences)."""
-    e = est - truth
+    """RMSE per axis (m) and of the 3-D error (RMSE, median, max) over the rows with every
+    coordinate finite; heading RMSE and max (deg) of the wrapped differences (Eq. 4.2):
+    :func:`estimator.metrics.summarize` and :func:`estimator.metrics.heading_error`.
+    est, truth : (n, 3) or (n, k, 3) metres (every transmitter's rows pooled)."""
+    e = (est - truth).reshape(-1, 3)
     ok = np.all(np.isfinite(e), axis=-1)
-    ee = e[ok]
-    dh = angle_diff(yaw_est, yaw_true)
-    okh = np.isfinite(dh)
-    row = {
+    axes = [summarize(np.abs(e[:, a]), ok) for a in range(3)]
+    e3 = summarize(np.linalg.norm(np.where(ok[:, None], e, 0.0), axis=1), ok)
+    h = summarize(heading_error(yaw_est, yaw_true))
+    return {
         "gates": gate_mode, "stage": stage,
-        "rmse_x_m": np.sqrt(np.mean(ee[:, 0] ** 2)), "rmse_y_m": np.sqrt(np.mean(ee[:, 1] ** 2)),
-        "rmse_z_m": np.sqrt(np.mean(ee[:, 2] ** 2)),
-        "rmse_3d_m": np.sqrt(np.mean(np.sum(ee ** 2, axis=1))),
-        "median_3d_m": np.median(np.linalg.norm(ee, axis=1)),
-        "max_3d_m": np.max(np.linalg.norm(ee, axis=1)),
-        "heading_rmse_deg": np.degrees(np.sqrt(np.mean(dh[okh] ** 2))),
-        "heading_max_deg": np.degrees(np.max(np.abs(dh[okh]))),
+        "rmse_x_m": axes[0]["rmse"], "rmse_y_m": axes[1]["rmse"], "rmse_z_m": axes[2]["rmse"],
+        "rmse_3d_m": e3["rmse"], "median_3d_m": e3["median"], "max_3d_m": e3["max"],
+        "heading_rmse_deg": np.degrees(h["rmse"]), "heading_max_deg": np.degrees(h["max"]),
         "missing_pct": 100.0 * (1 - ok.mean()),
         "no_intersection_pct": np.nan if flags is None else 100.0 * np.mean(flags),
     }
-    return row
 
 
 def run_flight(spec: StudySpec, rng: np.random.Generator) -> dict:
@@ -446,22 +446,6 @@ def plot_flight(series: pd.DataFrame, out: Path, receiver_names: list[str]) -> l
 # =============================================================================================
 # driver
 # =============================================================================================
-
-
-def markdown_table(df: pd.DataFrame, floatfmt: str = ".4g") -> str:
-    """A DataFrame as a Markdown table; floats with ``floatfmt``, NaN as '-'."""
-    cols = list(df.columns)
-    lines = ["| " + " | ".join(cols) + " |", "|" + "|".join("---" for _ in cols) + "|"]
-    for _, r in df.iterrows():
-        cells = []
-        for c in cols:
-            v = r[c]
-            if isinstance(v, (float, np.floating)):
-                cells.append("-" if np.isnan(v) else format(v, floatfmt))
-            else:
-                cells.append(str(v))
-        lines.append("| " + " | ".join(cells) + " |")
-    return "\n".join(lines)
 
 
 def _identification(out: Path, seed: int) -> tuple[pd.DataFrame | None, str]:

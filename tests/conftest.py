@@ -1,8 +1,18 @@
-"""Shared fixtures: the shared/ folder beside the checkout (real data), skipping cleanly."""
+"""Shared fixtures: the shared/ folder beside the checkout (real data), skipping cleanly;
+the test process's thread settings."""
 
+import os
 from pathlib import Path
 
 import pytest
+
+# One BLAS / OpenMP thread, as experiments.sweep.run sets for its workers: the tests' linear
+# algebra is on tiny matrices (3x3 expm, 6x6 inverses), where worker threads only contend
+# for the cores; on this 2-core machine under load they made the identification tests 4x
+# slower (19.6 s -> 4.8 s for tests/test_identification.py). Set before numpy is imported
+# (pytest loads this file first); a value in the environment wins.
+for _var in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS"):
+    os.environ.setdefault(_var, "1")
 
 REPO = Path(__file__).resolve().parents[1]
 SHARED = REPO.parent / "shared"

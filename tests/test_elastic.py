@@ -20,7 +20,7 @@ from test_window import proper_handed, random_config, scene
 
 from estimator.configuration import SensorConfig
 from estimator.elastic import ELASTIC_STATUSES, elastic_batch
-from estimator.tracking import track
+from estimator.tracking import FitOptions, track
 from estimator.window import STATUSES, fit_window, window_moments
 
 HYP = settings(deadline=None, suppress_health_check=[HealthCheck.too_slow], max_examples=30)
@@ -264,13 +264,13 @@ def test_track_elastic_agrees_with_slsqp():
     cfg = SensorConfig.load("rover_gps8")
     t, obs = straight_line_obs(60, cfg, np.random.default_rng(4))
     obs[:, 3] = np.nan
-    kw = {"window": 5, "weighting": "huber", "eps": 0.01}
+    kw = {"window": 5, "weighting": "huber", "fit": FitOptions(eps=0.01)}
     a = track(t, obs, cfg, solver="slsqp", **kw)
     b = track(t, obs, cfg, solver="elastic", **kw)
     assert (b["solver_status"] == "ok").all()
     np.testing.assert_allclose(b[["cg_x", "cg_y"]], a[["cg_x", "cg_y"]], rtol=0, atol=1e-5)
     with pytest.raises(ValueError, match="warm_start"):
-        track(t, obs, cfg, solver="elastic", warm_start=True, window=5)
+        track(t, obs, cfg, solver="elastic", fit=FitOptions(warm_start=True), window=5)
 
 
 def test_statuses_insufficient_data_and_maxiter():

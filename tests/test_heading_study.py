@@ -59,8 +59,9 @@ def test_filter_params_come_from_the_vehicle():
     truth, _, limits = kinematic_truth("car_block", "car_rtk4", cg_ahead_m=1.3)
     truth.meta["params"] = {"controller": {**limits, "cruise_speed_mps": 15.0}}
     p = filter_params_for(truth)
-    assert p.max_accel_mps2 == 3.0 and p.max_lateral_accel_mps2 == 4.0
-    assert p.max_turn_rate_radps == 0.8 and p.max_yaw_accel_radps2 == 1.0
+    for field in ("max_accel_mps2", "max_lateral_accel_mps2", "max_turn_rate_radps",
+                  "max_yaw_accel_radps2"):                  # the path's limits, by name
+        assert getattr(p, field) == limits[field], field
     assert p.no_slip_point_m == (-1.3, 0.0)
     del truth.meta["no_slip_point_m"]                   # truths simulated before issue 14
     assert filter_params_for(truth).no_slip_point_m == (0.0, 0.0)
@@ -155,12 +156,13 @@ def test_braking_before_corners():
     entry, v = _entry_speeds(p)
     # 11 corners (2 laps x 6 - the end point), then the final approach (stopping law)
     assert entry.size == 12
-    # the law's 5 m/s at the area's edge; 0.1 m/s for 0.02 s samples and the central
-    # difference (measured 4.98-5.01)
-    np.testing.assert_allclose(entry[:-1], 5.0, atol=0.1)
-    assert v.max() == pytest.approx(15.0, abs=0.05)
+    # the law's corner speed (5 m/s) at the area's edge; 0.1 m/s for 0.02 s samples and the
+    # central difference (measured 4.98-5.01)
+    np.testing.assert_allclose(entry[:-1], p.corner_speed_mps, atol=0.1)
+    assert v.max() == pytest.approx(p.cruise_speed_mps, abs=0.05)
     free = Path.from_dict({k: w for k, w in p.to_dict().items() if k != "corner_speed_mps"})
-    assert _entry_speeds(free)[0].max() > 10.0
+    # without the braking law it enters closer to the cruise speed than to the corner speed
+    assert _entry_speeds(free)[0].max() > (p.corner_speed_mps + p.cruise_speed_mps) / 2
     assert PurePursuitParams.from_path(load_path("square100")).corner_speed_mps is None
 
 

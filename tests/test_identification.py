@@ -200,13 +200,21 @@ def test_pitch_evidence_rows(evidence):
 
 
 def test_thesis_window_study():
+    """At 1 cm the thesis's own window leaves Tw and zeta undetermined (the study's finding:
+    0 % identifiable over 10 runs in results/ultrasonic); at 1 um the same fit recovers
+    them with intervals that cover the thesis's values, so the "undetermined" is the
+    window and the noise, not a broken fit. 2 runs of 1 start each: ~0.2 s per call."""
     w = thesis_window_study(seed=0, noise_m=0.01, n_runs=2, n_starts=1)
     assert w["n_runs"] == 2 and w["t_end_s"] == pytest.approx(5.0)
+    sharp = thesis_window_study(seed=0, noise_m=1e-6, n_runs=2, n_starts=1)
+    th = THESIS["pitch"]["params"]
     for k in ("Tw", "zeta"):
-        assert 0.0 <= w[f"frac_identifiable_{k}"] <= 1.0
-        assert 0.0 <= w[f"frac_ci_covers_{k}"] <= 1.0
+        assert w[f"frac_identifiable_{k}"] == 0.0
         lo, hi = w[f"median_ci_{k}"]
-        assert lo <= hi
+        assert hi - lo > th[k]                      # wider than the value itself
+        assert sharp[f"frac_identifiable_{k}"] == 1.0 and sharp[f"frac_ci_covers_{k}"] == 1.0
+        lo, hi = sharp[f"median_ci_{k}"]
+        assert lo < th[k] < hi and hi - lo < 0.01 * th[k]
     # the thesis's model in its own window: 0.5 s of unit stick, K 3.4259 m/s, y(5 s) as
     # sysid.simulate gives it (the study adds noise only)
     assert w["y_end_m"] == pytest.approx(0.274, abs=0.001)

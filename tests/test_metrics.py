@@ -16,7 +16,10 @@ from estimator.metrics import (
     evaluate_track,
     evaluation_masks,
     heading_error,
+    jitter_rms,
     summarize,
+    track_errors,
+    travel_direction,
 )
 
 
@@ -185,3 +188,132 @@ def test_align_to_truth_rejects_nan_estimate_time():
     with pytest.raises(ValueError, match=r"^est_t: .*est_t\[1\]"):
         align_to_truth(np.array([0.0, np.nan]), np.array([0.0, 0.5, 1.0]))
 
+
+
+# ----------------------------------------------------------------------------- issue 18
+def test_summarize_outliers_and_signed_hand_values():
+    """Box-plot outliers: 1..8 and 40: Q1 = 3, Q3 = 7 (linear ranks 2 and 6), whisker
+    7 + 1.5 * 4 = 13, so 40 is the one outlier of 9. Signed: mean -1 of (-3, 1) but p95 /
+    max / outliers of the magnitudes (3, 1)."""
+    s = summarize(np.r_[np.arange(1.0, 9.0), 40.0])
+    assert s["outliers"] == pytest.approx(1 / 9)
+    assert math.isnan(summarize(np.array([1.0, 2.0, 50.0]))["outliers"])   # < 4 values
+    a = summarize(np.array([-3.0, 1.0]), signed=True)
+    assert a["mean"] == -1.0 and a["median"] == -1.0 and a["max"] == 3.0
+    assert a["p95"] == pytest.approx(1 + 0.95 * 2) and a["rmse"] == pytest.approx(math.sqrt(5))
+    inf = summarize(np.array([1.0, np.inf, 3.0]))
+    assert inf["n"] == 2 and inf["n_nan"] == 1 and inf["max"] == 3.0  # inf: no estimate
+
+
+@settings(max_examples=150, deadline=None)
+@given(st.lists(st.one_of(st.floats(-1e300, 1e300, allow_nan=False),
+                          st.sampled_from([0.0, -0.0, 1e-300, np.nan, np.inf])),
+                max_size=60),
+       st.booleans())
+def test_summarize_equals_numpy_statistics(values, signed):
+    """One sort serves the median, p95 and quartiles: the same floats as numpy's median /
+    percentile (linear) and the Tukey fraction by definition, for any values (1e300, signed
+    zeros, NaN and inf counted as missing)."""
+    e = np.array(values, dtype=float)
+    with np.errstate(over="ignore"):     # the mean / rmse of 1e300s overflow, as in numpy
+        s = summarize(e, signed=signed)
+    fin = e[np.isfinite(e)]
+    assert s["n"] == fin.size and s["n_nan"] == e.size - fin.size
+    if not fin.size:
+        assert all(math.isnan(s[k]) for k in (*STATISTICS, "outliers"))
+        return
+    mag = np.abs(fin) if signed else fin
+    with np.errstate(over="ignore", invalid="ignore"):
+        assert s["mean"] == fin.mean() or (math.isnan(s["mean"]) and np.isnan(fin.mean()))
+        assert s["median"] == np.median(fin)
+        assert s["p95"] == np.percentile(mag, 95) and s["max"] == mag.max()
+        if fin.size >= 4:
+            q1, q3 = np.percentile(mag, [25, 75])
+            assert s["outliers"] == np.mean(mag > q3 + 1.5 * (q3 - q1))
+
+
+def test_jitter_rms_hand_values():
+    """Errors (0,0), (3,4), (3,4), (NaN): steps 5, 0, NaN -> RMS sqrt(25/2); a mask that
+    drops row 1 leaves no consecutive pair inside it but (2, 3), which is NaN."""
+    d = np.array([[0.0, 0.0], [3.0, 4.0], [3.0, 4.0], [np.nan, np.nan]])
+    assert jitter_rms(d) == pytest.approx(math.sqrt(12.5))
+    assert math.isnan(jitter_rms(d, np.array([True, False, True, True])))
+    assert math.isnan(jitter_rms(d[:1]))
+    with pytest.raises(ValueError, match="mask"):
+        jitter_rms(d, np.ones(3, bool))
+
+
+def test_travel_direction_is_the_course_with_the_heading_at_rest():
+    """A platform driving north-east while facing east (side-slip, yaw 0): the direction of
+    travel is pi/4, not the heading; at rest (repeated positions) the heading; without a
+    heading NaN; a speed floor turns slow epochs over to the heading."""
+    t = np.arange(5.0)
+    cg = np.array([[0, 0], [1, 1], [2, 2], [2, 2], [2, 2]], dtype=float)
+    yaw = np.zeros(5)
+    d = travel_direction(t, cg, yaw)
+    np.testing.assert_allclose(d[:3], math.pi / 4, atol=1e-15)
+    # central differences: epoch 3 sees (2,2) -> (2,2) on both sides: at rest
+    np.testing.assert_array_equal(d[3:], 0.0)
+    assert np.isnan(travel_direction(t, cg)[3:]).all()
+    slow = travel_direction(t, cg * 0.1, yaw, min_speed_mps=0.2)   # 0.14 m/s < 0.2
+    np.testing.assert_array_equal(slow, 0.0)
+    assert travel_direction(t[:1], cg[:1], yaw[:1])[0] == 0.0      # one sample: the heading
+    with pytest.raises(ValueError, match="min_speed_mps"):
+        travel_direction(t, cg, yaw, min_speed_mps=-1.0)
+    with pytest.raises(ValueError, match="cg"):
+        travel_direction(t, cg[:4], yaw)
+
+
+def test_track_errors_hand_example_reversing():
+    """The truth drives backwards (west) facing east: a window estimate 2 m east of it has
+    trailed along the direction of travel, along = -2 (along the heading it would read +2);
+    1 m north is 1 m to the right of travel (cross -1); heading error 0.1 rad."""
+    tt = np.arange(6.0)
+    cg = np.c_[-tt, np.zeros(6)]
+    yaw = np.zeros(6)
+    e = track_errors(tt[2:], cg[2:] + [2.0, 1.0], np.full(4, 0.1), tt, cg, yaw)
+    np.testing.assert_array_equal(e.index, [2, 3, 4, 5])
+    np.testing.assert_allclose(e.along, -2.0, atol=1e-12)
+    np.testing.assert_allclose(e.cross, -1.0, atol=1e-12)
+    np.testing.assert_allclose(e.heading, 0.1, atol=1e-12)
+    np.testing.assert_array_equal(e.euclid, math.sqrt(5.0))
+    np.testing.assert_array_equal(e.dxy, [[2.0, 1.0]] * 4)
+    assert np.isnan(track_errors(tt[2:], cg[2:], None, tt, cg, yaw).heading).all()
+    with pytest.raises(ValueError, match="est_t"):
+        track_errors(tt[2:] + 0.5, cg[2:], None, tt, cg, yaw)
+    with pytest.raises(ValueError, match="est_xy"):
+        track_errors(tt[2:], cg[3:], None, tt, cg, yaw)
+
+
+def test_sweep_and_evaluate_track_are_one_scorer():
+    """The sweep's score_track and evaluate_track give the same numbers for the same track
+    (both are estimator.metrics): per-axis and Euclidean errors, heading, along-track (on a
+    platform whose CG is 0.5 m ahead of its no-slip axle, so course and heading differ in
+    the turns), and the sweep's outlier share and jitter agree with their definitions."""
+    from pose_scenes import kinematic_truth
+
+    from estimator.tracking import track
+    from experiments.sweep import score_track
+    from sim.gps import observe
+
+    truth, cfg, _ = kinematic_truth("square20", "rover_gps4", cg_ahead_m=0.5)
+    truth.turning[::7] = True                               # some epochs to leave out
+    obs = observe(truth, cfg, "gps_stationary", rng=np.random.default_rng(2), session_s=600.0)
+    df = track(truth.t, obs, cfg, window=5, layout_check=False)
+    rows, _ = score_track(df, truth, obs, cfg, ("full", "no_turns"), epochs=False)
+    ev = evaluate_track(df, truth.t, truth.cg, truth.yaw, truth.turning,
+                        heading_columns=("yaw",)).set_index(["mask", "quantity"])
+    for row in rows:
+        for col, q in (("ex", "x"), ("ey", "y"), ("eu", "euclid"), ("eh", "yaw")):
+            for stat in (*STATISTICS, "outliers"):
+                assert row[f"{col}_{stat}"] == ev.loc[(row["mask"], q), stat], (col, stat)
+        assert row["along_mean"] == ev.loc[(row["mask"], "along"), "mean"]
+        assert row["along_median"] == ev.loc[(row["mask"], "along"), "median"]
+    e = track_errors(df["t"], df[["cg_x", "cg_y"]].to_numpy(), None, truth.t, truth.cg,
+                     truth.yaw)
+    slip = np.abs(np.angle(np.exp(1j * (travel_direction(truth.t, truth.cg, truth.yaw)
+                                         - truth.yaw))))
+    assert slip.max() > 0.05                                # the course is not the heading
+    d = np.diff(e.dxy, axis=0)
+    assert rows[0]["jitter_rms"] == pytest.approx(np.sqrt(np.mean(np.sum(d * d, axis=1))),
+                                                  rel=1e-12)

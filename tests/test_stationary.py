@@ -139,7 +139,7 @@ def test_window_estimates_match_a_direct_per_window_fit():
     extent of the data (metres), 1e-9 m is far above that and far below any effect."""
     s = synthesize_session(GpsNoiseModel.load(), CFG, 600.0, np.random.default_rng(8))
     s = s.after_power_failure()
-    for scheme, thr in (("none", None), ("huff", None), ("huff3.5", 3.5)):
+    for scheme, thr in (("none", None), ("huff", None), ("huff:3.5", 3.5)):
         pos, status = window_estimates(s.obs, CFG, 5, scheme)
         win = np.moveaxis(np.lib.stride_tricks.sliding_window_view(s.obs, 5, axis=0), -1, 1)
         w = None if scheme == "none" else huff_weights(win, CFG, thr)

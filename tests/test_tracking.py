@@ -15,6 +15,10 @@ from estimator.pose_filter import PoseFilterParams
 from estimator.tracking import (
     METHODS,
     WEIGHTINGS,
+    DynamicWindow,
+    FitOptions,
+    LagCorrection,
+    MotionOptions,
     dynamic_window_sizes,
     heading_pair,
     track,
@@ -33,7 +37,7 @@ def _err(df, t, cg):
     {"window": 1},
     {"window": 1, "method": "motion_compensated"},
     {"window": 25, "method": "motion_compensated"},
-    {"window": 25, "method": "motion_compensated", "yaw_rate": True},
+    {"window": 25, "method": "motion_compensated", "motion": MotionOptions(yaw_rate=True)},
 ])
 def test_noise_free_straight_is_exact(kw):
     """Window 1 and the motion-compensated window return the true CG and heading at every
@@ -135,7 +139,8 @@ def test_noisy_straight_lag_and_motion_compensation_remove_trail():
     for data, kw in [(obs, {"lag_correction": "pose"}), (obs, {"lag_correction": "course"}),
                      (holey, {"lag_correction": "course"}),
                      (holey, {"method": "motion_compensated"}),
-                     (holey, {"method": "motion_compensated", "yaw_rate": True})]:
+                     (holey, {"method": "motion_compensated",
+                             "motion": MotionOptions(yaw_rate=True)})]:
         assert abs(mean_along(track(t, data, cfg, window=s, **kw))) < 0.05 * trail, kw
 
 
@@ -166,8 +171,8 @@ def test_turn_detector_from_estimates_flags_the_corner():
     course looks back span_s, the rate regression another span_s."""
     cfg, t, _cg, _yaw, turning, obs = corner_path(leg_steps=60, turn_steps=4)
     w, span = 10, 8.0
-    df = track(t, obs, cfg, window=10, dynamic_window=1, turning="detect",
-               detector={"window": w, "span_s": span})
+    df = track(t, obs, cfg, window=10, turning="detect",
+               dynamic_window=DynamicWindow(1, detector={"window": w, "span_s": span}))
     flagged = df.loc[df["turning"], "t"].to_numpy()
     t_turn = t[turning]
     assert flagged.size > 0
@@ -185,8 +190,8 @@ def test_refill_vs_jump_on_a_synthetic_turn():
     cfg, t, cg, _yaw, turning, obs = corner_path(leg_steps=60, turn_steps=4)
     s = 10
     jump = track(t, obs, cfg, window=s, dynamic_window=1, turning=turning)
-    refill = track(t, obs, cfg, window=s, dynamic_window=1, turning=turning,
-                   window_growth="refill")
+    refill = track(t, obs, cfg, window=s, dynamic_window=DynamicWindow(1, "refill"),
+                   turning=turning)
     last = int(np.flatnonzero(turning)[-1])          # last turning epoch
     row = last - (s - 1)                             # its row
     after = slice(row + 1, row + s)
@@ -207,9 +212,7 @@ def test_refill_vs_jump_on_a_synthetic_turn():
     # the settings record the rule; without a dynamic window it is refused, as a bad name
     assert refill.attrs["settings"]["window_growth"] == "refill"
     with pytest.raises(ValueError, match="window_growth"):
-        track(t, obs, cfg, window=s, window_growth="refill")
-    with pytest.raises(ValueError, match="window_growth"):
-        track(t, obs, cfg, window=s, dynamic_window=1, turning=turning, window_growth="grow")
+        track(t, obs, cfg, window=s, dynamic_window=DynamicWindow(1, "grow"), turning=turning)
 
 
 def _sizes_reference(turning, window, small, growth):
@@ -241,7 +244,7 @@ def test_dynamic_window_sizes_match_the_queue(turning, window, small, growth):
     ((np.zeros(3, bool), 5, 1, "fifo"), "window_growth"),
 ])
 def test_dynamic_window_sizes_bad_input_names_the_field(args, field):
-    with pytest.raises(ValueError, match=field):
+    with pytest.raises((ValueError, TypeError), match=field):
         dynamic_window_sizes(*args)
 
 
@@ -252,8 +255,8 @@ def test_detect_on_a_recording_shorter_than_the_detector_window():
     df = track(t, obs, cfg, window=3, dynamic_window=1, turning="detect")
     assert len(df) == 6 and not df["turning"].any()
     with pytest.raises(ValueError, match="detector.window"):
-        track(t, obs, cfg, window=3, dynamic_window=1, turning="detect",
-              detector={"window": 9})
+        track(t, obs, cfg, window=3, dynamic_window=DynamicWindow(1, detector={"window": 9}),
+              turning="detect")
 
 
 # ----------------------------------------------------------------------------- lag heading
@@ -268,11 +271,11 @@ def test_lag_heading_with_the_estimated_heading_is_the_default():
     own law-of-cosines heading, the correction is the default one, bit for bit."""
     cfg, t, _cg, _yaw, turning, obs = _noisy_corner()
     s = 20
-    for kw in ({}, {"dynamic_window": 1, "turning": turning, "window_growth": "refill"}):
+    for kw in ({}, {"dynamic_window": DynamicWindow(1, "refill"), "turning": turning}):
         ref = track(t, obs, cfg, window=s, lag_correction=True, **kw)
         h = np.full(t.size, np.nan)
         h[s - 1:] = ref["yaw_loc"].to_numpy()
-        got = track(t, obs, cfg, window=s, lag_correction=True, lag_heading=h, **kw)
+        got = track(t, obs, cfg, window=s, lag_correction=LagCorrection(heading=h), **kw)
         np.testing.assert_array_equal(got[XY + ["lag_dx", "lag_dy"]].to_numpy(),
                                       ref[XY + ["lag_dx", "lag_dy"]].to_numpy())
         assert got.attrs["settings"]["lag_heading"] == "given"
@@ -284,7 +287,7 @@ def test_lag_heading_shifts_along_the_given_heading():
     removes the trail: mean along-track error within 5 % of the uncorrected trail."""
     cfg, t, cg, yaw, turning, obs = _noisy_corner()
     s = 20
-    df = track(t, obs, cfg, window=s, lag_correction=True, lag_heading=wrap_angle(yaw))
+    df = track(t, obs, cfg, window=s, lag_correction=LagCorrection(heading=wrap_angle(yaw)))
     k = np.searchsorted(t, df["t"].to_numpy())
     d = df[["lag_dx", "lag_dy"]].to_numpy()
     ok = np.isfinite(d).all(axis=1) & (np.hypot(*d.T) > 1e-9)
@@ -307,7 +310,7 @@ def test_lag_heading_extreme_values(values):
     uncorrected and says so (lag_dx NaN); rows without a velocity are NaN whatever."""
     cfg, t, _cg, _yaw, obs = straight(n=40)
     h = np.array(values, dtype=float)
-    df = track(t, obs, cfg, window=5, lag_correction=True, lag_heading=h)
+    df = track(t, obs, cfg, window=5, lag_correction=LagCorrection(heading=h))
     dx = df["lag_dx"].to_numpy()
     nan_h = np.isnan(h[4:])
     assert np.isnan(dx[nan_h]).all()
@@ -316,17 +319,19 @@ def test_lag_heading_extreme_values(values):
 
 
 @pytest.mark.parametrize("kwargs, match", [
-    ({"lag_correction": "course", "lag_heading": np.zeros(30)}, "lag_heading"),
-    ({"lag_heading": np.zeros(30)}, "lag_heading"),
-    ({"lag_correction": True, "lag_heading": np.zeros(29)}, "lag_heading"),
-    ({"lag_correction": True, "lag_heading": np.zeros(30, int)}, "lag_heading"),
-    ({"lag_correction": True, "lag_heading": np.r_[np.zeros(29), np.inf]},
-     r"lag_heading\[29\]"),
+    ({"mode": "course", "heading": np.zeros(30)}, "lag_heading"),
+    ({"heading": np.zeros(29)}, "lag_heading"),
+    ({"heading": np.zeros(30, int)}, "lag_heading"),
+    ({"heading": np.r_[np.zeros(29), np.inf]}, r"lag_heading\[29\]"),
+    ({"heading": np.zeros((30, 1))}, "lag_heading"),
+    ({"mode": "yes"}, "lag_correction.mode"),
+    ({"velocity_span": 0}, "velocity_span"),
+    ({"velocity_span": 31}, "velocity_span"),
 ])
 def test_lag_heading_bad_input_names_the_field(kwargs, match):
     cfg, t, _cg, _yaw, obs = straight(n=30)
     with pytest.raises(ValueError, match=match):
-        track(t, obs, cfg, window=5, **kwargs)
+        track(t, obs, cfg, window=5, lag_correction=LagCorrection(**kwargs))
 
 
 # ----------------------------------------------------------------------------- headings
@@ -447,7 +452,8 @@ def test_motion_compensated_through_a_corner_noise_free():
     """Constant twist holds inside the turn: windows entirely in the arc are exact."""
     cfg, t, cg, _yaw, turning, obs = corner_path(leg_steps=30, turn_steps=8)
     s = 4
-    df = track(t, obs, cfg, window=s, method="motion_compensated", yaw_rate=True)
+    df = track(t, obs, cfg, window=s, method="motion_compensated",
+               motion=MotionOptions(yaw_rate=True))
     e, k = _err(df, t, cg)
     inside = np.array([turning[kk - s + 1:kk + 1].all() for kk in k])
     straight_rows = np.array([not turning[kk - s + 1:kk + 1].any() for kk in k])
@@ -478,7 +484,7 @@ def test_slsqp_rows_agree_with_procrustes_within_slack():
     cfg, t, _cg, _yaw, clean = straight(n=25)
     obs = clean + rng.normal(0, 1.0, clean.shape)
     p = track(t, obs, cfg, window=5)
-    q = track(t, obs, cfg, window=5, solver="slsqp", eps=0.01)
+    q = track(t, obs, cfg, window=5, solver="slsqp", fit=FitOptions(eps=0.01))
     assert np.abs(p[XY].to_numpy() - q[XY].to_numpy()).max() < 0.1
     assert set(q["solver_status"]) <= {"ok", "fallback_objective", "fallback_infeasible",
                                        "fallback_mirrored", "fallback_failed"}
@@ -507,7 +513,7 @@ def test_warm_start_with_dynamic_window_starts_from_the_previous_row(warm, monke
     turning = np.zeros(24, bool)
     turning[[8, 9, 10, 15, 19]] = True
     df = track(t, obs, cfg, window=4, dynamic_window=1, turning=turning, solver="slsqp",
-               warm_start=warm)
+               fit=FitOptions(warm_start=warm))
     w = df["window"].to_numpy()
     assert len(calls) == len(df) and len(set(w)) == 2
     if not warm:
@@ -551,12 +557,23 @@ def test_output_columns_and_settings():
     ({"dynamic_window": 1, "turning": "guess"}, "turning"),
     ({"turning": np.zeros(30, bool)}, "turning"),
     ({"method": "ekf", "weighting": "huff"}, "weighting"),
-    ({"dynamic_window": 1, "turning": "detect", "detector": {"speed": 1}}, "detector"),
+    ({"dynamic_window": DynamicWindow(1, detector={"speed": 1}), "turning": "detect"},
+     "detector"),
+    ({"dynamic_window": DynamicWindow(1, detector={"window": 3}), "turning":
+      np.zeros(30, bool)}, "detector"),
+    ({"dynamic_window": 0, "turning": np.zeros(30, bool)}, "dynamic_window"),
+    ({"weighting": "huff:-1"}, "weighting"),
+    ({"weighting": "huber:3"}, "weighting"),
+    ({"method": "motion_compensated", "weighting": "huff", "fit": FitOptions()}, "fit"),
+    ({"motion": MotionOptions()}, "motion"),
+    ({"filter_params": PoseFilterParams()}, "filter_params"),
+    ({"solver": "elastic", "fit": FitOptions(warm_start=True)}, "warm_start"),
+    ({"method": "ekf", "dynamic_window": 1, "turning": np.zeros(30, bool)}, "dynamic_window"),
 ])
 def test_bad_arguments_name_the_field(kwargs, field):
     cfg, t, _cg, _yaw, obs = straight(n=30)
     kw = {"window": 5, **kwargs}
-    with pytest.raises(ValueError, match=field):
+    with pytest.raises((ValueError, TypeError), match=field):
         track(t, obs, cfg, **kw)
 
 
@@ -672,8 +689,7 @@ def test_huff_huber_from_per_sample_huff_equals_stacked_windows(method):
     obs = clean + rng.normal(0, 1.0, clean.shape)
     obs[rng.random(obs.shape[:2]) < 0.15] = np.nan
     s = 9
-    df = track(t, obs, cfg, window=s, weighting="huff_huber", huff_threshold=3.0,
-               method=method)
+    df = track(t, obs, cfg, window=s, weighting="huff_huber:3.0", method=method)
     ends = np.arange(s - 1, 70)
     idx = ends[:, None] - np.arange(s - 1, -1, -1)[None, :]
     st_ = obs[idx]

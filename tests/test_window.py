@@ -363,17 +363,18 @@ def test_equivariance_under_rigid_motion():
         a = fit_window(obs, cfg, solver=solver, eps=0.05)
         b = fit_window(obs @ R.T + t, cfg, solver=solver, eps=0.05)
         # procrustes is exact; the iterative solvers stop on tolerances (1e-5 m)
-        tol = 1e-9 if solver == "procrustes" else 1e-5
-        if solver == "elastic":
-            # a sensor without data has no cost: any place inside its bands is optimal and
-            # elastic returns the one its barrier iteration ends at (the start when that is
-            # feasible), so it is compared to eps
-            np.testing.assert_allclose(b.positions[~seen], (a.positions @ R.T + t)[~seen],
-                                       atol=0.05)
-            np.testing.assert_allclose(b.positions[seen], (a.positions @ R.T + t)[seen],
-                                       atol=tol)
+        if solver == "procrustes":
+            np.testing.assert_allclose(b.positions, a.positions @ R.T + t, atol=1e-9)
             continue
-        np.testing.assert_allclose(b.positions, a.positions @ R.T + t, atol=tol)
+        # a sensor without data has no data cost: any place inside its bands is optimal.
+        # elastic returns the one its barrier iteration ends at; slsqp / ccp hold it by a
+        # proximal term of weight PROX_WEIGHT = 1e-6, which moves the objective (~75 m^2
+        # here) by 1e-6 d^2: far below their 1e-6 relative stopping tolerance for any d
+        # inside the band, so the solver's path decides where in the band it ends (it
+        # differed by 8.8e-5 m between two runs of the suite). Compared to eps.
+        np.testing.assert_allclose(b.positions[~seen], (a.positions @ R.T + t)[~seen],
+                                   atol=0.05)
+        np.testing.assert_allclose(b.positions[seen], (a.positions @ R.T + t)[seen], atol=1e-5)
 
 
 # ----------------------------------------------------------------------------- bad input

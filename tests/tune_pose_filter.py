@@ -23,7 +23,7 @@ import time
 import numpy as np
 
 from estimator.configuration import SensorConfig
-from estimator.metrics import heading_error
+from estimator.metrics import cg_errors, heading_error, summarize
 from estimator.pose_filter import PoseFilterParams, estimate_noise, run_pose_filter
 from estimator.pose_smoother import rts_smooth
 from sim.gps import observe
@@ -35,16 +35,19 @@ CASES = (("square100", "rover_gps8", "gps_stationary"), ("car_block", "car_rtk4"
 
 
 def _score(truth, runs, off, params):
+    """Heading RMS (degrees) of the causal filter and of the RTS smoother and the mean
+    Euclidean CG error (m) over every session's epochs with a state (estimator.metrics)."""
     hf, hs, eu = [], [], []
     for obs in runs:
         res = run_pose_filter(truth.t, obs, off, params)
         ok = np.isfinite(res.states[:, 0])
         sm = rts_smooth(res, params.reverse).states
-        hf.append(np.degrees(heading_error(res.states[ok, 2], truth.yaw[ok])))
-        hs.append(np.degrees(heading_error(sm[ok, 2], truth.yaw[ok])))
-        eu.append(np.hypot(*(res.cg()[ok] - truth.cg[ok, :2]).T))
-    rms = lambda e: float(np.sqrt(np.mean(np.concatenate(e) ** 2)))  # noqa: E731
-    return rms(hf), rms(hs), float(np.mean(np.concatenate(eu)))
+        hf.append(heading_error(res.states[ok, 2], truth.yaw[ok]))
+        hs.append(heading_error(sm[ok, 2], truth.yaw[ok]))
+        eu.append(cg_errors(res.cg()[ok], truth.cg[ok, :2])["euclid"])
+    return (float(np.degrees(summarize(np.concatenate(hf))["rmse"])),
+            float(np.degrees(summarize(np.concatenate(hs))["rmse"])),
+            summarize(np.concatenate(eu))["mean"])
 
 
 def main() -> None:
