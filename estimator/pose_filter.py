@@ -149,6 +149,7 @@ from scipy.stats import chi2
 
 from estimator._checks import check_array, check_fields, check_increasing_times, check_int
 from estimator._checks import check_real
+from estimator.memo import ContentMemo, content_digest, freeze
 
 __all__ = [
     "FilterStart",
@@ -163,6 +164,8 @@ __all__ = [
     "motion_integrals",
     "estimate_noise",
     "kalman_update",
+    "memo_pose_filter",
+    "pass_key",
     "run_pose_filter",
 ]
 
@@ -953,6 +956,36 @@ def run_pose_filter(t: np.ndarray, obs: np.ndarray, offsets: np.ndarray,
                             status=status.astype(str), n_used=n_used, n_gated=n_gated,
                             n_steps=n_steps, sigma_abs_m=float(sigma_abs),
                             sigma_step_m=float(sigma_step), cg_offset=cg_offset)
+
+
+#: Forward passes memoised per process (:mod:`estimator.memo`): a sweep runs the EKF at
+#: several windows (it only drops the first s-1 rows), its smoothers and the smoothed
+#: heading of the lag correction on the same observations; one pass serves them all. An
+#: entry holds ~120 floats per epoch (3.8 MB for 4000 epochs).
+_PASS_MEMO = ContentMemo(4)
+
+
+def pass_key(t: np.ndarray, obs: np.ndarray, offsets: np.ndarray, params: PoseFilterParams
+             ) -> tuple:
+    """Memo key of a forward pass: digest of the validated t, obs and offsets, and params
+    (raises like :func:`run_pose_filter` on bad input)."""
+    tt, o, off = _check_run_args(t, obs, offsets, params)
+    return (content_digest(tt, o, off), params)
+
+
+def memo_pose_filter(t: np.ndarray, obs: np.ndarray, offsets: np.ndarray,
+                     params: PoseFilterParams = PoseFilterParams()) -> PoseFilterResult:
+    """:func:`run_pose_filter`, memoised per process by content (:mod:`estimator.memo`):
+    the same numbers, computed once per (t, obs, offsets, params). The result is shared,
+    so its arrays are read-only."""
+    def compute() -> PoseFilterResult:
+        res = run_pose_filter(t, obs, offsets, params)
+        for v in vars(res).values():
+            if isinstance(v, np.ndarray):
+                freeze(v)
+        return res
+
+    return _PASS_MEMO.get(pass_key(t, obs, offsets, params), compute)
 
 
 def _extent(offsets: np.ndarray) -> float:
