@@ -358,15 +358,22 @@ def _integrals_scalar(q: float) -> tuple[complex, complex, complex]:
         return f1, f2, (e - 2.0 * f2) / iq
     half = 3 if aq < 0.01 else 5 if aq < 0.1 else 7 if aq < 0.5 else _SERIES_TERMS // 2
     q2 = q * q
-    out = []
-    for k in range(3):
-        ev, od = _EVEN[k], _ODD[k]
-        re = im = 0.0
-        for j in range(len(ev) - half, len(ev)):
-            re = re * q2 + ev[j]
-            im = im * q2 + od[j]
-        out.append(complex(re, q * im))
-    return out[0], out[1], out[2]
+    # the three Horner recursions side by side (one loop; the same operations in the same
+    # order as one recursion per k)
+    r1 = r2 = r3 = i1 = i2 = i3 = 0.0
+    for e1, e2, e3, o1, o2, o3 in _HORNER[_SERIES_TERMS // 2 - half:]:
+        r1 = r1 * q2 + e1
+        r2 = r2 * q2 + e2
+        r3 = r3 * q2 + e3
+        i1 = i1 * q2 + o1
+        i2 = i2 * q2 + o2
+        i3 = i3 * q2 + o3
+    return complex(r1, q * i1), complex(r2, q * i2), complex(r3, q * i3)
+
+
+#: The series coefficients of F1, F2, F3 (real, then imaginary parts), highest power first,
+#: one row per power (for :func:`_integrals_scalar`).
+_HORNER = tuple(zip(*_EVEN, *_ODD))
 
 
 _EYE = np.eye(NX)

@@ -116,7 +116,8 @@ class _EpochFile:
         import pyarrow.parquet as pq
 
         self.path = path
-        self.names = pq.read_schema(path).names
+        self._file = pq.ParquetFile(path)      # footer parsed once, columns read on demand
+        self.names = self._file.schema_arrow.names
         self._cols: dict[str, np.ndarray] = {}
         missing = [c for c in REQUIRED if c not in self.names]
         if missing:
@@ -126,11 +127,9 @@ class _EpochFile:
         return name in self.names
 
     def load(self, names: list[str]) -> None:
-        import pyarrow.parquet as pq
-
         want = [n for n in names if n in self.names and n not in self._cols]
         if want:
-            tb = pq.read_table(self.path, columns=want)
+            tb = self._file.read(columns=want)
             for n in want:
                 self._cols[n] = tb.column(n).to_numpy(zero_copy_only=False)
 

@@ -34,7 +34,7 @@ TINY = {
     "epochs": {"seeds": [0]},
 }
 # numbers that must agree bit for bit between runs (timings are excluded)
-_TIMING = ("t_noise_s", "t_track_s", "t_score_s", "t_cell_s")
+_TIMING = ("t_noise_s", "t_track_s", "t_score_s", "t_cell_s", "t_reused_s")
 
 
 def _numbers(df: pd.DataFrame) -> pd.DataFrame:
