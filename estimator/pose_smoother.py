@@ -32,6 +32,7 @@ lag correction of :mod:`estimator.lag` with a smoothed heading).
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import numpy as np
@@ -124,8 +125,12 @@ def rts_smooth(res: PoseFilterResult, reverse: bool = False, covariances: bool =
 
 
 def _wrap1(a: float) -> float:
-    """One angle to (-pi, pi] (scalar :func:`estimator.orientation.wrap_angle`)."""
-    return float(wrap_angle(float(a)))
+    """One angle to (-pi, pi] (scalar :func:`estimator.orientation.wrap_angle`, which
+    returns an angle already in range unchanged: checked here first, without numpy)."""
+    a = float(a)
+    if -math.pi < a <= math.pi:
+        return a
+    return float(wrap_angle(a))
 
 
 def fixed_lag_smooth(res: PoseFilterResult, t: np.ndarray, lag_s: float,
