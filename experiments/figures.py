@@ -76,20 +76,35 @@ class _EpochColumns:
         return self._cols[name]
 
 
+#: (cells.parquet path, size, mtime) -> (variant, index): the figure groups a worker draws
+#: share one reading of the cell table.
+_INDEX_CACHE: dict[tuple, tuple[str, pd.DataFrame]] = {}
+
+
+def _epoch_index(cells_file: Path) -> tuple[str, pd.DataFrame]:
+    """The cells with per-epoch files (one row each) of the figures' variant."""
+    from experiments.tables import faithful, variants
+
+    st = cells_file.stat()
+    key = (str(cells_file.resolve()), st.st_size, st.st_mtime_ns)
+    if key not in _INDEX_CACHE:
+        cells = pd.read_parquet(cells_file)
+        # several variants (e.g. two configurations): the figures show the first one; of a
+        # dynamic window run under several growth rules, the faithful one (tables.faithful)
+        variant, cells = variants(cells)[0]
+        cells = faithful(cells)
+        idx = cells[cells["has_epochs"]] if "has_epochs" in cells else cells.iloc[:0]
+        _INDEX_CACHE.clear()
+        _INDEX_CACHE[key] = (variant, idx.drop_duplicates("key").reset_index(drop=True))
+    return _INDEX_CACHE[key]
+
+
 class _Epochs:
     """Index of a results folder's per-epoch files, loaded lazily."""
 
     def __init__(self, out: Path):
         self.out = Path(out)
-        from experiments.tables import faithful, variants
-
-        cells = pd.read_parquet(self.out / "cells.parquet")
-        # several variants (e.g. two configurations): the figures show the first one; of a
-        # dynamic window run under several growth rules, the faithful one (tables.faithful)
-        self.variant, cells = variants(cells)[0]
-        cells = faithful(cells)
-        idx = cells[cells["has_epochs"]] if "has_epochs" in cells else cells.iloc[:0]
-        self.index = idx.drop_duplicates("key").reset_index(drop=True)
+        self.variant, self.index = _epoch_index(self.out / "cells.parquet")
         self._cache: dict[str, _EpochColumns] = {}
 
     def straights_mask(self) -> str:

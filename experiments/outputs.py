@@ -146,9 +146,19 @@ def _figure_unit(out: Path, task: str) -> dict:
             "seconds": time.perf_counter() - t0}
 
 
+def _replay_unit(out: Path) -> dict:
+    """The page's replay of the folder's cells (the page's largest part), made beside the
+    figures; the page itself is written last."""
+    from experiments import page
+
+    t0 = time.perf_counter()
+    return {"replay": page.own_replay(out), "seconds": time.perf_counter() - t0}
+
+
 def _run_unit(kind: str, *args: Any) -> tuple[str, dict]:
     name = args[-1] if kind == "figure" else kind
-    return name, (_reports_unit(*args) if kind == "reports" else _figure_unit(*args))
+    fn = {"reports": _reports_unit, "figure": _figure_unit, "replay": _replay_unit}[kind]
+    return name, fn(*args)
 
 
 def n_steps(figures: bool = True) -> int:
@@ -218,9 +228,12 @@ def write_outputs(table: pd.DataFrame, out_dir: str | Path, *, spec: Any = None,
     for name in new:               # skipped: unchanged since they were written
         step(name)
 
-    # the reports unit and the figure groups, side by side
+    # the reports unit and the figure groups, side by side; when any of them is rewritten the
+    # page is too (it shows them), so its replay is made beside them
     seconds: dict[str, float] = {}
+    replay = None
     if todo:
+        todo.append(("replay", out))
         if jobs > 1 and len(todo) > 1:
             from joblib import Parallel, delayed
 
@@ -230,6 +243,10 @@ def write_outputs(table: pd.DataFrame, out_dir: str | Path, *, spec: Any = None,
         else:
             it = (_run_unit(*u) for u in todo)
         for name, res in it:
+            if name == "replay":
+                replay = res["replay"]
+                seconds["replay_s"] = res["seconds"]
+                continue
             if name == "reports":
                 new[name] = {"inputs": rep_in, "files": _stats(out, res["files"])}
                 seconds.update({k: v for k, v in res.items() if k.endswith("_s")})
@@ -251,13 +268,13 @@ def write_outputs(table: pd.DataFrame, out_dir: str | Path, *, spec: Any = None,
         new["page"] = units["page"]
     else:
         t0 = time.perf_counter()
-        page.write_page(out)      # index.html: replay, claims, tables, figures
+        page.write_page(out, replay=replay)      # index.html: replay, claims, tables, figures
         seconds["page_s"] = time.perf_counter() - t0
         new["page"] = {"inputs": page_in, "files": _stats(out, ["index.html"])}
     step("page")
     units.update(new)
     atomic_write_text(state_path, json.dumps({"units": units}, indent=1, sort_keys=True))
-    written = [u[0] if u[0] == "reports" else u[-1] for u in todo] \
+    written = [u[0] if u[0] == "reports" else u[-1] for u in todo if u[0] != "replay"] \
         + (["page"] if "page_s" in seconds else [])
     return {"written": written, "skipped": sorted(set(new) - set(written)),
             "seconds": seconds, "wall_s": time.perf_counter() - t_start}

@@ -46,14 +46,15 @@ def folder(tmp_path, monkeypatch):
         f.write_bytes(task.encode())
         return [f], reads[task]
 
-    def write_page(out):
+    def write_page(out, replay=None):
         calls.append("page")
-        (Path(out) / "index.html").write_text("page")
+        (Path(out) / "index.html").write_text(f"page {replay}")
 
     monkeypatch.setattr(outputs, "_reports_unit", reports)
     monkeypatch.setattr(figures, "draw_task", draw_task)
     monkeypatch.setattr(figures, "figure_tasks", lambda: TASKS)
     monkeypatch.setattr(page, "write_page", write_page)
+    monkeypatch.setattr(page, "own_replay", lambda out: ({"cells": []}, ""))
     monkeypatch.setattr(page, "ULTRASONIC_DIR", tmp_path / "no-ultrasonic")
     return tmp_path, table, calls
 
