@@ -4,10 +4,11 @@ by side and only where their inputs changed (issue 16).
 :func:`write_outputs` is what :func:`experiments.sweep.run` calls once the cells are done.
 The outputs fall into units, each with known inputs:
 
-- ``reports``: tables.md and the table CSVs (:mod:`experiments.tables`), REPORT.md and
-  claims.csv (:mod:`experiments.report`), and the Tables 4.1/4.2 chart drawn from the CSVs
-  (``fig_tables.png``). Inputs: the cell table (every column, timings included: the heading
-  table and timings.local.csv show them), the spec and manifest.json.
+- ``tables``: tables.md and the table CSVs (:mod:`experiments.tables`) and the Tables
+  4.1/4.2 chart drawn from the CSVs (``fig_tables.png``). Inputs: the cell table (every
+  column, timings included: the heading table and timings.local.csv show them).
+- ``report``: REPORT.md and claims.csv (:mod:`experiments.report`). Inputs: the cell
+  table, the spec and manifest.json.
 - one unit per figure group of :mod:`experiments.figures` (box plots, orientation,
   overlays, ...). Inputs: the sweep's layout (the cell table's key, axis, seed and mask
   columns and which cells kept per-epoch estimates; not their statistics) and the
@@ -24,9 +25,10 @@ nothing to compute re-reads and writes nothing, and a run that recomputed cells 
 per-epoch files redraws the tables, the report, their chart and the page but no other
 figure.
 
-With ``jobs > 1`` the reports unit and the figure groups run in worker processes (joblib
-loky: the sweep's workers, already started), the largest first; the page is written last in
-this process (it lists the figures and shows the report).
+With ``jobs > 1`` the tables, the report and the figure groups run in worker processes
+(joblib loky: the sweep's workers, already started), the largest first, beside the page's
+replay; the page is written last in this process (it lists the figures and shows the
+report).
 """
 
 from __future__ import annotations
@@ -46,11 +48,11 @@ __all__ = ["STATE_FILE", "code_digest", "frame_digest", "n_steps", "write_output
 
 #: The record of what each unit last wrote, in the results folder (git-ignored).
 STATE_FILE = "outputs.local.json"
-#: The figure group drawn with the reports unit (it reads the table CSVs).
+#: The figure group drawn with the tables (it reads the table CSVs).
 CHART_TASK = "tables"
-#: Typical cost of the figure groups (s, thesis preset), largest first: the order in which
-#: they are handed to the workers after the reports unit (about 2 s), so the last to finish
-#: are short.
+#: The figure groups by typical cost (thesis preset), largest first: the order in which they
+#: are handed to the workers after the tables and the report (1-1.5 s each), so the last to
+#: finish are short.
 _FIGURE_ORDER = ("sensor1", "weighting", "oracle", "overlay", "beyond", "lc_dyn",
                  "orientation", "lag_correction", "dynamic")
 
@@ -114,26 +116,40 @@ def _epoch_stats(out: Path, keys: list[str]) -> dict[str, list[int] | None]:
 
 
 # --------------------------------------------------------------------------- units
-def _reports_unit(table: pd.DataFrame, out: Path, spec: Any, figures: bool) -> dict:
-    """tables, REPORT.md and (with ``figures``) the Tables 4.1/4.2 chart; returns the files
-    written (the .md/.csv files of the folder that changed, plus the chart) and seconds."""
-    from experiments import report, tables
+def _tables_unit(table: pd.DataFrame, out: Path, figures: bool) -> dict:
+    """tables.md, the table CSVs and (with ``figures``) the Tables 4.1/4.2 chart; returns
+    the files written (the .md/.csv files of the folder that changed, REPORT.md and
+    claims.csv aside: the report unit writes those meanwhile, plus the chart) and seconds."""
+    from experiments import tables
+
+    def snapshot() -> dict[str, list[int] | None]:
+        return {p.name: _stat(p) for p in (*out.glob("*.md"), *out.glob("*.csv"))
+                if p.name not in _REPORT_FILES}
 
     t0 = time.perf_counter()
-    before = {p.name: _stat(p) for p in (*out.glob("*.md"), *out.glob("*.csv"))}
+    before = snapshot()
     tables.write_tables(table, out)
+    files = sorted(n for n, st in snapshot().items() if before.get(n) != st)
     t1 = time.perf_counter()
-    report.write_report(table, out, spec=spec)
-    t2 = time.perf_counter()
-    files = sorted(p.name for p in (*out.glob("*.md"), *out.glob("*.csv"))
-                   if before.get(p.name) != _stat(p))
     if figures:
         from experiments import figures as figs
 
         written, _ = figs.draw_task(out, CHART_TASK)
         files += [p.name for p in written]
-    return {"files": files, "tables_s": t1 - t0, "report_s": t2 - t1,
-            "chart_s": time.perf_counter() - t2}
+    return {"files": files, "tables_s": t1 - t0, "chart_s": time.perf_counter() - t1}
+
+
+#: What :func:`experiments.report.write_report` writes.
+_REPORT_FILES = ("REPORT.md", "claims.csv")
+
+
+def _report_unit(table: pd.DataFrame, out: Path, spec: Any) -> dict:
+    """REPORT.md and claims.csv; returns the files written and seconds."""
+    from experiments import report
+
+    t0 = time.perf_counter()
+    report.write_report(table, out, spec=spec)
+    return {"files": list(_REPORT_FILES), "report_s": time.perf_counter() - t0}
 
 
 def _figure_unit(out: Path, task: str) -> dict:
@@ -157,15 +173,17 @@ def _replay_unit(out: Path) -> dict:
 
 def _run_unit(kind: str, *args: Any) -> tuple[str, dict]:
     name = args[-1] if kind == "figure" else kind
-    fn = {"reports": _reports_unit, "figure": _figure_unit, "replay": _replay_unit}[kind]
+    fn = {"tables": _tables_unit, "report": _report_unit, "figure": _figure_unit,
+          "replay": _replay_unit}[kind]
     return name, fn(*args)
 
 
 def n_steps(figures: bool = True) -> int:
-    """Progress steps of :func:`write_outputs`: the reports unit, each figure group, the page."""
+    """Progress steps of :func:`write_outputs`: the tables, the report, each figure group and
+    the page."""
     from experiments.figures import figure_tasks
 
-    return 2 + (sum(t != CHART_TASK for t in figure_tasks()) if figures else 0)
+    return 3 + (sum(t != CHART_TASK for t in figure_tasks()) if figures else 0)
 
 
 def write_outputs(table: pd.DataFrame, out_dir: str | Path, *, spec: Any = None,
@@ -175,8 +193,9 @@ def write_outputs(table: pd.DataFrame, out_dir: str | Path, *, spec: Any = None,
 
     table : the cell table (``cells.parquet``, which must already be written: the figures
         and the page read it). spec : the run's :class:`experiments.spec.Spec` (for the
-        report; None: what the folder says). jobs : worker processes for the reports unit
-        and the figure groups (1: all in this process). figures : draw the PNG figures.
+        report; None: what the folder says). jobs : worker processes for the tables, the
+        report and the figure groups (1: all in this process). figures : draw the PNG
+        figures.
     on_step : called with each unit's name as it finishes or is skipped (progress).
 
     Returns ``{"written": [...], "skipped": [...], "seconds": {unit: s}, "wall_s": s}``.
@@ -207,11 +226,13 @@ def write_outputs(table: pd.DataFrame, out_dir: str | Path, *, spec: Any = None,
 
     # what needs writing
     todo: list[tuple] = []
-    rep_in = _digest(code, table_d, spec_d, manifest, figures)
-    if unchanged("reports", rep_in):
-        new["reports"] = units["reports"]
-    else:
-        todo.append(("reports", table, out, spec, figures))
+    unit_in = {"tables": _digest(code, table_d, figures),
+               "report": _digest(code, table_d, spec_d, manifest)}
+    for name, args in (("tables", (table, out, figures)), ("report", (table, out, spec))):
+        if unchanged(name, unit_in[name]):
+            new[name] = units[name]
+        else:
+            todo.append((name, *args))
     fig_in = {}
     if figures:
         order = {t: i for i, t in enumerate(_FIGURE_ORDER)}
@@ -228,8 +249,8 @@ def write_outputs(table: pd.DataFrame, out_dir: str | Path, *, spec: Any = None,
     for name in new:               # skipped: unchanged since they were written
         step(name)
 
-    # the reports unit and the figure groups, side by side; when any of them is rewritten the
-    # page is too (it shows them), so its replay is made beside them
+    # the tables, the report and the figure groups, side by side; when any of them is
+    # rewritten the page is too (it shows them), so its replay is made beside them
     seconds: dict[str, float] = {}
     replay = None
     if todo:
@@ -247,8 +268,8 @@ def write_outputs(table: pd.DataFrame, out_dir: str | Path, *, spec: Any = None,
                 replay = res["replay"]
                 seconds["replay_s"] = res["seconds"]
                 continue
-            if name == "reports":
-                new[name] = {"inputs": rep_in, "files": _stats(out, res["files"])}
+            if name in unit_in:
+                new[name] = {"inputs": unit_in[name], "files": _stats(out, res["files"])}
                 seconds.update({k: v for k, v in res.items() if k.endswith("_s")})
             else:
                 new[name] = {"inputs": fig_in[name], "files": _stats(out, res["files"]),
@@ -274,7 +295,7 @@ def write_outputs(table: pd.DataFrame, out_dir: str | Path, *, spec: Any = None,
     step("page")
     units.update(new)
     atomic_write_text(state_path, json.dumps({"units": units}, indent=1, sort_keys=True))
-    written = [u[0] if u[0] == "reports" else u[-1] for u in todo if u[0] != "replay"] \
+    written = [u[0] if u[0] in unit_in else u[-1] for u in todo if u[0] != "replay"] \
         + (["page"] if "page_s" in seconds else [])
     return {"written": written, "skipped": sorted(set(new) - set(written)),
             "seconds": seconds, "wall_s": time.perf_counter() - t_start}

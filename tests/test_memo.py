@@ -130,7 +130,7 @@ def drive():
 
 
 def test_memoised_pass_is_the_direct_pass_and_shared_read_only(drive):
-    t, obs, cfg, off = drive
+    t, obs, _cfg, off = drive
     p = PoseFilterParams()
     direct = run_pose_filter(t, obs, off, p)
     a = memo_pose_filter(t, obs, off, p)
@@ -163,7 +163,7 @@ def test_memoised_smoothers_equal_the_direct_ones(drive, lag_s):
 
 @pytest.mark.parametrize("lag_s", [-1.0, math.nan, math.inf, "1"])
 def test_memoised_smoother_rejects_bad_lag(drive, lag_s):
-    t, obs, cfg, off = drive
+    t, obs, _cfg, off = drive
     with pytest.raises((ValueError, TypeError), match="lag_s"):
         memo_smoothed_states(t, obs, off, PoseFilterParams(), lag_s)
 
@@ -184,7 +184,7 @@ def test_track_rows_are_copies_not_the_memo(drive):
 
 
 def test_module_memos_are_bounded(drive):
-    t, obs, cfg, off = drive
+    t, obs, _cfg, off = drive
     from estimator import pose_filter, pose_smoother
 
     for i in range(pose_filter._PASS_MEMO.size + 2):

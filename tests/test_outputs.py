@@ -13,7 +13,7 @@ import pytest
 
 from experiments import figures, outputs, page
 
-TASKS = ("weighting", "orientation", "tables")        # "tables" is the reports unit's chart
+TASKS = ("weighting", "orientation", "tables")        # "tables": the chart, drawn with tables
 
 
 @pytest.fixture
@@ -30,15 +30,19 @@ def folder(tmp_path, monkeypatch):
                           "has_epochs": [True, True, False], "ex_mean": [0.1, 0.2, 0.3]})
     table.to_parquet(tmp_path / "cells.parquet")
 
-    def reports(table, out, spec, figs):
-        calls.append("reports")
+    def tables_unit(table, out, figs):
+        calls.append("tables")
         (out / "tables.md").write_text(f"{len(table)} rows, {table['ex_mean'].sum()}")
-        (out / "REPORT.md").write_text("report")
-        files = ["tables.md", "REPORT.md"]
+        files = ["tables.md"]
         if figs:
             (out / "fig_tables.png").write_bytes(b"chart")
             files.append("fig_tables.png")
-        return {"files": files, "tables_s": 0.0, "report_s": 0.0, "chart_s": 0.0}
+        return {"files": files, "tables_s": 0.0, "chart_s": 0.0}
+
+    def report_unit(table, out, spec):
+        calls.append("report")
+        (out / "REPORT.md").write_text("report")
+        return {"files": ["REPORT.md"], "report_s": 0.0}
 
     def draw_task(out, task):
         calls.append(task)
@@ -50,7 +54,8 @@ def folder(tmp_path, monkeypatch):
         calls.append("page")
         (Path(out) / "index.html").write_text(f"page {replay}")
 
-    monkeypatch.setattr(outputs, "_reports_unit", reports)
+    monkeypatch.setattr(outputs, "_tables_unit", tables_unit)
+    monkeypatch.setattr(outputs, "_report_unit", report_unit)
     monkeypatch.setattr(figures, "draw_task", draw_task)
     monkeypatch.setattr(figures, "figure_tasks", lambda: TASKS)
     monkeypatch.setattr(page, "write_page", write_page)
@@ -68,13 +73,13 @@ def _write(folder_, table=None, **kw):
 
 def test_first_run_writes_all_and_a_rerun_nothing(folder):
     calls, res = _write(folder)
-    assert calls == ["orientation", "page", "reports", "weighting"]
+    assert calls == ["orientation", "page", "report", "tables", "weighting"]
     assert sorted(res["written"]) == calls and res["skipped"] == []
     state = json.loads((folder[0] / outputs.STATE_FILE).read_text())
     assert state["units"]["weighting"]["loaded"] == ["a"]
     calls, res = _write(folder)
     assert calls == [] and res["written"] == []
-    assert res["skipped"] == ["orientation", "page", "reports", "weighting"]
+    assert res["skipped"] == ["orientation", "page", "report", "tables", "weighting"]
 
 
 def test_a_number_changed_rewrites_tables_report_and_page_only(folder):
@@ -82,7 +87,7 @@ def test_a_number_changed_rewrites_tables_report_and_page_only(folder):
     t = folder[1].copy()
     t.loc[2, "ex_mean"] = 0.31                  # a statistic of a cell without epochs
     calls, _ = _write(folder, table=t)
-    assert calls == ["page", "reports"]
+    assert calls == ["page", "report", "tables"]
 
 
 def test_a_new_cell_changes_the_layout_and_redraws_the_figures(folder):
@@ -90,7 +95,7 @@ def test_a_new_cell_changes_the_layout_and_redraws_the_figures(folder):
     t = pd.concat([folder[1], folder[1].iloc[[2]].assign(key="d", seed=2)],
                   ignore_index=True)
     calls, _ = _write(folder, table=t)
-    assert calls == ["orientation", "page", "reports", "weighting"]
+    assert calls == ["orientation", "page", "report", "tables", "weighting"]
 
 
 def test_a_changed_epoch_file_redraws_the_figures_that_read_it(folder):
@@ -103,7 +108,8 @@ def test_a_changed_epoch_file_redraws_the_figures_that_read_it(folder):
 
 
 @pytest.mark.parametrize("name, unit", [("fig_weighting.png", "weighting"),
-                                        ("REPORT.md", "reports"), ("index.html", "page")])
+                                        ("REPORT.md", "report"), ("tables.md", "tables"),
+                                        ("index.html", "page")])
 def test_a_deleted_or_edited_output_is_rewritten(folder, name, unit):
     out = folder[0]
     _write(folder)
@@ -119,11 +125,11 @@ def test_a_deleted_or_edited_output_is_rewritten(folder, name, unit):
 
 def test_code_or_option_changes_rewrite(folder, monkeypatch):
     _write(folder)
-    calls, _ = _write(folder, figures=False)    # the reports unit knows whether it drew
-    assert calls == ["page", "reports"]         # the chart; figure groups are not drawn
+    calls, _ = _write(folder, figures=False)    # the tables unit knows whether it drew
+    assert calls == ["page", "tables"]          # the chart; figure groups are not drawn
     monkeypatch.setattr(outputs, "code_digest", lambda: "other code")
     calls, _ = _write(folder)
-    assert calls == ["orientation", "page", "reports", "weighting"]
+    assert calls == ["orientation", "page", "report", "tables", "weighting"]
 
 
 def test_damaged_state_file_means_rewrite(folder):
@@ -131,7 +137,7 @@ def test_damaged_state_file_means_rewrite(folder):
     _write(folder)
     (out / outputs.STATE_FILE).write_text("{not json")
     calls, _ = _write(folder)
-    assert calls == ["orientation", "page", "reports", "weighting"]
+    assert calls == ["orientation", "page", "report", "tables", "weighting"]
 
 
 def test_frame_digest():

@@ -545,7 +545,7 @@ def test_outputs_unchanged_are_not_rewritten(real_run):
     write_outputs(real_run.cells, out, spec=real_run.spec, figures=False)
     before = {p.name: p.stat().st_mtime_ns for p in out.iterdir() if p.is_file()}
     res = write_outputs(real_run.cells, out, spec=real_run.spec, figures=False)
-    assert res["written"] == [] and set(res["skipped"]) == {"reports", "page"}
+    assert res["written"] == [] and set(res["skipped"]) == {"tables", "report", "page"}
     after = {p.name: p.stat().st_mtime_ns for p in out.iterdir() if p.is_file()}
     changed = {k for k in after if before.get(k) != after[k]}
     assert changed <= {"outputs.local.json"}, changed
