@@ -1186,6 +1186,38 @@ def build_parser() -> argparse.ArgumentParser:
     return p
 
 
+def _started() -> int:
+    """A worker's first task: the imports of a simulation (its likely next task)."""
+    import sim.rover  # noqa: F401
+
+    return os.getpid()
+
+
+def _prestart(jobs: int) -> Iterator[int]:
+    """Start the ``jobs`` loky workers now, before the spec is read and checked here (their
+    interpreter start and first imports overlap that, about 1 s); returns the iterator of
+    their first tasks, to keep until the run is done."""
+    from joblib import Parallel, delayed
+
+    for var in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS"):
+        os.environ.setdefault(var, "1")      # as run() sets them, before any worker starts
+    return Parallel(n_jobs=jobs, backend="loky", return_as="generator_unordered")(
+        delayed(_started)() for _ in range(jobs))
+
+
+def _likely_work(args: argparse.Namespace) -> bool:
+    """Whether the run will probably compute cells (so starting the workers early pays):
+    --force, or a results folder without finished cells. For a spec file without --out the
+    folder is not known before the spec is read: yes."""
+    if args.force:
+        return True
+    if args.out is None and args.spec:
+        return True
+    name = (args.preset or DEFAULT_PRESET) + (f"-{args.solver}" if args.solver else "")
+    cells = (Path(args.out) if args.out is not None else RESULTS_DIR / name) / "cells"
+    return not (cells.is_dir() and any(cells.glob("*.json")))
+
+
 def main(argv: list[str] | None = None) -> int:
     """CLI entry point; returns the exit code (0 ok, 1 some cells failed, 2 bad spec,
     3 the run could not go on: unreachable scheduler, unwritable results folder)."""
@@ -1193,6 +1225,17 @@ def main(argv: list[str] | None = None) -> int:
     if args.spec and args.preset:
         print("error: give a spec file or --preset, not both", file=sys.stderr)
         return 2
+    jobs = args.jobs if args.jobs else (os.cpu_count() or 1)
+    started = (_prestart(jobs) if args.backend == "loky" and jobs > 1 and _likely_work(args)
+               else iter(()))
+    try:
+        return _main(args)
+    finally:
+        for _ in started:       # (long done; the workers stay for the next run in-process)
+            pass
+
+
+def _main(args: argparse.Namespace) -> int:
     try:
         spec = load_spec(args.spec or args.preset or DEFAULT_PRESET)
         if args.solver:

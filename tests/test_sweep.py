@@ -549,3 +549,19 @@ def test_outputs_unchanged_are_not_rewritten(real_run):
     after = {p.name: p.stat().st_mtime_ns for p in out.iterdir() if p.is_file()}
     changed = {k for k in after if before.get(k) != after[k]}
     assert changed <= {"outputs.local.json"}, changed
+
+
+def test_workers_are_started_early_only_when_cells_are_likely_to_run(tmp_path):
+    from experiments.sweep import _likely_work
+
+    def args(*a):
+        return build_parser().parse_args([*a])
+
+    out = tmp_path / "run"
+    assert _likely_work(args("--out", str(out)))                 # nothing there yet
+    (out / "cells").mkdir(parents=True)
+    assert _likely_work(args("--out", str(out)))                 # a folder, no finished cell
+    (out / "cells" / "abc.json").write_text("{}")
+    assert not _likely_work(args("--out", str(out)))             # a resumed run
+    assert _likely_work(args("--out", str(out), "--force"))
+    assert _likely_work(args("my_spec.toml"))                    # folder unknown before reading
