@@ -12,33 +12,30 @@ computation would. Least recently used first out.
 The values are shared: a caller either returns copies (the elastic fits) or freezes the
 arrays (:func:`freeze`, the filter results), so no user can change a memoised value.
 
-Time accounting: each entry remembers what it cost to produce, including the entries it
-reused itself (a smoother on a memoised forward pass costs the pass plus the smoothing);
-:func:`reused_seconds` is the running total of that cost over the hits of this process, so
-a caller can report a result's stand-alone cost (e.g. the time per epoch of an estimator)
-as its own time plus the delta of :func:`reused_seconds` over the call.
+Time accounting: each entry remembers what it cost to produce, its own computation and,
+separately, the entries it used (a smoother on a memoised forward pass costs the pass plus
+the smoothing). :func:`ledger` measures what a piece of work took from the memos: the cost of
+every entry it hit, each counted once (the pass reached directly and through the smoother
+counts once) and none it computed itself (that time is in its own), so a caller can report a
+result's stand-alone cost (e.g. the time per epoch of an estimator) as its own time plus
+``ledger.seconds``.
 """
 
 from __future__ import annotations
 
 import hashlib
+import itertools
 import time
 from collections import OrderedDict
-from collections.abc import Callable, Hashable
+from collections.abc import Callable, Hashable, Iterator
+from contextlib import contextmanager
 from typing import Any, TypeVar
 
 import numpy as np
 
-__all__ = ["ContentMemo", "content_digest", "freeze", "reused_seconds"]
+__all__ = ["ContentMemo", "Ledger", "content_digest", "freeze", "ledger"]
 
 T = TypeVar("T")
-
-_REUSED_S = [0.0]      # stand-alone seconds of every hit in this process
-
-
-def reused_seconds() -> float:
-    """Total stand-alone cost (s) of the memo hits of this process so far (module docstring)."""
-    return _REUSED_S[0]
 
 
 def content_digest(*arrays: np.ndarray) -> str:
@@ -57,6 +54,44 @@ def freeze(a: np.ndarray) -> np.ndarray:
     return a
 
 
+class Ledger:
+    """What a piece of work took from the memos (see :func:`ledger`): ``hits`` maps each
+    entry it reached, directly or through another entry, to that entry's own cost (s);
+    ``computed`` holds the entries it computed itself."""
+
+    def __init__(self) -> None:
+        self.hits: dict[tuple, float] = {}
+        self.computed: set[tuple] = set()
+
+    @property
+    def seconds(self) -> float:
+        """The stand-alone cost of what was reused: the own costs of the entries reached,
+        each once, less those computed within the measurement."""
+        return float(sum(s for k, s in self.hits.items() if k not in self.computed))
+
+
+_clock = time.perf_counter           # (replaceable in tests)
+_LEDGERS: list[Ledger] = []          # measurements in progress
+_FRAMES: list[dict] = []             # computations in progress: {"cover", "nested_s"}
+_IDS = itertools.count()
+
+
+@contextmanager
+def ledger() -> Iterator[Ledger]:
+    """Measure what the enclosed work takes from every :class:`ContentMemo` of this process::
+
+        with ledger() as led:
+            work()
+        stand_alone_s = own_time + led.seconds
+    """
+    led = Ledger()
+    _LEDGERS.append(led)
+    try:
+        yield led
+    finally:
+        _LEDGERS.remove(led)
+
+
 class ContentMemo:
     """Least-recently-used memo of at most ``size`` values, keyed by hashable tuples
     (typically :func:`content_digest` of the inputs plus the options)."""
@@ -65,7 +100,9 @@ class ContentMemo:
         if isinstance(size, bool) or not isinstance(size, int) or size < 1:
             raise ValueError(f"size: must be an integer >= 1, got {size!r}")
         self.size = size
-        self._entries: OrderedDict[Hashable, tuple[Any, float]] = OrderedDict()
+        self._id = next(_IDS)
+        # key -> (value, cover: {(memo id, key): own seconds} of the entry and what it used)
+        self._entries: OrderedDict[Hashable, tuple[Any, dict]] = OrderedDict()
 
     def __len__(self) -> int:
         return len(self._entries)
@@ -79,16 +116,32 @@ class ContentMemo:
 
     def get(self, key: Hashable, compute: Callable[[], T]) -> T:
         """The memoised value of ``key``, else ``compute()`` stored under it (an exception
-        stores nothing). A hit adds the entry's stand-alone cost to :func:`reused_seconds`."""
+        stores nothing). Hits and computations are recorded in every active :func:`ledger`."""
         hit = self._entries.get(key)
         if hit is not None:
             self._entries.move_to_end(key)
-            _REUSED_S[0] += hit[1]
-            return hit[0]
-        r0, t0 = _REUSED_S[0], time.perf_counter()
-        value = compute()
-        cost = time.perf_counter() - t0 + (_REUSED_S[0] - r0)
-        self._entries[key] = (value, cost)
+            value, cover = hit
+            if _FRAMES:
+                _FRAMES[-1]["cover"].update(cover)
+            for led in _LEDGERS:
+                led.hits.update(cover)
+            return value
+        frame: dict = {"cover": {}, "nested_s": 0.0}
+        _FRAMES.append(frame)
+        t0 = _clock()
+        try:
+            value = compute()
+        finally:
+            _FRAMES.pop()
+        total = _clock() - t0
+        full = (self._id, key)
+        cover = {**frame["cover"], full: total - frame["nested_s"]}   # own: nested computed apart
+        if _FRAMES:
+            _FRAMES[-1]["cover"].update(cover)
+            _FRAMES[-1]["nested_s"] += total
+        for led in _LEDGERS:
+            led.computed.add(full)
+        self._entries[key] = (value, cover)
         while len(self._entries) > self.size:
             self._entries.popitem(last=False)
         return value

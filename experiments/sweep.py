@@ -61,7 +61,7 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
-from estimator.memo import reused_seconds
+from estimator.memo import ledger
 from experiments.provenance import code_version
 from experiments.spec import (
     FILTER_TECHNIQUES,
@@ -543,13 +543,14 @@ def _run_batch(cells: list[Cell], truth, spec_seed: int, masks: tuple[str, ...],
     for cell, w in zip(cells, want):
         ctx = CellContext(spec_seed=spec_seed, masks=masks, session_s=session_s,
                           want_epochs=w, memo=_WORKER_MEMO)
-        t0, r0 = time.perf_counter(), reused_seconds()
+        t0 = time.perf_counter()
         try:
-            res = fn(cell, truth, ctx)
+            with ledger() as reused:
+                res = fn(cell, truth, ctx)
             res.timings["t_cell_s"] = time.perf_counter() - t0
             # what the cell took from the per-process memo (estimator.memo), at the cost it
             # had when computed: t_track_s + t_reused_s is the cell's stand-alone cost
-            res.timings["t_reused_s"] = reused_seconds() - r0
+            res.timings["t_reused_s"] = reused.seconds
             out.append({"key": cell.key, "ok": True, "rows": res.rows, "epochs": res.epochs,
                         "timings": res.timings, "status_counts": res.status_counts})
         except Exception as exc:  # noqa: BLE001 - a cell's failure is data, not a crash

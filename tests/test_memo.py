@@ -12,7 +12,7 @@ from hypothesis.extra import numpy as hnp
 
 from estimator import memo
 from estimator.configuration import SensorConfig
-from estimator.memo import ContentMemo, content_digest, freeze, reused_seconds
+from estimator.memo import ContentMemo, content_digest, freeze, ledger
 from estimator.pose_filter import PoseFilterParams, memo_pose_filter, run_pose_filter
 from estimator.pose_smoother import (
     fixed_lag_smooth,
@@ -56,26 +56,42 @@ def test_size_is_validated(size):
         ContentMemo(size)
 
 
-def test_reused_seconds_counts_the_stand_alone_cost_of_hits():
-    """A hit adds the entry's cost, including what that entry reused itself (a smoother on
-    a memoised pass costs the pass too)."""
-    inner, outer = ContentMemo(2), ContentMemo(2)
+def test_ledger_counts_each_reused_entry_once_at_its_own_cost(monkeypatch):
+    """A sweep's cells: the forward pass (3 s) and a smoother on it (1 s more). What a cell
+    reuses is counted at the cost the entries had when computed, each entry once (the pass
+    reached directly and through the smoother), and nothing the cell computed itself."""
+    clock = [0.0]
+    monkeypatch.setattr(memo, "_clock", lambda: clock[0])
+    passes, smooth = ContentMemo(2), ContentMemo(2)
 
-    def slow():
-        t = 0.0
-        for i in range(200_000):       # some real work, no sleep (CPU time is measured)
-            t += i
-        return t
+    def forward():
+        clock[0] += 3.0
+        return "pass"
 
-    inner.get("pass", slow)
-    r0 = reused_seconds()
-    outer.get("smooth", lambda: inner.get("pass", slow))      # reuses the pass
-    reused_pass = reused_seconds() - r0
-    assert reused_pass > 0
-    r1 = reused_seconds()
-    outer.get("smooth", slow)                                  # a hit on the smoother
-    # its stand-alone cost: the pass it reused (the smoothing itself took ~0 s here)
-    assert reused_seconds() - r1 >= reused_pass
+    def smoother():
+        p = passes.get("p", forward)
+        clock[0] += 1.0
+        return p + "+rts"
+
+    with ledger() as a:                       # computes both: nothing reused
+        assert smooth.get("s", smoother) == "pass+rts"
+    assert a.seconds == 0.0 and len(a.computed) == 2
+    with ledger() as b:                       # the pass alone, a hit
+        passes.get("p", forward)
+    assert b.seconds == 3.0
+    with ledger() as c:                       # the pass and the smoother on it: 3 + 1
+        passes.get("p", forward)
+        smooth.get("s", smoother)
+    assert c.seconds == 4.0
+    with ledger() as outer:                   # a new smoother on the memoised pass: 3
+        passes.get("p", forward)
+        with ledger() as inner:               # nested measurements see the same
+            smooth.get("s2", smoother)
+    assert outer.seconds == inner.seconds == 3.0
+    with ledger() as d:                       # the new smoother, now memoised: 3 + 1
+        smooth.get("s2", smoother)
+    assert d.seconds == 4.0
+    assert clock[0] == 5.0                    # the pass and each smoother ran once
 
 
 @settings(max_examples=60, deadline=None)
@@ -191,4 +207,3 @@ def test_module_memos_are_bounded(drive):
         memo_pose_filter(t, obs, off, PoseFilterParams(lag_s=1.0 + i))
     assert len(pose_filter._PASS_MEMO) == pose_filter._PASS_MEMO.size
     assert len(pose_smoother._SMOOTH_MEMO) <= pose_smoother._SMOOTH_MEMO.size
-    assert memo.reused_seconds() >= 0
