@@ -149,6 +149,7 @@ from scipy.stats import chi2
 
 from estimator._checks import check_array, check_fields, check_increasing_times, check_int
 from estimator._checks import check_real
+from estimator.memo import ContentMemo, content_digest, freeze
 
 __all__ = [
     "FilterStart",
@@ -163,6 +164,8 @@ __all__ = [
     "motion_integrals",
     "estimate_noise",
     "kalman_update",
+    "memo_pose_filter",
+    "pass_key",
     "run_pose_filter",
 ]
 
@@ -355,15 +358,22 @@ def _integrals_scalar(q: float) -> tuple[complex, complex, complex]:
         return f1, f2, (e - 2.0 * f2) / iq
     half = 3 if aq < 0.01 else 5 if aq < 0.1 else 7 if aq < 0.5 else _SERIES_TERMS // 2
     q2 = q * q
-    out = []
-    for k in range(3):
-        ev, od = _EVEN[k], _ODD[k]
-        re = im = 0.0
-        for j in range(len(ev) - half, len(ev)):
-            re = re * q2 + ev[j]
-            im = im * q2 + od[j]
-        out.append(complex(re, q * im))
-    return out[0], out[1], out[2]
+    # the three Horner recursions side by side (one loop; the same operations in the same
+    # order as one recursion per k)
+    r1 = r2 = r3 = i1 = i2 = i3 = 0.0
+    for e1, e2, e3, o1, o2, o3 in _HORNER[_SERIES_TERMS // 2 - half:]:
+        r1 = r1 * q2 + e1
+        r2 = r2 * q2 + e2
+        r3 = r3 * q2 + e3
+        i1 = i1 * q2 + o1
+        i2 = i2 * q2 + o2
+        i3 = i3 * q2 + o3
+    return complex(r1, q * i1), complex(r2, q * i2), complex(r3, q * i3)
+
+
+#: The series coefficients of F1, F2, F3 (real, then imaginary parts), highest power first,
+#: one row per power (for :func:`_integrals_scalar`).
+_HORNER = tuple(zip(*_EVEN, *_ODD))
 
 
 _EYE = np.eye(NX)
@@ -372,7 +382,7 @@ _EYE = np.eye(NX)
 def _predict(x: np.ndarray, P: np.ndarray, dt: float, qa: float, qy: float
              ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """CTRA prediction: (x', P', F). See :func:`ctra_predict`."""
-    yaw, v, acc, om = float(x[YAW]), float(x[V]), float(x[A]), float(x[OMEGA])
+    px, py, yaw, v, acc, om = x.tolist()
     f1, f2, f3 = _integrals_scalar(om * dt)
     rot = complex(math.cos(yaw), math.sin(yaw))
     d = rot * (v * dt * f1 + acc * dt * dt * f2)          # displacement
@@ -395,8 +405,7 @@ def _predict(x: np.ndarray, P: np.ndarray, dt: float, qa: float, qy: float
                   [h * rot.imag, g * rot.real],
                   [0.0, h], [dt, 0.0], [1.0, 0.0], [0.0, dt]])
     Pn = F @ P @ F.T + (G * (qa, qy)) @ G.T
-    xn = np.array([x[PX] + d.real, x[PY] + d.imag, _wrap(yaw + om * dt), v + acc * dt, acc,
-                   om])
+    xn = np.array([px + d.real, py + d.imag, _wrap(yaw + om * dt), v + acc * dt, acc, om])
     return xn, Pn, F
 
 
@@ -443,33 +452,45 @@ def _measurements(y: np.ndarray, ra: np.ndarray, rd: np.ndarray
     """Fixes of the antennas at offsets ra (ka, 2) and displacements since the previous
     epoch of those at rd (kd, 2), stacked, for the stacked state ``y = (x, x_prev)`` (12,):
     h (ka + kd, 2) and H (ka + kd, 2, 12) (a fix touches x only, a displacement both)."""
-    ka, kd = ra.shape[0], rd.shape[0]
-    c, s = math.cos(y[YAW]), math.sin(y[YAW])
+    return _fill_measurements(y, ra[:, 0], ra[:, 1], rd[:, 0], rd[:, 1],
+                              _jacobian_template(ra.shape[0], rd.shape[0]))
+
+
+def _jacobian_template(ka: int, kd: int) -> np.ndarray:
+    """H (ka + kd, 2, 12) of :func:`_measurements` with its constant entries (the position
+    columns) set and the heading columns 0."""
     H = np.zeros((ka + kd, 2, 2 * NX))
+    H[:, 0, PX] = 1.0
+    H[:, 1, PY] = 1.0
+    H[ka:, 0, NX + PX] = -1.0
+    H[ka:, 1, NX + PY] = -1.0
+    return H
+
+
+def _fill_measurements(y: np.ndarray, ax: np.ndarray, ay: np.ndarray, dx: np.ndarray,
+                       dy: np.ndarray, H: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """:func:`_measurements` with the offsets as columns (fixes ``ax, ay``, displacements
+    ``dx, dy``) and ``H`` a :func:`_jacobian_template` of that size, filled in place."""
+    ka, kd = ax.shape[0], dx.shape[0]
+    c, s = math.cos(y[YAW]), math.sin(y[YAW])
     h = np.empty((ka + kd, 2))
     if ka:
-        rx = c * ra[:, 0] - s * ra[:, 1]
-        ry = s * ra[:, 0] + c * ra[:, 1]
-        H[:ka, 0, PX] = 1.0
-        H[:ka, 1, PY] = 1.0
+        rx = c * ax - s * ay
+        ry = s * ax + c * ay
         H[:ka, 0, YAW] = -ry
         H[:ka, 1, YAW] = rx
         h[:ka, 0] = y[PX] + rx
         h[:ka, 1] = y[PY] + ry
     if kd:
         cp, sp = math.cos(y[NX + YAW]), math.sin(y[NX + YAW])
-        rx = c * rd[:, 0] - s * rd[:, 1]
-        ry = s * rd[:, 0] + c * rd[:, 1]
-        px = cp * rd[:, 0] - sp * rd[:, 1]
-        py = sp * rd[:, 0] + cp * rd[:, 1]
+        rx = c * dx - s * dy
+        ry = s * dx + c * dy
+        px = cp * dx - sp * dy
+        py = sp * dx + cp * dy
         h[ka:, 0] = y[PX] - y[NX + PX] + rx - px
         h[ka:, 1] = y[PY] - y[NX + PY] + ry - py
-        H[ka:, 0, PX] = 1.0
-        H[ka:, 1, PY] = 1.0
         H[ka:, 0, YAW] = -ry
         H[ka:, 1, YAW] = rx
-        H[ka:, 0, NX + PX] = -1.0
-        H[ka:, 1, NX + PY] = -1.0
         H[ka:, 0, NX + YAW] = py
         H[ka:, 1, NX + YAW] = -px
     return h, H
@@ -539,13 +560,22 @@ def kalman_update(x: np.ndarray, P: np.ndarray, nu: np.ndarray, H: np.ndarray,
     The yaw component of x+ is not wrapped here. ``accept`` (k,) bool replaces test 1 (the
     caller's own choice of candidates; test 2 still runs). Returns (x+, P+, accepted (k,)).
     """
-    k = nu.shape[0]
-    if k == 0:
+    if nu.shape[0] == 0:
         return x, P, np.zeros(0, dtype=bool)
+    return _kalman_update(x, P, nu, H, np.repeat(var, 2), gate, max_deleted, accept)
+
+
+def _kalman_update(x: np.ndarray, P: np.ndarray, nu: np.ndarray, H: np.ndarray,
+                   var2: np.ndarray, gate: float, max_deleted: int = 3,
+                   accept: np.ndarray | None = None
+                   ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """:func:`kalman_update` (k >= 1 measurements) with the noise variances per row of the
+    stacked measurement vector, ``var2 = repeat(var, 2)`` (2k,)."""
+    k = nu.shape[0]
     Hf = H.reshape(2 * k, -1)
     PHt = P @ Hf.T
     S = Hf @ PHt
-    S.flat[::2 * k + 1] += np.repeat(var, 2)
+    S.ravel()[::2 * k + 1] += var2       # + R on the diagonal (S is a fresh C array)
     if accept is not None:
         acc = np.array(accept, dtype=bool)
     elif gate != math.inf:
@@ -746,10 +776,30 @@ class FilterStart:
         return x, P
 
 
-def _iterated_update(y, Y, z, var, gate, ra, rd, lever, tol):
-    """One epoch's update of the stacked state ``y = (x, x_prev)`` (12,), covariance Y:
-    iterated EKF (Gauss-Newton on the same cost; Bell and Cathey 1993) with robust
-    acceptance.
+class _Pattern:
+    """What an epoch measures, given which antennas reported at it (``now``, (m,) bool) and
+    at the epoch before (``before``): the fixes ``ik`` and displacements ``js`` (antenna
+    indices), their per-axis noise variances ``var`` (k,) and ``var2`` (2k,, per row of the
+    stacked measurement vector), the lever arms as columns (``ax, ay`` of the fixes, ``dx,
+    dy`` of the displacements) and the Jacobian's template ``H0``."""
+
+    __slots__ = ("H0", "ax", "ay", "dx", "dy", "ik", "js", "var", "var2")
+
+    def __init__(self, now: np.ndarray, before: np.ndarray, r: np.ndarray, va: float,
+                 vs: float) -> None:
+        self.ik = np.flatnonzero(now)
+        self.js = np.flatnonzero(now & before)
+        self.var = np.concatenate((np.full(self.ik.size, va), np.full(self.js.size, vs)))
+        self.var2 = np.repeat(self.var, 2)
+        ra, rd = r[self.ik], r[self.js]
+        self.ax, self.ay, self.dx, self.dy = ra[:, 0], ra[:, 1], rd[:, 0], rd[:, 1]
+        self.H0 = _jacobian_template(self.ik.size, self.js.size)
+
+
+def _iterated_update(y, Y, z, pat, gate, lever, tol):
+    """One epoch's update of the stacked state ``y = (x, x_prev)`` (12,), covariance Y,
+    with the measurements z of the epoch's :class:`_Pattern` ``pat``: iterated EKF
+    (Gauss-Newton on the same cost; Bell and Cathey 1993) with robust acceptance.
 
     The first pass gates against the prior (:func:`kalman_update`, tests 1 and 2). While a
     step turns a heading so far that R(yaw)'s linearisation error (``dyaw^2/2 |r|``, ``|r|``
@@ -762,8 +812,9 @@ def _iterated_update(y, Y, z, var, gate, ra, rd, lever, tol):
     """
     yl = y
     acc = y1 = Y1 = None
+    var = pat.var
     for _ in range(MAX_ITERATIONS):
-        h, H = _measurements(yl, ra, rd)
+        h, H = _fill_measurements(yl, pat.ax, pat.ay, pat.dx, pat.dy, pat.H0.copy())
         nu = z - h if yl is y else z - h - H @ (y - yl)
         if acc is not None and not acc.all():
             out = np.flatnonzero(~acc)
@@ -772,7 +823,7 @@ def _iterated_update(y, Y, z, var, gate, ra, rd, lever, tol):
             S[:, 0, 0] += var[out]
             S[:, 1, 1] += var[out]
             acc[out[_quad2(S, nu[out] - Ho @ (y1 - y)) <= gate]] = True
-        y1, Y1, acc = kalman_update(y, Y, nu, H, var, gate, accept=acc)
+        y1, Y1, acc = _kalman_update(y, Y, nu, H, pat.var2, gate, accept=acc)
         if not acc.any():
             break
         turn = max(abs(_wrap(y1[YAW] - yl[YAW])), abs(_wrap(y1[NX + YAW] - yl[NX + YAW])))
@@ -854,8 +905,12 @@ def run_pose_filter(t: np.ndarray, obs: np.ndarray, offsets: np.ndarray,
     n_alive = max(int(present.any(axis=0).sum()), 1)
     flip_dist = max(INIT_MOTION_SIGMAS * sigma_abs * math.sqrt(2.0 / n_alive), _extent(off),
                     a_max * dt_med * dt_med)
+    # what each epoch measures depends only on which antennas reported at it and at the
+    # epoch before: built once per such pattern (_Pattern), the same numbers every time
+    rows = [row.tobytes() for row in present]
+    patterns: dict[tuple[bytes, bytes], _Pattern] = {}
+    dts = np.diff(tt).tolist()
     for k in range(n):
-        ik = np.flatnonzero(present[k])
         if x is None:
             # ---------------------------------------------------------------- waiting
             status[k], got = starter.wait(k)
@@ -864,12 +919,12 @@ def run_pose_filter(t: np.ndarray, obs: np.ndarray, offsets: np.ndarray,
             x, P = got
             X[k], PP[k], seg[k] = x, P, True
             status[k] = "reset" if lost else "init"
-            n_used[k] = ik.size
+            n_used[k] = np.count_nonzero(present[k])
             rej_abs, rej_step, llr, back = 0, 0, 0.0, 0.0
             continue
         # -------------------------------------------------------------------- running
         # stochastic cloning: predict x_k and keep x_{k-1} beside it, jointly Gaussian
-        dt = tt[k] - tt[k - 1]
+        dt = dts[k - 1]
         # the acceleration's increments add up over a longer gap (random walk)
         xp, Pp, F = _predict(x, P, dt, qa * max(1.0, dt / dt_med), qy)
         y = np.concatenate((xp, x))
@@ -877,17 +932,19 @@ def run_pose_filter(t: np.ndarray, obs: np.ndarray, offsets: np.ndarray,
         Y = np.empty((2 * NX, 2 * NX))
         Y[:NX, :NX], Y[:NX, NX:], Y[NX:, :NX], Y[NX:, NX:] = Pp, FP, FP.T, P
         st = "predicted"
+        pat = patterns.get((rows[k], rows[k - 1]))
+        if pat is None:
+            pat = patterns[rows[k], rows[k - 1]] = _Pattern(present[k], present[k - 1], r_m,
+                                                            va, vs)
+        ik, js = pat.ik, pat.js            # fixes; displacements since k-1
         if ik.size:
-            js = np.flatnonzero(present[k] & present[k - 1])   # displacements since k-1
             zk = obs[k, ik]
             z = np.concatenate((zk, obs[k, js] - obs[k - 1, js])) if js.size else zk
-            var = np.concatenate((np.full(ik.size, va), np.full(js.size, vs)))
-            y1, Y1, acc = _iterated_update(y, Y, z, var, gate, r_m[ik], r_m[js], lever,
-                                           0.1 * sigma_abs)
+            y1, Y1, acc = _iterated_update(y, Y, z, pat, gate, lever, 0.1 * sigma_abs)
             acc_abs, acc_step = acc[:ik.size], acc[ik.size:]
-            n_used[k] = int(acc_abs.sum())
+            n_used[k] = np.count_nonzero(acc_abs)
             n_gated[k] = ik.size - n_used[k]
-            n_steps[k] = int(acc_step.sum())
+            n_steps[k] = np.count_nonzero(acc_step)
             rej_abs = rej_abs + 1 if n_used[k] == 0 else 0
             rej_step = rej_step + 1 if (js.size >= 2 and n_steps[k] == 0) else 0
             if max(rej_abs, rej_step) >= params.max_rejects:
@@ -905,7 +962,6 @@ def run_pose_filter(t: np.ndarray, obs: np.ndarray, offsets: np.ndarray,
         XC[k], PC[k], PX_[k] = y[NX:], Y[NX:, NX:], Y[:NX, NX:]
         if ik.size:
             # ------------------------------------------------------- direction of travel
-            good = ik[acc_abs]
             if not params.reverse:
                 # backward travel of the no-slip point over consecutive intervals (its
                 # displacement from the previous pose, re-estimated with this epoch's data,
@@ -920,7 +976,8 @@ def run_pose_filter(t: np.ndarray, obs: np.ndarray, offsets: np.ndarray,
                     st, back = "flip_corrected", 0.0
                 elif x[V] < 0.0:
                     x[V] = 0.0
-            elif good.size >= 2:
+            elif np.count_nonzero(acc_abs) >= 2:
+                good = ik[acc_abs]
                 # configuration's evidence for yaw + pi: residuals of the accepted fixes
                 # with R(yaw) r and -R(yaw) r; LLR = (|e+|^2 - |e-|^2) / (2 var)
                 hz, _ = antenna_jacobians(x, r_m[good])
@@ -953,6 +1010,36 @@ def run_pose_filter(t: np.ndarray, obs: np.ndarray, offsets: np.ndarray,
                             status=status.astype(str), n_used=n_used, n_gated=n_gated,
                             n_steps=n_steps, sigma_abs_m=float(sigma_abs),
                             sigma_step_m=float(sigma_step), cg_offset=cg_offset)
+
+
+#: Forward passes memoised per process (:mod:`estimator.memo`): a sweep runs the EKF at
+#: several windows (it only drops the first s-1 rows), its smoothers and the smoothed
+#: heading of the lag correction on the same observations; one pass serves them all. An
+#: entry holds ~120 floats per epoch (3.8 MB for 4000 epochs).
+_PASS_MEMO = ContentMemo(4)
+
+
+def pass_key(t: np.ndarray, obs: np.ndarray, offsets: np.ndarray, params: PoseFilterParams
+             ) -> tuple:
+    """Memo key of a forward pass: digest of the validated t, obs and offsets, and params
+    (raises like :func:`run_pose_filter` on bad input)."""
+    tt, o, off = _check_run_args(t, obs, offsets, params)
+    return (content_digest(tt, o, off), params)
+
+
+def memo_pose_filter(t: np.ndarray, obs: np.ndarray, offsets: np.ndarray,
+                     params: PoseFilterParams = PoseFilterParams()) -> PoseFilterResult:
+    """:func:`run_pose_filter`, memoised per process by content (:mod:`estimator.memo`):
+    the same numbers, computed once per (t, obs, offsets, params). The result is shared,
+    so its arrays are read-only."""
+    def compute() -> PoseFilterResult:
+        res = run_pose_filter(t, obs, offsets, params)
+        for v in vars(res).values():
+            if isinstance(v, np.ndarray):
+                freeze(v)
+        return res
+
+    return _PASS_MEMO.get(pass_key(t, obs, offsets, params), compute)
 
 
 def _extent(offsets: np.ndarray) -> float:

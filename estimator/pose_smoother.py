@@ -32,16 +32,26 @@ lag correction of :mod:`estimator.lag` with a smoothed heading).
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import numpy as np
 
 from estimator._checks import check_real
 from estimator.configuration import SensorConfig
+from estimator.memo import ContentMemo, freeze
 from estimator.orientation import wrap_angle
-from estimator.pose_filter import V, YAW, PoseFilterParams, PoseFilterResult, run_pose_filter
+from estimator.pose_filter import (
+    V,
+    YAW,
+    PoseFilterParams,
+    PoseFilterResult,
+    memo_pose_filter,
+    pass_key,
+)
 
-__all__ = ["SmoothedStates", "fixed_lag_smooth", "rts_smooth", "smoothed_heading"]
+__all__ = ["SmoothedStates", "fixed_lag_smooth", "memo_smoothed_states", "rts_smooth",
+           "smoothed_heading"]
 
 
 @dataclass(frozen=True)
@@ -115,8 +125,12 @@ def rts_smooth(res: PoseFilterResult, reverse: bool = False, covariances: bool =
 
 
 def _wrap1(a: float) -> float:
-    """One angle to (-pi, pi] (scalar :func:`estimator.orientation.wrap_angle`)."""
-    return float(wrap_angle(float(a)))
+    """One angle to (-pi, pi] (scalar :func:`estimator.orientation.wrap_angle`, which
+    returns an angle already in range unchanged: checked here first, without numpy)."""
+    a = float(a)
+    if -math.pi < a <= math.pi:
+        return a
+    return float(wrap_angle(a))
 
 
 def fixed_lag_smooth(res: PoseFilterResult, t: np.ndarray, lag_s: float,
@@ -157,6 +171,32 @@ def fixed_lag_smooth(res: PoseFilterResult, t: np.ndarray, lag_s: float,
     return SmoothedStates(states=_constrain(Xs, reverse), covariances=None)
 
 
+#: Smoothed states memoised per process (:mod:`estimator.memo`), on the memoised forward
+#: pass: the RTS states serve the smoother row at every window and the smoothed heading of
+#: the lag correction. An entry holds 6 floats per epoch.
+_SMOOTH_MEMO = ContentMemo(8)
+
+
+def memo_smoothed_states(t: np.ndarray, obs: np.ndarray, offsets: np.ndarray,
+                         params: PoseFilterParams, lag_s: float | None = None) -> np.ndarray:
+    """Smoothed states (n, 6) of a recording, memoised per process by content: the states
+    of :func:`rts_smooth` (``lag_s`` None) or of :func:`fixed_lag_smooth` with latency
+    ``lag_s`` (s), over :func:`estimator.pose_filter.memo_pose_filter` of (t, obs, offsets,
+    params) (shapes and units there), with ``params.reverse``. The same numbers as the
+    direct calls; the array is shared, so it is read-only."""
+    lag = None if lag_s is None else check_real(lag_s, "lag_s", lo=0.0)
+
+    def compute() -> np.ndarray:
+        res = memo_pose_filter(t, obs, offsets, params)
+        if lag is None:
+            sm = rts_smooth(res, params.reverse, covariances=False)
+        else:
+            sm = fixed_lag_smooth(res, np.asarray(t, dtype=float), lag, params.reverse)
+        return freeze(sm.states)
+
+    return _SMOOTH_MEMO.get((*pass_key(t, obs, offsets, params), lag), compute)
+
+
 def smoothed_heading(t: np.ndarray, obs: np.ndarray, config: SensorConfig,
                      params: PoseFilterParams | None = None, lag_s: float | None = None
                      ) -> np.ndarray:
@@ -167,13 +207,13 @@ def smoothed_heading(t: np.ndarray, obs: np.ndarray, config: SensorConfig,
     lag_s : None = full RTS (every epoch from all the data); a number = fixed-lag.
     NaN before the filter starts (:mod:`estimator.pose_filter`). Meant as the heading input
     of other estimators, e.g. the lag correction (Section 3.4.2 of the dissertation uses the
-    platform's orientation; a smoothed one removes most of its noise).
+    platform's orientation; a smoothed one removes most of its noise). The forward pass and
+    the smoothing are memoised per process (:func:`memo_smoothed_states`), so a heading of
+    data the filter has already run on costs a look-up.
     """
     if not isinstance(config, SensorConfig):
         raise TypeError(f"config: expected a SensorConfig, got {type(config).__name__}")
     cfg = config.planar()
     p = params if params is not None else PoseFilterParams()
-    res = run_pose_filter(t, obs, cfg.body_positions - cfg.cg_body, p)
-    sm = (rts_smooth(res, p.reverse) if lag_s is None
-          else fixed_lag_smooth(res, np.asarray(t, dtype=float), lag_s, p.reverse))
-    return sm.states[:, YAW].copy()
+    states = memo_smoothed_states(t, obs, cfg.body_positions - cfg.cg_body, p, lag_s)
+    return states[:, YAW].copy()

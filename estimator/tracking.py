@@ -72,9 +72,7 @@ Observations are planar ``(n, m, 2)``; a 3-D configuration is projected (``confi
 
 from __future__ import annotations
 
-import hashlib
 import warnings
-from collections import OrderedDict
 from dataclasses import dataclass
 from typing import Any
 
@@ -89,9 +87,10 @@ from estimator._checks import check_increasing_times, check_int
 from estimator.configuration import LayoutWarning, SensorConfig
 from estimator.elastic import elastic_batch
 from estimator.layout_check import check_layout
+from estimator.memo import ContentMemo, content_digest
 from estimator.motion import motion_compensated_batch, motion_compensated_series
 from estimator.orientation import law_of_cosines_heading
-from estimator.pose_filter import PoseFilterParams, run_pose_filter
+from estimator.pose_filter import PoseFilterParams, memo_pose_filter
 from estimator.track_options import (
     FILTER_METHODS,
     GROWTH_RULES,
@@ -389,39 +388,30 @@ def _elastic_moments(obs, cfg, ends, w, *, weighting, rng, huff_threshold, huber
     return means, wax
 
 
-#: Elastic window fits memoised per process, keyed by content: a sweep fits the same windows
-#: of the same observations for several techniques (none, lc and lc_course share one track's
-#: fits; dyn, lc+dyn and lc_course+dyn another's). A hit is an identical request (the same
-#: observations, configuration, windows and options), so it returns exactly what the call
-#: would. Random weights are never memoised (they consume the generator). Least recently used
-#: first out; one entry holds N x m x 2 positions (~0.5 MB for 4000 windows of 8 sensors).
-_ELASTIC_MEMO: OrderedDict[tuple, tuple[np.ndarray, np.ndarray, np.ndarray]] = OrderedDict()
-_ELASTIC_MEMO_SIZE = 16
+#: Elastic window fits memoised per process, keyed by content (:mod:`estimator.memo`): a
+#: sweep fits the same windows of the same observations for several techniques (none, lc and
+#: lc_course share one track's fits; dyn, lc+dyn and lc_course+dyn another's). A hit is an
+#: identical request (the same observations, configuration, windows and options), so it
+#: returns exactly what the call would. Random weights are never memoised (they consume the
+#: generator). One entry holds N x m x 2 positions (~0.5 MB for 4000 windows of 8 sensors).
+_ELASTIC_MEMO = ContentMemo(16)
 
 
 def _elastic_fits(obs, cfg, ends, w, *, weighting, rng, huff_threshold, huber_c, eps, fit_kw):
     """(positions (N, m, 2), yaw (N,), status (N,) object) of the elastic fits of the windows
     ending at ``ends`` (:func:`estimator.elastic.elastic_batch`), memoised by content."""
-    key = None
-    if weighting != "random":
-        h = hashlib.blake2b(np.ascontiguousarray(obs).tobytes(), digest_size=16)
-        h.update(np.ascontiguousarray(ends).tobytes())
-        h.update(np.ascontiguousarray(cfg.body_positions).tobytes())
-        key = (h.hexdigest(), obs.shape, ends.size, int(w), weighting, repr(huff_threshold),
-               float(huber_c), float(eps), repr(sorted(fit_kw.items())))
-        if key in _ELASTIC_MEMO:
-            _ELASTIC_MEMO.move_to_end(key)
-            pos, yaw, status = _ELASTIC_MEMO[key]
-            return pos.copy(), yaw.copy(), status.copy()
-    means, wax = _elastic_moments(obs, cfg, ends, w, weighting=weighting, rng=rng,
-                                  huff_threshold=huff_threshold, huber_c=huber_c)
-    ef = elastic_batch(means, wax, cfg, eps, **fit_kw)
-    out = (ef.positions, ef.yaw, ef.status.astype(object))
-    if key is not None:
-        _ELASTIC_MEMO[key] = out
-        while len(_ELASTIC_MEMO) > _ELASTIC_MEMO_SIZE:
-            _ELASTIC_MEMO.popitem(last=False)
-    return out[0].copy(), out[1].copy(), out[2].copy()
+    def fits():
+        means, wax = _elastic_moments(obs, cfg, ends, w, weighting=weighting, rng=rng,
+                                      huff_threshold=huff_threshold, huber_c=huber_c)
+        ef = elastic_batch(means, wax, cfg, eps, **fit_kw)
+        return ef.positions, ef.yaw, ef.status.astype(object)
+
+    if weighting == "random":
+        return fits()
+    key = (content_digest(obs, ends, cfg.body_positions), int(w), weighting,
+           repr(huff_threshold), float(huber_c), float(eps), repr(sorted(fit_kw.items())))
+    pos, yaw, status = _ELASTIC_MEMO.get(key, fits)
+    return pos.copy(), yaw.copy(), status.copy()
 
 
 def _runs(values: np.ndarray) -> list[tuple[int, int]]:
@@ -798,17 +788,20 @@ def _run_filter(tt, o, cfg, s, params, method):
         X, status = res.fixed_lag, res.status
         extra = {}
     else:
-        res = run_pose_filter(tt, o, offsets, params)
+        # one forward pass (and smoothing) per (observations, params) in this process,
+        # shared by the rows at every window, the smoothers and the smoothed heading of the
+        # lag correction (estimator.memo); the memoised arrays are read-only, the rows copy
+        res = memo_pose_filter(tt, o, offsets, params)
         X, status = res.states, res.status
         if method == "ekf_smoother":
-            X = _smoother.rts_smooth(res, params.reverse, covariances=False).states
+            X = _smoother.memo_smoothed_states(tt, o, offsets, params)
         elif method == "ekf_fixed_lag":
-            X = _smoother.fixed_lag_smooth(res, tt, params.lag_s, params.reverse).states
-        extra = {"n_used": res.n_used[k0:], "n_gated": res.n_gated[k0:],
-                 "n_steps": res.n_steps[k0:]}
+            X = _smoother.memo_smoothed_states(tt, o, offsets, params, params.lag_s)
+        extra = {"n_used": res.n_used[k0:].copy(), "n_gated": res.n_gated[k0:].copy(),
+                 "n_steps": res.n_steps[k0:].copy()}
     X = X[k0:]
     c, sn = np.cos(X[:, 2]), np.sin(X[:, 2])
     R = np.stack([np.stack([c, -sn], -1), np.stack([sn, c], -1)], -2)  # (N, 2, 2)
     pos = X[:, None, :2] + np.einsum("nab,mb->nma", R, r_m)
-    extra = {"speed": X[:, 3], "yaw_rate": X[:, 5], **extra}
+    extra = {"speed": X[:, 3].copy(), "yaw_rate": X[:, 5].copy(), **extra}
     return pos, X[:, 2].copy(), np.asarray(status[k0:], dtype=object), extra

@@ -40,7 +40,7 @@ import matplotlib.pyplot as plt
 import numpy as np
 import pandas as pd
 
-__all__ = ["draw_all", "load_epochs", "main"]
+__all__ = ["draw_all", "draw_task", "figure_tasks", "load_epochs", "main"]
 
 PATH_LABELS = {"square100": "Path 1", "square200": "Path 2"}
 WEIGHT_COLORS = {"none": "#1f77b4", "random": "#7f7f7f", "huff": "#d62728"}
@@ -56,21 +56,56 @@ TECH_LABELS = {"none": "None", "lc": "LC", "dyn": "Dyn SW", "lc+dyn": "LC+Dyn",
 ORACLES = ("lc_sim_heading", "lc_sim_heading+dyn")
 
 
+class _EpochColumns:
+    """The columns of one per-epoch file, each read on first use (``ep[name]``, a Series;
+    ``ep.columns``, the names): a figure draws a few of its ~90 columns, so reading only
+    those is what makes loading cheap."""
+
+    def __init__(self, path: Path):
+        import pyarrow.parquet as pq
+
+        self._file = pq.ParquetFile(path)
+        self.columns = list(self._file.schema_arrow.names)
+        self._cols: dict[str, pd.Series] = {}
+
+    def __getitem__(self, name: str) -> pd.Series:
+        if name not in self._cols:
+            if name not in self.columns:
+                raise KeyError(name)
+            self._cols[name] = self._file.read(columns=[name]).column(0).to_pandas()
+        return self._cols[name]
+
+
+#: (cells.parquet path, size, mtime) -> (variant, index): the figure groups a worker draws
+#: share one reading of the cell table.
+_INDEX_CACHE: dict[tuple, tuple[str, pd.DataFrame]] = {}
+
+
+def _epoch_index(cells_file: Path) -> tuple[str, pd.DataFrame]:
+    """The cells with per-epoch files (one row each) of the figures' variant."""
+    from experiments.tables import faithful, variants
+
+    st = cells_file.stat()
+    key = (str(cells_file.resolve()), st.st_size, st.st_mtime_ns)
+    if key not in _INDEX_CACHE:
+        cells = pd.read_parquet(cells_file)
+        # several variants (e.g. two configurations): the figures show the first one; of a
+        # dynamic window run under several growth rules, the faithful one (tables.faithful)
+        variant, cells = variants(cells)[0]
+        cells = faithful(cells)
+        idx = cells[cells["has_epochs"]] if "has_epochs" in cells else cells.iloc[:0]
+        _INDEX_CACHE.clear()
+        _INDEX_CACHE[key] = (variant, idx.drop_duplicates("key").reset_index(drop=True))
+    return _INDEX_CACHE[key]
+
+
 class _Epochs:
     """Index of a results folder's per-epoch files, loaded lazily."""
 
     def __init__(self, out: Path):
         self.out = Path(out)
-        from experiments.tables import faithful, variants
-
-        cells = pd.read_parquet(self.out / "cells.parquet")
-        # several variants (e.g. two configurations): the figures show the first one; of a
-        # dynamic window run under several growth rules, the faithful one (tables.faithful)
-        self.variant, cells = variants(cells)[0]
-        cells = faithful(cells)
-        idx = cells[cells["has_epochs"]] if "has_epochs" in cells else cells.iloc[:0]
-        self.index = idx.drop_duplicates("key").reset_index(drop=True)
-        self._cache: dict[str, pd.DataFrame] = {}
+        self.variant, self.index = _epoch_index(self.out / "cells.parquet")
+        self._cache: dict[str, _EpochColumns] = {}
 
     def straights_mask(self) -> str:
         """The no-turns mask of the per-epoch files: whole window free of turns where they
@@ -87,10 +122,15 @@ class _Epochs:
             mk &= col.isin(v).to_numpy() if isinstance(v, (list, tuple)) else (col == v).to_numpy()
         return self.index[mk]
 
-    def load(self, key: str) -> pd.DataFrame:
+    def load(self, key: str) -> _EpochColumns:
+        """The per-epoch table of cell ``key`` (its columns read on first use)."""
         if key not in self._cache:
-            self._cache[key] = pd.read_parquet(self.out / "epochs" / f"{key}.parquet")
+            self._cache[key] = _EpochColumns(self.out / "epochs" / f"{key}.parquet")
         return self._cache[key]
+
+    def loaded(self) -> list[str]:
+        """Keys of the per-epoch files read so far (a figure's inputs)."""
+        return sorted(self._cache)
 
     def pooled(self, column: str, mask: str = "full", **where) -> tuple[np.ndarray, list[int]]:
         """Concatenated |column| over the matching cells' epochs (all saved seeds)."""
@@ -298,7 +338,7 @@ def _overlay_figs(E: _Epochs, out: Path, written: list[Path]) -> None:
             _save(fig, out / f"fig_overlay_{path}_w{w}.png", written)
 
 
-def _sensor1(ep: pd.DataFrame) -> str:
+def _sensor1(ep: _EpochColumns) -> str:
     names = [c[2:] for c in ep.columns if c.startswith("x_")]
     return "1" if "1" in names else names[0]
 
@@ -432,13 +472,21 @@ _TASKS = ("weighting", "orientation", "lag_correction", "dynamic", "lc_dyn", "be
 
 def _draw(out: Path, task: str) -> list[Path]:
     """One group of figures (a task of :func:`draw_all`)."""
+    return draw_task(out, task)[0]
+
+
+def draw_task(out_dir: str | Path, task: str) -> tuple[list[Path], list[str]]:
+    """Draw one group of figures (:func:`figure_tasks`) of a results folder; returns the
+    files written and the keys of the per-epoch files read (the group's inputs besides
+    cells.parquet; the "tables" group reads the table CSVs instead)."""
+    out = Path(out_dir)
     written: list[Path] = []
     if task == "tables":
         _tables_fig(out, written)
-        return written
+        return written, []
     E = _Epochs(out)
     if E.index.empty:
-        return written
+        return written, []
     if task == "weighting":
         _weighting_figs(E, out, written)
     elif task == "orientation":
@@ -447,7 +495,8 @@ def _draw(out: Path, task: str) -> list[Path]:
         _technique_fig(E, out, written, "fig_4_120_121_lag_correction.png",
                        "lag correction on the full path and without turns (Figs 4.120/4.121)",
                        ["none", "lc"], ["full", E.straights_mask()])
-    elif task == "oracle":
+    elif task == "oracle" and not E.find(technique=list(ORACLES)).empty:
+        # (without an oracle row it would repeat the lag-correction figures)
         _technique_fig(E, out, written, "fig_oracle_lag_heading.png",
                        "lag correction with the estimated vs the simulator's heading (ORACLE)",
                        ["none", "lc", "lc_sim_heading", "lc+dyn", "lc_sim_heading+dyn"],
@@ -468,7 +517,7 @@ def _draw(out: Path, task: str) -> list[Path]:
         _overlay_figs(E, out, written)
     elif task == "sensor1":
         _sensor1_lag_figs(E, out, written)
-    return written
+    return written, E.loaded()
 
 
 def figure_tasks() -> tuple:

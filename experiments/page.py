@@ -71,7 +71,8 @@ import pandas as pd
 
 from sim.atomic import atomic_write_text
 
-__all__ = ["ASSETS", "build_page", "flight_source", "main", "replay_source", "write_page"]
+__all__ = ["ASSETS", "build_page", "flight_source", "main", "own_replay", "replay_source",
+           "write_page"]
 
 ASSETS = Path(__file__).resolve().parent / "page_assets"
 REPO = Path(__file__).resolve().parents[1]
@@ -116,7 +117,8 @@ class _EpochFile:
         import pyarrow.parquet as pq
 
         self.path = path
-        self.names = pq.read_schema(path).names
+        self._file = pq.ParquetFile(path)      # footer parsed once, columns read on demand
+        self.names = self._file.schema_arrow.names
         self._cols: dict[str, np.ndarray] = {}
         missing = [c for c in REQUIRED if c not in self.names]
         if missing:
@@ -126,11 +128,9 @@ class _EpochFile:
         return name in self.names
 
     def load(self, names: list[str]) -> None:
-        import pyarrow.parquet as pq
-
         want = [n for n in names if n in self.names and n not in self._cols]
         if want:
-            tb = pq.read_table(self.path, columns=want)
+            tb = self._file.read(columns=want)
             for n in want:
                 self._cols[n] = tb.column(n).to_numpy(zero_copy_only=False)
 
@@ -491,20 +491,35 @@ def _header(results: Path) -> tuple[str, str]:
                   f"<div class=\"meta\">{meta}</div>")
 
 
+def own_replay(results: str | Path, max_points: int = 1000) -> tuple[dict | None, str]:
+    """The replay of the results folder's own cells as :func:`build_page` makes it: (the
+    :func:`replay_source` payload or None, the error box when it failed or ""). The sweep
+    computes it in a worker beside the figures and hands it to :func:`write_page`."""
+    results = Path(results)
+    name, _ = _header(results)
+    return _safe(f"the replay of {results}", replay_source, results, max_points=max_points,
+                 title=f"{name} (this run)")
+
+
 def build_page(results: str | Path, *, ultrasonic: str | Path | None = ULTRASONIC_DIR,
-               extra: tuple[str | Path, ...] = (), max_points: int = 1000) -> str:
+               extra: tuple[str | Path, ...] = (), max_points: int = 1000,
+               replay: tuple[dict | None, str] | None = None) -> str:
     """The HTML text of a results folder's page (see the module docstring).
 
     ultrasonic : folder with ``flight_series.csv`` (None: no flight replay).
     extra : further results folders (same file contract) replayed beside this one.
     max_points : epochs kept per track in a replay (every k-th epoch).
+    replay : this folder's replay made beforehand by :func:`own_replay` (None: made here).
     """
     results = Path(results)
     name, head = _header(results)
     gps, errs = [], []
     for i, folder in enumerate((results, *extra)):
-        src, err = _safe(f"the replay of {folder}", replay_source, folder, max_points=max_points,
-                         title=None if i else f"{name} (this run)")
+        if i == 0:
+            src, err = replay if replay is not None else own_replay(results, max_points)
+        else:
+            src, err = _safe(f"the replay of {folder}", replay_source, folder,
+                             max_points=max_points)
         errs.append(err)
         if src:
             gps.append(src)
@@ -572,12 +587,13 @@ def build_page(results: str | Path, *, ultrasonic: str | Path | None = ULTRASONI
 
 def write_page(results: str | Path, *, out: str | Path | None = None,
                ultrasonic: str | Path | None = ULTRASONIC_DIR,
-               extra: tuple[str | Path, ...] = (), max_points: int = 1000) -> Path:
+               extra: tuple[str | Path, ...] = (), max_points: int = 1000,
+               replay: tuple[dict | None, str] | None = None) -> Path:
     """Write ``<results>/index.html`` (or ``out``); returns its path. See :func:`build_page`."""
     results = Path(results)
     path = Path(out) if out is not None else results / "index.html"
     return atomic_write_text(path, build_page(results, ultrasonic=ultrasonic, extra=extra,
-                                              max_points=max_points))
+                                              max_points=max_points, replay=replay))
 
 
 def main(argv: list[str] | None = None) -> int:

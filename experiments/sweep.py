@@ -61,6 +61,7 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
+from estimator.memo import ledger
 from estimator.track_options import FILTER_METHODS
 from estimator.window import SOLVERS
 from experiments.provenance import code_version
@@ -147,8 +148,23 @@ class Results:
         return (f"{self.spec.name}: {self.n_cells} cells ({self.n_computed} computed, "
                 f"{self.n_resumed} resumed, {self.n_failed} failed) in {self.wall_s:.1f} s "
                 f"[simulation {self.timings.get('simulate_s', 0):.1f} s, cells "
-                f"{self.timings.get('cells_s', 0):.1f} s = {rate:.0f} cells/s, outputs "
-                f"{self.timings.get('outputs_s', 0):.1f} s] -> {self.out_dir}")
+                f"{self.timings.get('cells_s', 0):.1f} s = {rate:.0f} cells/s{self._beside()}, "
+                "outputs "
+                f"{self.timings.get('outputs_s', 0):.1f} s{self._outputs_note()}] -> "
+                f"{self.out_dir}")
+
+    def _beside(self) -> str:
+        """" (2.1 s beside the simulation)" when cells ran while truths were simulated."""
+        t = self.timings.get("cells_beside_simulation_s", 0.0)
+        return f" ({t:.1f} s beside the simulation)" if t >= 0.05 else ""
+
+    def _outputs_note(self) -> str:
+        """", 3 of 12 rewritten" when the outputs phase skipped unchanged outputs."""
+        o = self.timings.get("outputs")
+        if not o or not o.get("unchanged"):
+            return ""
+        n = len(o["written"]) + len(o["unchanged"])
+        return f", {len(o['written'])} of {n} rewritten"
 
 
 # --------------------------------------------------------------------------- randomness
@@ -478,8 +494,12 @@ def _run_batch(cells: list[Cell], truth, spec_seed: int, masks: tuple[str, ...],
                           want_epochs=w, memo=_WORKER_MEMO)
         t0 = time.perf_counter()
         try:
-            res = fn(cell, truth, ctx)
+            with ledger() as reused:
+                res = fn(cell, truth, ctx)
             res.timings["t_cell_s"] = time.perf_counter() - t0
+            # what the cell took from the per-process memo (estimator.memo), at the cost it
+            # had when computed: t_track_s + t_reused_s is the cell's stand-alone cost
+            res.timings["t_reused_s"] = reused.seconds
             out.append({"key": cell.key, "ok": True, "rows": res.rows, "epochs": res.epochs,
                         "timings": res.timings, "status_counts": res.status_counts})
         except Exception as exc:  # noqa: BLE001 - a cell's failure is data, not a crash
@@ -550,8 +570,10 @@ class CellStore:
             return
         if res.get("epochs") is not None:
             ep = res["epochs"]
+            # no dictionary encoding: per-epoch floats rarely repeat, so it only costs
+            # (half the write time, files 18 % smaller on the thesis preset)
             self._atomic(self.epochs_dir / f"{cell.key}.parquet",
-                         lambda p: ep.to_parquet(p, index=False))
+                         lambda p: ep.to_parquet(p, index=False, use_dictionary=False))
         rec = {"key": cell.key, "params": cell.params(), "rows": res["rows"],
                "timings": res["timings"], "status_counts": res["status_counts"],
                "epochs": res.get("epochs") is not None, "code": cell_code_digest()}
@@ -619,31 +641,67 @@ def _write_json(path: Path, obj: Any) -> None:
 
 
 # --------------------------------------------------------------------------- scheduling
-def _batches(todo: list[Cell], jobs: int) -> list[list[Cell]]:
-    """Group cells by noise key (they share observations), chunked for load balance."""
+#: Cost of the pose filter's forward pass in cells' worth of work (per epoch: ~135 us for the
+#: pass against ~17 us for a window cell tracked and scored; measured on the thesis preset).
+_PASS_COST_CELLS = 8
+
+
+def _uses_pose_filter(cell: Cell) -> bool:
+    """Whether a cell runs the pose filter's forward pass: the filter family, and the lag
+    correction fed the smoothed heading (see :func:`evaluate_cell`)."""
+    tech = technique(cell.technique)
+    return tech.method in FILTER_METHODS or tech.lag_heading == "smoothed"
+
+
+def _batches(todo: list[Cell], jobs: int, epochs: Callable[[Cell], int] | None = None
+             ) -> list[list[Cell]]:
+    """Tasks for the workers, largest first.
+
+    The cells of one noise key share their observations and, those that run the pose
+    filter, one forward pass (both memoised per worker process: ``CellContext.memo`` and
+    :mod:`estimator.memo`), so a noise key is one task when there are enough keys for load
+    balance (4 tasks per worker); otherwise its cells are chunked, the pose-filter cells
+    kept in one chunk. Tasks are ordered by estimated cost (cells x ``epochs(cell)``, a
+    forward pass counted as :data:`_PASS_COST_CELLS` cells), largest first, so the tasks
+    that finish last are short and the workers finish together.
+    """
     groups: OrderedDict[tuple, list[Cell]] = OrderedDict()
     for c in todo:
         groups.setdefault(c.noise_key, []).append(c)
-    # >= 8 tasks per worker for load balance and a lively progress bar, <= 16 cells per task
-    target = max(1, min(16, math.ceil(len(todo) / max(1, jobs * 8))))
+    size = max(1, math.ceil(len(todo) / max(1, 4 * jobs)))      # cells per task
     out = []
     for cells in groups.values():
-        n_chunks = max(1, round(len(cells) / target))
-        size = math.ceil(len(cells) / n_chunks)
-        out.extend(cells[i:i + size] for i in range(0, len(cells), size))
+        if len(cells) <= size:
+            out.append(cells)
+            continue
+        pf = [c for c in cells if _uses_pose_filter(c)]
+        rest = [c for c in cells if not _uses_pose_filter(c)]
+        if pf:
+            out.append(pf)
+        n_chunks = max(1, round(len(rest) / size))
+        step = math.ceil(len(rest) / n_chunks) if rest else 1
+        out.extend(rest[i:i + step] for i in range(0, len(rest), step))
+    n_ep = epochs or (lambda _c: 1)
+
+    def cost(b: list[Cell]) -> float:
+        passes = _PASS_COST_CELLS if any(_uses_pose_filter(c) for c in b) else 0
+        return (len(b) + passes) * n_ep(b[0])
+
+    out.sort(key=cost, reverse=True)       # stable: equal costs keep the spec's order
     return out
 
 
 def _iter_loky(batches, truths, spec, wants, jobs, cell_fn, store_dir, run_id
                ) -> Iterator[list[dict]]:
+    """The batches on the loky workers; they start at once (several such iterators may run
+    side by side on the same workers). Results arrive in completion order; each carries its
+    cells' keys."""
     from joblib import Parallel, delayed
 
     par = Parallel(n_jobs=jobs, backend="loky", return_as="generator_unordered")
-    tasks = (delayed(_run_batch)(b, truths[b[0].truth_key], spec.seed, spec.masks,
-                                 spec.session_s, w, cell_fn, store_dir, run_id)
-             for b, w in zip(batches, wants))
-    # results arrive in completion order; each carries its cells' keys
-    yield from par(tasks)
+    return par(delayed(_run_batch)(b, truths[b[0].truth_key], spec.seed, spec.masks,
+                                   spec.session_s, w, cell_fn, store_dir, run_id)
+               for b, w in zip(batches, wants))
 
 
 #: Seconds to wait for a Dask scheduler before giving up with a clear message.
@@ -712,36 +770,77 @@ def _simulate_all(cells: list[Cell], spec: Spec, jobs: int, truth_fn, cache_dir,
     from tqdm import tqdm
 
     keys = list(OrderedDict.fromkeys(c.truth_key for c in cells))
+    bar = tqdm(total=len(keys), unit="truth", desc=f"{spec.name}: simulate",
+               disable=not progress, dynamic_ncols=True)
     out: dict = {}
+    try:
+        for k, tr in _iter_truths(cells, spec, jobs, truth_fn, cache_dir):
+            out[k] = tr
+            bar.update()
+    finally:
+        bar.close()
+    return {k: out[k] for k in keys}
+
+
+def _keyed_truth(fn: Callable, key: tuple, *args: Any) -> tuple[tuple, Any]:
+    return key, fn(*args)
+
+
+def _iter_truths(cells: list[Cell], spec: Spec, jobs: int, truth_fn, cache_dir,
+                 on_queued: Callable[[], object] | None = None
+                 ) -> Iterator[tuple[tuple, Any]]:
+    """(truth key, truth) of every distinct (path, configuration) of ``cells`` as each is
+    ready: recordings loaded here, simulations (or truth-cache loads) side by side in the
+    worker processes when jobs > 1 and there are several, else here. ``on_queued`` is
+    called once the worker simulations are queued, or before this process simulates (e.g.
+    to give idle workers something to do meanwhile)."""
+    keys = list(OrderedDict.fromkeys(c.truth_key for c in cells))
     if any(k[0] == "recording" for k in keys):
         from sim.recording import load_recording
 
         for k in [k for k in keys if k[0] == "recording"]:
-            out[k] = load_recording(k[1])           # its logs, once, in the parent
+            yield k, load_recording(k[1])           # its logs, once, in the parent
         keys = [k for k in keys if k[0] != "recording"]
-        if not keys:
-            return out
     fn = truth_fn or simulate_truth
-    args = [(pf, po, cf, spec.sim_seed, cache_dir) for (pf, po, cf) in keys]
-    bar = tqdm(total=len(keys), unit="truth", desc=f"{spec.name}: simulate",
-               disable=not progress, dynamic_ncols=True)
-    try:
-        if jobs > 1 and len(keys) > 1:
-            from joblib import Parallel, delayed
+    args = [(fn, k, *k, spec.sim_seed, cache_dir) for k in keys]
+    if jobs > 1 and len(keys) > 1:
+        from joblib import Parallel, delayed
 
-            truths = []
-            for tr in Parallel(n_jobs=min(jobs, len(keys)), backend="loky",
-                               return_as="generator")(delayed(fn)(*a) for a in args):
-                truths.append(tr)
-                bar.update()
-        else:
-            truths = []
-            for a in args:
-                truths.append(fn(*a))
-                bar.update()
-    finally:
-        bar.close()
-    return {**out, **dict(zip(keys, truths))}
+        # n_jobs = jobs (not fewer): the cells reuse the same worker processes
+        sims = Parallel(n_jobs=jobs, backend="loky", return_as="generator_unordered")(
+            delayed(_keyed_truth)(*a) for a in args)
+        if on_queued is not None:
+            on_queued()
+        yield from sims
+    else:
+        if on_queued is not None:
+            on_queued()
+        for a in args:
+            yield _keyed_truth(*a)
+
+
+def _warm_up(outputs: bool) -> int:
+    """A worker's first task beside the simulations: import what the cells (and, with
+    ``outputs``, the tables, report and figures) need and load matplotlib's fonts, so
+    that start-up cost is paid while a simulation runs, not on the critical path.
+    Returns the worker's process id."""
+    import estimator.tracking  # noqa: F401
+    import sim.gps  # noqa: F401
+
+    if outputs:
+        import matplotlib
+
+        matplotlib.use("Agg")
+        import matplotlib.pyplot as plt
+
+        import experiments.figures
+        import experiments.report  # noqa: F401
+
+        fig = plt.figure(figsize=(1, 1))
+        fig.text(0.5, 0.5, "x")
+        fig.canvas.draw()
+        plt.close(fig)
+    return os.getpid()
 
 
 # --------------------------------------------------------------------------- run
@@ -815,38 +914,92 @@ def run(spec: Spec | str | Path, *, out: str | Path | None = None, jobs: int | N
 
     try:
         t_sim0 = time.perf_counter()
-        truths = _simulate_all(todo, spec, jobs, truth_fn,
-                               str(cache_dir) if cache_dir else None,
-                               progress=progress) if todo else {}
-        t_sim = time.perf_counter() - t_sim0
+        n_done_now, t_overlap = 0, 0.0
+        from tqdm import tqdm
 
-        t_cells0 = time.perf_counter()
-        n_done_now = 0
-        if todo:
-            batches = _batches(todo, jobs)
-            wants = [[spec.epochs_wanted(c) for c in b] for b in batches]
-            from tqdm import tqdm
+        bar = None
+        try:
+            if todo and backend == "loky" and jobs > 1:
+                # pipelined: the cells of a truth start on the workers the moment it is ready,
+                # beside the simulations still running
+                sbar = tqdm(total=len({c.truth_key for c in todo}), unit="truth",
+                            desc=f"{spec.name}: simulate", disable=not progress,
+                            dynamic_ncols=True)
+                by_truth: OrderedDict[tuple, list[Cell]] = OrderedDict()
+                for c in todo:
+                    by_truth.setdefault(c.truth_key, []).append(c)
+                truths: dict = {}
+                running = []
+                t_cells0 = None
+                warm: list = []
 
-            bar = tqdm(total=len(todo), unit="cell", desc=spec.name, disable=not progress,
-                       smoothing=0.1, dynamic_ncols=True)
-            if jobs == 1 and backend == "loky":
-                it = (_run_batch(b, truths[b[0].truth_key], spec.seed, spec.masks,
-                                 spec.session_s, w, cell_fn, str(out_dir), run_id)
-                      for b, w in zip(batches, wants))
-            elif backend == "loky":
-                it = _iter_loky(batches, truths, spec, wants, jobs, cell_fn, str(out_dir), run_id)
+                def warm_up() -> None:
+                    from joblib import Parallel, delayed
+
+                    warm.append(Parallel(n_jobs=jobs, backend="loky",
+                                         return_as="generator_unordered")(
+                        delayed(_warm_up)(outputs and figures) for _ in range(jobs)))
+
+                try:
+                    for key, tr in _iter_truths(todo, spec, jobs, truth_fn,
+                                                str(cache_dir) if cache_dir else None,
+                                                on_queued=warm_up):
+                        truths[key] = tr
+                        sbar.update()
+                        batches = _batches(by_truth[key], jobs,
+                                           lambda c: len(getattr(truths[c.truth_key], "t", ()))
+                                           or 1)
+                        wants = [[spec.epochs_wanted(c) for c in b] for b in batches]
+                        t_cells0 = t_cells0 or time.perf_counter()
+                        running.append(_iter_loky(batches, truths, spec, wants, jobs, cell_fn,
+                                                  str(out_dir), run_id))
+                finally:
+                    sbar.close()
+                t_sim = time.perf_counter() - t_sim0
+                t_overlap = max(0.0, t_sim0 + t_sim - (t_cells0 or t_sim0 + t_sim))
+                bar = tqdm(total=len(todo), unit="cell", desc=spec.name, disable=not progress,
+                           smoothing=0.1, dynamic_ncols=True)
+                for it in (*warm, *running):
+                    for results in it:
+                        if isinstance(results, int):      # a warm-up's process id
+                            continue
+                        for res in results:
+                            if not res.get("written"):
+                                store.write(by_key[res["key"]], res)
+                            n_done_now += 1
+                        bar.update(len(results))
             else:
-                it = _iter_dask(batches, truths, spec, wants, jobs, cell_fn, scheduler, run_id)
-            try:
-                for results in it:
-                    for res in results:
-                        if not res.get("written"):
-                            store.write(by_key[res["key"]], res)
-                        n_done_now += 1
-                    bar.update(len(results))
-            finally:
+                truths = _simulate_all(todo, spec, jobs, truth_fn,
+                                       str(cache_dir) if cache_dir else None,
+                                       progress=progress) if todo else {}
+                t_sim = time.perf_counter() - t_sim0
+                t_cells0 = time.perf_counter()
+                if todo:
+                    batches = _batches(todo, jobs,
+                                       lambda c: len(getattr(truths[c.truth_key], "t", ())) or 1)
+                    wants = [[spec.epochs_wanted(c) for c in b] for b in batches]
+                    bar = tqdm(total=len(todo), unit="cell", desc=spec.name,
+                               disable=not progress, smoothing=0.1, dynamic_ncols=True)
+                    if jobs == 1 and backend == "loky":
+                        it = (_run_batch(b, truths[b[0].truth_key], spec.seed, spec.masks,
+                                         spec.session_s, w, cell_fn, str(out_dir), run_id)
+                              for b, w in zip(batches, wants))
+                    elif backend == "loky":
+                        it = _iter_loky(batches, truths, spec, wants, jobs, cell_fn,
+                                        str(out_dir), run_id)
+                    else:
+                        it = _iter_dask(batches, truths, spec, wants, jobs, cell_fn, scheduler,
+                                        run_id)
+                    for results in it:
+                        for res in results:
+                            if not res.get("written"):
+                                store.write(by_key[res["key"]], res)
+                            n_done_now += 1
+                        bar.update(len(results))
+        finally:
+            if bar is not None:
                 bar.close()
-        t_cells = time.perf_counter() - t_cells0
+        t_cells = time.perf_counter() - t_cells0 if todo else 0.0
 
         t_out0 = time.perf_counter()
         keys = [c.key for c in cells]
@@ -856,27 +1009,20 @@ def run(spec: Spec | str | Path, *, out: str | Path | None = None, jobs: int | N
         _write_json(out_dir / "errors.json", errors)
         res = Results(spec=spec, out_dir=out_dir, cells=table, errors=errors, n_cells=len(cells),
                       n_computed=n_done_now - len(errors), n_resumed=len(done), wall_s=0.0)
+        out_info: dict = {}
         if outputs and not table.empty:
             from tqdm import tqdm
 
-            from experiments import figures as figs
-            from experiments import report, tables
+            from experiments.outputs import n_steps, write_outputs
 
-            n_fig = len(figs.figure_tasks()) if figures else 0
-            obar = tqdm(total=3 + n_fig, unit="step", desc=f"{spec.name}: outputs",
+            # tables, report, figures (side by side in the workers) and index.html, each
+            # only where its inputs changed (experiments.outputs)
+            obar = tqdm(total=n_steps(figures), unit="step", desc=f"{spec.name}: outputs",
                         disable=not progress, dynamic_ncols=True)
             try:
-                tables.write_tables(table, out_dir)
-                obar.update()
-                report.write_report(table, out_dir, spec=spec)
-                obar.update()
-                if figures:
-                    figs.draw_all(out_dir, jobs=jobs if backend == "loky" else 1,
-                                  on_done=lambda _paths: obar.update())
-                from experiments import page
-
-                page.write_page(out_dir)      # index.html: replay, claims, tables, figures
-                obar.update()
+                out_info = write_outputs(table, out_dir, spec=spec,
+                                         jobs=jobs if backend == "loky" else 1,
+                                         figures=figures, on_step=lambda _name: obar.update())
             finally:
                 obar.close()
             if figures and not table.get("has_epochs", pd.Series(dtype=bool)).any():
@@ -899,8 +1045,12 @@ def run(spec: Spec | str | Path, *, out: str | Path | None = None, jobs: int | N
                          "free space or fix permissions and rerun the same command to "
                          "resume") from None
     res.wall_s = time.perf_counter() - t_start
-    res.timings = {"simulate_s": t_sim, "cells_s": t_cells, "outputs_s": t_out,
-                   "wall_s": res.wall_s}
+    res.timings = {"simulate_s": t_sim, "cells_s": t_cells, "cells_beside_simulation_s":
+                   t_overlap, "outputs_s": t_out, "wall_s": res.wall_s}
+    if out_info:
+        res.timings["outputs"] = {"written": out_info["written"],
+                                  "unchanged": out_info["skipped"],
+                                  "seconds": out_info["seconds"]}
     manifest["status"] = "complete" if not errors else "complete_with_errors"
     run_info.update({"finished_utc": time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime()),
                      "n_computed": res.n_computed, "n_resumed": res.n_resumed,
@@ -997,6 +1147,38 @@ def build_parser() -> argparse.ArgumentParser:
     return p
 
 
+def _started() -> int:
+    """A worker's first task: the imports of a simulation (its likely next task)."""
+    import sim.rover  # noqa: F401
+
+    return os.getpid()
+
+
+def _prestart(jobs: int) -> Iterator[int]:
+    """Start the ``jobs`` loky workers now, before the spec is read and checked here (their
+    interpreter start and first imports overlap that, about 1 s); returns the iterator of
+    their first tasks, to keep until the run is done."""
+    from joblib import Parallel, delayed
+
+    for var in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS"):
+        os.environ.setdefault(var, "1")      # as run() sets them, before any worker starts
+    return Parallel(n_jobs=jobs, backend="loky", return_as="generator_unordered")(
+        delayed(_started)() for _ in range(jobs))
+
+
+def _likely_work(args: argparse.Namespace) -> bool:
+    """Whether the run will probably compute cells (so starting the workers early pays):
+    --force, or a results folder without finished cells. For a spec file without --out the
+    folder is not known before the spec is read: yes."""
+    if args.force:
+        return True
+    if args.out is None and args.spec:
+        return True
+    name = (args.preset or DEFAULT_PRESET) + (f"-{args.solver}" if args.solver else "")
+    cells = (Path(args.out) if args.out is not None else RESULTS_DIR / name) / "cells"
+    return not (cells.is_dir() and any(cells.glob("*.json")))
+
+
 def main(argv: list[str] | None = None) -> int:
     """CLI entry point; returns the exit code (0 ok, 1 some cells failed, 2 bad spec,
     3 the run could not go on: unreachable scheduler, unwritable results folder)."""
@@ -1004,6 +1186,30 @@ def main(argv: list[str] | None = None) -> int:
     if args.spec and args.preset:
         print("error: give a spec file or --preset, not both", file=sys.stderr)
         return 2
+    jobs = args.jobs if args.jobs else (os.cpu_count() or 1)
+    started = (_prestart(jobs) if args.backend == "loky" and jobs > 1 and _likely_work(args)
+               else iter(()))
+    try:
+        return _main(args)
+    finally:
+        for _ in started:       # (long done)
+            pass
+        _stop_workers()
+
+
+def _stop_workers() -> None:
+    """End the idle loky workers of this process now (the CLI is done with them): ended as
+    joblib ends them on an abort (their shared temporary files removed) instead of at
+    interpreter exit, where each first tears itself down and the exit waits (~0.3 s)."""
+    from joblib.externals.loky import reusable_executor
+
+    ex = getattr(reusable_executor, "_executor", None)     # the process's executor, if any
+    terminate = getattr(ex, "terminate", None)             # joblib's MemmappingExecutor
+    if terminate is not None:
+        terminate(kill_workers=True)
+
+
+def _main(args: argparse.Namespace) -> int:
     try:
         spec = load_spec(args.spec or args.preset or DEFAULT_PRESET)
         if args.solver:

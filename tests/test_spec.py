@@ -36,7 +36,8 @@ def test_presets_load_and_have_the_thesis_axes():
     assert {c.window for c in cells} == {1, 5, 10, 100}
     assert {"none", "random", "huff"} <= {c.weighting for c in cells}
     assert {"none", "lc", "dyn", "lc+dyn", "lc_course", "lc_course+dyn", "motion_compensated",
-            "ekf", "naive", "lc_sim_heading", "lc_sim_heading+dyn"} == {c.technique for c in cells}
+            "ekf", "naive", "lc_sim_heading", "lc_sim_heading+dyn", "ekf_fixed_lag",
+            "ekf_smoother", "lc_smoothed_heading"} == {c.technique for c in cells}
     assert thesis.masks == ("full", "no_turns", "no_turns_window")
     # the faithful growth rule for the tables, the other one beside it (issue 15)
     assert {c.dyn_growth for c in cells if c.technique == "dyn"} == {"refill", "jump"}

@@ -34,7 +34,7 @@ TINY = {
     "epochs": {"seeds": [0]},
 }
 # numbers that must agree bit for bit between runs (timings are excluded)
-_TIMING = ("t_noise_s", "t_track_s", "t_score_s", "t_cell_s")
+_TIMING = ("t_noise_s", "t_track_s", "t_score_s", "t_cell_s", "t_reused_s")
 
 
 def _numbers(df: pd.DataFrame) -> pd.DataFrame:
@@ -506,3 +506,62 @@ def test_lc_with_smoothed_heading_is_an_estimator_row(tmp_path, truth_cache):
         ok = np.isfinite(off) & (np.hypot(d[:, 0], d[:, 1]) > 0.5)
         err[t] = np.sqrt(np.mean(np.minimum(np.abs(off[ok]), np.pi - np.abs(off[ok])) ** 2))
     assert err["lc_smoothed_heading"] < 0.5 * err["lc"], err
+
+
+# --------------------------------------------------------------------------- scheduling
+@pytest.mark.parametrize("preset", ["tiny", "thesis", "quick"])
+@pytest.mark.parametrize("jobs", [1, 2, 7, 64])
+def test_batches_partition_cells_and_keep_a_noise_keys_filter_cells_together(preset, jobs):
+    """Every cell in exactly one task; a task holds one noise key (shared observations);
+    the pose-filter cells of a noise key share a task (one forward pass through the memo);
+    tasks come largest first."""
+    from experiments.spec import load_spec
+    from experiments.sweep import _PASS_COST_CELLS, _batches, _uses_pose_filter
+
+    cells = (Spec.from_dict(TINY, source="tiny") if preset == "tiny"
+             else load_spec(preset)).expand()
+    epochs = {c.truth_key: 100 + 17 * i for i, c in enumerate(cells)}
+    batches = _batches(cells, jobs, lambda c: epochs[c.truth_key])
+    keys = [c.key for b in batches for c in b]
+    assert sorted(keys) == sorted(c.key for c in cells)
+    where: dict = {}
+    for i, b in enumerate(batches):
+        assert len({c.noise_key for c in b}) == 1
+        for c in b:
+            if _uses_pose_filter(c):
+                where.setdefault(c.noise_key, set()).add(i)
+    assert all(len(v) == 1 for v in where.values())
+    cost = [(len(b) + _PASS_COST_CELLS * any(map(_uses_pose_filter, b)))
+            * epochs[b[0].truth_key] for b in batches]
+    assert cost == sorted(cost, reverse=True)
+
+
+def test_outputs_unchanged_are_not_rewritten(real_run):
+    """The real units on a small sweep: a second pass over unchanged inputs rewrites
+    nothing and says so in the run's summary line."""
+    from experiments.outputs import write_outputs
+
+    out = real_run.out_dir
+    write_outputs(real_run.cells, out, spec=real_run.spec, figures=False)
+    before = {p.name: p.stat().st_mtime_ns for p in out.iterdir() if p.is_file()}
+    res = write_outputs(real_run.cells, out, spec=real_run.spec, figures=False)
+    assert res["written"] == [] and set(res["skipped"]) == {"tables", "report", "page"}
+    after = {p.name: p.stat().st_mtime_ns for p in out.iterdir() if p.is_file()}
+    changed = {k for k in after if before.get(k) != after[k]}
+    assert changed <= {"outputs.local.json"}, changed
+
+
+def test_workers_are_started_early_only_when_cells_are_likely_to_run(tmp_path):
+    from experiments.sweep import _likely_work
+
+    def args(*a):
+        return build_parser().parse_args([*a])
+
+    out = tmp_path / "run"
+    assert _likely_work(args("--out", str(out)))                 # nothing there yet
+    (out / "cells").mkdir(parents=True)
+    assert _likely_work(args("--out", str(out)))                 # a folder, no finished cell
+    (out / "cells" / "abc.json").write_text("{}")
+    assert not _likely_work(args("--out", str(out)))             # a resumed run
+    assert _likely_work(args("--out", str(out), "--force"))
+    assert _likely_work(args("my_spec.toml"))                    # folder unknown before reading

@@ -1,0 +1,147 @@
+"""Per-process memo keyed by content, for estimators a sweep runs many times on the same data.
+
+A sweep evaluates several techniques on identical observations (common random numbers):
+the eps-elastic fits of one window size serve the rows None, LC and LC (course)
+(:mod:`estimator.tracking`), and the pose filter's forward pass serves the EKF at every
+window, its fixed-lag and RTS smoothers and the smoothed heading of the lag correction
+(:mod:`estimator.pose_filter`, :mod:`estimator.pose_smoother`). A :class:`ContentMemo`
+keeps the last few results, keyed by a digest of the input arrays' bytes (dtype and shape
+included) plus the options: a hit is an identical request, so it returns exactly what the
+computation would. Least recently used first out.
+
+The values are shared: a caller either returns copies (the elastic fits) or freezes the
+arrays (:func:`freeze`, the filter results), so no user can change a memoised value.
+
+Time accounting: each entry remembers what it cost to produce, its own computation and,
+separately, the entries it used (a smoother on a memoised forward pass costs the pass plus
+the smoothing). :func:`ledger` measures what a piece of work took from the memos: the cost of
+every entry it hit, each counted once (the pass reached directly and through the smoother
+counts once) and none it computed itself (that time is in its own), so a caller can report a
+result's stand-alone cost (e.g. the time per epoch of an estimator) as its own time plus
+``ledger.seconds``.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import itertools
+import time
+from collections import OrderedDict
+from collections.abc import Callable, Hashable, Iterator
+from contextlib import contextmanager
+from typing import Any, TypeVar
+
+import numpy as np
+
+__all__ = ["ContentMemo", "Ledger", "content_digest", "freeze", "ledger"]
+
+T = TypeVar("T")
+
+
+def content_digest(*arrays: np.ndarray) -> str:
+    """Hex digest (128 bits, BLAKE2b) of the arrays' dtypes, shapes and bytes (C order)."""
+    h = hashlib.blake2b(digest_size=16)
+    for a in arrays:
+        a = np.ascontiguousarray(a)
+        h.update(f"{a.dtype.str}{a.shape}".encode())
+        h.update(a.tobytes())
+    return h.hexdigest()
+
+
+def freeze(a: np.ndarray) -> np.ndarray:
+    """``a`` made read-only (in place) and returned: a memoised array nobody can change."""
+    a.flags.writeable = False
+    return a
+
+
+class Ledger:
+    """What a piece of work took from the memos (see :func:`ledger`): ``hits`` maps each
+    entry it reached, directly or through another entry, to that entry's own cost (s);
+    ``computed`` holds the entries it computed itself."""
+
+    def __init__(self) -> None:
+        self.hits: dict[tuple, float] = {}
+        self.computed: set[tuple] = set()
+
+    @property
+    def seconds(self) -> float:
+        """The stand-alone cost of what was reused: the own costs of the entries reached,
+        each once, less those computed within the measurement."""
+        return float(sum(s for k, s in self.hits.items() if k not in self.computed))
+
+
+_clock = time.perf_counter           # (replaceable in tests)
+_LEDGERS: list[Ledger] = []          # measurements in progress
+_FRAMES: list[dict] = []             # computations in progress: {"cover", "nested_s"}
+_IDS = itertools.count()
+
+
+@contextmanager
+def ledger() -> Iterator[Ledger]:
+    """Measure what the enclosed work takes from every :class:`ContentMemo` of this process::
+
+        with ledger() as led:
+            work()
+        stand_alone_s = own_time + led.seconds
+    """
+    led = Ledger()
+    _LEDGERS.append(led)
+    try:
+        yield led
+    finally:
+        _LEDGERS.remove(led)
+
+
+class ContentMemo:
+    """Least-recently-used memo of at most ``size`` values, keyed by hashable tuples
+    (typically :func:`content_digest` of the inputs plus the options)."""
+
+    def __init__(self, size: int) -> None:
+        if isinstance(size, bool) or not isinstance(size, int) or size < 1:
+            raise ValueError(f"size: must be an integer >= 1, got {size!r}")
+        self.size = size
+        self._id = next(_IDS)
+        # key -> (value, cover: {(memo id, key): own seconds} of the entry and what it used)
+        self._entries: OrderedDict[Hashable, tuple[Any, dict]] = OrderedDict()
+
+    def __len__(self) -> int:
+        return len(self._entries)
+
+    def __contains__(self, key: Hashable) -> bool:
+        return key in self._entries
+
+    def clear(self) -> None:
+        """Forget every entry."""
+        self._entries.clear()
+
+    def get(self, key: Hashable, compute: Callable[[], T]) -> T:
+        """The memoised value of ``key``, else ``compute()`` stored under it (an exception
+        stores nothing). Hits and computations are recorded in every active :func:`ledger`."""
+        hit = self._entries.get(key)
+        if hit is not None:
+            self._entries.move_to_end(key)
+            value, cover = hit
+            if _FRAMES:
+                _FRAMES[-1]["cover"].update(cover)
+            for led in _LEDGERS:
+                led.hits.update(cover)
+            return value
+        frame: dict = {"cover": {}, "nested_s": 0.0}
+        _FRAMES.append(frame)
+        t0 = _clock()
+        try:
+            value = compute()
+        finally:
+            _FRAMES.pop()
+        total = _clock() - t0
+        full = (self._id, key)
+        cover = {**frame["cover"], full: total - frame["nested_s"]}   # own: nested computed apart
+        if _FRAMES:
+            _FRAMES[-1]["cover"].update(cover)
+            _FRAMES[-1]["nested_s"] += total
+        for led in _LEDGERS:
+            led.computed.add(full)
+        self._entries[key] = (value, cover)
+        while len(self._entries) > self.size:
+            self._entries.popitem(last=False)
+        return value
