@@ -87,7 +87,7 @@ from estimator._checks import check_increasing_times, check_int
 from estimator.configuration import LayoutWarning, SensorConfig
 from estimator.elastic import elastic_batch
 from estimator.layout_check import check_layout
-from estimator.memo import ContentMemo, content_digest
+from estimator.memo import ContentMemo, content_digest, freeze
 from estimator.motion import motion_compensated_batch, motion_compensated_series
 from estimator.orientation import law_of_cosines_heading
 from estimator.pose_filter import PoseFilterParams, memo_pose_filter
@@ -237,12 +237,27 @@ def _window_weights(stack: np.ndarray, cfg: SensorConfig, weighting: str,
     return huff[..., None] * _weights.huber_weights(stack, huber_c)  # Eq. 3.14
 
 
+#: Per-sample Huff weights of whole recordings, memoised per process by content: a sweep
+#: scores every Huff-weighted technique of a noise key on the same observations, and the
+#: weights of Section 3.3.3 depend on each sample alone. One entry is (n, m) floats.
+_HUFF_MEMO = ContentMemo(8)
+
+
+def _recording_huff(obs: np.ndarray, cfg: SensorConfig, huff_threshold: float | None
+                    ) -> np.ndarray:
+    """:func:`estimator.weights.huff_weights` of a whole recording (n, m), read-only,
+    memoised by the content of ``obs``, the layout and the threshold."""
+    key = (content_digest(obs, cfg.body_positions), cfg.names, tuple(cfg.dead),
+           repr(huff_threshold))
+    return _HUFF_MEMO.get(key, lambda: freeze(_weights.huff_weights(obs, cfg, huff_threshold)))
+
+
 def _sample_huff(obs: np.ndarray, cfg: SensorConfig, weighting: str,
                  huff_threshold: float | None) -> np.ndarray | None:
     """Per-sample Huff weights (n, m) of the whole recording when ``weighting`` uses them
     (Section 3.3.3 weighs each time step on its own, so every window shares them)."""
     if weighting in ("huff", "huff_huber"):
-        return _weights.huff_weights(obs, cfg, huff_threshold)
+        return _recording_huff(obs, cfg, huff_threshold)
     return None
 
 
@@ -327,7 +342,7 @@ def _fit_windows(obs, cfg, ends, w, *, weighting, rng, huff_threshold, huber_c, 
     if solver == "procrustes" and weighting in ("none", "huff"):
         # Huff weights are per sample (each time step on its own, Section 3.3.3 steps 1-9),
         # so the stacked windows share them: one call on all epochs, then cumulative sums
-        sw = None if weighting == "none" else _weights.huff_weights(obs, cfg, huff_threshold)
+        sw = None if weighting == "none" else _recording_huff(obs, cfg, huff_threshold)
         means, cnt = _cumsum_means(obs, ends, w, sw)
         bf = procrustes_batch(means, cnt, cfg)
         return bf.positions, bf.yaw, bf.status.astype(object), prev
@@ -366,7 +381,7 @@ def _elastic_moments(obs, cfg, ends, w, *, weighting, rng, huff_threshold, huber
     ``ends`` for the batched elastic solver: cumulative sums for per-sample weights (none,
     Huff), weighted sums for random weights, stacked windows (in chunks) for Huber."""
     if weighting in ("none", "huff"):
-        sw = None if weighting == "none" else _weights.huff_weights(obs, cfg, huff_threshold)
+        sw = None if weighting == "none" else _recording_huff(obs, cfg, huff_threshold)
         means, cnt = _cumsum_means(obs, ends, w, sw)
         return means, np.repeat(cnt[..., None], 2, axis=-1)
     means = np.full((ends.size, cfg.m, 2), np.nan)
@@ -429,7 +444,7 @@ def _motion_windows(t, obs, cfg, ends, w, *, weighting, rng, huff_threshold, hub
     status = np.empty(N, dtype=object)
     if not yaw_rate and weighting in ("none", "huff"):
         # per-sample weights and omega = 0: per-epoch sums, no stacking of the sensor axis
-        sw = None if weighting == "none" else _weights.huff_weights(obs, cfg, huff_threshold)
+        sw = None if weighting == "none" else _recording_huff(obs, cfg, huff_threshold)
         fit = motion_compensated_series(t, obs, cfg, ends, w, sw)
         out = {"yaw": fit.yaw, "yaw_rate": fit.yaw_rate, "vx": fit.velocity[:, 0],
                "vy": fit.velocity[:, 1]}

@@ -51,7 +51,6 @@ from pathlib import Path
 from typing import Literal
 
 import numpy as np
-from scipy.signal import lfilter
 
 from estimator._checks import check_int, check_real
 from estimator.configuration import SensorConfig
@@ -427,6 +426,8 @@ def gauss_markov(n: int, shape: tuple[int, ...], sigma: float | np.ndarray, tau_
         raise ValueError(f"tau_s and dt_s: must be > 0, got tau_s={tau_s!r}, dt_s={dt_s!r}")
     if order not in (1, 2):
         raise ValueError(f"order: must be 1 or 2, got {order!r}")
+    from scipy.signal import lfilter   # here, not at import: scipy.signal costs ~0.6 s
+
     phi = math.exp(-dt_s / tau_s)
     burn = 0 if order == 1 else math.ceil(12.0 * tau_s / dt_s)
     w = rng.standard_normal((n + burn, *shape))
