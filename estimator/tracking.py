@@ -323,7 +323,7 @@ def _weighted_window_means(obs: np.ndarray, ends: np.ndarray, w: int, wts: np.nd
 def _fit_windows(obs, cfg, ends, w, *, weighting, rng, huff_threshold, huber_c, solver, eps,
                  warm_start, fit_kw, prev=None):
     """Window fits for rows ending at ``ends`` with window size w (an int, or with
-    procrustes and no / Huff weights also an (N,) int array of per-row sizes).
+    procrustes or elastic and no / Huff weights also an (N,) int array of per-row sizes).
 
     ``prev``: with ``warm_start``, the x0 of the first row (the last fit before ``ends[0]``,
     or None); each later row starts from the previous row's fit.
@@ -423,7 +423,7 @@ def _elastic_fits(obs, cfg, ends, w, *, weighting, rng, huff_threshold, huber_c,
 
     if weighting == "random":
         return fits()
-    key = (content_digest(obs, ends, cfg.body_positions), int(w), weighting,
+    key = (content_digest(obs, ends, np.asarray(w), cfg.body_positions), weighting,
            repr(huff_threshold), float(huber_c), float(eps), repr(sorted(fit_kw.items())))
     pos, yaw, status = _ELASTIC_MEMO.get(key, fits)
     return pos.copy(), yaw.copy(), status.copy()
@@ -671,7 +671,14 @@ def track(t: Any, obs: Any, config: SensorConfig, window: int = 10,
               "huber_c": wt.huber_c}
 
     if method == "window":
-        if warm_start and solver != "procrustes":
+        if solver in ("procrustes", "elastic") and weighting in ("none", "huff"):
+            # per-sample weights: every row, whatever its window size, from one set of
+            # cumulative sums (a refilling dynamic window has up to s - small + 1 sizes),
+            # and one batched fit (the elastic solver ignores x0: no warm start to carry)
+            pos, yaw, status, _ = _fit_windows(o, cfg, ends, wsize, solver=solver, eps=eps,
+                                               warm_start=False, fit_kw=fit_options or {},
+                                               **common)
+        elif warm_start and solver != "procrustes":
             # x0 of every row is the previous row's fit (Section 3.1.2), whatever the window
             # size: fit the runs of equal size in time order, carrying the last fit across
             prev = None
@@ -680,11 +687,6 @@ def track(t: Any, obs: Any, config: SensorConfig, window: int = 10,
                 pos[sl], yaw[sl], status[sl], prev = _fit_windows(
                     o, cfg, ends[sl], int(wsize[a]), solver=solver, eps=eps, warm_start=True,
                     fit_kw=fit_options or {}, prev=prev, **common)
-        elif solver == "procrustes" and weighting in ("none", "huff"):
-            # per-sample weights: every row, whatever its window size, from one set of
-            # cumulative sums (a refilling dynamic window has up to s - small + 1 sizes)
-            pos, yaw, status, _ = _fit_windows(o, cfg, ends, wsize, solver=solver, eps=eps,
-                                               warm_start=False, fit_kw={}, **common)
         else:
             for w in np.unique(wsize):
                 sel = wsize == w

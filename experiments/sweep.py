@@ -546,9 +546,8 @@ class CellStore:
                 ok = isinstance(rec, dict) and isinstance(rec.get("rows"), list)
             except (OSError, ValueError):
                 ok = False
-            if not ok:
-                damaged.add(k)
-            elif rec.get("epochs") and not _parquet_readable(self.epochs_dir / f"{k}.parquet"):
+            if not ok or (rec.get("epochs")
+                          and not _parquet_readable(self.epochs_dir / f"{k}.parquet")):
                 damaged.add(k)
             elif rec.get("code") != code:
                 stale.add(k)
@@ -651,6 +650,23 @@ def _uses_pose_filter(cell: Cell) -> bool:
     correction fed the smoothed heading (see :func:`evaluate_cell`)."""
     tech = technique(cell.technique)
     return tech.method in FILTER_METHODS or tech.lag_heading == "smoothed"
+
+
+
+def _store_results(it, store, by_key: dict, bar) -> int:
+    """Persist the cell results an iterator of batches yields (workers that wrote their own
+    cells say so with ``written``), advance ``bar``; return the number of cells seen. A
+    warm-up's process id (an int) is skipped."""
+    n = 0
+    for results in it:
+        if isinstance(results, int):
+            continue
+        for res in results:
+            if not res.get("written"):
+                store.write(by_key[res["key"]], res)
+        n += len(results)
+        bar.update(len(results))
+    return n
 
 
 def _batches(todo: list[Cell], jobs: int, epochs: Callable[[Cell], int] | None = None
@@ -960,14 +976,7 @@ def run(spec: Spec | str | Path, *, out: str | Path | None = None, jobs: int | N
                 bar = tqdm(total=len(todo), unit="cell", desc=spec.name, disable=not progress,
                            smoothing=0.1, dynamic_ncols=True)
                 for it in (*warm, *running):
-                    for results in it:
-                        if isinstance(results, int):      # a warm-up's process id
-                            continue
-                        for res in results:
-                            if not res.get("written"):
-                                store.write(by_key[res["key"]], res)
-                            n_done_now += 1
-                        bar.update(len(results))
+                    n_done_now += _store_results(it, store, by_key, bar)
             else:
                 truths = _simulate_all(todo, spec, jobs, truth_fn,
                                        str(cache_dir) if cache_dir else None,
@@ -990,12 +999,7 @@ def run(spec: Spec | str | Path, *, out: str | Path | None = None, jobs: int | N
                     else:
                         it = _iter_dask(batches, truths, spec, wants, jobs, cell_fn, scheduler,
                                         run_id)
-                    for results in it:
-                        for res in results:
-                            if not res.get("written"):
-                                store.write(by_key[res["key"]], res)
-                            n_done_now += 1
-                        bar.update(len(results))
+                    n_done_now += _store_results(it, store, by_key, bar)
         finally:
             if bar is not None:
                 bar.close()

@@ -423,8 +423,8 @@ def test_track_memo_is_transparent():
           "turning": turning}
     tracking._ELASTIC_MEMO.clear()
     fresh = track(t, obs, cfg, **kw)
-    assert len(tracking._ELASTIC_MEMO) == 2          # the large- and the small-window rows
-    again = track(t, obs, cfg, **kw)                 # both from the memo
+    assert len(tracking._ELASTIC_MEMO) == 1          # one batched fit, every window size
+    again = track(t, obs, cfg, **kw)                 # from the memo
     pd.testing.assert_frame_equal(again, fresh)
     tracking._ELASTIC_MEMO.clear()
     pd.testing.assert_frame_equal(track(t, obs, cfg, **kw), fresh)
@@ -432,3 +432,30 @@ def test_track_memo_is_transparent():
     track(t, obs, cfg, window=5, weighting="random", solver="elastic",
           rng=np.random.default_rng(0))
     assert not tracking._ELASTIC_MEMO
+
+
+def test_dynamic_window_rows_are_their_own_window_fits():
+    """A refilling dynamic window (sizes 1..10) is fitted in one batched elastic call: each
+    row is still the eps-elastic fit of its own window, as fit_window(solver="elastic")
+    gives it on that window's samples alone (no weights, so the window is all it sees)."""
+    from estimator.tracking import DynamicWindow, dynamic_window_sizes
+    from experiments.bench import straight_line_obs
+
+    cfg = SensorConfig.load("rover_gps8")
+    n, s = 120, 10
+    t, obs = straight_line_obs(n, cfg, np.random.default_rng(11))
+    obs[30:34, 2] = np.nan
+    turning = np.zeros(n, dtype=bool)
+    turning[40:50] = True
+    res = track(t, obs, cfg, window=s, weighting="none", solver="elastic",
+                dynamic_window=DynamicWindow(1, growth="refill"), turning=turning,
+                fit=FitOptions(eps=0.01))
+    ends = np.arange(s - 1, n)
+    sizes = dynamic_window_sizes(turning[ends], s, 1, "refill")
+    assert len(set(sizes.tolist())) == s             # every size from 1 to 10 occurs
+    cg = res[["cg_x", "cg_y"]].to_numpy()
+    for row in (0, 31, 40, 41, 45, 55, 100):
+        e, w = int(ends[row]), int(sizes[row])
+        fit = fit_window(obs[e - w + 1:e + 1], cfg, eps=0.01, solver="elastic")
+        np.testing.assert_allclose(cg[row], cfg.cg_from_positions(fit.positions),
+                                   rtol=0, atol=1e-9)
