@@ -738,3 +738,14 @@ def test_update_never_increases_uncertainty(logvar, k, seed, gate):
     assert np.isfinite(xn).all() and np.isfinite(Pn).all()
     ev = np.linalg.eigvalsh(P - Pn)
     assert ev.min() >= -1e-8 * np.abs(P).max()
+
+
+@pytest.mark.parametrize("df", [1, 2])
+@pytest.mark.parametrize("p", [0.0, 0.5, 0.9, 0.99, 0.999, 0.9999999])
+def test_chi2_ppf_matches_scipy(p, df):
+    """The gates' closed-form chi-square quantiles equal scipy.stats.chi2.ppf."""
+    from scipy.stats import chi2
+
+    from estimator.pose_filter import chi2_ppf
+
+    assert chi2_ppf(p, df) == pytest.approx(chi2.ppf(p, df), rel=1e-12, abs=1e-15)
