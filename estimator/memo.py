@@ -26,6 +26,7 @@ from __future__ import annotations
 import hashlib
 import itertools
 import time
+import weakref
 from collections import OrderedDict
 from collections.abc import Callable, Hashable, Iterator
 from contextlib import contextmanager
@@ -33,7 +34,7 @@ from typing import Any, TypeVar
 
 import numpy as np
 
-__all__ = ["ContentMemo", "Ledger", "content_digest", "freeze", "ledger"]
+__all__ = ["ContentMemo", "Ledger", "clear_all", "content_digest", "freeze", "ledger"]
 
 T = TypeVar("T")
 
@@ -92,6 +93,17 @@ def ledger() -> Iterator[Ledger]:
         _LEDGERS.remove(led)
 
 
+#: Every :class:`ContentMemo` of this process (for :func:`clear_all`).
+_MEMOS: weakref.WeakSet = weakref.WeakSet()
+
+
+def clear_all() -> None:
+    """Forget every entry of every :class:`ContentMemo` of this process (a benchmark that
+    repeats a call times the computation, not the look-up)."""
+    for memo in list(_MEMOS):
+        memo.clear()
+
+
 class ContentMemo:
     """Least-recently-used memo of at most ``size`` values, keyed by hashable tuples
     (typically :func:`content_digest` of the inputs plus the options)."""
@@ -103,6 +115,7 @@ class ContentMemo:
         self._id = next(_IDS)
         # key -> (value, cover: {(memo id, key): own seconds} of the entry and what it used)
         self._entries: OrderedDict[Hashable, tuple[Any, dict]] = OrderedDict()
+        _MEMOS.add(self)
 
     def __len__(self) -> int:
         return len(self._entries)

@@ -207,3 +207,15 @@ def test_module_memos_are_bounded(drive):
         memo_pose_filter(t, obs, off, PoseFilterParams(lag_s=1.0 + i))
     assert len(pose_filter._PASS_MEMO) == pose_filter._PASS_MEMO.size
     assert len(pose_smoother._SMOOTH_MEMO) <= pose_smoother._SMOOTH_MEMO.size
+
+
+def test_clear_all_empties_every_memo():
+    from estimator.memo import ContentMemo, clear_all
+
+    a, b = ContentMemo(2), ContentMemo(3)
+    a.get("x", lambda: 1)
+    b.get("y", lambda: 2)
+    clear_all()
+    assert len(a) == 0 and len(b) == 0
+    calls = []
+    assert a.get("x", lambda: calls.append(1) or 5) == 5 and calls == [1]
