@@ -360,3 +360,20 @@ def test_oracle_technique_end_to_end_in_a_tiny_sweep(tmp_path):
     kinds = dict(zip(t41["technique"], t41["kind"]))
     assert kinds["Oracle: LC (simulator heading)"] == "oracle" and kinds["None"] == "thesis"
     assert c.loc[("dyn", "full"), "dyn_growth"] == "refill"
+
+
+def test_seed_ci_is_scipys_t_interval():
+    """seed_ci's 95 % interval equals scipy.stats.t.interval on the same values (an
+    independent reference for the quantile it takes from scipy.special)."""
+    import numpy as np
+    from scipy import stats
+
+    from experiments.tables import seed_ci
+
+    rng = np.random.default_rng(5)
+    for n in (2, 3, 10, 100):
+        v = rng.normal(1.0, 0.3, n)
+        m, lo, hi, k = seed_ci(v)
+        ref = stats.t.interval(0.95, n - 1, loc=v.mean(), scale=stats.sem(v))
+        assert k == n and m == v.mean()
+        np.testing.assert_allclose([lo, hi], ref, rtol=1e-13)
