@@ -91,6 +91,10 @@ def test_sweep_scores_the_filter_family_with_eh_rmse(tmp_path):
     # centimetre fixes on the 1.5 m rover: every filter row within a degree
     assert (ht.loc[ht["technique"] != "none", "eh_rmse_deg"] < 1.0).all()
     assert "## Heading" in (tmp_path / "tables.md").read_text()
+    # wall times stay out of the tracked files: the time per epoch is in a *.local.csv
+    assert not any(c.startswith("us_per_epoch") for c in ht.columns)
+    tm = pd.read_csv(tmp_path / "heading_timings.local.csv")
+    assert (tm["us_per_epoch"] > 0).all() and len(tm) == len(ht)
 
 
 # --------------------------------------------------------------------------- tables
