@@ -1,7 +1,8 @@
 """Provenance of generated results: which code, on which versions, produced them.
 
 Every results folder records this (manifests, report headers) so a number can be traced to
-the commit that computed it; ``--dirty`` marks uncommitted changes.
+the commit of the code that computed it (the newest commit that changed the code, so a
+commit of regenerated results does not change it); ``-dirty`` marks uncommitted changes.
 """
 
 from __future__ import annotations
@@ -30,10 +31,17 @@ def _git(*args: str) -> str | None:
     return out.stdout.strip()
 
 
+def _code_commit(short: bool = True) -> str | None:
+    """The newest commit that changed :data:`CODE_PATHS` (not HEAD: a commit of regenerated
+    results changes no code, so a rerun at it must write the same provenance)."""
+    return _git("log", "-1", f"--format={'%h' if short else '%H'}", "--", *CODE_PATHS) or None
+
+
 def git_describe() -> str:
-    """``git describe --always`` of the checkout, plus ``-dirty`` when :data:`CODE_PATHS`
-    have uncommitted changes; "unknown (not a git checkout)" without git."""
-    rev = _git("describe", "--always", "--tags")
+    """Abbreviated hash of the newest commit that changed :data:`CODE_PATHS`, plus
+    ``-dirty`` when they have uncommitted changes; "unknown (not a git checkout)" without
+    git."""
+    rev = _code_commit()
     if not rev:
         return "unknown (not a git checkout)"
     dirty = _git("status", "--porcelain", "--untracked-files=no", "--", *CODE_PATHS)
@@ -51,7 +59,7 @@ def code_version() -> dict:
         info["package"] = None
     describe = git_describe()
     info["git_describe"] = None if describe.startswith("unknown") else describe
-    info["git_commit"] = _git("rev-parse", "HEAD") or None
+    info["git_commit"] = _code_commit(short=False)
     info["python"] = platform.python_version()
     info["numpy"] = np.__version__
     try:

@@ -39,3 +39,19 @@ def test_outside_a_checkout(tmp_path, monkeypatch):
     monkeypatch.setattr(prov, "REPO", tmp_path)
     assert prov.git_describe() == "unknown (not a git checkout)"
     assert prov.code_version()["git_describe"] is None
+
+
+def test_a_commit_of_results_keeps_the_code_version(repo):
+    """Regenerated references are committed after the code that made them: a rerun at the
+    results commit must write the same provenance (the newest commit that changed code)."""
+    before = prov.code_version()
+    (repo / "results" / "tables.md").write_text("regenerated\n")
+    _git(repo, "add", ".")
+    _git(repo, "-c", "user.name=t", "-c", "user.email=t@t", "commit", "-qm", "results")
+    after = prov.code_version()
+    assert after["git_describe"] == before["git_describe"]
+    assert after["git_commit"] == before["git_commit"]
+    (repo / "estimator" / "a.py").write_text("x = 3\n")
+    _git(repo, "add", ".")
+    _git(repo, "-c", "user.name=t", "-c", "user.email=t@t", "commit", "-qm", "code")
+    assert prov.code_version()["git_commit"] != before["git_commit"]
