@@ -62,7 +62,6 @@ import json
 import math
 import re
 import sys
-import time
 from pathlib import Path
 from typing import Any
 
@@ -480,8 +479,9 @@ def _header(results: Path) -> tuple[str, str]:
     code = man.get("code", {}) if isinstance(man.get("code"), dict) else {}
     bits = [f"{man.get('n_cells', '?')} cells", f"seeds {man.get('seeds', '?')}",
             f"spec seed {man.get('spec_seed', '?')}",
-            f"code {code.get('git_describe') or code.get('git_commit') or '?'}",
-            f"status {man.get('status', '?')}", f"finished {man.get('finished_utc', '?')}"]
+            f"code {code.get('git_describe') or code.get('git_commit') or '?'}"]
+    # no run status or clock time: the page is written before the run is marked complete,
+    # and a rerun of a committed reference must write the same page byte for byte
     if man.get("n_failed"):
         bits.append(f"<b>{man['n_failed']} failed cells (errors.json)</b>")
     desc = spec.get("description") or man.get("spec_raw", {}).get("description", "")
@@ -574,11 +574,10 @@ def build_page(results: str | Path, *, ultrasonic: str | Path | None = ULTRASONI
     css = (ASSETS / "page.css").read_text(encoding="utf-8")
     js = (ASSETS / "page.js").read_text(encoding="utf-8")
     navh = "".join(f'<a href="#{s}">{html.escape(t)}</a>' for s, t in nav)
-    stamp = time.strftime("%Y-%m-%d %H:%M UTC", time.gmtime())
     return ("<!DOCTYPE html>\n<html lang=\"en\"><head><meta charset=\"utf-8\">"
             "<meta name=\"viewport\" content=\"width=device-width, initial-scale=1\">"
             f"<title>configpose: {html.escape(str(name))}</title><style>{css}</style></head>"
-            f"<body><header>{head}<div class=\"meta\">page written {stamp} by "
+            f"<body><header>{head}<div class=\"meta\">written by "
             "<code>experiments/page.py</code>; opens from disk, no network</div></header>"
             f"<nav>{navh}</nav><main>{''.join(secs)}</main>"
             f'<script type="application/json" id="cp-data">{data}</script>'

@@ -196,6 +196,16 @@ def test_extra_folders_are_replayed_beside_the_run(tiny_run, tmp_path):
     assert data["flight"] is None
 
 
+def test_page_is_reproducible(tiny_run, tmp_path):
+    """The same folder gives the same page, byte for byte (no clock time, no run status):
+    a rerun of a committed reference leaves its index.html unchanged."""
+    a, b = tmp_path / "a.html", tmp_path / "b.html"
+    page.write_page(tiny_run, out=a)
+    page.write_page(tiny_run, out=b)
+    assert a.read_bytes() == b.read_bytes()
+    assert "status running" not in a.read_text()
+
+
 def test_missing_required_column_is_named_and_reported_in_the_page(tmp_path, capsys):
     write_recording_folder(tmp_path)
     f = tmp_path / "epochs" / "drive_a_none.parquet"
