@@ -259,10 +259,17 @@ def score_track(df: pd.DataFrame, truth, obs: np.ndarray, config, masks: Iterabl
     per-axis error for comparison, and counts. Also returns the per-epoch table (truth,
     errors, observations at the estimate times) when ``epochs`` is True, else None.
     """
-    from estimator.metrics import STATISTICS, evaluation_masks, jitter_rms, summarize, track_errors
+    from estimator.metrics import (
+        STATISTICS,
+        evaluation_masks,
+        jitter_rms,
+        summarize,
+        track_cg,
+        track_errors,
+    )
     from estimator.orientation import wrap_angle
 
-    err = track_errors(df["t"].to_numpy(dtype=float), df[["cg_x", "cg_y"]].to_numpy(dtype=float),
+    err = track_errors(df["t"].to_numpy(dtype=float), track_cg(df),
                        df["yaw"].to_numpy(dtype=float), truth.t, truth.cg, truth.yaw)
     idx = err.index
     ob = obs[idx] - truth.sensor_positions[idx, :, :2]            # (k, m, 2)
@@ -452,9 +459,9 @@ def _coverage_rows(df: pd.DataFrame) -> list[dict]:
     """Rows of a cell without a reference: mask "full" with the epoch and estimate counts
     (``n_epochs``, ``n_valid`` finite CG estimates, ``n_nan``); every error statistic of
     :func:`score_track` is NaN (nothing to score against), so the tables keep their shape."""
-    from estimator.metrics import STATISTICS
+    from estimator.metrics import STATISTICS, track_cg
 
-    cg = df[["cg_x", "cg_y"]].to_numpy(dtype=float)
+    cg = track_cg(df)
     ok = np.isfinite(cg).all(axis=1)
     row: dict[str, Any] = {"mask": "full", "n_epochs": len(df), "n_valid": int(ok.sum()),
                            "n_nan": int((~ok).sum())}
