@@ -272,7 +272,9 @@ _LAYOUT = ("path", "window", "weighting", "technique", "mask")
 
 def _study_mask(cells: pd.DataFrame) -> np.ndarray:
     """True on the cells of side studies: along a variant axis, a value whose cells cover
-    fewer (path, window, weighting, technique, mask) combinations than another value's."""
+    fewer (path, window, weighting, technique, mask) combinations than another value's on
+    the same paths (a few of its rows re-run). A value on paths of its own (e.g. a car
+    layout on a car path beside the rover's) is a variant, not a side study."""
     study = np.zeros(len(cells), dtype=bool)
     lay_cols = [c for c in _LAYOUT if c in cells.columns]
     for a in (a for a in VARIANT_AXES if a in cells.columns):
@@ -280,9 +282,10 @@ def _study_mask(cells: pd.DataFrame) -> np.ndarray:
         if len(vals) < 2:
             continue
         size = {v: len(cells.loc[cells[a] == v, lay_cols].drop_duplicates()) for v in vals}
-        full = max(size.values())
+        paths = {v: set(cells.loc[cells[a] == v, "path"]) if "path" in cells.columns
+                 else set() for v in vals}
         for v in vals:
-            if size[v] < full:
+            if any(size[v] < size[w] and paths[v] <= paths[w] for w in vals if w != v):
                 study |= (cells[a] == v).to_numpy()
     return study
 

@@ -323,6 +323,27 @@ def test_side_study_is_reported_apart_with_the_implied_setting(tmp_path):
     assert tables.write_tables(cells, tmp_path).read_text().count("## Side studies") == 1
 
 
+def test_a_layout_on_paths_of_its_own_is_a_variant_not_a_side_study():
+    """The peer preset's car: a second configuration used only on its own path covers
+    combinations no other configuration has, so it gets its own tables (a variant, with
+    its heading table), while a few rover rows re-run under another noise split stay a
+    side study."""
+    rover = _thesis_like(lc=3.6, oracle=1.5)
+    rover["config"] = "rover_gps8"
+    car = _thesis_like(lc=0.1, oracle=0.1)
+    car["path"], car["config"] = "car_block", "car_rtk4"
+    rerun = _table_cells({(100, "lc", "full"): 2.7}, growth="refill")
+    rerun["config"] = "rover_gps8"
+    rerun["noise_overrides"] = '{"common_fraction":0.9}'
+    cells = pd.concat([rover, car, rerun], ignore_index=True)
+    assert set(tables.side_studies(cells)["noise_overrides"]) == {'{"common_fraction":0.9}'}
+    labels = [lab for lab, _ in tables.variants(cells)]
+    assert len(labels) == 2 and any("car_rtk4" in lab for lab in labels)
+    by = dict(tables.variants(cells))
+    car_sub = next(sub for lab, sub in by.items() if "car_rtk4" in lab)
+    assert set(car_sub["path"]) == {"car_block"}
+
+
 def test_seed_spread_section_compares_the_published_single_runs():
     """Per-seed min - max of the None rows beside the published value (Table 4.1 w=5 mean
     |x| = 1.095): inside the spread when the seeds straddle it, outside when they do not."""
