@@ -861,6 +861,7 @@ def chi2_ppf(p: float, df: int) -> float:
         return NormalDist().inv_cdf(0.5 * (1.0 - p)) ** 2   # the lower tail: no cancellation
     raise ValueError(f"df: must be 1 or 2, got {df!r}")
 
+
 def run_pose_filter(t: np.ndarray, obs: np.ndarray, offsets: np.ndarray,
                     params: PoseFilterParams = PoseFilterParams()) -> PoseFilterResult:
     """Run the filter over a recording (module docstring for the model).
