@@ -175,8 +175,8 @@ def seed_ci(values: np.ndarray | pd.Series, lower: float | None = None
 @functools.lru_cache(maxsize=256)
 def _t975(dof: int) -> float:
     """Student-t 97.5 % quantile (scipy's ppf costs ~0.1 ms a call; tables make thousands).
-    ``scipy.special.stdtrit`` is what ``scipy.stats.t.ppf`` evaluates, without the 0.5 s
-    import of scipy.stats in every worker that writes a table."""
+    ``scipy.special.stdtrit`` is what ``scipy.stats.t.ppf`` evaluates, without importing
+    scipy.stats (0.5 s) in a process that has not already."""
     from scipy.special import stdtrit
 
     return float(stdtrit(dof, 0.975))
