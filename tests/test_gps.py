@@ -559,3 +559,22 @@ def test_replay_one_extremes_raise_or_return_finite(mode, shift, start, receiver
         return
     assert obs.shape == (50, CFG.m, 2)
     assert np.isfinite(obs).all()
+
+
+@pytest.mark.parametrize("trial", range(6))
+def test_first_order_filter_is_lfilter_bit_for_bit(trial):
+    """The recursion replaces scipy.signal.lfilter in gauss_markov (to keep scipy.signal out of
+    the sweep workers) and must give the same numbers, not merely close ones: the committed
+    references were made with lfilter."""
+    from scipy.signal import lfilter
+
+    from sim.gps import first_order_filter
+
+    rng = np.random.default_rng(100 + trial)
+    n, series = int(rng.integers(1, 3000)), int(rng.integers(1, 20))
+    phi = math.exp(-rng.uniform(1e-3, 3.0))
+    x = rng.standard_normal((n, series, 2)) * 10.0 ** rng.uniform(-3, 3)
+    for gain in (1.0, float(rng.uniform(0.01, 2.0))):
+        want = lfilter([gain], [1.0, -phi], x, axis=0)
+        assert np.array_equal(first_order_filter(x, gain, phi), want)
+    assert first_order_filter(np.zeros((0, 3)), 1.0, 0.5).shape == (0, 3)
