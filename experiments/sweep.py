@@ -853,7 +853,7 @@ def _warm_up(outputs: bool, lock_path: str | None = None) -> int:
     that beside a simulation running in the main process they take the one spare core
     instead of competing with the simulation for both (two workers warming up at once
     beside it made a 3.0 s simulation take 3.7 s). Returns the worker's process id."""
-    with _exclusive(None if os.environ.get("NOLOCK") else lock_path):
+    with _exclusive(lock_path):
         _warm_up_imports(outputs)
     return os.getpid()
 
