@@ -381,7 +381,8 @@ _EYE = np.eye(NX)
 
 def _predict(x: np.ndarray, P: np.ndarray, dt: float, qa: float, qy: float
              ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """CTRA prediction: (x', P', F). See :func:`ctra_predict`."""
+    """CTRA prediction: (x', P', F P) (F P: the cross-covariance of the prediction with the
+    state it came from, which the filter's clone needs). See :func:`ctra_predict`."""
     px, py, yaw, v, acc, om = x.tolist()
     f1, f2, f3 = _integrals_scalar(om * dt)
     rot = complex(math.cos(yaw), math.sin(yaw))
@@ -404,9 +405,10 @@ def _predict(x: np.ndarray, P: np.ndarray, dt: float, qa: float, qy: float
     G = np.array([[h * rot.real, -g * rot.imag],     # v alpha dt^3 / 6
                   [h * rot.imag, g * rot.real],
                   [0.0, h], [dt, 0.0], [1.0, 0.0], [0.0, dt]])
-    Pn = F @ P @ F.T + (G * (qa, qy)) @ G.T
+    FP = F @ P
+    Pn = FP @ F.T + (G * (qa, qy)) @ G.T
     xn = np.array([px + d.real, py + d.imag, _wrap(yaw + om * dt), v + acc * dt, acc, om])
-    return xn, Pn, F
+    return xn, Pn, FP
 
 
 def ctra_predict(x: np.ndarray, P: np.ndarray, dt: float, sigma_accel_step: float,
@@ -938,9 +940,8 @@ def run_pose_filter(t: np.ndarray, obs: np.ndarray, offsets: np.ndarray,
         # stochastic cloning: predict x_k and keep x_{k-1} beside it, jointly Gaussian
         dt = dts[k - 1]
         # the acceleration's increments add up over a longer gap (random walk)
-        xp, Pp, F = _predict(x, P, dt, qa * max(1.0, dt / dt_med), qy)
+        xp, Pp, FP = _predict(x, P, dt, qa * max(1.0, dt / dt_med), qy)
         y = np.concatenate((xp, x))
-        FP = F @ P
         Y = np.empty((2 * NX, 2 * NX))
         Y[:NX, :NX], Y[:NX, NX:], Y[NX:, :NX], Y[NX:, NX:] = Pp, FP, FP.T, P
         st = "predicted"

@@ -35,6 +35,7 @@ from experiments.tables import (
     THESIS_TABLES,
     _t975,
     faithful,
+    numpy_strings,
     select,
     thesis_row,
 )
@@ -701,6 +702,7 @@ def write_report(cells: pd.DataFrame, out_dir: str | Path, spec=None) -> Path:
     from experiments.tables import side_studies, variants
 
     _COLUMNS.clear()
+    cells = numpy_strings(cells)
     out = Path(out_dir)
     studies = side_studies(cells)
     per_variant, evidence = [], {}
