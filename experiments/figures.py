@@ -475,11 +475,22 @@ def _draw(out: Path, task: str) -> list[Path]:
     return draw_task(out, task)[0]
 
 
+#: Matplotlib settings of every figure. ``axes.titley = 1.0`` places each title where the
+#: automatic placement puts it on these axes (nothing drawn above them: the PNGs are the
+#: same pixel for pixel), without measuring the top tick labels at every layout pass and
+#: draw, ~10 % of the drawing time.
+_RC = {"axes.titley": 1.0}
+
+
 def draw_task(out_dir: str | Path, task: str) -> tuple[list[Path], list[str]]:
     """Draw one group of figures (:func:`figure_tasks`) of a results folder; returns the
     files written and the keys of the per-epoch files read (the group's inputs besides
     cells.parquet; the "tables" group reads the table CSVs instead)."""
-    out = Path(out_dir)
+    with plt.rc_context(_RC):
+        return _draw_task(Path(out_dir), task)
+
+
+def _draw_task(out: Path, task: str) -> tuple[list[Path], list[str]]:
     written: list[Path] = []
     if task == "tables":
         _tables_fig(out, written)

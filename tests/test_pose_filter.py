@@ -194,9 +194,9 @@ def _stacked(rng):
     x1, P1 = ctra_predict(x0, P0, 1.0, 0.3, 0.2)
     from estimator.pose_filter import _predict as pred
 
-    _, _, F = pred(x0, P0, 1.0, 0.09, 0.04)
+    _, _, FP = pred(x0, P0, 1.0, 0.09, 0.04)          # the cross-covariance F P0
     Y = np.zeros((2 * NX, 2 * NX))
-    Y[:NX, :NX], Y[:NX, NX:], Y[NX:, :NX], Y[NX:, NX:] = P1, F @ P0, P0 @ F.T, P0
+    Y[:NX, :NX], Y[:NX, NX:], Y[NX:, :NX], Y[NX:, NX:] = P1, FP, FP.T, P0
     return np.concatenate((x1, x0)), Y
 
 
@@ -285,10 +285,10 @@ def test_filter_loop_matches_filterpy_step_by_step():
     tol = 0.1 * p.sigma_abs_m
     for k in range(k0 + 1, t.size):
         dt = t[k] - t[k - 1]
-        xp, Pp, F = pred(x, P, dt, p.sigma_accel_step ** 2 * max(1.0, dt / dt_med),
-                         p.sigma_yaw_accel ** 2)
+        xp, Pp, FP = pred(x, P, dt, p.sigma_accel_step ** 2 * max(1.0, dt / dt_med),
+                          p.sigma_yaw_accel ** 2)               # FP = F P
         y = np.concatenate((xp, x))
-        Y = np.block([[Pp, F @ P], [P @ F.T, P]])
+        Y = np.block([[Pp, FP], [FP.T, P]])
         ik = [i for i in range(cfg.m) if np.isfinite(obs[k, i, 0])]
         js = [i for i in ik if np.isfinite(obs[k - 1, i, 0])]
         if ik:
