@@ -35,12 +35,16 @@ from __future__ import annotations
 import math
 from collections.abc import Mapping
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
 import numpy as np
-import pandas as pd
 
 from estimator._checks import check_increasing_times, check_real
 from estimator.orientation import wrap_angle
+
+# pandas is imported where it is used: a sweep's main process simulates before it needs it
+if TYPE_CHECKING:
+    import pandas as pd
 
 __all__ = [
     "MASKS",
@@ -407,6 +411,8 @@ def evaluate_track(track: pd.DataFrame, truth_t: object, truth_cg: object,
     :func:`travel_direction`; its mean is the lag; p95 / max / outliers of its magnitude),
     and ``<heading column>`` (Eq. 4.2, radians).
     """
+    import pandas as pd
+
     for col in ("t", "cg_x", "cg_y"):
         if col not in track.columns:
             raise ValueError(f"track: missing column {col!r}")

@@ -58,10 +58,9 @@ from collections.abc import Callable, Iterable, Iterator
 from contextlib import contextmanager, suppress
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
-import pandas as pd
 
 from estimator.memo import ledger
 from estimator.track_options import FILTER_METHODS
@@ -78,6 +77,11 @@ from experiments.spec import (
 )
 from experiments.techniques import technique
 from sim.atomic import atomic_write, atomic_write_text
+
+# pandas is imported where it is used: the main process simulates before it needs pandas
+# (0.4 s of imports off the critical path of a one-path sweep)
+if TYPE_CHECKING:
+    import pandas as pd
 
 __all__ = [
     "Results",
@@ -261,6 +265,8 @@ def score_track(df: pd.DataFrame, truth, obs: np.ndarray, config, masks: Iterabl
     per-axis error for comparison, and counts. Also returns the per-epoch table (truth,
     errors, observations at the estimate times) when ``epochs`` is True, else None.
     """
+    import pandas as pd
+
     from estimator.metrics import (
         STATISTICS,
         evaluation_masks,
@@ -319,6 +325,8 @@ def score_track(df: pd.DataFrame, truth, obs: np.ndarray, config, masks: Iterabl
 
 def evaluate_cell(cell: Cell, truth, ctx: CellContext) -> CellOutput:
     """The real cell function: observations -> track -> scores (see the module docstring)."""
+    import pandas as pd
+
     from estimator.configuration import SensorConfig
 
     if cell.recording != "-":
@@ -410,6 +418,8 @@ def evaluate_recording_cell(cell: Cell, rec, ctx: CellContext) -> CellOutput:
     against its reference (:func:`score_track` on :meth:`sim.recording.Recording.truth`), or
     coverage rows when it has none; plus the layout check's verdicts."""
     import warnings
+
+    import pandas as pd
 
     from estimator.configuration import LayoutWarning, SensorConfig
 
@@ -592,6 +602,7 @@ class CellStore:
             err.unlink()
 
     def read_cells(self, keys: Iterable[str]) -> pd.DataFrame:
+        import pandas as pd
         recs = []
         for k in keys:
             p = self.cells_dir / f"{k}.json"
@@ -913,6 +924,7 @@ def run(spec: Spec | str | Path, *, out: str | Path | None = None, jobs: int | N
     cache_dir : truth cache folder (default results/cache/truth).
     cell_fn, truth_fn : replace :func:`evaluate_cell` / :func:`simulate_truth` (tests).
     """
+    import pandas as pd
     t_start = time.perf_counter()
     if not isinstance(spec, Spec):
         spec = load_spec(spec)
@@ -1285,5 +1297,27 @@ def _main(args: argparse.Namespace) -> int:
     return 1 if res.errors else 0
 
 
+def _exit_now(code: int) -> None:
+    """End the command line process with ``code`` once its work is done and written: the
+    exit handlers run (joblib removes its temporary folders, logging flushes), the
+    interpreter's teardown of every loaded module does not (numpy, pandas, matplotlib,
+    MuJoCo: ~0.25 s of the quick preset's 7-8 s, measured). Every results file is
+    complete by then (each is written atomically and closed). Where the handlers cannot be
+    run first (an interpreter without ``atexit._run_exitfuncs``), a normal exit."""
+    import atexit
+
+    run_handlers = getattr(atexit, "_run_exitfuncs", None)
+    if run_handlers is None:
+        sys.exit(code)
+    for stream in (sys.stdout, sys.stderr):
+        with suppress(Exception):
+            stream.flush()
+    run_handlers()
+    for stream in (sys.stdout, sys.stderr):
+        with suppress(Exception):
+            stream.flush()
+    os._exit(code)
+
+
 if __name__ == "__main__":
-    sys.exit(main())
+    _exit_now(main())
