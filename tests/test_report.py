@@ -398,3 +398,29 @@ def test_seed_ci_is_scipys_t_interval():
         ref = stats.t.interval(0.95, n - 1, loc=v.mean(), scale=stats.sem(v))
         assert k == n and m == v.mean()
         np.testing.assert_allclose([lo, hi], ref, rtol=1e-13)
+
+
+def test_tables_and_report_are_the_same_from_arrow_or_numpy_string_columns(tmp_path):
+    """write_tables/write_report convert pandas' Arrow-backed string columns (what
+    read_parquet gives) to numpy object arrays for speed (tables.numpy_strings); the files
+    must not depend on which the caller passes."""
+    cells = _thesis_like(lc=1.2, oracle=0.5)
+    arrow = cells.astype({c: "string[pyarrow]" for c in cells.columns
+                          if cells[c].dtype == object or pd.api.types.is_string_dtype(cells[c])})
+    assert any(str(t).startswith("string") for t in arrow.dtypes)
+    plain = tables.numpy_strings(arrow)
+    strs = [c for c in arrow.columns if pd.api.types.is_string_dtype(arrow[c].dtype)]
+    assert strs and all(plain[c].dtype == object for c in strs)
+    assert all(plain[c].dtype == arrow[c].dtype for c in arrow.columns if c not in strs)
+    assert plain.astype({c: arrow[c].dtype for c in strs}).equals(arrow)
+    files = {}
+    for name, df in (("arrow", arrow), ("plain", plain)):
+        out = tmp_path / "run"                    # the same folder name: tables.md names it
+        tables.write_tables(df, out)
+        report.write_report(df, out)
+        files[name] = {p.name: p.read_bytes() for p in sorted(out.iterdir()) if p.is_file()}
+        for p in out.iterdir():
+            p.unlink()
+    assert files["arrow"].keys() == files["plain"].keys() and files["arrow"]
+    for n in files["arrow"]:
+        assert files["arrow"][n] == files["plain"][n], n

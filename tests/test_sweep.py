@@ -565,3 +565,55 @@ def test_workers_are_started_early_only_when_cells_are_likely_to_run(tmp_path):
     assert not _likely_work(args("--out", str(out)))             # a resumed run
     assert _likely_work(args("--out", str(out), "--force"))
     assert _likely_work(args("my_spec.toml"))                    # folder unknown before reading
+
+
+def test_warm_up_lock_lets_one_worker_at_a_time(tmp_path):
+    """While one worker warms up (the lock held), another process cannot take the lock; it
+    can once the first is done (the lock file stays usable)."""
+    from experiments.sweep import _exclusive
+
+    lock = tmp_path / "warm.lock"
+    probe = ("import fcntl, sys\n"
+             f"fh = open({str(lock)!r}, 'a')\n"
+             "try:\n"
+             "    fcntl.flock(fh, fcntl.LOCK_EX | fcntl.LOCK_NB)\n"
+             "except BlockingIOError:\n"
+             "    sys.exit(7)\n")
+
+    def other_takes_it() -> bool:
+        rc = subprocess.run([sys.executable, "-c", probe], check=False).returncode
+        assert rc in (0, 7), rc
+        return rc == 0
+
+    with _exclusive(str(lock)):
+        assert not other_takes_it()
+    assert other_takes_it()
+    with _exclusive(None):                 # no path: no lock, the block still runs
+        assert other_takes_it()
+
+
+def test_cli_exit_codes_and_no_leftover_temporary_folders(tmp_path):
+    """The command line ends through the exit handlers without the interpreter's teardown
+    (experiments.sweep._exit_now): the exit code is main()'s, the summary line is printed,
+    and joblib's shared-memory folders of the run's workers are removed."""
+    spec_file = tmp_path / "tiny.toml"
+    spec_file.write_text(_toml({**TINY, "grid": [TINY["grid"][0]], "seeds": 1}))
+    shm = Path("/dev/shm")
+
+    def joblib_folders() -> set:
+        return {p.name for p in shm.glob("joblib_memmapping_folder_*")} if shm.is_dir() else set()
+
+    before = joblib_folders()
+    env = {**os.environ, "OPENBLAS_NUM_THREADS": "1"}
+    ok = subprocess.run([sys.executable, "-m", "experiments.sweep", str(spec_file), "--out",
+                         str(tmp_path / "out"), "--jobs", "2", "--quiet", "--no-figures",
+                         "--cache-dir", str(tmp_path / "cache")],
+                        cwd=REPO, env=env, capture_output=True, text=True, check=False)
+    assert ok.returncode == 0, ok.stderr
+    assert "tiny: 4 cells (4 computed, 0 resumed, 0 failed)" in ok.stdout
+    assert "leaked" not in ok.stderr
+    new = joblib_folders() - before
+    assert not new, new
+    bad = subprocess.run([sys.executable, "-m", "experiments.sweep", "--preset", "nope"],
+                         cwd=REPO, env=env, capture_output=True, text=True, check=False)
+    assert bad.returncode == 2 and "nope" in bad.stderr
