@@ -15,7 +15,7 @@ import math
 import numpy as np
 import pytest
 from filterpy.kalman import ExtendedKalmanFilter
-from hypothesis import given, settings
+from hypothesis import example, given, settings
 from hypothesis import strategies as st
 from pose_scenes import kinematic_truth, noisy
 from scipy.integrate import quad, solve_ivp
@@ -686,6 +686,7 @@ def test_prediction_keeps_the_covariance_symmetric_and_psd(dt, om, v, a, sa, sy)
 @settings(max_examples=40, deadline=None)
 @given(scale=st.sampled_from([1e-6, 1e-2, 1.0, 1e3]), miss=st.floats(0.0, 0.6),
        m=st.integers(3, 8), seed=st.integers(0, 2 ** 16))
+@example(scale=1.0, miss=0.5, m=3, seed=1244)      # found by CI: ~50 epochs with 3 fixes
 def test_estimate_noise_scales_with_the_noise(scale, miss, m, seed):
     """Noise levels are equivariant: white noise of sd s gives about s for the fixes (and
     s sqrt 2 for the displacements), whatever the missing fraction; never below the floor."""
@@ -705,8 +706,14 @@ def test_estimate_noise_scales_with_the_noise(scale, miss, m, seed):
     if scale > 1e-2:
         # noise as large as the layout (~1 m here) or larger: the rotation absorbs less
         # than the 3-parameter correction assumes; high by at most sqrt((1 - 1/k) /
-        # (1 - 1.5/k)) (15 % at k = 3), plus the estimator's own scatter
-        assert 0.8 * scale < sa < 1.15 * 1.25 * scale
+        # (1 - 1.5/k)) (15 % at k = 3), plus the estimator's own scatter: the MAD's relative
+        # sd ~1.17 / sqrt(N) with N the residuals' degrees of freedom (2k - 3 per epoch with
+        # k >= 3 fixes; few when most antennas are missing: m = 3 with half of the fixes
+        # missing leaves ~50 such epochs), 5 sd either side
+        cnt = np.isfinite(obs[..., 0]).sum(1)
+        dof = int((2 * cnt[cnt >= 3] - 3).sum())
+        tol = 5 * 1.17 / math.sqrt(dof)
+        assert (1 - tol) * scale < sa < 1.15 * (1 + tol) * scale
     elif scale == 1e-2:
         # the MAD of N normal values has a relative sd of ~1.17 / sqrt(N): 5 sd tolerances,
         # N counted by the estimator's rule (epochs with >= 3 fixes; for the displacements
