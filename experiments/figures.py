@@ -33,10 +33,6 @@ import sys
 from collections.abc import Callable
 from pathlib import Path
 
-import matplotlib
-
-matplotlib.use("Agg")
-import matplotlib.pyplot as plt
 import numpy as np
 import pandas as pd
 
@@ -174,14 +170,26 @@ def _boxes(ax, groups: list[tuple[str, np.ndarray, str]], ylabel: str) -> None:
     ax.grid(axis="y", alpha=0.3)
 
 
+def _pyplot():
+    """matplotlib.pyplot on the Agg backend, imported at the first figure: a sweep's main
+    process imports this module for the names of its figure groups and draws nothing
+    (matplotlib costs ~0.3 s to import)."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    return plt
+
+
 def _subplots(*args, **kw):
     """plt.subplots with constrained layout (one layout pass at draw time)."""
-    return plt.subplots(*args, layout="constrained", **kw)
+    return _pyplot().subplots(*args, layout="constrained", **kw)
 
 
 def _save(fig, path: Path, written: list[Path]) -> None:
     fig.savefig(path, dpi=100)
-    plt.close(fig)
+    _pyplot().close(fig)
     written.append(path)
 
 
@@ -486,7 +494,7 @@ def draw_task(out_dir: str | Path, task: str) -> tuple[list[Path], list[str]]:
     """Draw one group of figures (:func:`figure_tasks`) of a results folder; returns the
     files written and the keys of the per-epoch files read (the group's inputs besides
     cells.parquet; the "tables" group reads the table CSVs instead)."""
-    with plt.rc_context(_RC):
+    with _pyplot().rc_context(_RC):
         return _draw_task(Path(out_dir), task)
 
 

@@ -907,6 +907,24 @@ def _warm_up_imports(outputs: bool) -> None:
         plt.close(fig)
 
 
+def _import_for_outputs() -> None:
+    """Import what the end of a run needs in this process (pandas and pyarrow for the cell
+    table, the outputs phase, the page and its Markdown renderer; ~0.5 s). Called once the
+    cells are queued on the workers, when this process would otherwise wait for them:
+    imported at the end instead, they were on the critical path of a one-path sweep.
+    (experiments.figures is imported for its figure groups' names: it imports matplotlib
+    only to draw.)"""
+    import importlib
+
+    for name in _OUTPUT_MODULES:
+        importlib.import_module(name)
+
+
+#: What :func:`_import_for_outputs` imports.
+_OUTPUT_MODULES = ("pandas", "pyarrow.parquet", "markdown_it", "experiments.figures",
+                   "experiments.outputs", "experiments.page")
+
+
 # --------------------------------------------------------------------------- run
 def run(spec: Spec | str | Path, *, out: str | Path | None = None, jobs: int | None = None,
         backend: str = "loky", scheduler: str | None = None, force: bool = False,
@@ -924,7 +942,6 @@ def run(spec: Spec | str | Path, *, out: str | Path | None = None, jobs: int | N
     cache_dir : truth cache folder (default results/cache/truth).
     cell_fn, truth_fn : replace :func:`evaluate_cell` / :func:`simulate_truth` (tests).
     """
-    import pandas as pd
     t_start = time.perf_counter()
     if not isinstance(spec, Spec):
         spec = load_spec(spec)
@@ -1024,6 +1041,8 @@ def run(spec: Spec | str | Path, *, out: str | Path | None = None, jobs: int | N
                     sbar.close()
                 t_sim = time.perf_counter() - t_sim0
                 t_overlap = max(0.0, t_sim0 + t_sim - (t_cells0 or t_sim0 + t_sim))
+                if outputs:
+                    _import_for_outputs()      # while the workers compute the cells
                 bar = tqdm(total=len(todo), unit="cell", desc=spec.name, disable=not progress,
                            smoothing=0.1, dynamic_ncols=True)
                 for it in (*warm, *running):
@@ -1083,7 +1102,7 @@ def run(spec: Spec | str | Path, *, out: str | Path | None = None, jobs: int | N
                                          figures=figures, on_step=lambda _name: obar.update())
             finally:
                 obar.close()
-            if figures and not table.get("has_epochs", pd.Series(dtype=bool)).any():
+            if figures and ("has_epochs" not in table or not table["has_epochs"].any()):
                 print(f"{spec.name}: note: no cell kept per-epoch estimates (the spec has no "
                       "[epochs] table), so the figures drawn from per-epoch errors were not written "
                       "(box plots, orientation, overlays, sensor-1 lag): add "

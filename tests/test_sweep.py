@@ -617,3 +617,19 @@ def test_cli_exit_codes_and_no_leftover_temporary_folders(tmp_path):
     bad = subprocess.run([sys.executable, "-m", "experiments.sweep", "--preset", "nope"],
                          cwd=REPO, env=env, capture_output=True, text=True, check=False)
     assert bad.returncode == 2 and "nope" in bad.stderr
+
+
+def test_end_of_run_imports_leave_matplotlib_to_the_workers():
+    """The main process imports what the outputs phase needs while the workers compute the
+    cells (experiments.sweep._import_for_outputs); that includes experiments.figures for the
+    figure groups' names, and must not include matplotlib (the workers draw)."""
+    code = ("import sys\n"
+            "import experiments.sweep as s\n"
+            "s._import_for_outputs()\n"
+            "assert 'pandas' in sys.modules and 'experiments.page' in sys.modules\n"
+            "import experiments.figures as f\n"
+            "assert f.figure_tasks()\n"
+            "print('matplotlib' in sys.modules)\n")
+    out = subprocess.run([sys.executable, "-c", code], cwd=REPO, capture_output=True,
+                         text=True, check=True).stdout.strip()
+    assert out == "False"
