@@ -13,6 +13,8 @@ import time
 import mujoco
 import numpy as np
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 from estimator.configuration import SensorConfig
 from sim.controllers import (
@@ -355,3 +357,20 @@ def test_paths_figure_draws_a_rover_panel(tmp_path, run10):
 
     out = plot_paths([(run10, load_path("square20"), "rover square20", 0)], tmp_path / "p.png")
     assert out.stat().st_size > 10_000 and out.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+
+
+@given(target=st.floats(allow_nan=True, allow_infinity=True),
+       previous=st.floats(allow_nan=True, allow_infinity=True),
+       max_rate=st.floats(0.0, 1e6) | st.sampled_from([0.0, -0.0]),
+       dt=st.floats(0.0, 10.0))
+@settings(max_examples=300, deadline=None)
+def test_rate_limit_is_the_builtin_expression_bit_for_bit(target, previous, max_rate, dt):
+    """rate_limit spells out min(max(...)) for speed; it must give the very same float
+    (signed zeros and NaN included), or simulated truths would drift from the cache."""
+    import struct
+
+    step = max_rate * dt
+    want = previous + min(max(target - previous, -step), step)
+    got = rate_limit(target, previous, max_rate, dt)
+    assert struct.pack("<d", got) == struct.pack("<d", want) or (math.isnan(got)
+                                                                 and math.isnan(want))
