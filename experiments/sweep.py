@@ -872,20 +872,27 @@ def _warm_up(outputs: bool, lock_path: str | None = None) -> int:
 @contextmanager
 def _exclusive(lock_path: str | None) -> Iterator[None]:
     """Hold an exclusive advisory lock on ``lock_path`` (created if absent) for the block;
-    no lock where there is no path or no ``fcntl`` (Windows)."""
+    no lock where there is no path, no ``fcntl`` (Windows) or the file cannot be opened or
+    locked (e.g. a read-only temporary folder): the lock only orders work, nothing needs it."""
     try:
         import fcntl
     except ImportError:                                   # pragma: no cover - Windows
         fcntl = None
-    if lock_path is None or fcntl is None:
-        yield
-        return
-    with open(lock_path, "a") as fh:
-        fcntl.flock(fh, fcntl.LOCK_EX)
+    fh = None
+    if lock_path is not None and fcntl is not None:
         try:
-            yield
-        finally:
+            fh = open(lock_path, "a")                     # noqa: SIM115 (closed below)
+            fcntl.flock(fh, fcntl.LOCK_EX)
+        except OSError:
+            if fh is not None:
+                fh.close()
+            fh = None
+    try:
+        yield
+    finally:
+        if fh is not None:
             fcntl.flock(fh, fcntl.LOCK_UN)
+            fh.close()
 
 
 def _warm_up_imports(outputs: bool) -> None:

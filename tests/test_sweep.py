@@ -590,6 +590,10 @@ def test_warm_up_lock_lets_one_worker_at_a_time(tmp_path):
     assert other_takes_it()
     with _exclusive(None):                 # no path: no lock, the block still runs
         assert other_takes_it()
+    ran = []
+    with _exclusive(str(tmp_path / "no-such-folder" / "warm.lock")):   # cannot be created
+        ran.append(True)                   # the work runs anyway, without a lock
+    assert ran
 
 
 def test_cli_exit_codes_and_no_leftover_temporary_folders(tmp_path):
