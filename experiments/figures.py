@@ -170,16 +170,22 @@ def _boxes(ax, groups: list[tuple[str, np.ndarray, str]], ylabel: str) -> None:
     ax.grid(axis="y", alpha=0.3)
 
 
+_PLT = None
+
+
 def _pyplot():
-    """matplotlib.pyplot on the Agg backend, imported at the first figure: a sweep's main
-    process imports this module for the names of its figure groups and draws nothing
-    (matplotlib costs ~0.3 s to import)."""
-    import matplotlib
+    """matplotlib.pyplot, switched to the Agg backend once, at the first figure (as an
+    import of this module did before): a sweep's main process imports this module for the
+    names of its figure groups and draws nothing (matplotlib costs ~0.3 s to import)."""
+    global _PLT
+    if _PLT is None:
+        import matplotlib
 
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+        matplotlib.use("Agg")
+        import matplotlib.pyplot as plt
 
-    return plt
+        _PLT = plt
+    return _PLT
 
 
 def _subplots(*args, **kw):

@@ -1335,12 +1335,9 @@ def _exit_now(code: int) -> None:
     run_handlers = getattr(atexit, "_run_exitfuncs", None)
     if run_handlers is None:
         sys.exit(code)
-    for stream in (sys.stdout, sys.stderr):
-        with suppress(Exception):
-            stream.flush()
     run_handlers()
     for stream in (sys.stdout, sys.stderr):
-        with suppress(Exception):
+        with suppress(Exception):                # e.g. a closed pipe
             stream.flush()
     os._exit(code)
 
