@@ -55,12 +55,13 @@ from experiments.tables import (
     seed_ci,
     select,
 )
+from experiments.techniques import oracle_pairs
 
 __all__ = ["ORACLE_SWAP", "Evidence", "cause_line", "evidence", "observability_section",
            "seed_spread_section"]
 
 #: The estimated-heading lag correction -> its oracle (the simulator's heading).
-ORACLE_SWAP = {"lc": "lc_sim_heading", "lc+dyn": "lc_sim_heading+dyn"}
+ORACLE_SWAP = oracle_pairs()
 #: Below this median heading error (deg) the estimated orientation "matches" (claim C9).
 MATCH_DEG = 10.0
 

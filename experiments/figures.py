@@ -36,20 +36,19 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
+from experiments.techniques import ORACLE_TECHNIQUES, REGISTRY
+
 __all__ = ["draw_all", "draw_task", "figure_tasks", "load_epochs", "main"]
 
 PATH_LABELS = {"square100": "Path 1", "square200": "Path 2"}
 WEIGHT_COLORS = {"none": "#1f77b4", "random": "#7f7f7f", "huff": "#d62728"}
-TECH_COLORS = {"none": "#1f77b4", "lc": "#ff7f0e", "dyn": "#2ca02c", "lc+dyn": "#9467bd", "lc_course": "#bcbd22", "lc_course+dyn": "#17becf",
-               "motion_compensated": "#8c564b", "ekf": "#e377c2", "naive": "#7f7f7f",
-               "lc_sim_heading": "#ffffff", "lc_sim_heading+dyn": "#dddddd"}
 WEIGHT_LABELS = {"none": "no", "random": "random", "huff": "Huff"}
-TECH_LABELS = {"none": "None", "lc": "LC", "dyn": "Dyn SW", "lc+dyn": "LC+Dyn",
-               "lc_course": "LC course", "lc_course+dyn": "LCc+Dyn",
-               "motion_compensated": "Motion-comp.", "ekf": "EKF", "naive": "Naive",
-               "lc_sim_heading": "ORACLE\nLC sim hdg", "lc_sim_heading+dyn": "ORACLE\nLC sim+Dyn"}
-#: Oracle techniques (experiments.spec.ORACLE_TECHNIQUES): drawn hatched, labelled ORACLE.
-ORACLES = ("lc_sim_heading", "lc_sim_heading+dyn")
+#: Each technique's colour, short label and oracle flag come from its registry entry
+#: (experiments.techniques.REGISTRY): figures never re-spell technique names.
+TECH_COLORS = {t.name: t.color for t in REGISTRY}
+TECH_LABELS = {t.name: t.short or t.name for t in REGISTRY}
+#: Oracle techniques: drawn hatched, labelled ORACLE.
+ORACLES = ORACLE_TECHNIQUES
 
 
 class _EpochColumns:

@@ -39,6 +39,7 @@ from experiments.tables import (
     select,
     thesis_row,
 )
+from experiments.techniques import course_pairs
 from sim.atomic import atomic_write, atomic_write_text
 
 __all__ = [
@@ -580,7 +581,7 @@ CLAIMS: list[Claim] = [
 ]
 
 
-_COURSE = {"lc": "lc_course", "lc+dyn": "lc_course+dyn"}
+_COURSE = course_pairs()
 
 
 def swap_techniques(claim: Claim, mapping: dict[str, str], cid_suffix: str,

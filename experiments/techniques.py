@@ -41,7 +41,9 @@ __all__ = [
     "TECHNIQUES",
     "TURNING_SOURCES",
     "Technique",
+    "course_pairs",
     "heading_rows",
+    "oracle_pairs",
     "reading_rows",
     "table_rows",
     "technique",
@@ -72,6 +74,12 @@ class Technique:
     of those rows, (label, mask, growth rule or None). heading_row : its label in the
     heading table (None: not listed).
     requires : an optional Python module it needs (e.g. "gtsam") and the pip extra, or None.
+    short : its short label in figures (box-plot groups; ``\n`` breaks a line).
+    color : its colour in figures (a Matplotlib colour string).
+    oracle_of : for an oracle, the technique whose estimated heading it replaces with the
+    truth (the pairing of the report's oracle probes). course_of : for the course-based
+    lag correction, the as-written technique it is the variant of (the report's "(course)"
+    claims).
     """
 
     name: str
@@ -86,6 +94,10 @@ class Technique:
     readings: tuple[tuple[str, str, str | None], ...] = ()
     heading_row: str | None = None
     requires: tuple[str, str] | None = None
+    short: str = ""
+    color: str = "#7f7f7f"
+    oracle_of: str | None = None
+    course_of: str | None = None
 
     def __post_init__(self) -> None:
         if self.kind not in KINDS:
@@ -102,6 +114,11 @@ class Technique:
         if (self.kind == "oracle") != (self.lag_heading == "truth"):
             raise ValueError(f"{self.name}: a technique is an oracle exactly when it uses "
                              "the true heading")
+        if (self.oracle_of is not None) != (self.kind == "oracle"):
+            raise ValueError(f"{self.name}: an oracle names the technique it is the oracle "
+                             "of (oracle_of), and only an oracle does")
+        if self.course_of is not None and self.lag != "course":
+            raise ValueError(f"{self.name}: course_of with lag {self.lag!r}")
 
     @property
     def oracle(self) -> bool:
@@ -152,57 +169,72 @@ _LC_NO_TURNS = "no_turns_window"    # the faithful reading of "LC No Turns" (Sec
 REGISTRY: tuple[Technique, ...] = (
     Technique("none", "thesis", "Sections 3.4.1, 4.12",
               "sliding-window fit (Eq. 3.9), no correction", rows=(("None", "full"),),
-              heading_row="Window fit"),
+              heading_row="Window fit",
+              short="None", color="#1f77b4"),
     Technique("lc", "thesis", "Section 3.4.2",
               "lag correction (LC) along the estimated orientation", lag="pose",
               rows=(("LC Full Path", "full"), ("LC No Turns", _LC_NO_TURNS)),
-              readings=(("LC No Turns (turning epochs only)", "no_turns", None),)),
+              readings=(("LC No Turns (turning epochs only)", "no_turns", None),),
+              short="LC", color="#ff7f0e"),
     Technique("dyn", "thesis", "Section 3.4.2.1",
               "dynamic sliding window (Dyn SW): a small window on turning epochs", dynamic=True, rows=(("Dyn SW", "full"),),
-              readings=(("Dyn SW (jump back)", "full", "jump"),)),
+              readings=(("Dyn SW (jump back)", "full", "jump"),),
+              short="Dyn SW", color="#2ca02c"),
     Technique("lc+dyn", "thesis", "Sections 3.4.2, 3.4.2.1, 4.12.4",
               "lag correction and dynamic window (LC + Dyn SW)", lag="pose", dynamic=True,
               rows=(("LC + Dyn SW", "full"),),
-              readings=(("LC + Dyn SW (jump back)", "full", "jump"),)),
+              readings=(("LC + Dyn SW (jump back)", "full", "jump"),),
+              short="LC+Dyn", color="#9467bd"),
     Technique("lc_course", "beyond", "issue 5",
               "lag correction along the estimated course (estimator.lag 'course')",
-              lag="course", rows=(("LC (course)", "full"),)),
+              lag="course", rows=(("LC (course)", "full"),),
+              short="LC course", color="#bcbd22", course_of="lc"),
     Technique("lc_course+dyn", "beyond", "issue 5",
               "course lag correction and dynamic window", lag="course", dynamic=True,
-              rows=(("LC (course) + Dyn SW", "full"),)),
+              rows=(("LC (course) + Dyn SW", "full"),),
+              short="LCc+Dyn", color="#17becf", course_of="lc+dyn"),
     Technique("motion_compensated", "beyond", "issue 5",
               "motion-compensated window: constant-velocity pose at the newest epoch",
               method="motion_compensated", rows=(("Motion-compensated", "full"),),
-              heading_row="Motion-compensated"),
+              heading_row="Motion-compensated",
+              short="Motion-comp.", color="#8c564b"),
     Technique("ekf", "beyond", "issues 5, 14",
               "pose filter: causal EKF with the configuration as measurement model",
-              method="ekf", rows=(("EKF (causal)", "full"),), heading_row="EKF (causal)"),
+              method="ekf", rows=(("EKF (causal)", "full"),), heading_row="EKF (causal)",
+              short="EKF", color="#e377c2"),
     Technique("naive", "beyond", "issue 5",
               "naive CG mean of the antennas' window means (no configuration)", method="naive",
-              rows=(("Naive CG mean", "full"),)),
+              rows=(("Naive CG mean", "full"),),
+              short="Naive", color="#7f7f7f"),
     Technique("ekf_fixed_lag", "beyond", "issue 14",
               "the pose filter's fixed-lag smoother", method="ekf_fixed_lag",
               rows=(("EKF fixed-lag smoother", "full"),),
-              heading_row="EKF fixed-lag smoother"),
+              heading_row="EKF fixed-lag smoother",
+              short="EKF fixed-lag", color="#c5b0d5"),
     Technique("ekf_smoother", "beyond", "issue 14",
               "the pose filter's full RTS smoother", method="ekf_smoother",
-              rows=(("EKF RTS smoother", "full"),), heading_row="EKF RTS smoother"),
+              rows=(("EKF RTS smoother", "full"),), heading_row="EKF RTS smoother",
+              short="EKF RTS", color="#f7b6d2"),
     Technique("gtsam", "beyond", "issue 14",
               "GTSAM fixed-lag factor graph on the same measurements (peer)", method="gtsam",
               rows=(("GTSAM fixed-lag (peer)", "full"),),
-              heading_row="GTSAM fixed-lag (peer)", requires=("gtsam", "gtsam")),
+              heading_row="GTSAM fixed-lag (peer)", requires=("gtsam", "gtsam"),
+              short="GTSAM", color="#9edae5"),
     Technique("lc_smoothed_heading", "beyond", "issue 14",
               "lag correction fed the pose filter's RTS-smoothed heading", lag="pose",
-              lag_heading="smoothed", rows=(("LC, smoothed heading", "full"),)),
+              lag_heading="smoothed", rows=(("LC, smoothed heading", "full"),),
+              short="LC smoothed\nhdg", color="#ffbb78"),
     Technique("lc_sim_heading", "oracle", "issue 15",
               "ORACLE: lag correction fed the simulator's heading", lag="pose",
               lag_heading="truth",
               rows=(("Oracle: LC (simulator heading)", "full"),
-                    ("Oracle: LC (simulator heading) No Turns", _LC_NO_TURNS))),
+                    ("Oracle: LC (simulator heading) No Turns", _LC_NO_TURNS)),
+              short="ORACLE\nLC sim hdg", color="#ffffff", oracle_of="lc"),
     Technique("lc_sim_heading+dyn", "oracle", "issue 15",
               "ORACLE: lag correction fed the simulator's heading, + Dyn SW", lag="pose",
               lag_heading="truth", dynamic=True,
-              rows=(("Oracle: LC (simulator heading) + Dyn SW", "full"),)),
+              rows=(("Oracle: LC (simulator heading) + Dyn SW", "full"),),
+              short="ORACLE\nLC sim+Dyn", color="#dddddd", oracle_of="lc+dyn"),
 )
 
 _BY_NAME = {t.name: t for t in REGISTRY}
@@ -220,6 +252,17 @@ NO_SOLVER = tuple(t.name for t in REGISTRY if not t.uses_solver)
 NO_WEIGHTS = tuple(t.name for t in REGISTRY if not t.uses_weights)
 #: Techniques with the dynamic window (dyn_window, turning and dyn_growth apply).
 DYNAMIC = tuple(t.name for t in REGISTRY if t.dynamic)
+
+
+def oracle_pairs() -> dict[str, str]:
+    """The estimated-heading technique -> its oracle (the simulator's heading), from the
+    entries' ``oracle_of``."""
+    return {t.oracle_of: t.name for t in REGISTRY if t.oracle_of is not None}
+
+
+def course_pairs() -> dict[str, str]:
+    """The as-written lag correction -> its course-based variant, from ``course_of``."""
+    return {t.course_of: t.name for t in REGISTRY if t.course_of is not None}
 
 
 def technique(name: str) -> Technique:
