@@ -20,8 +20,14 @@ def test_readme_has_exactly_two_setup_commands():
         "pip install -e . && python -m experiments.sweep",
         "pip install -e '.[test]' && python -m pytest -q",
     ]
-    ci = (ROOT / ".ci" / "run").read_text()
-    assert "pip install -q -e '.[test]' && python -m pytest -q" in ci
+    ci_lines = [ln.strip() for ln in (ROOT / ".ci" / "run").read_text().splitlines()]
+    # CI runs the README's test command as written, as its last line (so pytest's exit code
+    # is the script's), inside a virtual environment it has just created and activated
+    assert ci_lines[-1] == commands[1].strip()
+    venv = next(i for i, ln in enumerate(ci_lines) if ln.startswith("python3 -m venv "))
+    activate = next(i for i, ln in enumerate(ci_lines) if ln.startswith("source ")
+                    and ln.endswith("/bin/activate\""))
+    assert venv < activate < len(ci_lines) - 1
 
 
 BLOCKS = re.findall(r"```python\n(.*?)```", README, re.DOTALL)
