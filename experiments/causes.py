@@ -38,7 +38,7 @@ from dataclasses import dataclass
 import numpy as np
 import pandas as pd
 
-from experiments.report import (
+from experiments.claims import (
     P1,
     ClaimResult,
     _derived,
@@ -71,7 +71,7 @@ class Evidence:
     """What the Cause lines are measured from.
 
     cells : one variant's cells with every reading and oracle row (pseudo-conditions of
-    :func:`experiments.report._derived` added). main : the cells the claims were evaluated
+    :func:`experiments.claims._derived` added). main : the cells the claims were evaluated
     on (the faithful readings). studies : the side studies of the whole sweep
     (:func:`experiments.tables.side_studies`).
     """

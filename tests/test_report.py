@@ -11,8 +11,8 @@ import pandas as pd
 import pytest
 
 from experiments import causes as causes_mod
-from experiments import report, tables
-from experiments.report import CLAIMS, Comparison, compare, evaluate_claims, verdict
+from experiments import claims, report, tables
+from experiments.claims import CLAIMS, Comparison, compare, evaluate_claims, verdict
 
 
 def _cells(values: dict, seeds=range(5), noise=0.01, rng_seed=0) -> pd.DataFrame:
@@ -239,8 +239,8 @@ def test_oracle_rows_are_labelled_and_never_counted(tmp_path):
     assert pd.read_csv(tmp_path / "by_cell.csv").query("technique == 'lc_sim_heading'")[
         "oracle"].all()
     no_oracle = cells[~cells["technique"].str.startswith("lc_sim")]
-    with_o = {r.claim.cid: r.verdict for r in evaluate_claims(report._derived(cells))}
-    without = {r.claim.cid: r.verdict for r in evaluate_claims(report._derived(no_oracle))}
+    with_o = {r.claim.cid: r.verdict for r in evaluate_claims(claims._derived(cells))}
+    without = {r.claim.cid: r.verdict for r in evaluate_claims(claims._derived(no_oracle))}
     assert with_o == without
     text = report.write_report(cells, tmp_path).read_text()
     # LC + Dyn SW worse than None at window 100: C21 not reproduced; its Cause line names
@@ -294,7 +294,7 @@ def test_faithful_reading_in_tables_and_claims():
     assert df2.loc[(100, "LC No Turns"), "mask"] == "no_turns"
     assert "LC No Turns (turning epochs only)" not in df2.index.get_level_values(1)
     # claims run on one growth rule per seed (no "matches several cells" error)
-    res = {r.claim.cid: r for r in evaluate_claims(report._derived(tables.faithful(cells)))}
+    res = {r.claim.cid: r for r in evaluate_claims(claims._derived(tables.faithful(cells)))}
     assert res["C16"].verdict == "reproduced"
 
 

@@ -121,17 +121,17 @@ def test_figures_and_report_pairings_come_from_the_registry():
     """Every technique has a figure colour and label (a technique added to the registry
     cannot be a KeyError in a figure), distinct colours, and the report's oracle and
     course pairings name registered techniques of the right kind."""
-    from experiments import causes, figures, report
+    from experiments import causes, claims, figures
 
     assert set(figures.TECH_COLORS) == set(TECHNIQUES) == set(figures.TECH_LABELS)
     assert len(set(figures.TECH_COLORS.values())) == len(TECHNIQUES)
     assert set(figures.ORACLES) == set(ORACLE_TECHNIQUES)
     assert causes.ORACLE_SWAP == {"lc": "lc_sim_heading", "lc+dyn": "lc_sim_heading+dyn"}
-    assert report._COURSE == {"lc": "lc_course", "lc+dyn": "lc_course+dyn"}
+    assert claims._COURSE == {"lc": "lc_course", "lc+dyn": "lc_course+dyn"}
     for plain, oracle in causes.ORACLE_SWAP.items():
         assert technique(oracle).oracle and not technique(plain).oracle
         assert technique(oracle).dynamic == technique(plain).dynamic
-    for plain, course in report._COURSE.items():
+    for plain, course in claims._COURSE.items():
         assert technique(course).lag == "course" and technique(plain).lag == "pose"
         assert technique(course).dynamic == technique(plain).dynamic
 
