@@ -1,6 +1,8 @@
 """Figure of the simulated truth paths: the GPS rover on Path 1 and the quadcopter square.
 
-    python -m experiments.paths_figure            # writes results/figures/paths.png
+    python -m experiments.paths_figure              # -> results/local/figures/paths.png (ignored)
+    python -m experiments.paths_figure --reference  # regenerates the committed results/figures/paths.png
+    python -m experiments.paths_figure --out /tmp/paths.png
 
 Left: the rover (sim.rover) driving Path 1 of the GPS dissertation (Section 4.9), its
 reference point at 10 Hz, with the 3 m target areas around the corners and an inset of the
@@ -20,14 +22,19 @@ from matplotlib.axes import Axes
 from matplotlib.figure import Figure
 from matplotlib.patches import Circle
 
-from estimator.configuration import MODELS_DIR, SensorConfig
+from estimator.configuration import SensorConfig
+from experiments.spec import RESULTS_ROOT
 from sim.cache import DEFAULT_CACHE_DIR
 from sim.paths import Path, load_path, path_errors
 from sim.truth import Truth
 
 __all__ = ["draw_panel", "main", "plot_paths"]
 
-DEFAULT_OUT = MODELS_DIR.parent / "results" / "figures" / "paths.png"
+#: The committed figure; written only by ``--reference``.
+REFERENCE_OUT = RESULTS_ROOT / "figures" / "paths.png"
+#: Default output of every other run (``results/local/`` is ignored by git).
+DEFAULT_OUT = RESULTS_ROOT / "local" / "figures" / "paths.png"
+DEFAULT_ROVER_PATH, DEFAULT_QUAD_PATH = "square100", "quad_square6"
 ROVER_FIGURE_RATE_HZ = 10.0   # denser than the 1 Hz GPS truth so the curved turns show
 
 
@@ -97,14 +104,44 @@ def plot_paths(panels: list[tuple[Truth, Path, str, int | None]], out: str | FsP
     return out
 
 
+def _rel(p: FsPath) -> str:
+    """``p`` relative to the results folder's parent when inside it (for messages)."""
+    try:
+        return str(p.resolve().relative_to(RESULTS_ROOT.parent.resolve()))
+    except ValueError:
+        return str(p)
+
+
+def _output(ap: argparse.ArgumentParser, args: argparse.Namespace) -> FsPath:
+    """Where the figure goes: the committed reference only with ``--reference`` (which takes
+    the default paths and no ``--out``), else ``--out`` or the ignored default."""
+    if args.reference:
+        if (args.out is not None or args.rover_path != DEFAULT_ROVER_PATH
+                or args.quad_path != DEFAULT_QUAD_PATH):
+            ap.error("--reference regenerates the committed figure with the default paths; it "
+                     "takes no --out, --rover-path or --quad-path")
+        return REFERENCE_OUT
+    out = FsPath(args.out) if args.out is not None else DEFAULT_OUT
+    if out.resolve() == REFERENCE_OUT.resolve():
+        ap.error(f"--out {args.out}: {_rel(REFERENCE_OUT)} is the committed reference; "
+                 "regenerate it with --reference, write other figures elsewhere")
+    return out
+
+
 def main(argv: list[str] | None = None) -> FsPath:
     """CLI: simulate (or load from the cache) both platforms and write the figure."""
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--out", default=str(DEFAULT_OUT), help="output PNG (default %(default)s)")
-    ap.add_argument("--rover-path", default="square100")
-    ap.add_argument("--quad-path", default="quad_square6")
+    ap = argparse.ArgumentParser(prog="python -m experiments.paths_figure",
+                                 description=__doc__.splitlines()[0])
+    ap.add_argument("--out", default=None,
+                    help=f"output PNG (default {_rel(DEFAULT_OUT)}, ignored by git; "
+                         f"{_rel(REFERENCE_OUT)} only through --reference)")
+    ap.add_argument("--reference", action="store_true",
+                    help=f"regenerate the committed {_rel(REFERENCE_OUT)} (default paths)")
+    ap.add_argument("--rover-path", default=DEFAULT_ROVER_PATH)
+    ap.add_argument("--quad-path", default=DEFAULT_QUAD_PATH)
     ap.add_argument("--no-cache", action="store_true", help="simulate without the truth cache")
     args = ap.parse_args(argv)
+    target = _output(ap, args)
 
     from sim.quadcopter import simulate_quadcopter
     from sim.rover import simulate_rover
@@ -118,7 +155,7 @@ def main(argv: list[str] | None = None) -> FsPath:
         (rover, rover_path, f"GPS rover, {rover_path.name} at {rover_path.cruise_speed_mps:g} m/s",
          0),
         (quad, quad_path, f"quadcopter, {quad_path.name} at {quad_path.altitude_m:g} m", None),
-    ], args.out)
+    ], target)
     for name, tr, p in (("rover", rover, rover_path), ("quadcopter", quad, quad_path)):
         e = path_errors(tr.cg, p)
         print(f"{name:10s} {p.name}: {tr.t[-1]:.1f} s, cut-in per corner "
