@@ -4,12 +4,14 @@ TUM format (one pose per line): ``timestamp tx ty tz qx qy qz qw`` (seconds, met
 quaternion). The platform is planar: ``tz`` is 0 and the quaternion is the rotation by the
 heading about +z, ``(0, 0, sin(yaw/2), cos(yaw/2))`` (yaw CCW from +x, DESIGN.md).
 
-Any cell of a results folder can be exported: from its per-epoch file when the spec kept
+The cell is chosen by ``--key`` or ``--where`` terms (:mod:`experiments.selection`; an
+ambiguous selection names the axes that differ and the terms to add). Any cell of a results
+folder can be exported: from its per-epoch file when the spec kept
 one, otherwise the cell is recomputed from the spec recorded in the folder's manifest
 (the truth comes from the simulation cache) and its per-epoch file is written first.
 
     python -m experiments.export results/thesis --where path=square100 window=100 \\
-        technique=lc+dyn weighting=huff seed=0
+        technique=lc+dyn weighting=huff dyn_growth=refill 'noise_overrides={}' seed=0
     evo_ape tum results/thesis/tum/<key>_truth.tum results/thesis/tum/<key>_estimate.tum -a
 
 Rows whose estimate is not finite (e.g. the naive baseline has no heading, windows with
@@ -26,7 +28,9 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-__all__ = ["export_tum", "find_cell", "main", "write_tum"]
+from experiments.selection import find_cell, parse_where
+
+__all__ = ["export_tum", "find_cell", "main", "parse_where", "write_tum"]
 
 
 def write_tum(path: str | Path, t: np.ndarray, xy: np.ndarray, yaw: np.ndarray,
@@ -49,35 +53,6 @@ def write_tum(path: str | Path, t: np.ndarray, xy: np.ndarray, yaw: np.ndarray,
     path.parent.mkdir(parents=True, exist_ok=True)
     np.savetxt(path, arr, fmt="%.6f", header="timestamp tx ty tz qx qy qz qw")
     return path, int(n - ok.sum())
-
-
-def _parse_where(items: list[str]) -> dict:
-    out = {}
-    for it in items:
-        if "=" not in it:
-            raise ValueError(f"--where: expected axis=value, got {it!r}")
-        k, v = it.split("=", 1)
-        out[k] = int(v) if k in ("window", "seed", "dyn_window") else v
-    return out
-
-
-def find_cell(results: str | Path, key: str | None = None, where: dict | None = None
-              ) -> pd.Series:
-    """The one cell of a results folder matching ``key`` or every ``where`` axis value."""
-    cells = pd.read_parquet(Path(results) / "cells.parquet").drop_duplicates("key")
-    if key is not None:
-        sel = cells[cells["key"] == key]
-    else:
-        sel = cells
-        for k, v in (where or {}).items():
-            if k not in sel.columns:
-                raise ValueError(f"where: unknown axis {k!r}")
-            sel = sel[sel[k] == v]
-    if len(sel) != 1:
-        cols = ["key", "path", "window", "weighting", "technique", "solver", "seed"]
-        raise ValueError(f"expected exactly one matching cell, found {len(sel)}"
-                         + (f":\n{sel[cols].head(10).to_string(index=False)}" if len(sel) else ""))
-    return sel.iloc[0]
 
 
 def _epochs(results: Path, cell: pd.Series) -> pd.DataFrame:
@@ -128,20 +103,32 @@ def export_tum(results: str | Path, key: str | None = None, where: dict | None =
     return est, tru
 
 
+#: The ``--help`` examples: each selects exactly one cell of the thesis preset's run
+#: (tests/test_export.py checks them against a sweep's cell table).
+EPILOG = """examples:
+  python -m experiments.sweep --preset quick --out /tmp/quick
+  python -m experiments.export /tmp/quick --where window=10 technique=lc seed=0
+  python -m experiments.export results/thesis --where path=square100 window=100 \\
+      technique=lc+dyn weighting=huff dyn_growth=refill 'noise_overrides={}' seed=0 \\
+      --out /tmp/tum"""
+
+
 def main(argv: list[str] | None = None) -> int:
     p = argparse.ArgumentParser(
         prog="python -m experiments.export",
         description="Export one cell of a sweep as TUM trajectories (estimate and truth) for "
-                    "evo. Example: python -m experiments.export results/thesis --where "
-                    "path=square100 window=100 technique=lc+dyn weighting=huff seed=0")
+                    "evo.",
+        epilog=EPILOG, formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("results", help="results folder, e.g. results/thesis")
     p.add_argument("--key", help="the cell's key (see cells.parquet)")
     p.add_argument("--where", nargs="*", default=[], metavar="AXIS=VALUE",
-                   help="select the cell by axis values, e.g. window=100 technique=lc seed=0")
+                   help="select the cell by axis values (the columns of cells.parquet), e.g. "
+                        "window=100 technique=lc seed=0; if several cells match, the error "
+                        "lists the axes that differ and the terms to add")
     p.add_argument("--out", help="output folder (default <results>/tum)")
     args = p.parse_args(argv)
     try:
-        est, tru = export_tum(args.results, args.key, _parse_where(args.where), args.out)
+        est, tru = export_tum(args.results, args.key, parse_where(args.where), args.out)
     except ValueError as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 2

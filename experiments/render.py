@@ -1,7 +1,8 @@
 """Rendered clips of a run: the MuJoCo scenes drawn offscreen to an MP4 or a GIF.
 
     python -m experiments.render results/thesis --where path=square100 window=100 \\
-        technique=lc+dyn weighting=huff seed=0 --out clip.mp4
+        technique=lc+dyn weighting=huff dyn_growth=refill 'noise_overrides={}' seed=0 \\
+        --out clip.mp4
     python -m experiments.render --flight results/ultrasonic --out flight.gif --fps 15
 
 - A sweep cell (named like :mod:`experiments.export`: ``--key`` or ``--where`` axis values):
@@ -426,7 +427,8 @@ def render_cell(results: str | Path, out: str | Path, *, key: str | None = None,
                 progress: bool = True) -> Path:
     """Render one cell of a sweep results folder (chosen by key or axis values) to ``out``."""
     _choose_gl()
-    from experiments.export import _epochs, find_cell
+    from experiments.export import _epochs
+    from experiments.selection import find_cell
 
     results, out = Path(results), Path(out)
     opts = _even(opts, out)
@@ -468,14 +470,15 @@ def _size(text: str) -> tuple[int, int]:
 
 def main(argv: list[str] | None = None) -> int:
     _choose_gl()
-    from experiments.export import _parse_where
+    from experiments.selection import parse_where
 
     p = argparse.ArgumentParser(
         prog="python -m experiments.render",
         description="Render a sweep cell (the rover, its estimate as a ghost) or the "
                     "ultrasonic flight (quadcopter, receivers, range rays) offscreen to MP4/GIF.",
         epilog="examples:\n  python -m experiments.render results/thesis --where path=square100 "
-               "window=100 technique=lc+dyn weighting=huff seed=0 --out clip.mp4\n"
+               "window=100 \\\n      technique=lc+dyn weighting=huff dyn_growth=refill "
+               "'noise_overrides={}' seed=0 --out clip.mp4\n"
                "  python -m experiments.render --flight results/ultrasonic --out flight.gif "
                "--fps 15 --size 480x360",
         formatter_class=argparse.RawDescriptionHelpFormatter)
@@ -511,7 +514,7 @@ def main(argv: list[str] | None = None) -> int:
             path = render_flight(args.flight, args.out, opts=opts, progress=not args.quiet)
         else:
             path = render_cell(args.results, args.out, key=args.key,
-                               where=_parse_where(args.where), opts=opts,
+                               where=parse_where(args.where), opts=opts,
                                progress=not args.quiet)
     except ValueError as exc:
         print(f"error: {exc}", file=sys.stderr)
