@@ -64,7 +64,7 @@ import numpy as np
 from estimator._checks import check_array, check_int
 from estimator.configuration import SensorConfig
 from estimator.orientation import wrap_angle
-from estimator.window import (
+from estimator.rigid_fit import (
     PROX_WEIGHT,
     _check_eps,
     _geometry,
