@@ -102,10 +102,13 @@ def _fmt(seconds: float) -> str:
 
 
 def print_table(rows: list[dict], columns: list[str]) -> None:
-    print("| " + " | ".join(columns) + " |")
-    print("|" + "|".join("---" for _ in columns) + "|")
+    """``rows`` as a Markdown table of ``columns`` on stdout (cells escaped)."""
+    from experiments.markdown import md_row, md_separator
+
+    print(md_row(columns))
+    print(md_separator(len(columns)))
     for r in rows:
-        print("| " + " | ".join(str(r[c]) for c in columns) + " |")
+        print(md_row(r[c] for c in columns))
 
 
 # ----------------------------------------------------------------------------- sections
@@ -539,8 +542,10 @@ def _peak_rss_bytes() -> int:
 
 # ----------------------------------------------------------------------------- CLI
 def main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(prog="python -m experiments.bench", description=__doc__,
-                                     formatter_class=argparse.RawDescriptionHelpFormatter)
+    from experiments.cli import ArgumentParser
+
+    parser = ArgumentParser(prog="python -m experiments.bench", description=__doc__,
+                            formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--only", choices=sorted(SECTIONS), help="run one section")
     parser.add_argument("--quick", action="store_true", help="fewer repetitions")
     args = parser.parse_args(argv)
@@ -551,4 +556,6 @@ def main(argv: list[str] | None = None) -> int:
 
 
 if __name__ == "__main__":
-    raise SystemExit(main())
+    from experiments.cli import run as run_cli
+
+    run_cli(main)

@@ -48,6 +48,7 @@ from experiments.claims import (
     evaluate_claims,
     swap_techniques,
 )
+from experiments.markdown import md_row, md_separator
 from experiments.tables import (
     THESIS_TABLES,
     THESIS_WINDOWS,
@@ -630,9 +631,9 @@ def seed_spread_section(cells: pd.DataFrame) -> list[str]:
               "per-seed value beside the published one. Two rows computed on the same noise "
               "(common random numbers) differ only where their estimates differ (Dyn SW and "
               "None below: only where a turn is in the window)."), "",
-             ("| Window | Axis | Statistic | Published (one run) | Ours: mean [95 % CI] | "
-             "Ours: per-seed min - max | Published inside? |"),
-             "|---|---|---|---|---|---|---|"]
+             md_row(["Window", "Axis", "Statistic", "Published (one run)",
+                     "Ours: mean [95 % CI]", "Ours: per-seed min - max", "Published inside?"]),
+             md_separator(7)]
     n_rows = 0
     for w in THESIS_WINDOWS:
         for ax in ("x", "y"):
@@ -644,8 +645,8 @@ def seed_spread_section(cells: pd.DataFrame) -> list[str]:
                 pub = THESIS_TABLES[ax][(w, "None")][st]
                 m, lo, hi, _ = seed_ci(v, lower=0.0)        # |error| statistics >= 0
                 inside = "yes" if v.min() <= pub <= v.max() else "no"
-                lines.append(f"| {w} | {ax} | {st} | {pub:.3f} | {m:.3f} [{lo:.3f}, {hi:.3f}] "
-                             f"| {v.min():.3f} - {v.max():.3f} | {inside} |")
+                lines.append(md_row([w, ax, st, f"{pub:.3f}", f"{m:.3f} [{lo:.3f}, {hi:.3f}]",
+                                     f"{v.min():.3f} - {v.max():.3f}", inside]))
                 n_rows += 1
     if not n_rows:
         return []
@@ -659,12 +660,13 @@ def seed_spread_section(cells: pd.DataFrame) -> list[str]:
         if d.empty:
             continue
         pub = THESIS_TABLES["x"][(w, "Dyn SW")]["mean"] - THESIS_TABLES["x"][(w, "None")]["mean"]
-        d_lines.append(f"| {w} | {pub:+.3f} | {d.mean():+.3f} | {d.min():+.3f} - {d.max():+.3f} |")
+        d_lines.append(md_row([w, f"{pub:+.3f}", f"{d.mean():+.3f}",
+                               f"{d.min():+.3f} - {d.max():+.3f}"]))
     if d_lines:
         lines += [("Dyn SW minus None, mean |x| (m): on shared noise the two differ only where a "
                    "turn is in the window; the published difference is that of two runs."), "",
-                  "| Window | Published | Ours: mean over seeds | Ours: per-seed min - max |",
-                  "|---|---|---|---|", *d_lines, ""]
+                  md_row(["Window", "Published", "Ours: mean over seeds",
+                          "Ours: per-seed min - max"]), md_separator(4), *d_lines, ""]
     return lines
 
 
@@ -689,10 +691,10 @@ def observability_section(main: pd.DataFrame, studies: pd.DataFrame) -> list[str
               "heading is observed. The lag correction of Section 3.4.2 shifts each estimate "
               "along that heading. Mean |x| / |y| CG error (m) at window 100; median "
               "heading error (deg, Eq. 4.2) technique None."), "",
-             ("| common_fraction | per-receiver Gauss-Markov sigma (m) | heading error "
-             "w=1 / 100 (deg) "
-             "| LC Full Path | LC + Dyn SW | Oracle: LC (simulator heading) |"),
-             "|---|---|---|---|---|---|"]
+             md_row(["common_fraction", "per-receiver Gauss-Markov sigma (m)",
+                     "heading error w=1 / 100 (deg)", "LC Full Path", "LC + Dyn SW",
+                     "Oracle: LC (simulator heading)"]),
+             md_separator(6)]
     res = []
     for ov, src in settings:
         cf = json.loads(ov).get("common_fraction", model.common_fraction if model else None)
@@ -705,17 +707,16 @@ def observability_section(main: pd.DataFrame, studies: pd.DataFrame) -> list[str
                    _m(src, "ey_mean", window=100, technique=t, **where))
                for t in ("lc", "lc+dyn", "lc_sim_heading")}
         res.append((cf, eh[0] if np.isfinite(eh[0]) else math.nan, row))
-        cells_txt = " | ".join(f"{row[t][0]:.3f} / {row[t][1]:.3f}" if _ok(*row[t]) else "n/a"
-                               for t in ("lc", "lc+dyn", "lc_sim_heading"))
+        cells_txt = [f"{row[t][0]:.3f} / {row[t][1]:.3f}" if _ok(*row[t]) else "n/a"
+                     for t in ("lc", "lc+dyn", "lc_sim_heading")]
         label = f"{cf:g}" + (" (shipped)" if ov == "{}" else "") if cf is not None else ov
-        lines.append(f"| {label} | {sig} | " + " / ".join(f"{v:.1f}" for v in eh)
-                     + f" | {cells_txt} |")
+        lines.append(md_row([label, sig, " / ".join(f"{v:.1f}" for v in eh), *cells_txt]))
     pub = (THESIS_TABLES["x"][(100, "LC Full Path")]["mean"],
            THESIS_TABLES["y"][(100, "LC Full Path")]["mean"])
     pub_dyn = (THESIS_TABLES["x"][(100, "LC + Dyn SW")]["mean"],
                THESIS_TABLES["y"][(100, "LC + Dyn SW")]["mean"])
-    lines += [(f"| published (one run) | | | {pub[0]:.3f} / {pub[1]:.3f} | "
-              f"{pub_dyn[0]:.3f} / {pub_dyn[1]:.3f} | |"), ""]
+    lines += [md_row(["published (one run)", "", "", f"{pub[0]:.3f} / {pub[1]:.3f}",
+                      f"{pub_dyn[0]:.3f} / {pub_dyn[1]:.3f}", ""]), ""]
     lines += [_implied_setting(res, pub), ""]
     return lines
 

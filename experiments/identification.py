@@ -79,6 +79,7 @@ from estimator.sysid import (
     step_response,
     total_lag,
 )
+from experiments.markdown import md_row, md_separator
 from experiments.provenance import git_describe
 
 __all__ = ["AXIS_FORMS", "THESIS", "AxisIdentification", "identification_series",
@@ -583,10 +584,10 @@ def _report(table: pd.DataFrame, results: Mapping[str, AxisIdentification], meta
               + (f", step validation {r.step_pct:.2f}" if math.isfinite(r.step_pct) else "")
               + f". Status clean `{c.status}`" + (f", noisy `{n.status}`" if n else "") + ".",
               ""]
-        L += [("| parameter | thesis | simulator constants | clean fit [95 % CI] "
-               "| noisy fit [95 % CI] | thesis in CI | identifiable (clean / noisy / MC frac) "
-               "| MC mean +- std |"),
-              "|---|---|---|---|---|---|---|---|"]
+        L += [md_row(["parameter", "thesis", "simulator constants", "clean fit [95 % CI]",
+                      "noisy fit [95 % CI]", "thesis in CI",
+                      "identifiable (clean / noisy / MC frac)", "MC mean +- std"]),
+              md_separator(8)]
         for _, row in table[table.axis == axis].iterrows():
             thesis = (f"{_fmt(row['thesis'], 5)} {row['thesis_unit']}"
                       if row["parameter"] == "K" else f"{_fmt(row['thesis'], 5)}")
@@ -596,10 +597,10 @@ def _report(table: pd.DataFrame, results: Mapping[str, AxisIdentification], meta
                      f" / {_fmt(row['mc_identifiable_frac'], 2)}")
             simc = "-" if not math.isfinite(row["simulator"]) else (
                 f"{_fmt(row['simulator'])} ({row['simulator_note']})")
-            L.append(f"| {row['parameter']} ({row['unit']}) | {thesis} | {simc} "
-                     f"| {_fmt(row['clean'])} {ci_c} | {_fmt(row['noisy'])} {ci_n} "
-                     f"| {_yes(row['thesis_in_noisy_ci'])} | {flags} "
-                     f"| {_fmt(row['mc_mean'])} +- {_fmt(row['mc_std'], 2)} |")
+            L.append(md_row([f"{row['parameter']} ({row['unit']})", thesis, simc,
+                             f"{_fmt(row['clean'])} {ci_c}", f"{_fmt(row['noisy'])} {ci_n}",
+                             _yes(row["thesis_in_noisy_ci"]), flags,
+                             f"{_fmt(row['mc_mean'])} +- {_fmt(row['mc_std'], 2)}"]))
         L += [""]
         if form == "second_order":
             for name, f in (("clean", c), ("noisy", n)):
@@ -646,19 +647,20 @@ def _evidence_section(rows: pd.DataFrame, window: dict | None) -> list[str]:
           f"F450 ranges (`sim.quadcopter.F450_RANGES`): {rng_txt}. Chain = the linearised "
           "chain `sim.quadcopter.pitch_chain`; fit = the clean fit of the MuJoCo impulse "
           "response (8 s record)."), "",
-         "| case | mode | drag/m (1/s) | h (m) | Iyy (kg m^2) | k_rate (1/s) | in F450 "
-         "ranges | chain Tw / zeta / Td (s, -, s) | fit Tw / zeta / Td | fit % |",
-         "|---|---|---|---|---|---|---|---|---|---|"]
+         md_row(["case", "mode", "drag/m (1/s)", "h (m)", "Iyy (kg m^2)", "k_rate (1/s)",
+                 "in F450 ranges", "chain Tw / zeta / Td (s, -, s)", "fit Tw / zeta / Td",
+                 "fit %"]),
+         md_separator(10)]
     for _, r in rows.iterrows():
         fit = (f"{_fmt(r['fit_Tw'])} / {_fmt(r['fit_zeta'])} / {_fmt(r['fit_Td'])}"
                if "fit_Tw" in r and math.isfinite(r.get("fit_Tw", float("nan"))) else "-")
         pct = _fmt(r["fit_pct"], 5) if "fit_pct" in r and math.isfinite(
             r.get("fit_pct", float("nan"))) else "-"
-        L.append(f"| {r['case']} | {r['pitch_mode']} | {_fmt(r['drag_xy_per_kg'])} | "
-                 f"{_fmt(r['rotor_height_m'])} | {_fmt(r['inertia_yy'])} | "
-                 f"{_fmt(r['k_rate'])} | {_yes(r['in_f450_ranges'])} | "
-                 f"{_fmt(r['chain_Tw'])} / {_fmt(r['chain_zeta'])} / {_fmt(r['chain_Td'])} | "
-                 f"{fit} | {pct} |")
+        L.append(md_row([r["case"], r["pitch_mode"], _fmt(r["drag_xy_per_kg"]),
+                         _fmt(r["rotor_height_m"]), _fmt(r["inertia_yy"]), _fmt(r["k_rate"]),
+                         _yes(r["in_f450_ranges"]),
+                         f"{_fmt(r['chain_Tw'])} / {_fmt(r['chain_zeta'])} / "
+                         f"{_fmt(r['chain_Td'])}", fit, pct]))
     rate = rows[rows.pitch_mode == "rate"]
     inside = rate[rate.in_f450_ranges]
     imp = rows.iloc[-1]
@@ -790,8 +792,10 @@ def plot_identification(out_dir: str | Path) -> list[Path]:
 
 def main(argv: list[str] | None = None) -> int:
     """CLI: ``python -m experiments.identification``."""
-    ap = argparse.ArgumentParser(prog="python -m experiments.identification",
-                                 description=__doc__.split("\n")[0])
+    from experiments.cli import ArgumentParser
+
+    ap = ArgumentParser(prog="python -m experiments.identification",
+                        description=__doc__.split("\n")[0])
     ap.add_argument("--out", default=str(REPO / "results" / "ultrasonic"),
                     help="output folder (default results/ultrasonic)")
     ap.add_argument("--seed", type=int, default=0)
@@ -808,4 +812,6 @@ def main(argv: list[str] | None = None) -> int:
 
 
 if __name__ == "__main__":
-    sys.exit(main())
+    from experiments.cli import run as run_cli
+
+    run_cli(main)

@@ -57,8 +57,10 @@ __all__ = [
     "faithful",
     "fmt_ci",
     "heading_table",
+    "merge_window_repeats",
     "numpy_strings",
     "orientation_table",
+    "run_name",
     "seed_ci",
     "side_studies",
     "thesis_row",
@@ -539,8 +541,45 @@ def _num(col: str, digits: int = 3):
     return lambda r: "" if not np.isfinite(r[col]) else f"{r[col]:.{digits}f}"
 
 
+def _window_text(r: pd.Series) -> str:
+    """The Window cell: the row's window, or the windows a merged row stands for
+    (:func:`merge_window_repeats`)."""
+    w = r.get("windows")
+    return str(r["window"]) if not isinstance(w, str) or not w else w
+
+
+def merge_window_repeats(df: pd.DataFrame) -> pd.DataFrame:
+    """Rows of a :func:`thesis_table` whose technique ignores the window (the pose-filter
+    family, :data:`FILTER_TECHNIQUES`: the window only sets where its first estimate is
+    scored) merged across windows where every number is identical; the kept row (the
+    first window's) gets ``windows`` = the windows it stands for, e.g. "1, 5, 10".
+
+    Only exact repeats merge (the numbers compared by their ``repr``, i.e. bit for bit), so
+    no value changes and a window whose numbers differ (window 100's later first estimate)
+    keeps its own row. Other rows are untouched (``windows`` "").
+    """
+    if df.empty or "technique" not in df.columns:
+        return df
+    labels = {lab for lab, (tech, _) in BEYOND_ROWS.items() if tech in FILTER_TECHNIQUES}
+    out = df.copy()
+    out["windows"] = ""
+    vals = [c for c in df.columns if c != "window"]
+    drop: list = []
+    for lab in labels & set(df["technique"]):
+        idx = df.index[df["technique"] == lab]
+        groups: dict[tuple, list] = {}
+        for i in sorted(idx, key=lambda i: df.at[i, "window"]):
+            groups.setdefault(tuple(repr(df.at[i, c]) for c in vals), []).append(i)
+        for members in groups.values():
+            if len(members) > 1:
+                out.at[members[0], "windows"] = ", ".join(str(int(df.at[i, "window"]))
+                                                          for i in members)
+                drop += members[1:]
+    return out.drop(index=drop)
+
+
 def thesis_table_md(df: pd.DataFrame) -> str:
-    cols = [("Window", "window"), ("Technique", "technique")]
+    cols = [("Window", _window_text), ("Technique", "technique")]
     for s in STATS:
         cols += [(f"{s.capitalize()} (ours, 95 % CI)", _ci(s)), (f"{s.capitalize()} (thesis)",
                                                                   _num(f"{s}_thesis"))]
@@ -595,8 +634,13 @@ def _variant_tables(cells: pd.DataFrame, out: Path, vlabel: str) -> list[str]:
                        f"estimated one. They show what the method gives when the heading is "
                        f"right, |{axis}| error:"), "", thesis_table_md(oracle), ""]
             if not beyond.empty:
+                merged = merge_window_repeats(beyond)
+                same = (" The pose-filter rows do not use the window (it only sets the first "
+                        "scored estimate): a row with the same numbers at several windows is "
+                        "shown once, its windows listed."
+                        if (merged["windows"] != "").any() else "")
                 md += [(f"Beyond the dissertation (and window 1), same path and weights, full "
-                       f"path, |{axis}| error:"), "", thesis_table_md(beyond), ""]
+                       f"path, |{axis}| error.{same}"), "", thesis_table_md(merged), ""]
     wt = weighting_table(cells)
     if not wt.empty:
         atomic_write(out / f"weighting{tag}.csv", lambda p: wt.to_csv(p, index=False))
@@ -675,16 +719,31 @@ def numpy_strings(cells: pd.DataFrame) -> pd.DataFrame:
     return cells.astype(cols) if cols else cells
 
 
-def write_tables(cells: pd.DataFrame, out_dir: str | Path) -> Path:
+def run_name(out_dir: str | Path, spec=None) -> str:
+    """The run's name for titles: ``spec.name``, else the spec name recorded in
+    ``<out_dir>/manifest.json``, else the folder's name (a folder without a manifest)."""
+    if spec is not None and getattr(spec, "name", None):
+        return str(spec.name)
+    import json
+
+    try:
+        name = json.loads((Path(out_dir) / "manifest.json").read_text())["spec"]["name"]
+    except (OSError, ValueError, KeyError, TypeError):
+        name = None
+    return str(name) if isinstance(name, str) and name else Path(out_dir).name
+
+
+def write_tables(cells: pd.DataFrame, out_dir: str | Path, spec=None) -> Path:
     """Write tables.md and the CSVs (table_4_1*.csv, table_4_2*.csv, weighting.csv,
     orientation.csv, heading.csv, by_cell.csv) to ``out_dir``; returns the path of
-    tables.md."""
+    tables.md. The title names the run (:func:`run_name`: the spec's name, not the
+    folder's)."""
     cells = numpy_strings(cells)
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     n_seeds = int(cells["seed"].nunique())
     solvers = sorted(set(cells["solver"]) - {"-"})
-    md = [f"# Tables ({out.name})", "",
+    md = [f"# Tables ({run_name(out, spec)})", "",
           (f"Every number is the mean over {n_seeds} seed(s) of the per-seed statistic, with "
           "its 95 % Student-t interval over seeds in brackets; \"thesis\" is the value "
           "published in the dissertation (000_8f82f8df647bf685.txt, Tables 4.1 and 4.2, "
