@@ -53,6 +53,7 @@ import tempfile
 import time
 import traceback
 import uuid
+import warnings
 from collections import OrderedDict
 from collections.abc import Callable, Iterable, Iterator
 from contextlib import contextmanager, suppress
@@ -65,6 +66,7 @@ import numpy as np
 from estimator.memo import ledger
 from estimator.track_options import FILTER_METHODS
 from estimator.window import SOLVERS
+from experiments import cli
 from experiments.provenance import code_version
 from experiments.spec import (
     REPO,
@@ -96,6 +98,15 @@ __all__ = [
 ]
 
 RESULTS_DIR = RESULTS_ROOT
+#: Runs whose default folder is results/<name>/: the committed reference runs and the quick
+#: smoke run (ignored by .gitignore). Any other spec (the example presets, a spec file)
+#: defaults to results/local/<name>/, which git ignores, so no run dirties the checkout.
+TOP_LEVEL_RUNS = frozenset({"thesis", "thesis-elastic", "speed", "quick"})
+
+
+def default_out(name: str) -> Path:
+    """The results folder of a run named ``name`` without ``--out`` (see TOP_LEVEL_RUNS)."""
+    return RESULTS_DIR / name if name in TOP_LEVEL_RUNS else RESULTS_DIR / "local" / name
 #: Random streams derived per (spec seed, cell seed).
 STREAM_NOISE, STREAM_ESTIMATOR = 0, 1
 
@@ -627,6 +638,94 @@ class CellStore:
         return out
 
 
+#: The lock of a results folder: one run at a time (holder's pid inside; git-ignored name).
+LOCK_FILE = "lock.local.json"
+
+
+@contextmanager
+def folder_lock(out_dir: Path) -> Iterator[OSError | None]:
+    """Hold ``out_dir``'s lock (:data:`LOCK_FILE`) for the block: one run per results folder.
+
+    Another live run holding it: :class:`SweepError` at once, naming the folder and its pid.
+    A lock left by a dead process is taken over (the lock is an advisory ``flock`` the
+    kernel drops when its holder dies; without ``fcntl``, a pid that no longer runs). The
+    block gets None, or the ``OSError`` that kept the lock file from being written (a
+    read-only folder: the run may go on only if it has nothing to write)."""
+    path = out_dir / LOCK_FILE
+    try:
+        fh = _take_lock(path)
+    except OSError as exc:
+        yield exc
+        return
+    try:
+        yield None
+    finally:
+        with suppress(OSError):
+            path.unlink()
+        fh.close()
+
+
+def _take_lock(path: Path):
+    """Open and lock ``path``, write this process's pid; returns the open file."""
+    for _ in range(3):
+        fh = open(path, "a+", encoding="utf-8")  # noqa: SIM115 - held until folder_lock ends
+        if _locked_by_other(fh):
+            fh.seek(0)
+            holder = _lock_pid(fh.read())
+            fh.close()
+            raise SweepError(f"{path.parent} is in use by another sweep (pid {holder}, lock "
+                             f"{path}); wait for it to finish, or give another --out")
+        if not path.exists() or os.stat(path).st_ino != os.fstat(fh.fileno()).st_ino:
+            fh.close()              # the holder removed the file meanwhile: lock the new one
+            continue
+        fh.seek(0)
+        fh.truncate()
+        fh.write(json.dumps({"pid": os.getpid()}) + "\n")
+        fh.flush()
+        return fh
+    raise SweepError(f"{path.parent}: its lock {path} keeps changing; is another sweep "
+                     "starting there?")
+
+
+def _locked_by_other(fh) -> bool:
+    """Whether another process holds ``fh``'s file: its ``flock``, or (no ``fcntl``) the
+    recorded pid of another process that still runs."""
+    try:
+        import fcntl
+    except ImportError:
+        fh.seek(0)
+        pid = _lock_pid(fh.read())
+        return pid not in (None, os.getpid()) and _pid_alive(pid)
+    try:
+        fcntl.flock(fh, fcntl.LOCK_EX | fcntl.LOCK_NB)
+    except BlockingIOError:
+        return True
+    return False
+
+
+def _lock_pid(text: str) -> int | None:
+    try:
+        pid = json.loads(text)["pid"]
+    except (ValueError, TypeError, KeyError):
+        return None
+    return pid if isinstance(pid, int) else None
+
+
+def _pid_alive(pid: int) -> bool:
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except OSError:
+        return True                 # it exists, owned by someone else
+    return True
+
+
+def _unwritable(out_dir: Path, why: OSError) -> SweepError:
+    return SweepError(f"cannot write {out_dir}: {why.strerror or why}; the run has cells or "
+                      "outputs to write there (fix the permissions or give another --out)")
+
+
 def _parquet_readable(path: Path) -> bool:
     """Whether ``path`` is a complete parquet file (its footer parses)."""
     import pyarrow.parquet as pq
@@ -655,8 +754,26 @@ def cell_code_digest() -> str:
     return source_digest(CELL_SOURCES)[:16]
 
 
+def _json_text(obj: Any) -> str:
+    return json.dumps(obj, indent=1, default=str)
+
+
 def _write_json(path: Path, obj: Any) -> None:
-    atomic_write_text(path, json.dumps(obj, indent=1, default=str))
+    _write_text(path, _json_text(obj))
+
+
+def _write_text(path: Path, text: str) -> None:
+    """Write ``text`` atomically unless ``path`` holds it already (so a rerun with nothing
+    to compute writes nothing and runs on a read-only folder)."""
+    if _read_text(path) != text:
+        atomic_write_text(path, text)
+
+
+def _read_text(path: Path) -> str | None:
+    try:
+        return path.read_text(encoding="utf-8")
+    except (OSError, ValueError):
+        return None
 
 
 # --------------------------------------------------------------------------- scheduling
@@ -938,7 +1055,7 @@ def run(spec: Spec | str | Path, *, out: str | Path | None = None, jobs: int | N
         progress: bool = True, outputs: bool = True, figures: bool = True,
         cache_dir: str | Path | None = None, cell_fn: CellFn | None = None,
         truth_fn: Callable | None = None) -> Results:
-    """Run a spec; returns :class:`Results` and writes ``out`` (default results/<spec name>/).
+    """Run a spec; returns :class:`Results` and writes ``out`` (default :func:`default_out`).
 
     spec : a :class:`Spec`, a spec file, or a preset name.
     jobs : worker processes (default: all cores); 1 runs in this process.
@@ -963,11 +1080,26 @@ def run(spec: Spec | str | Path, *, out: str | Path | None = None, jobs: int | N
         raise ValueError(f"jobs: must be >= 1, got {jobs!r}")
     for var in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS"):
         os.environ.setdefault(var, "1")
-    out_dir = Path(out) if out is not None else RESULTS_DIR / spec.name
+    out_dir = Path(out) if out is not None else default_out(spec.name)
     out_dir.mkdir(parents=True, exist_ok=True)
+    with folder_lock(out_dir) as locked:
+        return _run_in(spec, out_dir, locked, t_start, jobs=jobs, backend=backend,
+                       scheduler=scheduler, force=force, progress=progress, outputs=outputs,
+                       figures=figures, cache_dir=cache_dir, cell_fn=cell_fn,
+                       truth_fn=truth_fn)
+
+
+def _run_in(spec: Spec, out_dir: Path, locked: OSError | None, t_start: float, *, jobs: int,
+            backend: str, scheduler: str | None, force: bool, progress: bool, outputs: bool,
+            figures: bool, cache_dir, cell_fn: CellFn | None, truth_fn: Callable | None
+            ) -> Results:
+    """:func:`run` in its results folder ``out_dir``, held by :func:`folder_lock`
+    (``locked``: why the lock file could not be written, if it could not)."""
     store = CellStore(out_dir)
     cells = spec.expand()
     by_key = {c.key: c for c in cells}
+    if force and locked is not None:
+        raise _unwritable(out_dir, locked)
     if force:
         store.clear(by_key)
     done = store.done() & set(by_key)
@@ -981,10 +1113,13 @@ def run(spec: Spec | str | Path, *, out: str | Path | None = None, jobs: int | N
         print(f"{spec.name}: {len(damaged)} of {len(done)} finished cells have damaged files "
               "(unreadable cell record or per-epoch parquet, e.g. from a full disk); "
               "recomputing them", file=sys.stderr)
+    if locked is not None and (stale or damaged or len(done) < len(by_key)):
+        raise _unwritable(out_dir, locked)       # cells to compute: the folder must be writable
     store.clear(stale | damaged)
     done -= stale | damaged
     todo = [c for c in cells if c.key not in done]
     run_id = uuid.uuid4().hex
+    before = _read_text(out_dir / "manifest.json")
 
     # manifest.json (tracked in reference runs) holds only what determines the numbers, with
     # paths relative to the project, so a rerun of the same code and spec leaves it
@@ -997,8 +1132,11 @@ def run(spec: Spec | str | Path, *, out: str | Path | None = None, jobs: int | N
     run_info = {"started_utc": time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime()),
                 "backend": backend, "jobs": jobs, "cpu_count": os.cpu_count(),
                 "n_stale": len(stale), "n_damaged": len(damaged)}
-    _write_json(out_dir / "manifest.json", manifest)
-    _write_json(out_dir / "run.local.json", run_info)
+    # with nothing to compute, a finished run writes only what changed (a read-only
+    # folder can be rerun)
+    if todo:
+        _write_json(out_dir / "manifest.json", manifest)
+    _write_run_info(out_dir, run_info, required=bool(todo))
     _write_spec_toml(spec, out_dir / "spec.toml")
 
     try:
@@ -1089,7 +1227,9 @@ def run(spec: Spec | str | Path, *, out: str | Path | None = None, jobs: int | N
         keys = [c.key for c in cells]
         table = store.read_cells(keys)
         errors = store.read_errors(keys)
-        _write_table(table, out_dir / "cells.parquet")
+        final = _json_text({**manifest, "status": _final_status(errors)})
+        if n_done_now or final != before or not (out_dir / "cells.parquet").exists():
+            _write_table(table, out_dir / "cells.parquet")
         _write_json(out_dir / "errors.json", errors)
         res = Results(spec=spec, out_dir=out_dir, cells=table, errors=errors, n_cells=len(cells),
                       n_computed=n_done_now - len(errors), n_resumed=len(done), wall_s=0.0)
@@ -1128,6 +1268,17 @@ def run(spec: Spec | str | Path, *, out: str | Path | None = None, jobs: int | N
         raise SweepError(f"cannot write {where}: {exc.strerror or exc}; the run {marked}; "
                          "free space or fix permissions and rerun the same command to "
                          "resume") from None
+    except KeyboardInterrupt as exc:
+        # Ctrl-C or SIGTERM (experiments.cli): no worker outlives the run, the manifest says
+        # so, and the finished cells (each written atomically) are resumed by the rerun
+        _stop_workers()
+        manifest["status"] = "interrupted"
+        with suppress(OSError):
+            _write_json(out_dir / "manifest.json", manifest)
+        n_kept = len(store.done() & set(by_key))
+        exc.args = (f"{n_kept} of {len(cells)} cells are finished in {out_dir}, marked "
+                    "interrupted in its manifest.json; rerun the same command to resume",)
+        raise
     res.wall_s = time.perf_counter() - t_start
     res.timings = {"simulate_s": t_sim, "cells_s": t_cells, "cells_beside_simulation_s":
                    t_overlap, "outputs_s": t_out, "wall_s": res.wall_s}
@@ -1135,13 +1286,27 @@ def run(spec: Spec | str | Path, *, out: str | Path | None = None, jobs: int | N
         res.timings["outputs"] = {"written": out_info["written"],
                                   "unchanged": out_info["skipped"],
                                   "seconds": out_info["seconds"]}
-    manifest["status"] = "complete" if not errors else "complete_with_errors"
+    manifest["status"] = _final_status(errors)
     run_info.update({"finished_utc": time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime()),
                      "n_computed": res.n_computed, "n_resumed": res.n_resumed,
                      "n_failed": res.n_failed, "timings_s": res.timings})
     _write_json(out_dir / "manifest.json", manifest)
-    _write_json(out_dir / "run.local.json", run_info)
+    _write_run_info(out_dir, run_info, required=bool(todo))
     return res
+
+
+def _final_status(errors: list) -> str:
+    return "complete" if not errors else "complete_with_errors"
+
+
+def _write_run_info(out_dir: Path, info: dict, required: bool) -> None:
+    """run.local.json (this run's times and counts, git-ignored): when the run computed
+    nothing, written where the folder allows it (a read-only finished run can be rerun)."""
+    try:
+        _write_json(out_dir / "run.local.json", info)
+    except OSError:
+        if required:
+            raise
 
 
 def _write_spec_toml(spec: Spec, path: Path) -> None:
@@ -1153,7 +1318,7 @@ def _write_spec_toml(spec: Spec, path: Path) -> None:
     header = (f"# The spec as run by python -m experiments.sweep (overrides applied).\n"
               f"# Source: {_rel(spec.source)}; relative file names resolve against "
               f"{_rel(spec.base_dir)}.\n")
-    atomic_write_text(path, header + tomli_w.dumps(spec.raw))
+    _write_text(path, header + tomli_w.dumps(spec.raw))
 
 
 def _rel(path: str | Path) -> str:
@@ -1175,7 +1340,7 @@ _EPILOG = """examples:
   python -m experiments.sweep                      # the default preset (thesis), all cores
   python -m experiments.sweep --preset quick       # one path, 2 seeds, a few seconds
   python -m experiments.sweep my_spec.toml --out /tmp/run --jobs 2
-  python -m experiments.sweep --preset thesis --solver slsqp   # faithful solver -> results/thesis-slsqp/
+  python -m experiments.sweep --preset thesis --solver slsqp   # faithful solver -> results/local/thesis-slsqp/
   python -m experiments.sweep --preset thesis --solver elastic # the same fit, batched -> results/thesis-elastic/
   python -m experiments.sweep --preset thesis --backend dask --scheduler tcp://10.0.0.5:8786
   python -m experiments.figures results/thesis     # re-plot from saved files, no simulation
@@ -1198,7 +1363,7 @@ DEFAULT_PRESET = "thesis"
 
 
 def build_parser() -> argparse.ArgumentParser:
-    p = argparse.ArgumentParser(
+    p = cli.ArgumentParser(
         prog="python -m experiments.sweep",
         description="Run an experiment spec (TOML) as a parallel, resumable sweep and write "
                     "cells.parquet, tables.md/CSV, REPORT.md and figures to results/<name>/.",
@@ -1208,9 +1373,11 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--preset", metavar="NAME",
                    help=f"run a shipped preset from experiments/presets/ (default {DEFAULT_PRESET!r}); "
                         "e.g. --preset quick")
-    p.add_argument("--out", metavar="DIR", help="results folder (default results/<spec name>/), "
-                   "e.g. --out /tmp/thesis")
-    p.add_argument("--jobs", type=int, metavar="N",
+    p.add_argument("--out", metavar="DIR",
+                   help="results folder (default results/<spec name>/ for "
+                        f"{', '.join(sorted(TOP_LEVEL_RUNS))}, else the ignored "
+                        "results/local/<spec name>/), e.g. --out /tmp/thesis")
+    p.add_argument("--jobs", type=cli.jobs_arg, metavar="N",
                    help=f"worker processes (default all cores = {os.cpu_count()}); 1 = in-process")
     p.add_argument("--backend", choices=("loky", "dask"), default="loky",
                    help="loky: joblib processes on this machine (default); dask: a Dask cluster")
@@ -1259,7 +1426,7 @@ def _likely_work(args: argparse.Namespace) -> bool:
     if args.out is None and args.spec:
         return True
     name = (args.preset or DEFAULT_PRESET) + (f"-{args.solver}" if args.solver else "")
-    cells = (Path(args.out) if args.out is not None else RESULTS_DIR / name) / "cells"
+    cells = (Path(args.out) if args.out is not None else default_out(name)) / "cells"
     return not (cells.is_dir() and any(cells.glob("*.json")))
 
 
@@ -1270,27 +1437,34 @@ def main(argv: list[str] | None = None) -> int:
     if args.spec and args.preset:
         print("error: give a spec file or --preset, not both", file=sys.stderr)
         return 2
-    jobs = args.jobs if args.jobs else (os.cpu_count() or 1)
+    # joblib warns on an interrupt that it cancelled the workers' tasks: the CLI reports the
+    # interrupt in one line (experiments.cli)
+    warnings.filterwarnings("ignore", message=r"\d+ tasks (which were still|have been successfully)",
+                            category=UserWarning)
+    jobs = args.jobs or (os.cpu_count() or 1)
     started = (_prestart(jobs) if args.backend == "loky" and jobs > 1 and _likely_work(args)
                else iter(()))
     try:
-        return _main(args)
-    finally:
-        for _ in started:       # (long done)
-            pass
-        _stop_workers()
+        code = _main(args)
+    except BaseException:
+        _stop_workers()         # interrupted: the workers' tasks are not waited for
+        raise
+    for _ in started:           # (long done)
+        pass
+    _stop_workers()
+    return code
 
 
 def _stop_workers() -> None:
-    """End the idle loky workers of this process now (the CLI is done with them): ended as
-    joblib ends them on an abort (their shared temporary files removed) instead of at
-    interpreter exit, where each first tears itself down and the exit waits (~0.3 s)."""
-    from joblib.externals.loky import reusable_executor
+    """End the loky workers of this process now, busy or idle, through loky's public API:
+    the CLI is done with them (at interpreter exit each would first tear itself down and
+    the exit wait, ~0.3 s), or the run was interrupted (no worker may outlive it).
+    ``reuse=False`` replaces the process's executor instead of resizing it (no worker is
+    started), ``kill_workers=True`` ends the workers of the one it replaces."""
+    from joblib.externals.loky import get_reusable_executor
 
-    ex = getattr(reusable_executor, "_executor", None)     # the process's executor, if any
-    terminate = getattr(ex, "terminate", None)             # joblib's MemmappingExecutor
-    if terminate is not None:
-        terminate(kill_workers=True)
+    get_reusable_executor(reuse=False, kill_workers=True).shutdown(wait=True,
+                                                                   kill_workers=True)
 
 
 def _main(args: argparse.Namespace) -> int:
@@ -1323,24 +1497,5 @@ def _main(args: argparse.Namespace) -> int:
     return 1 if res.errors else 0
 
 
-def _exit_now(code: int) -> None:
-    """End the command line process with ``code`` once its work is done and written: the
-    exit handlers run (joblib removes its temporary folders, logging flushes), the
-    interpreter's teardown of every loaded module does not (numpy, pandas, matplotlib,
-    MuJoCo: ~0.25 s of the quick preset's 7-8 s, measured). Every results file is
-    complete by then (each is written atomically and closed). Where the handlers cannot be
-    run first (an interpreter without ``atexit._run_exitfuncs``), a normal exit."""
-    import atexit
-
-    run_handlers = getattr(atexit, "_run_exitfuncs", None)
-    if run_handlers is None:
-        sys.exit(code)
-    run_handlers()
-    for stream in (sys.stdout, sys.stderr):
-        with suppress(Exception):                # e.g. a closed pipe
-            stream.flush()
-    os._exit(code)
-
-
 if __name__ == "__main__":
-    _exit_now(main())
+    cli.run(main)
