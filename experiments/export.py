@@ -114,7 +114,9 @@ EPILOG = """examples:
 
 
 def main(argv: list[str] | None = None) -> int:
-    p = argparse.ArgumentParser(
+    from experiments.cli import ArgumentParser
+
+    p = ArgumentParser(
         prog="python -m experiments.export",
         description="Export one cell of a sweep as TUM trajectories (estimate and truth) for "
                     "evo.",
@@ -137,4 +139,6 @@ def main(argv: list[str] | None = None) -> int:
 
 
 if __name__ == "__main__":
-    sys.exit(main())
+    from experiments.cli import run as run_cli
+
+    run_cli(main)

@@ -573,7 +573,9 @@ def draw_all(out_dir: str | Path, jobs: int = 1,
 
 
 def main(argv: list[str] | None = None) -> int:
-    p = argparse.ArgumentParser(
+    from experiments.cli import ArgumentParser
+
+    p = ArgumentParser(
         prog="python -m experiments.figures",
         description="Redraw the figures of a sweep results folder from its saved files "
                     "(no simulation). Example: python -m experiments.figures results/thesis")
@@ -590,4 +592,6 @@ def main(argv: list[str] | None = None) -> int:
 
 
 if __name__ == "__main__":
-    sys.exit(main())
+    from experiments.cli import run as run_cli
+
+    run_cli(main)

@@ -130,8 +130,10 @@ def _output(ap: argparse.ArgumentParser, args: argparse.Namespace) -> FsPath:
 
 def main(argv: list[str] | None = None) -> FsPath:
     """CLI: simulate (or load from the cache) both platforms and write the figure."""
-    ap = argparse.ArgumentParser(prog="python -m experiments.paths_figure",
-                                 description=__doc__.splitlines()[0])
+    from experiments.cli import ArgumentParser
+
+    ap = ArgumentParser(prog="python -m experiments.paths_figure",
+                        description=__doc__.splitlines()[0])
     ap.add_argument("--out", default=None,
                     help=f"output PNG (default {_rel(DEFAULT_OUT)}, ignored by git; "
                          f"{_rel(REFERENCE_OUT)} only through --reference)")
@@ -166,4 +168,6 @@ def main(argv: list[str] | None = None) -> FsPath:
 
 
 if __name__ == "__main__":
-    main()
+    from experiments.cli import run as run_cli
+
+    run_cli(main)

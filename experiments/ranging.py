@@ -14,14 +14,16 @@ defaults, never fitted to a recording), once in known-height mode (the tag rides
 ``--tag-height`` = 1.0 m above the reference point, whose z is ground level, as the authors'
 scoring states) and once solving z freely; every method is scored with the authors' metric
 (:func:`authors_metric`, a re-implementation of their ``localization_error_analysis.py``,
-checked against their ``RMSD_results.txt`` to 1e-9 m in the tests). Outputs in ``--out``:
+checked against their ``RMSD_results.txt`` to 1e-9 m in the tests). Outputs: one folder
+``OUT/<label>/`` per recording DIR (``<label>``: the last three parts of DIR joined by ``_``
+when DIR is a ``Case_*`` folder, e.g. ``LOS_Trajectory_A_Case_1``, else DIR's name) with
 ``summary.csv`` (one row per method: ``method, rmse_2d_m, rmse_3d_m, max_error_2d_m,
 coverage``), ``summary.md``, ``stages.csv`` (fixes before/after the gates), ``gates.csv`` (spikes and
 the gates, judged against the reference), ``estimates.csv.gz`` (every method at the epochs),
 figures
 (trajectories against the reference, error over time, ranges before and after gating), and
-``run_info.json`` (settings and code version; wall times go to the untracked
-``timings.json``).
+``run_info.json`` (settings and code version); and, for all recordings together,
+``OUT/summary.md`` and the untracked wall times ``OUT/timings.json``.
 
 ``run(directory, out)`` is the callable entry point; ``main`` only parses arguments.
 """
@@ -31,6 +33,7 @@ from __future__ import annotations
 import argparse
 import json
 import re
+import sys
 import time
 from dataclasses import asdict, dataclass
 from pathlib import Path
@@ -111,11 +114,23 @@ def _read_csv(path: Path, columns: tuple[str, ...]) -> pd.DataFrame:
     return pd.DataFrame(out)
 
 
-def _ns(values: pd.Series) -> np.ndarray:
+#: Latest plausible time stamp, ns since 1970 (2100-01-01): larger ones are not nanosecond
+#: stamps (and past 2**63 do not fit the int64 times at all).
+_MAX_STAMP_NS = 4_102_444_800 * 10**9
+
+
+def _ns(values: pd.Series, path: Path, column: str) -> np.ndarray:
     """Nanosecond timestamps as int64 (integers exactly; float text such as 1.73e+18 to the
-    nearest representable value, as the authors' script reads them)."""
-    return np.array([int(v) if float(v).is_integer() else round(float(v))
-                     for v in values], dtype=np.int64)
+    nearest representable value, as the authors' script reads them). A stamp before 1970 or
+    after 2100 is a ValueError naming ``path``, ``column`` and the data row."""
+    v = values.to_numpy(dtype=float)
+    bad = (v < 0) | (v > _MAX_STAMP_NS)
+    if bad.any():
+        i = int(np.argmax(bad))
+        raise ValueError(f"{path}: column {column!r}, data row {i + 1}: time stamp "
+                         f"{v[i]:.6g} is not nanoseconds between 1970 and 2100")
+    return np.array([int(x) if float(x).is_integer() else round(float(x))
+                     for x in values], dtype=np.int64)
 
 
 def load_recording(directory: str | Path) -> RangeRecording:
@@ -130,7 +145,7 @@ def load_recording(directory: str | Path) -> RangeRecording:
         raise ValueError(f"{d}: needs >= 3 anchor files A<id>.csv, found "
                          f"{[p.name for p in anchor_files]}")
     traj = _read_csv(d / "trajectory.csv", _POSE_COLS)
-    ref_ns = _ns(traj["timestamp"])
+    ref_ns = _ns(traj["timestamp"], d / "trajectory.csv", "timestamp")
     if np.any(np.diff(ref_ns) <= 0):
         raise ValueError(f"{d / 'trajectory.csv'}: timestamps must be strictly increasing")
     t0 = int(ref_ns[0])
@@ -141,7 +156,7 @@ def load_recording(directory: str | Path) -> RangeRecording:
         if np.ptp(xyz, axis=0).max() > 0:
             raise ValueError(f"{p}: the anchor position changes within the file "
                              f"(spread {np.ptp(xyz, axis=0).max():.3g} m)")
-        ns = _ns(a["field.stamp"])
+        ns = _ns(a["field.stamp"], p, "field.stamp")
         if np.any(np.diff(ns) <= 0):
             i = int(np.argmax(np.diff(ns) <= 0))
             raise ValueError(f"{p}: column 'field.stamp' must be strictly increasing; data row "
@@ -158,7 +173,7 @@ def load_recording(directory: str | Path) -> RangeRecording:
     for name, fname in (("authors_ls", "LS.csv"), ("authors_eskf", "ESKF.csv")):
         if (d / fname).exists():
             e = _read_csv(d / fname, _POSE_COLS)
-            authors[name] = ((_ns(e["timestamp"]) - t0) * 1e-9,
+            authors[name] = ((_ns(e["timestamp"], d / fname, "timestamp") - t0) * 1e-9,
                              e[["x", "y", "z"]].to_numpy(dtype=float))
     return RangeRecording(d.name if d.name not in ("Case_1", "") else "/".join(d.parts[-3:]),
                           tuple(ids), np.array(pos), streams, (ref_ns - t0) * 1e-9,
@@ -505,6 +520,23 @@ def _md_table(df: pd.DataFrame) -> str:
     return markdown_table(df, floatfmt=".3f")
 
 
+def _trajectory_of(directory: Path) -> str:
+    """The scoring window a recording folder's path implies: B under Trajectory_B, else A."""
+    return "B" if "Trajectory_B" in directory.resolve().parts else "A"
+
+
+def _check_window(directory: Path, rec: RangeRecording, trajectory: str) -> None:
+    """ValueError naming the recording's trajectory.csv when its reference never enters or
+    never leaves the ``trajectory`` scoring window."""
+    try:
+        scoring_window(rec.reference_t, rec.reference, trajectory)
+    except ValueError as exc:
+        why = str(exc).removeprefix("reference: ")
+        raise ValueError(f"{directory / 'trajectory.csv'}: the reference {why} (Trajectory "
+                         f"{trajectory}: from --trajectory, else from the folder's path)"
+                         ) from exc
+
+
 def run(directories, out: str | Path = DEFAULT_OUT, *, trajectory: str | None = None,
         tag_height_m: float = TAG_HEIGHT_M, figures: bool = True) -> dict:
     """Evaluate each recording directory; write ``out/<label>/`` per recording and a combined
@@ -514,12 +546,14 @@ def run(directories, out: str | Path = DEFAULT_OUT, *, trajectory: str | None = 
     if not dirs:
         raise ValueError("directories: give at least one recording directory")
     recs = [load_recording(d) for d in dirs]              # fail before writing anything
+    for d, rec in zip(dirs, recs, strict=True):
+        _check_window(d, rec, trajectory or _trajectory_of(d))
     out.mkdir(parents=True, exist_ok=True)
     done, md, timings = {}, [], {}
     config = RangingConfig.uwb_ground_tag()
     for d, rec in zip(dirs, recs, strict=True):
         label = _label(d)
-        traj = trajectory or ("B" if "Trajectory_B" in d.resolve().parts else "A")
+        traj = trajectory or _trajectory_of(d)
         sub = out / label
         sub.mkdir(parents=True, exist_ok=True)
         t0 = time.perf_counter()
@@ -566,8 +600,10 @@ def run(directories, out: str | Path = DEFAULT_OUT, *, trajectory: str | None = 
 
 
 def main(argv: list[str] | None = None) -> int:
-    ap = argparse.ArgumentParser(prog="python -m experiments.ranging", description=__doc__,
-                                 formatter_class=argparse.RawDescriptionHelpFormatter)
+    from experiments.cli import ArgumentParser
+
+    ap = ArgumentParser(prog="python -m experiments.ranging", description=__doc__,
+                        formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("dirs", nargs="*", metavar="DIR", help="recording directories")
     ap.add_argument("--out", default=None,
                     help="output folder (default results/local/ranging/, untracked)")
@@ -597,7 +633,7 @@ def main(argv: list[str] | None = None) -> int:
         res = run(dirs, out, trajectory=args.trajectory, tag_height_m=args.tag_height,
                   figures=not args.no_figures)
     except (FileNotFoundError, ValueError) as exc:
-        print(f"error: {exc}")
+        print(f"{ap.prog}: error: {exc}", file=sys.stderr)
         return 2
     pd.set_option("display.width", 200)
     for label, ev in res.items():
@@ -607,4 +643,6 @@ def main(argv: list[str] | None = None) -> int:
 
 
 if __name__ == "__main__":
-    raise SystemExit(main())
+    from experiments.cli import run as run_cli
+
+    run_cli(main)

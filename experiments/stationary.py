@@ -615,13 +615,45 @@ def _real_logs_md(label: str, imp: pd.DataFrame, st: pd.DataFrame, other: list[s
 
 
 # --------------------------------------------------------------------------- CLI
+class SessionFileError(ValueError):
+    """A ``--session`` file that is missing or is not a session: the message names it."""
+
+
 def load_session(paths: list[str]) -> StationarySession:
-    """A saved ``.npz`` session, or NMEA / CSV logs (one per receiver) via sim.nmea."""
+    """A saved ``.npz`` session, or NMEA / CSV logs (one per receiver) via sim.nmea.
+
+    Raises :class:`SessionFileError` (one line naming the file and what is wrong) for a
+    missing file, a folder, an ``.npz`` that is not a saved session (random bytes, other
+    arrays) and a log without a usable fix (a README, random bytes, a foreign CSV)."""
+    for p in paths:
+        if not Path(p).is_file():
+            why = "a folder, not a file" if Path(p).is_dir() else "no such file"
+            raise SessionFileError(f"--session {p}: {why}")
     if len(paths) == 1 and paths[0].endswith(".npz"):
-        return StationarySession.load(paths[0])
+        return _load_npz(paths[0])
     from sim.nmea import import_session
 
-    return import_session(paths)
+    try:
+        return import_session(paths)
+    except (ValueError, OSError) as exc:       # OSError: e.g. unreadable (permissions)
+        raise SessionFileError(f"--session {' '.join(paths)}: {_short(exc)}") from exc
+
+
+def _load_npz(path: str) -> StationarySession:
+    """A session saved by ``StationarySession.save``; anything else is a SessionFileError."""
+    import zipfile
+
+    try:
+        return StationarySession.load(path)
+    except (ValueError, OSError, KeyError, EOFError, zipfile.BadZipFile) as exc:
+        raise SessionFileError(f"--session {path}: not a session saved by "
+                               f"StationarySession.save ({_short(exc)})") from exc
+
+
+def _short(exc: BaseException, limit: int = 300) -> str:
+    """``exc``'s message on one line, at most ``limit`` characters."""
+    text = " ".join(str(exc).strip("'\"").split()) or type(exc).__name__
+    return text if len(text) <= limit else text[:limit - 3] + "..."
 
 
 def _rel(p: Path) -> str:
@@ -634,8 +666,10 @@ def _rel(p: Path) -> str:
 
 def main(argv: list[str] | None = None) -> int:
     raw = sys.argv[1:] if argv is None else list(argv)
-    ap = argparse.ArgumentParser(prog="python -m experiments.stationary",
-                                 description=__doc__.split("\n\n")[0])
+    from experiments.cli import ArgumentParser
+
+    ap = ArgumentParser(prog="python -m experiments.stationary",
+                        description=__doc__.split("\n\n")[0])
     ap.add_argument("--reference", action="store_true",
                     help=f"regenerate the committed reference {_rel(REFERENCE_OUT)}: the synthetic "
                          "session with every default below and the real logs of "
@@ -661,7 +695,7 @@ def main(argv: list[str] | None = None) -> int:
                          "log found under DIR (recursive, any layout)")
     args = ap.parse_args(raw)
     if args.reference:
-        if len(raw) > 1:
+        if len([a for a in raw if a != "--debug"]) > 1:
             ap.error("--reference takes no other option (it regenerates the committed "
                      "reference exactly); write custom runs with --out")
         if not REFERENCE_REAL_LOGS.is_dir():
@@ -728,4 +762,6 @@ def main(argv: list[str] | None = None) -> int:
 
 
 if __name__ == "__main__":
-    raise SystemExit(main())
+    from experiments.cli import run as run_cli
+
+    run_cli(main)

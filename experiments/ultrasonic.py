@@ -676,8 +676,10 @@ def _discussion(spec: StudySpec, mct: pd.DataFrame, flt: pd.DataFrame) -> list[s
 
 
 def main(argv: list[str] | None = None) -> int:
-    ap = argparse.ArgumentParser(prog="python -m experiments.ultrasonic", description=__doc__,
-                                 formatter_class=argparse.RawDescriptionHelpFormatter)
+    from experiments.cli import ArgumentParser
+
+    ap = ArgumentParser(prog="python -m experiments.ultrasonic", description=__doc__,
+                        formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--out", default=None,
                     help="output folder (default results/local/ultrasonic/, untracked)")
     ap.add_argument("--reference", action="store_true",
@@ -716,4 +718,6 @@ def main(argv: list[str] | None = None) -> int:
 
 
 if __name__ == "__main__":
-    raise SystemExit(main())
+    from experiments.cli import run as run_cli
+
+    run_cli(main)

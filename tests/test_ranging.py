@@ -434,22 +434,63 @@ def test_cli_missing_and_malformed_files_name_the_file(synthetic_dir, tmp_path, 
     shutil.copytree(synthetic_dir, bad)
     (bad / "trajectory.csv").unlink()
     assert cli.main([str(bad), "--out", str(tmp_path / "o")]) == 2
-    assert "trajectory.csv: file not found" in capsys.readouterr().out
+    assert "trajectory.csv: file not found" in capsys.readouterr().err
     shutil.copy(synthetic_dir / "trajectory.csv", bad / "trajectory.csv")
     a1 = pd.read_csv(bad / "A1.csv", dtype=str)
     a1.loc[5, "field.distanceFromTag"] = "oops"
     a1.to_csv(bad / "A1.csv", index=False)
     assert cli.main([str(bad), "--out", str(tmp_path / "o")]) == 2
-    out = capsys.readouterr().out
+    out = capsys.readouterr().err
     assert "A1.csv: column 'field.distanceFromTag', data row 6" in out and "oops" in out
     pd.read_csv(synthetic_dir / "A1.csv").drop(columns=["field.stamp"]).to_csv(
         bad / "A1.csv", index=False)
     assert cli.main([str(bad), "--out", str(tmp_path / "o")]) == 2
-    assert "missing column(s) ['field.stamp']" in capsys.readouterr().out
+    assert "missing column(s) ['field.stamp']" in capsys.readouterr().err
     with pytest.raises(SystemExit):
         cli.main([])
     with pytest.raises(SystemExit):
         cli.main(["--reference", str(bad)])
+
+
+def test_cli_absurd_time_stamps_are_one_line_naming_file_and_column(synthetic_dir, tmp_path,
+                                                                   capsys):
+    """A 1e30 (or negative, or past-2100) stamp was an OverflowError traceback: now exit 2,
+    one line naming the file, the column and the row (issue 23)."""
+    import shutil
+
+    for name, col, value in (("A2.csv", "field.stamp", "1e30"),
+                             ("trajectory.csv", "timestamp", "-5"),
+                             ("ESKF.csv", "timestamp", "9.3e18")):
+        bad = tmp_path / f"bad_{name}"
+        shutil.copytree(synthetic_dir, bad)
+        df = pd.read_csv(bad / name, dtype=str)
+        df.loc[3, col] = value
+        df.to_csv(bad / name, index=False)
+        assert cli.main([str(bad), "--out", str(tmp_path / "o"), "--no-figures"]) == 2
+        err = capsys.readouterr().err.strip().splitlines()
+        assert len(err) == 1, err
+        assert f"{name}: column {col!r}, data row 4" in err[0] and f"{float(value):.6g}" in err[0]
+    assert not (tmp_path / "o").exists()                 # failed before writing anything
+
+
+def test_cli_scoring_window_error_names_the_file_not_a_variable(synthetic_dir, tmp_path,
+                                                                capsys):
+    """A reference that never enters the scoring window names trajectory.csv and
+    --trajectory, not the internal name 'reference:'."""
+    code = cli.main([str(synthetic_dir), "--out", str(tmp_path / "o"), "--trajectory", "B",
+                     "--no-figures"])
+    err = capsys.readouterr().err.strip().splitlines()
+    assert code == 2 and len(err) == 1
+    assert "trajectory.csv: the reference never enters the Trajectory B" in err[0]
+    assert "--trajectory" in err[0] and not err[0].split(": ", 2)[-1].startswith("reference:")
+    assert not (tmp_path / "o").exists()
+
+
+def test_help_names_the_per_recording_summary():
+    """--help says where summary.csv goes: OUT/<label>/ (issue 23: it said OUT/)."""
+    text = " ".join(cli.__doc__.split())
+    assert "``OUT/<label>/`` per recording DIR" in text
+    assert "``OUT/summary.md``" in text
 
 
 def test_authors_metric_against_a_hand_computed_case():
