@@ -595,8 +595,26 @@ def write_page(results: str | Path, *, out: str | Path | None = None,
                                               max_points=max_points, replay=replay))
 
 
+def _check_with(folder: Path, max_points: int) -> None:
+    """A ``--with`` folder the user asked for must replay: else ValueError naming it (the
+    CLI exits 2 and writes no page). Its replay is built here once to find out (the page
+    builds it again: the cost of a recording run's replay, small)."""
+    if not (folder / "cells.parquet").is_file():
+        raise ValueError(f"--with {folder}: no cells.parquet there (not a sweep results "
+                         "folder; run python -m experiments.sweep first)")
+    try:
+        src = replay_source(folder, max_points=max_points)
+    except (ValueError, OSError) as exc:
+        raise ValueError(f"--with {folder}: cannot be replayed: {exc}") from exc
+    if src is None:
+        raise ValueError(f"--with {folder}: no cell kept its per-epoch estimates (the spec's "
+                         "[epochs] table), nothing to replay")
+
+
 def main(argv: list[str] | None = None) -> int:
-    p = argparse.ArgumentParser(
+    from experiments.cli import ArgumentParser
+
+    p = ArgumentParser(
         prog="python -m experiments.page",
         description="Write a results folder's self-contained web page (index.html): replay "
                     "of the cells with saved epochs, the ultrasonic flight, claims, tables, "
@@ -620,6 +638,8 @@ def main(argv: list[str] | None = None) -> int:
     if args.max_points < 2:
         print(f"error: --max-points: must be >= 2, got {args.max_points}", file=sys.stderr)
         return 2
+    for folder in args.extra:
+        _check_with(Path(folder), args.max_points)
     us = None if args.ultrasonic.lower() == "none" else args.ultrasonic
     path = write_page(res, out=args.out, ultrasonic=us, extra=tuple(args.extra),
                       max_points=args.max_points)
@@ -628,4 +648,6 @@ def main(argv: list[str] | None = None) -> int:
 
 
 if __name__ == "__main__":
-    sys.exit(main())
+    from experiments.cli import run as run_cli
+
+    run_cli(main)

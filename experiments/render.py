@@ -470,9 +470,10 @@ def _size(text: str) -> tuple[int, int]:
 
 def main(argv: list[str] | None = None) -> int:
     _choose_gl()
+    from experiments.cli import ArgumentParser
     from experiments.selection import parse_where
 
-    p = argparse.ArgumentParser(
+    p = ArgumentParser(
         prog="python -m experiments.render",
         description="Render a sweep cell (the rover, its estimate as a ghost) or the "
                     "ultrasonic flight (quadcopter, receivers, range rays) offscreen to MP4/GIF.",
@@ -524,4 +525,6 @@ def main(argv: list[str] | None = None) -> int:
 
 
 if __name__ == "__main__":
-    sys.exit(main())
+    from experiments.cli import run as run_cli
+
+    run_cli(main)
