@@ -1,0 +1,525 @@
+"""Pose of a rigid body carrying N >= 2 tags in a known layout, from anchor-tag ranges (issue 26).
+
+The two sources meet here: the ultrasonic thesis (003, Appendix A) trilaterates each tag
+alone; the GPS dissertation (000, Section 3.1) fits all sensors jointly under their known
+layout and checks the mirror image of the layout. :func:`fit_pose` does the joint fit on the
+ranges themselves (the rigid-body localisation problem; Jiang et al., ICRA 2023, GN-ULS):
+
+1. **closed-form start** (:func:`closed_form_start`): each tag trilaterated alone by
+   :func:`estimator.trilateration.damped_ls` (known tag height in the planar mode), then the
+   weighted Procrustes fit of the layout to the fixes
+   (:func:`estimator.rigid_fit.procrustes_batch`);
+2. **joint refinement**: Levenberg-Marquardt on all ranges of the epoch at once, with robust
+   IRLS weights (``robust="huber"`` k = 1.345 or ``"cauchy"`` c = 2.385, the 95 %-efficiency
+   constants; scale = 1.4826 MAD of the residuals, floored at ``sigma_m``) or none (plain
+   least squares: the independent baseline);
+3. an optional **range-bias state** (``bias="common"``: one offset added to every range;
+   ``"anchor"``: one per anchor), solved with the pose;
+4. **mirror checks** like the GPS layout fit: the layout mirrored (body y -> -y) is fitted
+   too (``mirror_objective``), and the pose reflected in the anchors' best-fit line in x-y is
+   used as a second start; statuses in :data:`STATUSES`;
+5. everything vectorised over epochs (one numpy pass per iteration for all epochs).
+
+Modes. ``dim=2`` (planar): pose ``(x, y, yaw)``, tag world height = ``origin_z_m`` + tag z,
+ranges are 3-D distances. ``dim=3``: position ``(x, y, z)`` and a rotation matrix, needs
+three non-collinear tags and anchors that are not coplanar with the tags' possible positions
+(a flat anchor array leaves the mirror in its plane: ``side`` picks it for the start).
+
+Shapes: anchors ``(M, 3)`` m (world: x east, y north, z up); body ``(N, 2)`` or ``(N, 3)`` m
+(tag frame; 2 columns = tag z 0); ranges ``(N, M)`` (one epoch) or ``(E, N, M)`` m, NaN =
+missing (any subset per epoch). The covariance is ``sigma_m^2 (J' W J)^-1`` at the solution
+(W the final robust weights, 1 for plain least squares): the Cramer-Rao bound for Gaussian
+range noise of standard deviation ``sigma_m`` when W = 1.
+
+The tightly coupled filter (:func:`track`) and its RTS smoother (:func:`smooth`) are further
+down, with their own docstrings.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from estimator import trilateration as tri
+from estimator._checks import check_array, check_int, check_real
+from estimator.configuration import SensorConfig
+from estimator.orientation import wrap_angle
+from estimator.rigid_fit import procrustes_batch
+
+__all__ = [
+    "BIAS_MODES",
+    "ROBUST",
+    "STATUSES",
+    "FilterConfig",
+    "RigidPoseFit",
+    "TrackResult",
+    "closed_form_start",
+    "fit_pose",
+    "grid_to_stream",
+    "smooth",
+    "track",
+]
+
+#: name -> tuning constant of the robust loss (95 % efficiency at Gaussian noise)
+ROBUST = {"none": None, "huber": 1.345, "cauchy": 2.385}
+BIAS_MODES = ("none", "common", "anchor")
+
+#: Status vocabulary of :class:`RigidPoseFit` (as :data:`estimator.window.STATUSES`).
+STATUSES = {
+    "ok": "joint fit converged at a well-determined pose",
+    "insufficient_data": "fewer finite ranges than unknowns + 1, or no start (fewer than 2 "
+                         "tags trilaterated, 3 non-collinear in 3-D): NaN pose",
+    "degenerate": "J'W J singular at the solution (condition number >= 1e12): the ranges do "
+                  "not fix the pose; the last iterate is returned",
+    "maxiter": "iteration limit reached before the step test was met; last iterate returned",
+    "ambiguous": "a second proper pose (from the start reflected in the anchors' line) fits "
+                 "within 9 scale^2 of the best: the mirror pose fits nearly as well",
+    "mirror_ambiguous": "the mirrored layout fits within 9 scale^2 of the proper one: the "
+                        "ranges do not fix the layout's handedness (a swapped tag would pass)",
+    "mirrored": "the mirrored layout fits better by more than 9 scale^2: the layout or the tag "
+                "assignment is probably mirrored; the proper fit is returned",
+}
+
+_MAX_ABS_M = 1e7
+_SINGULAR_REL = 1e-12
+#: cost tie band of the mirror checks, in units of scale^2 (as damped_ls's 9 sigma^2)
+_TIE = 9.0
+
+
+@dataclass(frozen=True)
+class RigidPoseFit:
+    """Per-epoch joint fit (E epochs; P parameters = 3 + n_bias in 2-D, 6 + n_bias in 3-D).
+
+    position (E, 2|3) m; yaw (E,) rad (wrapped); rotation (E, 3, 3) body -> world;
+    bias (E, n_bias) m; covariance (E, P, P) over (x, y, yaw, biases) in 2-D or
+    (x, y, z, rotation increment about world x, y, z, biases) in 3-D (m, rad);
+    rms_residual_m (E,); scale_m (E,) robust scale; n_ranges (E,); iterations (E,);
+    objective (E,) robust cost; mirror_objective (E,) of the mirrored layout (NaN if not
+    checked); alternative (E, 3) the other proper pose (x, y, yaw) when ``ambiguous``;
+    status (E,) str from :data:`STATUSES`.
+    """
+
+    position: np.ndarray
+    yaw: np.ndarray
+    rotation: np.ndarray
+    bias: np.ndarray
+    covariance: np.ndarray
+    rms_residual_m: np.ndarray
+    scale_m: np.ndarray
+    n_ranges: np.ndarray
+    iterations: np.ndarray
+    objective: np.ndarray
+    mirror_objective: np.ndarray
+    alternative: np.ndarray
+    status: np.ndarray
+
+    @property
+    def pose(self) -> np.ndarray:
+        """(E, 3): x, y (m), yaw (rad)."""
+        return np.column_stack([self.position[:, 0], self.position[:, 1], self.yaw])
+
+
+# ------------------------------------------------------------------------------ checks
+def _check_geometry(anchors, body, ranges):
+    A = check_array(anchors, "anchors", max_abs=_MAX_ABS_M)
+    if A.ndim != 2 or A.shape[1] != 3 or A.shape[0] < 3:
+        raise ValueError(f"anchors: expected shape (M, 3) with M >= 3, got {A.shape}")
+    B = check_array(body, "body", max_abs=_MAX_ABS_M)
+    if B.ndim != 2 or B.shape[1] not in (2, 3) or B.shape[0] < 2:
+        raise ValueError(f"body: expected shape (N, 2) or (N, 3) with N >= 2, got {B.shape}")
+    if B.shape[1] == 2:
+        B = np.column_stack([B, np.zeros(B.shape[0])])
+    D = check_array(ranges, "ranges", allow_nan=True, max_abs=_MAX_ABS_M)
+    single = D.ndim == 2
+    if single:
+        D = D[None]
+    if D.ndim != 3 or D.shape[1:] != (B.shape[0], A.shape[0]):
+        raise ValueError(f"ranges: expected shape ({B.shape[0]}, {A.shape[0]}) or "
+                         f"(E, {B.shape[0]}, {A.shape[0]}), got {np.shape(ranges)}")
+    if (D < 0).any():
+        raise ValueError(f"ranges: must be >= 0 m, found {np.nanmin(D)!r}")
+    return A, B, D, single
+
+
+def _choice(value, name, allowed):
+    if value not in allowed:
+        raise ValueError(f"{name}: must be one of {tuple(allowed)}, got {value!r}")
+    return value
+
+
+# ------------------------------------------------------------------------- closed form
+def _rz(yaw: np.ndarray) -> np.ndarray:
+    c, s = np.cos(yaw), np.sin(yaw)
+    R = np.zeros(yaw.shape + (3, 3))
+    R[..., 0, 0], R[..., 0, 1], R[..., 1, 0], R[..., 1, 1] = c, -s, s, c
+    R[..., 2, 2] = 1.0
+    return R
+
+
+def _tag_fixes(A, B, D, dim, origin_z, sigma, side):
+    """Per-tag damped trilateration: (E, N, 3) world points (NaN where a tag has < 3 ranges)."""
+    E, N = D.shape[0], B.shape[0]
+    fix = np.full((E, N, 3), np.nan)
+    for n in range(N):
+        kw = {} if dim == 3 else {"height_m": origin_z + B[n, 2]}
+        fix[:, n] = tri.damped_ls(A, D[:, n], sigma_m=sigma, side=side, **kw)
+    return fix
+
+
+def _procrustes(fix, B, dim):
+    """Weighted Procrustes of the layout to the tag fixes: (E, 3) position, (E, 3, 3) R, ok."""
+    E, N = fix.shape[:2]
+    cols = slice(0, dim)
+    w = np.all(np.isfinite(fix[..., cols]), axis=2).astype(float)
+    cfg = SensorConfig([f"t{i}" for i in range(N)], B[:, cols])
+    fit = procrustes_batch(np.where(w[..., None] > 0, fix[..., cols], np.nan), w, cfg)
+    ok = fit.status == "ok"
+    pos = np.full((E, 3), np.nan)
+    R = np.full((E, 3, 3), np.nan)
+    if dim == 2:
+        pos[:, :2] = fit.translation
+        R = _rz(fit.yaw)
+    else:
+        pos, R = fit.translation, fit.rotation
+    return pos, R, ok
+
+
+def closed_form_start(anchors, body, ranges, *, origin_z_m: float = 0.0, dim: int = 2,
+                      sigma_m: float = 0.05, side: int = 1):
+    """Per-tag trilateration + weighted Procrustes (thesis Appendix A + dissertation 3.1).
+
+    Returns position (E, 3) m (2-D: z = origin_z_m), rotation (E, 3, 3) and ok (E,) bool
+    (False: fewer than 2 tags fixed, or 3 non-collinear in 3-D; NaN pose). Single epoch in:
+    leading axis of length 1.
+    """
+    dim = _choice(dim, "dim", (2, 3))
+    A, B, D, _ = _check_geometry(anchors, body, ranges)
+    z0 = check_real(origin_z_m, "origin_z_m", lo=-_MAX_ABS_M, hi=_MAX_ABS_M)
+    sig = check_real(sigma_m, "sigma_m", lo=0.0, lo_open=True, hi=1e3)
+    fix = _tag_fixes(A, B, D, dim, z0, sig, side)
+    pos, R, ok = _procrustes(fix, B, dim)
+    if dim == 2:
+        pos[:, 2] = z0
+    return pos, R, ok
+
+
+# --------------------------------------------------------------------------- the model
+class _Model:
+    """Residuals and Jacobian of all ranges of E epochs (K = N M ranges per epoch)."""
+
+    def __init__(self, A, B, D, dim, origin_z, bias):
+        self.A, self.B, self.dim, self.z0 = A, B, dim, origin_z
+        N, M = B.shape[0], A.shape[0]
+        self.D = D.reshape(D.shape[0], N * M)
+        self.mask = np.isfinite(self.D)
+        self.D0 = np.where(self.mask, self.D, 0.0)
+        self.tag = np.repeat(np.arange(N), M)
+        self.anc = np.tile(np.arange(M), N)
+        self.nb = {"none": 0, "common": 1, "anchor": M}[bias]
+        self.bias = bias
+        self.npose = 3 if dim == 2 else 6
+        self.p = self.npose + self.nb
+
+    def bias_columns(self, E):
+        K = self.tag.size
+        if self.bias == "none":
+            return np.zeros((E, K, 0))
+        if self.bias == "common":
+            return np.ones((E, K, 1))
+        Jb = np.zeros((K, self.nb))
+        Jb[np.arange(K), self.anc] = 1.0
+        return np.broadcast_to(Jb, (E, K, self.nb))
+
+    def evaluate(self, pos, R, b, rows=None):
+        """r (E, K) = predicted - measured (0 where missing), J (E, K, P); ``rows`` selects
+        the epochs (default all)."""
+        mask = self.mask if rows is None else self.mask[rows]
+        D0 = self.D0 if rows is None else self.D0[rows]
+        Rb = np.einsum("eij,nj->eni", R, self.B)[:, self.tag]          # (E, K, 3)
+        diff = pos[:, None, :] + Rb - self.A[self.anc][None]
+        if self.dim == 2:
+            diff[..., 2] = self.z0 + self.B[self.tag, 2] - self.A[self.anc, 2]
+        rho = np.linalg.norm(diff, axis=2)
+        u = diff / np.where(rho > 0, rho, 1.0)[..., None]
+        bias = np.zeros_like(rho) if self.nb == 0 else np.einsum(
+            "ekb,eb->ek", self.bias_columns(rho.shape[0]), b)
+        r = np.where(mask, rho + bias - D0, 0.0)
+        E, K = r.shape
+        J = np.zeros((E, K, self.p))
+        if self.dim == 2:
+            J[..., 0], J[..., 1] = u[..., 0], u[..., 1]
+            J[..., 2] = u[..., 1] * Rb[..., 0] - u[..., 0] * Rb[..., 1]
+        else:
+            J[..., 0:3] = u
+            J[..., 3:6] = np.cross(Rb, u)
+        J[..., self.npose:] = self.bias_columns(E)
+        J *= mask[..., None]
+        return r, J
+
+
+def _masked_median(x, mask):
+    """Row medians (E,) of x (E, K) over mask (NaN for an empty row); sort-based, fast."""
+    n = mask.sum(axis=1)
+    xs = np.sort(np.where(mask, x, np.inf), axis=1)
+    lo = np.clip((n - 1) // 2, 0, None)
+    hi = np.clip(n // 2, 0, None)
+    rows = np.arange(x.shape[0])
+    med = 0.5 * (xs[rows, lo] + xs[rows, hi])
+    return np.where(n > 0, med, np.nan)
+
+
+def _normal(J, w, r=None):
+    """J' W J (E, P, P) and, with r, J' W r (E, P), by batched matmul."""
+    Jw = J * w[..., None]
+    H = np.matmul(Jw.transpose(0, 2, 1), J)
+    return H if r is None else (H, np.matmul(Jw.transpose(0, 2, 1), r[..., None])[..., 0])
+
+
+def _robust_weights(r, mask, kind, floor):
+    """IRLS weights (E, K) and scale (E,): 1.4826 MAD of the used residuals, >= floor."""
+    k = ROBUST[kind]
+    med = _masked_median(r, mask)
+    mad = 1.4826 * _masked_median(np.abs(r - med[:, None]), mask)
+    s = np.maximum(np.nan_to_num(mad, nan=floor), floor)
+    if k is None:
+        return mask.astype(float), s
+    a = np.abs(r) / (k * s[:, None])
+    w = np.minimum(1.0, 1.0 / np.maximum(a, 1e-300)) if kind == "huber" else 1.0 / (1.0 + a * a)
+    return w * mask, s
+
+
+def _rho(r, mask, kind, s):
+    """Robust cost sum_k s^2 rho(r_k / s) (E,), with the least-squares rho = r^2 / 2 x 2."""
+    k = ROBUST[kind]
+    if k is None:
+        return np.sum(np.where(mask, r * r, 0.0), axis=1)
+    a = np.abs(r) / (k * s[:, None])
+    if kind == "huber":
+        c = np.where(a <= 1, a * a, 2 * a - 1)
+    else:
+        c = np.log1p(a * a)
+    return np.sum(np.where(mask, c, 0.0), axis=1) * (k * s) ** 2
+
+
+def _apply_step(pos, R, b, step, model):
+    pos = pos.copy()
+    if model.dim == 2:
+        pos[:, :2] += step[:, :2]
+        yaw = np.arctan2(R[:, 1, 0], R[:, 0, 0]) + step[:, 2]
+        R = _rz(yaw)
+    else:
+        pos += step[:, :3]
+        R = np.einsum("eij,ejk->eik", _rotvec(step[:, 3:6]), R)
+    return pos, R, b + step[:, model.npose:]
+
+
+def _rotvec(w):
+    """Rodrigues: (E, 3) rotation vectors -> (E, 3, 3)."""
+    th = np.linalg.norm(w, axis=1)
+    k = w / np.where(th > 0, th, 1.0)[:, None]
+    Kx = np.zeros((w.shape[0], 3, 3))
+    Kx[:, 0, 1], Kx[:, 0, 2], Kx[:, 1, 2] = -k[:, 2], k[:, 1], -k[:, 0]
+    Kx[:, 1, 0], Kx[:, 2, 0], Kx[:, 2, 1] = k[:, 2], -k[:, 1], k[:, 0]
+    s, c = np.sin(th)[:, None, None], np.cos(th)[:, None, None]
+    return np.eye(3) + s * Kx + (1 - c) * (Kx @ Kx)
+
+
+def _solve_lm(model, pos, R, b, robust, floor, max_iter, tol):
+    """Batched IRLS Levenberg-Marquardt; returns pos, R, b, iterations, converged, w, s."""
+    E = pos.shape[0]
+    lam = np.full(E, 1e-3)
+    it = np.zeros(E, dtype=int)
+    done = ~np.all(np.isfinite(pos), axis=1)
+    r, J = model.evaluate(pos, R, b)
+    w, s = _robust_weights(r, model.mask, robust, floor)
+    eye = np.eye(model.p)
+    for _ in range(max_iter):
+        live = np.flatnonzero(~done)
+        if live.size == 0:
+            break
+        rl, Jl, wl, sl = r[live], J[live], w[live], s[live]
+        H, g = _normal(Jl, wl, rl)
+        Hd = H + lam[live, None, None] * (np.einsum("epp->ep", H)[:, :, None] * eye + 1e-12 * eye)
+        ok = np.all(np.isfinite(Hd), axis=(1, 2)) & (np.abs(np.linalg.det(Hd)) > 0)
+        step = np.zeros((live.size, model.p))
+        if ok.any():
+            step[ok] = -np.linalg.solve(Hd[ok], g[ok][..., None])[..., 0]
+        p2, R2, b2 = _apply_step(pos[live], R[live], b[live], step, model)
+        r2, J2 = model.evaluate(p2, R2, b2, live)
+        ml = model.mask[live]
+        better = _rho(r2, ml, robust, sl) <= _rho(rl, ml, robust, sl)
+        it[live] += 1
+        acc = live[better & ok]
+        pos[acc], R[acc], b[acc], r[acc], J[acc] = p2[better & ok], R2[better & ok], \
+            b2[better & ok], r2[better & ok], J2[better & ok]
+        lam[live] = np.where(better, np.maximum(lam[live] / 3, 1e-9), lam[live] * 4)
+        small = np.linalg.norm(step, axis=1) <= tol * (1.0 + np.linalg.norm(pos[live], axis=1))
+        done[live[(small & better) | ~ok | (lam[live] > 1e8)]] = True
+        if acc.size:
+            w[acc], s[acc] = _robust_weights(r[acc], model.mask[acc], robust, floor)
+    return pos, R, b, it, done, w, s, r, J
+
+
+def _covariance(J, w, sigma):
+    H = _normal(J, w)
+    ev = np.linalg.eigvalsh(H)
+    good = (ev[:, 0] > _SINGULAR_REL * ev[:, -1]) & np.isfinite(ev).all(axis=1)
+    cov = np.full_like(H, np.nan)
+    if good.any():
+        cov[good] = sigma ** 2 * np.linalg.inv(H[good])
+    return cov, good
+
+
+def _anchor_line(A):
+    """Anchors' best-fit line in x-y: centroid (2,), unit normal (2,)."""
+    c = A[:, :2].mean(axis=0)
+    _, _, vt = np.linalg.svd(A[:, :2] - c)
+    return c, vt[1]
+
+
+def _reflect_start(pos, R, B, A):
+    """The pose whose tags are the given pose's tags reflected in the anchors' x-y line."""
+    c, nrm = _anchor_line(A)
+    pts = np.einsum("eij,nj->eni", R, B)[..., :2] + pos[:, None, :2]
+    h = (pts - c) @ nrm
+    refl = pts - 2 * h[..., None] * nrm
+    cfg = SensorConfig([f"t{i}" for i in range(B.shape[0])], B[:, :2])
+    fit = procrustes_batch(refl, np.ones(refl.shape[:2]), cfg)
+    p2 = pos.copy()
+    p2[:, :2] = fit.translation
+    return p2, _rz(fit.yaw)
+
+
+def fit_pose(anchors, body, ranges, *, origin_z_m: float = 0.0, dim: int = 2,
+             robust: str = "huber", bias: str = "none", sigma_m: float = 0.05,
+             mirror_check: bool = True, side: int = 1, x0=None, max_iter: int = 50,
+             tol: float = 1e-9) -> RigidPoseFit:
+    """Joint robust fit of the rigid pose to all ranges of each epoch (module docstring).
+
+    anchors (M, 3) m; body (N, 2|3) m (tag frame); ranges (N, M) or (E, N, M) m, NaN missing.
+    origin_z_m : 2-D mode: world height of the tag-frame origin (tag z = origin + body z).
+    dim : 2 (x, y, yaw) or 3 (x, y, z, rotation). robust : key of :data:`ROBUST`.
+    bias : :data:`BIAS_MODES` (range offset state). sigma_m : range noise std (m): floor of the
+    robust scale, scale of the covariance and of the start's mirror tests.
+    mirror_check : fit the mirrored layout and the reflected pose (2-D only; 2-3x the cost).
+    x0 : optional start pose (E, 3) x, y, yaw (2-D) for every epoch instead of the closed form.
+    Returns :class:`RigidPoseFit` (leading axis E; E = 1 for one epoch).
+    """
+    dim = _choice(dim, "dim", (2, 3))
+    _choice(robust, "robust", ROBUST)
+    _choice(bias, "bias", BIAS_MODES)
+    A, B, D, _ = _check_geometry(anchors, body, ranges)
+    z0 = check_real(origin_z_m, "origin_z_m", lo=-_MAX_ABS_M, hi=_MAX_ABS_M)
+    sig = check_real(sigma_m, "sigma_m", lo=0.0, lo_open=True, hi=1e3)
+    max_iter = check_int(max_iter, "max_iter", lo=1, hi=100_000)
+    tol = check_real(tol, "tol", lo=0.0, lo_open=True, hi=1e-2)
+    model = _Model(A, B, D, dim, z0, bias)
+    E = D.shape[0]
+    if x0 is None:
+        pos, R, ok = closed_form_start(A, B, D, origin_z_m=z0, dim=dim, sigma_m=sig, side=side)
+    else:
+        if dim != 2:
+            raise ValueError("x0: only for dim=2 (x, y, yaw)")
+        X = check_array(x0, "x0", max_abs=_MAX_ABS_M).reshape(-1, 3)
+        if X.shape[0] not in (1, E):
+            raise ValueError(f"x0: expected shape (3,) or ({E}, 3), got {np.shape(x0)}")
+        X = np.broadcast_to(X, (E, 3))
+        pos = np.column_stack([X[:, :2], np.full(E, z0)])
+        R, ok = _rz(X[:, 2]), np.ones(E, dtype=bool)
+    nr = model.mask.sum(axis=1)
+    ok &= nr >= model.p + 1
+    pos[~ok] = np.nan
+    b = np.zeros((E, model.nb))
+    sol = _solve_lm(model, pos, R, b, robust, sig, max_iter, tol)
+    return _finish(model, sol, ok, nr, A, B, robust, sig, mirror_check, max_iter, tol)
+
+
+def _finish(model, sol, ok, nr, A, B, robust, sig, mirror_check, max_iter, tol):
+    pos, R, b, it, conv, w, s, r, J = sol
+    E = pos.shape[0]
+    obj = _rho(r, model.mask, robust, s)
+    alt = np.full((E, 3), np.nan)
+    mobj = np.full(E, np.nan)
+    status = np.where(ok, "ok", "insufficient_data").astype(object)
+    if mirror_check and model.dim == 2 and ok.any():
+        status, pos, R, b, r, J, w, obj, alt = _reflected(model, pos, R, b, r, J, w, s, obj,
+                                                          ok, status, A, B, robust, sig,
+                                                          max_iter, tol)
+        mobj = _mirror_layout(model, pos, R, ok, robust, sig, s, max_iter, tol, B)
+        span = np.linalg.matrix_rank(B[:, :2] - B[:, :2].mean(axis=0)) == 2
+        if span:
+            tie = ok & (status == "ok") & (mobj <= obj + _TIE * s ** 2)
+            worse = ok & (status == "ok") & (mobj < obj - _TIE * s ** 2)
+            status[tie & ~worse] = "mirror_ambiguous"
+            status[worse] = "mirrored"
+    cov, good = _covariance(J, w, sig)
+    status[ok & ~good] = "degenerate"
+    status[ok & good & ~conv & (status == "ok")] = "maxiter"
+    rms = np.sqrt(np.sum(r * r * model.mask, axis=1) / np.maximum(nr, 1))
+    rms[~ok] = np.nan
+    yaw = wrap_angle(np.arctan2(R[:, 1, 0], R[:, 0, 0]))
+    p_out = pos[:, :model.dim].copy()
+    for arr in (p_out, yaw, b, rms, obj):
+        arr[~ok] = np.nan
+    return RigidPoseFit(position=p_out, yaw=yaw, rotation=R, bias=b, covariance=cov,
+                        rms_residual_m=rms, scale_m=s, n_ranges=nr, iterations=it,
+                        objective=obj, mirror_objective=mobj, alternative=alt,
+                        status=status.astype(str))
+
+
+def _reflected(model, pos, R, b, r, J, w, s, obj, ok, status, A, B, robust, sig, max_iter,
+               tol):
+    """Second start: the pose reflected in the anchors' x-y line; keep the better minimum."""
+    p2, R2 = _reflect_start(pos, R, B, A)
+    p2[~ok] = np.nan
+    pb, Rb, bb, _, _, wb, _, rb, Jb = _solve_lm(model, p2, R2, b.copy(), robust, sig,
+                                                max_iter, tol)
+    objb = _rho(rb, model.mask, robust, s)
+    yaw_a = np.arctan2(R[:, 1, 0], R[:, 0, 0])
+    yaw_b = np.arctan2(Rb[:, 1, 0], Rb[:, 0, 0])
+    distinct = ok & np.isfinite(objb) & ((np.linalg.norm(pb[:, :2] - pos[:, :2], axis=1)
+                                          > 10 * sig) | (np.abs(wrap_angle(yaw_a - yaw_b))
+                                                         > 0.05))
+    better = distinct & (objb < obj - _TIE * s ** 2)
+    tie = distinct & ~better & (objb <= obj + _TIE * s ** 2)
+    other = np.column_stack([pb[:, 0], pb[:, 1], yaw_b])
+    sel = better
+    pos, R, b = np.where(sel[:, None], pb, pos), np.where(sel[:, None, None], Rb, R), \
+        np.where(sel[:, None], bb, b)
+    r, J, w = np.where(sel[:, None], rb, r), np.where(sel[:, None, None], Jb, J), \
+        np.where(sel[:, None], wb, w)
+    obj = np.where(sel, objb, obj)
+    alt = np.full((pos.shape[0], 3), np.nan)
+    alt[tie] = other[tie]
+    status = status.copy()
+    status[tie] = "ambiguous"
+    return status, pos, R, b, r, J, w, obj, alt
+
+
+def _mirror_layout(model, pos, R, ok, robust, sig, s, max_iter, tol, B):
+    """Robust cost (E,) of the mirrored layout (body y -> -y), the better of two starts fitted
+    in one batch: the proper fit's tag points and those points reflected in the anchors' x-y
+    line (exact for collinear anchors), each Procrustes-fitted with the mirrored layout."""
+    E, N, M = pos.shape[0], B.shape[0], model.A.shape[0]
+    Bm = B * np.array([1.0, -1.0, 1.0])
+    D = model.D.reshape(E, N, M)
+    mm = _Model(model.A, Bm, np.concatenate([D, D]), 2, model.z0, model.bias)
+    pts = np.einsum("eij,nj->eni", R, B)[..., :2] + pos[:, None, :2]
+    c, nrm = _anchor_line(model.A)
+    refl = pts - 2 * ((pts - c) @ nrm)[..., None] * nrm
+    both = np.concatenate([pts, refl])
+    okk = np.concatenate([ok, ok])
+    cfg = SensorConfig([f"t{i}" for i in range(N)], Bm[:, :2])
+    fit = procrustes_batch(np.where(okk[:, None, None], both, np.nan),
+                           np.where(okk, 1.0, 0.0)[:, None] * np.ones(both.shape[:2]), cfg)
+    p0 = np.concatenate([pos, pos])
+    p0[:, :2] = fit.translation
+    p0[~okk] = np.nan
+    out = _solve_lm(mm, p0, _rz(np.nan_to_num(fit.yaw)), np.zeros((2 * E, mm.nb)),
+                    robust, sig, max_iter, tol)
+    cost = _rho(out[7], mm.mask, robust, np.concatenate([s, s]))
+    mobj = np.fmin(cost[:E], cost[E:])
+    mobj[~ok] = np.nan
+    return mobj
