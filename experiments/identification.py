@@ -659,8 +659,8 @@ def _evidence_section(rows: pd.DataFrame, window: dict | None) -> list[str]:
         L.append(md_row([r["case"], r["pitch_mode"], _fmt(r["drag_xy_per_kg"]),
                          _fmt(r["rotor_height_m"]), _fmt(r["inertia_yy"]), _fmt(r["k_rate"]),
                          _yes(r["in_f450_ranges"]),
-                         f"{_fmt(r['chain_Tw'])} / {_fmt(r['chain_zeta'])} / "
-                         f"{_fmt(r['chain_Td'])}", fit, pct]))
+                         (f"{_fmt(r['chain_Tw'])} / {_fmt(r['chain_zeta'])} / "
+                          f"{_fmt(r['chain_Td'])}"), fit, pct]))
     rate = rows[rows.pitch_mode == "rate"]
     inside = rate[rate.in_f450_ranges]
     imp = rows.iloc[-1]

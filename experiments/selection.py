@@ -120,10 +120,11 @@ def _values(col: pd.Series) -> list:
 def _ambiguous(sel: pd.DataFrame) -> AmbiguousSelection:
     axes = [a for a in axis_columns(sel) if sel[a].nunique(dropna=False) > 1]
     differing = {a: _values(sel[a]) for a in axes}
-    lines = [f"expected exactly one matching cell, found {len(sel)}; they differ in "
-             f"{', '.join(axes) or 'no axis (duplicate keys?)'}. Add one term per axis to "
-             "--where:"]
-    lines += [f"  {a}: " + " / ".join(_term(a, v) for v in vals) for a, vals in differing.items()]
+    lines = [(f"expected exactly one matching cell, found {len(sel)}; they differ in "
+              f"{', '.join(axes) or 'no axis (duplicate keys?)'}. Add one term per axis to "
+              "--where:")]
+    lines += [f"  {a}: " + " / ".join(_term(a, v) for v in vals)
+              for a, vals in differing.items()]
     shown = sel[["key", *axes]].head(MAX_LISTED)
     lines += ["the matching cells" + (f" (first {MAX_LISTED})" if len(sel) > MAX_LISTED else "")
               + ":", shown.to_string(index=False)]

@@ -142,7 +142,7 @@ def test_the_page_renders_the_weighting_table_as_a_table(quick_run):
     heads = re.findall(r"<th[^>]*>(.*?)</th>", table)
     assert heads == ["Path", "Window", "Weights", "mean |x|", "median |x|", "mean |y|",
                      "median |y|"]
-    for row in re.findall(r"<tr>(.*?)</tr>", table.split("<tbody>")[1], re.S):
+    for row in re.findall(r"<tr>(.*?)</tr>", table.split("<tbody>")[1], re.DOTALL):
         assert len(re.findall(r"<td", row)) == 7
 
 
