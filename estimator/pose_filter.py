@@ -147,7 +147,7 @@ import numpy as np
 from scipy.linalg.lapack import dgetrf as _dgetrf
 from scipy.linalg.lapack import dgetri as _dgetri
 
-from estimator._checks import check_array, check_fields, check_increasing_times, check_int
+from estimator._checks import check_array, check_increasing_times, check_int
 from estimator._checks import check_real
 from estimator.memo import ContentMemo, content_digest, freeze
 
@@ -184,6 +184,29 @@ MAX_ITERATIONS = 4
 MIN_NOISE_SAMPLES = 50
 #: Numerical floor of the estimated noise levels, m (noise-free data would give 0).
 NOISE_FLOOR_M = 1e-3
+#: Physically sensible ranges of :class:`PoseFilterParams` (closed intervals, SI units).
+#: Platform limits (m/s^2, rad/s^2, rad/s) from a creeping platform to ~1000 g: beyond
+#: them the process noise (the limits squared, times up to dt^4) leaves the range where
+#: the filter's covariances keep their digits.
+LIMIT_RANGE = (1e-6, 1e4)
+#: Noise levels, m: a micrometre to 1000 km (any receiver on Earth lies inside).
+SIGMA_RANGE_M = (1e-6, 1e6)
+#: Time constants (``flip_memory_s``, ``lag_s``), s: a microsecond to ~30 years.
+TIME_RANGE_S = (1e-6, 1e9)
+#: Largest |coordinate| of a fix, m (as :data:`estimator.window.MAX_COORD_M`: any
+#: projected coordinate on Earth is below 1e8 m); larger values are refused, never squared.
+MAX_COORD_M = 1e9
+#: Largest |antenna offset| or |no-slip point| in the body frame, m (a rigid platform).
+MAX_OFFSET_M = 1e4
+#: Smallest layout (largest antenna distance), m: below it the heading is unobservable.
+MIN_EXTENT_M = 1e-6
+#: Largest |time|, s (seconds since an epoch are ~2e9; nanoseconds would be ~2e18).
+MAX_TIME_S = 1e12
+#: A prediction whose spread at the antennas (position variance + lever^2 x heading
+#: variance) exceeds this many times the smallest measurement variance means nothing any
+#: more: the gain-form update ``P - K S K^T`` would cancel ~12 of the 16 digits (relative
+#: error ~1e-4 of the posterior at 1e12); the track is lost and restarts from the data.
+MAX_PRIOR_RATIO = 1e12
 
 STATUSES = ("", "no_data", "waiting", "init", "reset", "ok", "predicted", "flip_corrected")
 
@@ -194,9 +217,12 @@ class PoseFilterParams:
 
     Limits (module docstring; defaults: the rover of models/paths/square100.toml and the
     controller's yaw-acceleration limit, sim.controllers): ``max_accel_mps2`` (longitudinal),
-    ``max_yaw_accel_radps2``, ``max_turn_rate_radps``, ``max_lateral_accel_mps2``.
+    ``max_yaw_accel_radps2``, ``max_turn_rate_radps``, ``max_lateral_accel_mps2``, each in
+    :data:`LIMIT_RANGE`.
     ``sigma_abs_m`` / ``sigma_step_m``: per-axis sd of an antenna fix and of its displacement
-    over one sample interval; None = :func:`estimate_noise` on the recording.
+    over one sample interval, in :data:`SIGMA_RANGE_M`; None = :func:`estimate_noise` on the
+    recording. ``flip_memory_s`` and ``lag_s`` in :data:`TIME_RANGE_S`. A value outside its
+    range raises ValueError naming the field and the value.
     ``no_slip_point_m``: (x, y) of the no-slip point in the body frame relative to the
     configuration's CG. ``reverse``: the platform may drive backwards (signed speed).
     ``gate_prob``: chi-square gate probability (1 = no gating). ``max_rejects``: consecutive
@@ -219,11 +245,15 @@ class PoseFilterParams:
     lag_s: float = 10.0
 
     def __post_init__(self) -> None:
-        check_fields(self, ("max_accel_mps2", "max_yaw_accel_radps2", "max_turn_rate_radps",
-                            "max_lateral_accel_mps2", "flip_memory_s", "lag_s"))
+        for name in ("max_accel_mps2", "max_yaw_accel_radps2", "max_turn_rate_radps",
+                     "max_lateral_accel_mps2"):
+            check_real(getattr(self, name), name, lo=LIMIT_RANGE[0], hi=LIMIT_RANGE[1])
+        for name in ("flip_memory_s", "lag_s"):
+            check_real(getattr(self, name), name, lo=TIME_RANGE_S[0], hi=TIME_RANGE_S[1])
         for name in ("sigma_abs_m", "sigma_step_m"):
             if getattr(self, name) is not None:
-                check_real(getattr(self, name), name, lo=0.0, lo_open=True)
+                check_real(getattr(self, name), name, lo=SIGMA_RANGE_M[0],
+                           hi=SIGMA_RANGE_M[1])
         check_real(self.gate_prob, "gate_prob", lo=0.0, hi=1.0, lo_open=True)
         check_int(self.max_rejects, "max_rejects", lo=1)
         if not isinstance(self.reverse, bool):
@@ -231,8 +261,9 @@ class PoseFilterParams:
         ns = self.no_slip_point_m
         if not isinstance(ns, (tuple, list)) or len(ns) != 2:
             raise ValueError(f"no_slip_point_m: must be (x, y) metres, got {ns!r}")
-        object.__setattr__(self, "no_slip_point_m", (
-            check_real(ns[0], "no_slip_point_m[0]"), check_real(ns[1], "no_slip_point_m[1]")))
+        object.__setattr__(self, "no_slip_point_m", tuple(
+            check_real(ns[i], f"no_slip_point_m[{i}]", lo=-MAX_OFFSET_M, hi=MAX_OFFSET_M)
+            for i in range(2)))
 
     @property
     def sigma_accel_step(self) -> float:
@@ -737,7 +768,9 @@ class FilterStart:
         if self.cnt[k] < 2:
             return None
         sa, p = self.sigma_abs, self.params
-        yaw_sd = sa / math.sqrt(self.r2[self.present[k]].sum())
+        r2 = self.r2[self.present[k]].sum()
+        # the present antennas all at the no-slip point: no heading from the layout
+        yaw_sd = sa / math.sqrt(r2) if r2 > 0 else math.inf
         if yaw_sd < INIT_MAX_YAW_SD:
             # the configuration fixes the heading; the speed along it comes from the
             # previous epoch's fit, so wait for two consecutive fits (a start on the move,
@@ -836,12 +869,21 @@ def _iterated_update(y, Y, z, pat, gate, lever, tol):
 
 
 def _check_run_args(t, obs, offsets, params):
-    obs = check_array(obs, "obs", allow_nan=True)
+    obs = check_array(obs, "obs", allow_nan=True, max_abs=MAX_COORD_M)
     if obs.ndim != 3 or obs.shape[2] != 2:
         raise ValueError(f"obs: expected shape (n, m, 2) metres, got {obs.shape}")
     n, m = obs.shape[:2]
     tt = check_increasing_times(t, "t", n=n, min_size=1)
-    off = check_array(offsets, "offsets", shape=(m, 2))
+    if abs(tt[0]) > MAX_TIME_S or abs(tt[-1]) > MAX_TIME_S:
+        k = 0 if abs(tt[0]) > MAX_TIME_S else n - 1
+        raise ValueError(f"t: |time| must be <= {MAX_TIME_S:g} s; t[{k}] = {tt[k]!r} "
+                         "(nanoseconds? pass seconds)")
+    off = check_array(offsets, "offsets", shape=(m, 2), max_abs=MAX_OFFSET_M)
+    if _extent(off) < MIN_EXTENT_M:
+        at = f"({off[0, 0]:g}, {off[0, 1]:g})" if m else "(none)"
+        raise ValueError(f"offsets: the {m} antenna(s) are all at one point {at} m (layout "
+                         f"extent below {MIN_EXTENT_M:g} m): the layout cannot give the "
+                         "heading; the filter needs two antennas at distinct positions")
     if not isinstance(params, PoseFilterParams):
         raise TypeError(f"params: expected a PoseFilterParams, got {type(params).__name__}")
     nan = np.isnan(obs)
@@ -924,7 +966,19 @@ def run_pose_filter(t: np.ndarray, obs: np.ndarray, offsets: np.ndarray,
     rows = [row.tobytes() for row in present]
     patterns: dict[tuple[bytes, bytes], _Pattern] = {}
     dts = np.diff(tt).tolist()
+    var_min = min(va, vs)
     for k in range(n):
+        if x is not None:
+            # stochastic cloning: predict x_k and keep x_{k-1} beside it, jointly Gaussian
+            dt = dts[k - 1]
+            # the acceleration's increments add up over a longer gap (random walk)
+            xp, Pp, FP = _predict(x, P, dt, qa * max(1.0, dt / dt_med), qy)
+            if present[k].any() and _prior_lost(Pp, lever, var_min):
+                # the prediction means nothing (e.g. after an hour's gap in t): the track
+                # is lost; this epoch's data start it again (reported as "reset")
+                x = P = None
+                starter.reset()
+                lost = True
         if x is None:
             # ---------------------------------------------------------------- waiting
             status[k], got = starter.wait(k)
@@ -937,10 +991,6 @@ def run_pose_filter(t: np.ndarray, obs: np.ndarray, offsets: np.ndarray,
             rej_abs, rej_step, llr, back = 0, 0, 0.0, 0.0
             continue
         # -------------------------------------------------------------------- running
-        # stochastic cloning: predict x_k and keep x_{k-1} beside it, jointly Gaussian
-        dt = dts[k - 1]
-        # the acceleration's increments add up over a longer gap (random walk)
-        xp, Pp, FP = _predict(x, P, dt, qa * max(1.0, dt / dt_med), qy)
         y = np.concatenate((xp, x))
         Y = np.empty((2 * NX, 2 * NX))
         Y[:NX, :NX], Y[:NX, NX:], Y[NX:, :NX], Y[NX:, NX:] = Pp, FP, FP.T, P
@@ -953,7 +1003,11 @@ def run_pose_filter(t: np.ndarray, obs: np.ndarray, offsets: np.ndarray,
         if ik.size:
             zk = obs[k, ik]
             z = np.concatenate((zk, obs[k, js] - obs[k - 1, js])) if js.size else zk
-            y1, Y1, acc = _iterated_update(y, Y, z, pat, gate, lever, 0.1 * sigma_abs)
+            try:
+                y1, Y1, acc = _iterated_update(y, Y, z, pat, gate, lever, 0.1 * sigma_abs)
+            except np.linalg.LinAlgError:   # numerically singular: nothing to trust
+                y1, Y1, acc = y, Y, np.zeros(ik.size + js.size, dtype=bool)
+                rej_abs = rej_step = params.max_rejects
             acc_abs, acc_step = acc[:ik.size], acc[ik.size:]
             n_used[k] = np.count_nonzero(acc_abs)
             n_gated[k] = ik.size - n_used[k]
@@ -1001,14 +1055,18 @@ def run_pose_filter(t: np.ndarray, obs: np.ndarray, offsets: np.ndarray,
                 if llr > flip_thr:
                     x, P = _flip(x, P)
                     st, llr = "flip_corrected", 0.0
-        if P[YAW, YAW] > LOST_YAW_SD ** 2:
-            # predicted so long without data that the heading means nothing: lost; wait
-            # for data and restart (e.g. a long outage)
+        if not (P[YAW, YAW] <= LOST_YAW_SD ** 2 and _finite(x, P)):
+            # predicted so long without data that the heading means nothing (or a value
+            # overflowed): lost; wait for data and restart (e.g. a long outage). The row
+            # holds nothing, its clone neither (a smoother must not link across it).
             x = P = None
             starter.reset()
             lost = True
             status[k] = "waiting"
+            XC[k], PC[k], PX_[k] = np.nan, np.nan, np.nan
             continue
+        if not params.reverse and x[V] < 0.0:
+            x[V] = 0.0          # forward mode on every row: predicted ones and flips too
         # limits of the platform (projection)
         lim = om_max if x[V] == 0 else min(om_max, alat / abs(x[V]))
         if abs(x[OMEGA]) > lim:
@@ -1053,6 +1111,21 @@ def memo_pose_filter(t: np.ndarray, obs: np.ndarray, offsets: np.ndarray,
         return res
 
     return _PASS_MEMO.get(pass_key(t, obs, offsets, params), compute)
+
+
+def _prior_lost(Pp: np.ndarray, lever: float, var_min: float) -> bool:
+    """The prediction (covariance Pp (6, 6)) is too wide for an update in double precision:
+    its spread at the antennas (position variance + ``lever^2`` x heading variance, m^2;
+    lever: the longest lever arm, m) beyond :data:`MAX_PRIOR_RATIO` times the smallest
+    measurement variance ``var_min`` (m^2), or not finite. (A wide heading alone is left to
+    the update: the layout's fixes pull it in; the check after the update decides.)"""
+    spread = max(Pp[PX, PX], Pp[PY, PY]) + lever * lever * Pp[YAW, YAW]
+    return not spread <= MAX_PRIOR_RATIO * var_min
+
+
+def _finite(x: np.ndarray, P: np.ndarray) -> bool:
+    """Every entry of the state (6,) and covariance (6, 6) finite."""
+    return bool(np.isfinite(x).all() and np.isfinite(P).all())
 
 
 def _extent(offsets: np.ndarray) -> float:

@@ -24,7 +24,12 @@ smoother; tested against FilterPy's ``rts_smoother``).
   the extended, linearised version, as the RTS smoother).
 
 A segment is a stretch between filter (re)starts and flip corrections
-(``PoseFilterResult.segment_start``); no smoother crosses its boundary. For a platform
+(``PoseFilterResult.segment_start``); no smoother crosses its boundary. Epochs the filter
+predicted through without data (an outage, status ``"predicted"``) are inside a segment and
+smoothed like any other (the recursion carries the later data back across them); a row
+without output (NaN: a lost track, or before the start) ends the stretch before it, which is
+smoothed with its own data, and the smoothing resumes at the filter's restart (issues 23,
+25). For a platform
 without reverse (``reverse=False``) a smoothed speed below 0 is set to 0, the filter's own
 constraint. :func:`smoothed_heading` is the one-call version for other estimators (e.g. the
 lag correction of :mod:`estimator.lag` with a smoothed heading).
@@ -66,19 +71,37 @@ class SmoothedStates:
 
 def _gains(res: PoseFilterResult) -> tuple[np.ndarray, np.ndarray]:
     """Smoother gains C (n, 6, 6) (row k: from k+1 back to k) and a mask (n,) of the rows
-    with a valid gain (k and k+1 in the same running segment)."""
+    with a valid gain: k and k+1 both filtered (finite), in the same running segment, with
+    the clone of k at k+1 and a finite gain. Any other row ends a stretch: the smoothers
+    never carry a NaN (a lost track, a row without output) back into earlier rows."""
     n, nx = res.states.shape
     ok = np.zeros(n, dtype=bool)
     if n > 1:
-        ok[:-1] = (np.isfinite(res.states[:-1, 0]) & np.isfinite(res.prev_states[1:, 0])
-                   & ~res.segment_start[1:])
+        ok[:-1] = (np.isfinite(res.states[:-1, 0]) & np.isfinite(res.states[1:, 0])
+                   & np.isfinite(res.prev_states[1:, 0]) & ~res.segment_start[1:])
     C = np.full((n, nx, nx), np.nan)
     k = np.flatnonzero(ok)
     if k.size:
         # C = B^T P^-1 with the symmetric P = P_{k+1|k+1}: C^T = P^-1 B
-        Ct = np.linalg.solve(res.covariances[k + 1], res.cross_covariances[k + 1])
+        Ct = _solve(res.covariances[k + 1], res.cross_covariances[k + 1])
         C[k] = Ct.transpose(0, 2, 1)
+        ok[k] = np.isfinite(Ct).all(axis=(1, 2))
     return C, ok
+
+
+def _solve(P: np.ndarray, B: np.ndarray) -> np.ndarray:
+    """P^-1 B for batches (N, 6, 6); a singular or non-finite P gives a NaN row (that gain
+    is then invalid) instead of failing the batch."""
+    try:
+        return np.linalg.solve(P, B)
+    except np.linalg.LinAlgError:
+        out = np.full(B.shape, np.nan)
+        for i in range(P.shape[0]):
+            try:
+                out[i] = np.linalg.solve(P[i], B[i])
+            except np.linalg.LinAlgError:
+                pass
+        return out
 
 
 def _step(xf: np.ndarray, C: np.ndarray, xs_next: np.ndarray, xp_next: np.ndarray
