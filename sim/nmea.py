@@ -7,6 +7,10 @@ other sentence types are classified with pynmea2. Everything that is not a kept 
 counted, never silently dropped; the counts per class are in ``LogFixes.skipped`` and, summed
 over receivers, in the session's ``meta["skipped"]``. Classes (dropped unless marked kept):
 
+- ``long_lines``: lines longer than :data:`MAX_LINE_CHARS` (1 MiB), not read: no log holds
+  such lines (a sentence has at most 82 characters). Parsing is linear in the input
+  (sentences are found by a regular expression that never rescans), so even a line just
+  below the bound parses in milliseconds and Ctrl-C interrupts between lines and sentences.
 - ``comment_lines``: lines starting with ``#`` (gpsd regression-log headers).
 - ``host_prefixes`` (kept): lines that start with the logging host's timestamp, e.g.
   ``2017-05-25T16:04:28 -->> $GNGGA,...`` (ISO 8601 date and time, optional fraction, ``Z``
@@ -118,6 +122,7 @@ from sim.log_timeline import (
 
 __all__ = [
     "DROP_CLASSES",
+    "MAX_LINE_CHARS",
     "MAX_RATE_HZ",
     "MAX_SPAN_S",
     "REACQ_FLOOR_M",
@@ -138,7 +143,7 @@ __all__ = [
 ]
 
 SKIP_CLASSES = (
-    "comment_lines", "host_prefixes", "timestamp_lines", "binary_segments", "truncated",
+    "long_lines", "comment_lines", "host_prefixes", "timestamp_lines", "binary_segments", "truncated",
     "bad_checksum", "parse_error", "bad_fields", "no_fix", "empty_position", "no_date",
     "implausible_date", "time_jump", "week_rollover", "duplicate_epochs", "time_reversals",
     "reversed_segments", "no_host_time", "reacquisition", "off_grid", "other_sentences",
@@ -156,8 +161,19 @@ REACQ_SIGMAS = 5.0
 REACQ_FLOOR_M = 1.0
 REACQ_LOOKAHEAD = 5
 
-_SENTENCE = re.compile(r"\$([A-Z0-9]{2,5}),[\x20-\x7e]*?\*[0-9A-Fa-f]{2}")
-_SENTENCE_B = re.compile(rb"\$[A-Z][A-Z0-9]{1,4},[\x20-\x7e]*?\*[0-9A-Fa-f]{2}")
+# A sentence: "$", talker + type, ",", printable fields without the reserved "$" and "*"
+# (NMEA 0183), "*hh". Excluding "$" / "*" from the fields and matching them possessively
+# makes every match attempt stop at the next "$": a line is scanned in linear time (the
+# former lazy "[\x20-\x7e]*?" rescanned the rest of the line from every "$" fragment).
+_SENTENCE = re.compile(r"\$([A-Z0-9]{2,5}),[\x20-\x23\x25-\x29\x2b-\x7e]*+\*[0-9A-Fa-f]{2}")
+_SENTENCE_B = re.compile(rb"\$[A-Z][A-Z0-9]{1,4},[\x20-\x23\x25-\x29\x2b-\x7e]*+\*[0-9A-Fa-f]{2}")
+#: Lines longer than this (characters, after decoding) are skipped and counted as
+#: ``long_lines``: a sentence has at most 82 characters and a line of a real log a host
+#: timestamp and a few sentences, or the bytes of a binary message between two newline
+#: bytes (0x0a comes every 256 bytes on average in binary data); the bound keeps the work
+#: and memory of one line small.
+MAX_LINE_CHARS = 1 << 20
+_LITERAL_ENDS = ("\\r\\n", "\\n", "\\r")
 _FIX_TYPES = {"GGA", "RMC"}
 _WS = " \t\r\n\x0b\x0c"   # ASCII whitespace only: latin-1 bytes such as 0x85 or 0xa0 are binary
 _HOST_TS = re.compile(
@@ -316,11 +332,10 @@ def parse_nmea(lines: Iterable[bytes | str], name: str = "receiver", *,
     for raw in lines:
         if not isinstance(raw, (bytes, str)):
             raise TypeError(f"lines: each line must be bytes or str, got {type(raw).__name__}")
-        text = raw.decode("latin-1") if isinstance(raw, bytes) else raw
-        text = text.rstrip("\r\n")
-        # some captures store the line end as the literal characters "\r\n"
-        while text.endswith(("\\r\\n", "\\n", "\\r")):
-            text = text[: text.rfind("\\")]
+        if len(raw) > MAX_LINE_CHARS:
+            skipped["long_lines"] += 1
+            continue
+        text = _line_text(raw)
         if text.lstrip(_WS).startswith("#"):
             skipped["comment_lines"] += 1
             continue
@@ -352,6 +367,17 @@ def parse_nmea(lines: Iterable[bytes | str], name: str = "receiver", *,
         "lines": n_host, "zone": ("unspecified (taken as UTC)" if host_naive else "given")
         if n_host else None}})
     return fx
+
+
+def _line_text(raw: bytes | str) -> str:
+    """One line as text without its line end; some captures store the line end as the
+    literal characters "\\r\\n" (stripped too, in time linear in the line)."""
+    text = raw.decode("latin-1") if isinstance(raw, bytes) else raw
+    text = text.rstrip("\r\n")
+    end = len(text)
+    while text.endswith(_LITERAL_ENDS, 0, end):
+        end = text.rfind("\\", 0, end)
+    return text[:end]
 
 
 def _count_gap(gap: str, skipped: dict) -> None:
