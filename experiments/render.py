@@ -8,11 +8,17 @@
 - A sweep cell (named like :mod:`experiments.export`: ``--key`` or ``--where`` axis values):
   the rover (``models/rover.xml`` with the cell's antenna layout) driving its path, posed
   from the cell's per-epoch truth (linear between epochs, wheels turned by the distance each
-  travelled); the estimated pose as a red translucent ghost of the hull with its antennas,
-  held from one estimate to the next (what a live display would show); heading arrows
-  (black true, red estimated); the observed antennas of the current epoch (purple); the
-  true (black) and estimated (red) tracks so far. A cell without saved epochs is recomputed
-  from the recorded spec, as ``experiments.export`` does.
+  travelled); the estimated pose as a red ghost: a translucent box 4 cm larger than the hull
+  on every side (so it still shows when the estimate is within centimetres of the truth) and
+  opaque red antennas joined by the layout's outline (its convex hull,
+  :mod:`experiments.outline`), held from one estimate to the next (what a live display would
+  show), drawn whenever the estimated position is finite (a red ball when only the heading
+  is missing); heading arrows (black true, red estimated); the observed antennas of the
+  current epoch (purple); the true (black) and estimated (red) tracks so far. The chase
+  camera widens and shifts towards the estimate when it strays (up to 30 m), so the ghost
+  stays in the frame; the top camera frames the whole path from straight above, with a
+  ground grid over it and arrows and markers scaled up to stay visible. A cell without
+  saved epochs is recomputed from the recorded spec, as ``experiments.export`` does.
 - ``--flight``: the quadcopter (``models/quadcopter.xml``) flying its square from
   ``flight_series.csv`` of ``python -m experiments.ultrasonic``: the six receivers (blue, the
   trilateration triple brighter), range rays from each receiver towards the front
@@ -33,6 +39,7 @@ from __future__ import annotations
 
 import argparse
 import ctypes.util
+import itertools
 import json
 import math
 import os
@@ -114,9 +121,15 @@ class ClipOptions:
 
 # --------------------------------------------------------------------------- scene helpers
 class _Scene:
-    """Offscreen renderer plus decoration geoms added after each update_scene."""
+    """Offscreen renderer plus decoration geoms added after each update_scene.
 
-    def __init__(self, model, opts: ClipOptions):
+    near_m, far_m: the camera's clip distances (m). MuJoCo's default is 0.01 and 50 x the
+    model's extent (1.8 m for the rover: 91 m), which clipped the whole scene away from a
+    top camera 120 m above a 100 m square (black frames but the caption); a near plane far
+    from the camera keeps the depth buffer fine enough for the lines drawn 5 mm above the
+    ground (resolution ~ distance^2 / (near x 2^24))."""
+
+    def __init__(self, model, opts: ClipOptions, near_m: float = 0.05, far_m: float = 300.0):
         import mujoco
 
         backend = os.environ.get("MUJOCO_GL", "").lower()
@@ -131,6 +144,10 @@ class _Scene:
         model.vis.headlight.ambient[:] = 0.45      # software GL: a bright, even headlight
         model.vis.headlight.diffuse[:] = 0.55
         model.vis.headlight.specular[:] = 0.1
+        if not 0 < near_m < far_m:
+            raise ValueError(f"near_m, far_m: need 0 < near < far, got {near_m!r}, {far_m!r}")
+        model.vis.map.znear = near_m / model.stat.extent     # both relative to the extent
+        model.vis.map.zfar = far_m / model.stat.extent
         self.model, self.data = model, mujoco.MjData(model)
         self.r = mujoco.Renderer(model, opts.height, opts.width, max_geom=4000)
         self.cam = mujoco.MjvCamera()
@@ -165,6 +182,8 @@ class _Scene:
         g = self._geom(t, [0, 0, 0], [0, 0, 0], np.eye(3), rgba)
         if g is not None:
             self.mj.mjv_connector(g, t, width, a, b)
+            if kind == "arrow":    # MuJoCo draws an arrow half its size[2] long (measured)
+                g.size[2] *= 2.0
 
     def polyline(self, xs, ys, z, rgba, width_px=2.0, max_segments=300):
         ok = np.isfinite(xs) & np.isfinite(ys)
@@ -228,33 +247,144 @@ def _smooth_angle(t: np.ndarray, a: np.ndarray, half_window_s: float) -> np.ndar
 
 
 # --------------------------------------------------------------------------- rover
+#: The free camera's vertical field of view (MuJoCo's default ``vis.global_.fovy``), degrees.
+_FOVY_DEG = 45.0
+#: The estimate's ghost: a translucent box this much larger than the hull on every side (m),
+#: so it shows round the true hull when the estimate is within centimetres (a ghost the size
+#: of the hull at the true pose is hidden inside the opaque hull), and opaque parts: its
+#: antennas, their outline (the layout's convex hull) and its heading arrow.
+_GHOST_MARGIN_M = 0.04
+_GHOST_FILL = (0.95, 0.08, 0.08, 0.4)
+_GHOST_SOLID = (0.9, 0.05, 0.05, 1.0)
+#: Chase view: distance behind the platform (m), growing with the estimate's offset (capped
+#: here, m) so that the ghost stays in the frame.
+_CHASE_DISTANCE_M = 9.0
+_CHASE_MAX_OFFSET_M = 30.0
+
+
+def _nice_step(span: float) -> float:
+    """A 1, 2 or 5 x 10^k grid spacing (m) giving 7 to 13 lines over ``span`` (m)."""
+    raw = max(span, 1e-9) / 10.0
+    e = 10.0 ** math.floor(math.log10(raw))
+    return next(m * e for m in (1, 2, 5, 10) if m * e >= 0.75 * raw)
+
+
+def _top_view(xs: np.ndarray, ys: np.ndarray, aspect: float) -> tuple[list[float], float]:
+    """Look-at point (x, y, 0) and the distance (m) of a camera straight above that frames the
+    finite points (xs, ys) (m) with a 15 % margin (the caption covers the top ~8 %), at least
+    a 10 m square; ``aspect`` is width / height."""
+    ok = np.isfinite(xs) & np.isfinite(ys)
+    x, y = xs[ok], ys[ok]
+    half_x = 0.575 * max(float(np.ptp(x)), 10.0)
+    half_y = 0.575 * max(float(np.ptp(y)), 10.0)
+    dist = max(half_y, half_x / aspect) / math.tan(math.radians(_FOVY_DEG / 2))
+    return [0.5 * (x.min() + x.max()), 0.5 * (y.min() + y.max()), 0.0], dist
+
+
+def _chase_offsets(t, tx, ty, ex, ey) -> tuple[np.ndarray, np.ndarray]:
+    """Per-epoch offset (m) of the estimate from the truth, capped at _CHASE_MAX_OFFSET_M and
+    0 where there is no estimate, averaged over +-8 s (a chase camera that widens smoothly
+    when the estimate strays, instead of jumping at each epoch)."""
+    dx, dy = np.nan_to_num(ex - tx), np.nan_to_num(ey - ty)
+    n = np.hypot(dx, dy)
+    f = np.where(n > _CHASE_MAX_OFFSET_M, _CHASE_MAX_OFFSET_M / np.maximum(n, 1e-300), 1.0)
+    lo = np.searchsorted(t, t - 8.0)
+    hi = np.searchsorted(t, t + 8.0, side="right")
+    out = []
+    for v in (dx * f, dy * f):
+        cs = np.concatenate([[0.0], np.cumsum(v)])
+        out.append((cs[hi] - cs[lo]) / np.maximum(hi - lo, 1))
+    return out[0], out[1]
+
+
+def _grid(s: _Scene, cx: float, cy: float, half: float, step: float) -> None:
+    """Ground grid lines every ``step`` m within ``half`` m of (cx, cy), 5 mm above ground."""
+    g0x, g0y = step * math.floor(cx / step), step * math.floor(cy / step)
+    n = math.ceil(half / step)
+    rgba = (0.45, 0.5, 0.44, 1)
+    for i in range(-n, n + 1):
+        d = i * step
+        s.connector([g0x + d, g0y - n * step, 0.005], [g0x + d, g0y + n * step, 0.005], 1,
+                    rgba, "line")
+        s.connector([g0x - n * step, g0y + d, 0.005], [g0x + n * step, g0y + d, 0.005], 1,
+                    rgba, "line")
+
+
+@dataclass(frozen=True)
+class _Platform:
+    """What the rover's ghost needs: antenna layout (m, 2) in the body frame (m, origin at
+    the reference point), its outline (convex-hull indices), antenna height (m), the hull's
+    half sizes (3,) and centre height (m)."""
+
+    body: np.ndarray
+    outline: list[int]
+    h_ant: float
+    hull_half: np.ndarray
+    hull_z: float
+
+
+def _ghost(s: _Scene, pf: _Platform, ex: float, ey: float, eyaw: float, mk: float) -> None:
+    """The estimate at pose (ex, ey, eyaw) (m, rad): a translucent red box enclosing the
+    hull, red antennas joined by the layout's outline, a red heading arrow. Nothing without a
+    position; a red ball at the position without a heading. ``mk``: marker size factor."""
+    if not (math.isfinite(ex) and math.isfinite(ey)):
+        return
+    pt = math.sqrt(mk)
+    if not math.isfinite(eyaw):
+        s.sphere([ex, ey, pf.h_ant], 0.15 * pt, _GHOST_SOLID)
+        return
+    c, si = math.cos(eyaw), math.sin(eyaw)
+    s.box([ex, ey, pf.hull_z], eyaw, pf.hull_half + _GHOST_MARGIN_M, _GHOST_FILL)
+    pts = [[ex + c * bx - si * by, ey + si * bx + c * by, pf.h_ant] for bx, by in pf.body]
+    ring = pf.outline + pf.outline[:1] if len(pf.outline) > 2 else pf.outline   # closed
+    for i, j in itertools.pairwise(ring):
+        s.connector(pts[i], pts[j], 0.02 * pt, _GHOST_SOLID)
+    for p in pts:       # smaller than the true antennas (0.04 m), which show through
+        s.sphere(p, 0.03 * pt, _GHOST_SOLID)
+    s.connector([ex, ey, 1.05], [ex + 1.6 * mk * c, ey + 1.6 * mk * si, 1.05], 0.05 * mk,
+                _GHOST_SOLID, "arrow")
+
+
+def _rover_model(config: str):
+    """The rover (or the path's vehicle) with the configuration's antennas, coloured for the
+    clip: true antennas yellow, ground a light green-grey; and its ghost geometry."""
+    from estimator.configuration import SensorConfig
+    from experiments.outline import layout_outline
+    from sim.rover import build_rover_model
+
+    cfg = SensorConfig.load(config)
+    model, _ = build_rover_model(cfg)
+    for n in cfg.names:
+        model.site_rgba[model.site(f"gps_{n}").id] = (0.95, 0.8, 0.1, 1)
+    model.geom_rgba[model.geom("ground").id] = (0.6, 0.66, 0.58, 1)
+    hull = model.geom("hull")
+    body = cfg.body_positions[:, :2] - cfg.cg_body[:2]
+    pf = _Platform(body, layout_outline(body), cfg.mount_height_m,
+                   np.array(model.geom_size[hull.id]), float(model.geom_pos[hull.id][2]))
+    return cfg, model, pf
+
+
 def rover_frames(ep: pd.DataFrame, config: str, opts: ClipOptions) -> Iterator[np.ndarray]:
     """Frames (height, width, 3) uint8 of the rover replaying one cell's per-epoch table
     (columns of a sweep's ``epochs/<key>.parquet``: t, cg_x, cg_y, yaw, truth_cg_x,
     truth_cg_y, truth_yaw, optional obs_<name>_x/_y)."""
-    from estimator.configuration import SensorConfig
-    from sim.rover import build_rover_model
-
     need = ["t", "cg_x", "cg_y", "yaw", "truth_cg_x", "truth_cg_y", "truth_yaw"]
     missing = [c for c in need if c not in ep]
     if missing:
         raise ValueError(f"epochs: missing columns {missing} (a reference is needed to pose "
                          "the rover)")
-    cfg = SensorConfig.load(config)
-    model, _ = build_rover_model(cfg)
-    for n in cfg.names:                           # true antennas yellow, the ghost's red
-        model.site_rgba[model.site(f"gps_{n}").id] = (0.95, 0.8, 0.1, 1)
-    model.geom_rgba[model.geom("ground").id] = (0.6, 0.66, 0.58, 1)
-    sc = _Scene(model, opts)
-    m = sc.model
+    cfg, model, pf = _rover_model(config)
     t = ep["t"].to_numpy(float)
     tx, ty = ep["truth_cg_x"].to_numpy(float), ep["truth_cg_y"].to_numpy(float)
     tyaw = np.unwrap(ep["truth_yaw"].to_numpy(float))
     ex, ey, eyaw = (ep[c].to_numpy(float) for c in ("cg_x", "cg_y", "yaw"))
-    body = cfg.body_positions[:, :2] - cfg.cg_body[:2]
-    h_ant = cfg.mount_height_m
-    hull = m.geom("hull")
-    hull_half, hull_z = np.array(m.geom_size[hull.id]), float(m.geom_pos[hull.id][2])
+    top = opts.camera == "top"
+    if top:
+        centre, dist = _top_view(tx, ty, opts.width / opts.height)
+        sc = _Scene(model, opts, near_m=0.5 * dist, far_m=2.0 * dist + 10.0)
+    else:
+        sc = _Scene(model, opts, near_m=0.5, far_m=300.0)
+    m = sc.model
     wheels = []
     for side in ("left", "right"):
         b = m.body(f"wheel_{side}")
@@ -264,11 +394,14 @@ def rover_frames(ep: pd.DataFrame, config: str, opts: ClipOptions) -> Iterator[n
     ds = np.r_[0, np.hypot(np.diff(tx), np.diff(ty))]
     dpsi = np.r_[0, np.diff(tyaw)]
     rolled = {n: np.cumsum(ds - dpsi * y_off) / r for n, y_off, r in wheels}
-    cam_yaw = _smooth_angle(t, tyaw, 8.0)
+    cam_yaw = np.unwrap(_smooth_angle(t, tyaw, 8.0))
+    off_x, off_y = _chase_offsets(t, tx, ty, ex, ey)
     obs_names = [n for n in cfg.names if f"obs_{n}_x" in ep and f"obs_{n}_y" in ep]
     obs = {n: (ep[f"obs_{n}_x"].to_numpy(float), ep[f"obs_{n}_y"].to_numpy(float))
            for n in obs_names}
-    span = max(np.ptp(tx[np.isfinite(tx)]), np.ptp(ty[np.isfinite(ty)]), 10.0)
+    # markers (arrows, balls) grow with the camera's distance, so they show from high up
+    mk = max(1.0, dist / 15.0) if top else 1.0
+    span = max(float(np.nanmax(np.abs(np.r_[np.ptp(tx), np.ptp(ty)]))), 10.0)
     try:
         for tq in opts.times(t[0], t[-1]):
             x, y = _interp(t, tq, tx), _interp(t, tq, ty)
@@ -277,36 +410,30 @@ def rover_frames(ep: pd.DataFrame, config: str, opts: ClipOptions) -> Iterator[n
             for n, _, _ in wheels:
                 sc.data.qpos[m.jnt_qposadr[m.joint(n).id]] = _interp(t, tq, rolled[n])
             k = _hold(t, tq)
-            if opts.camera == "chase":
-                sc.cam.lookat[:] = [x, y, 0.5]
-                sc.cam.distance, sc.cam.elevation = 9.0, -28.0
-                sc.cam.azimuth = math.degrees(float(np.interp(tq, t, np.unwrap(cam_yaw)))) + 35
+            if top:
+                sc.cam.lookat[:] = centre
+                sc.cam.distance, sc.cam.elevation, sc.cam.azimuth = dist, -89.0, 90.0
             else:
-                sc.cam.lookat[:] = [np.nanmean(tx), np.nanmean(ty), 0.0]
-                sc.cam.distance, sc.cam.elevation, sc.cam.azimuth = 1.25 * span, -89.0, 90.0
+                ox, oy = _interp(t, tq, off_x), _interp(t, tq, off_y)
+                sc.cam.lookat[:] = [x + 0.5 * ox, y + 0.5 * oy, 0.5]
+                sc.cam.distance = _CHASE_DISTANCE_M + math.hypot(ox, oy)
+                sc.cam.elevation = -28.0
+                sc.cam.azimuth = math.degrees(_interp(t, tq, cam_yaw)) + 35
 
-            def decorate(s: _Scene, k=k, x=x, y=y, psi=psi, tq=tq) -> None:
-                g0x, g0y = 2 * math.floor(x / 2), 2 * math.floor(y / 2)
-                for d in range(-14, 16, 2):         # a 2 m ground grid round the platform
-                    s.connector([g0x + d, g0y - 14, 0.005], [g0x + d, g0y + 14, 0.005], 1,
-                                (0.45, 0.5, 0.44, 1), "line")
-                    s.connector([g0x - 14, g0y + d, 0.005], [g0x + 14, g0y + d, 0.005], 1,
-                                (0.45, 0.5, 0.44, 1), "line")
+            def decorate(s: _Scene, k=k, x=x, y=y, psi=psi) -> None:
+                if top:
+                    _grid(s, centre[0], centre[1], 0.6 * span, _nice_step(span))
+                else:
+                    _grid(s, x, y, 14.0, 2.0)
                 s.polyline(tx[:k + 1], ty[:k + 1], 0.02, (0, 0, 0, 1))
                 s.polyline(ex[:k + 1], ey[:k + 1], 0.03, (0.85, 0.1, 0.1, 1))
-                s.connector([x, y, 0.9], [x + 1.6 * math.cos(psi), y + 1.6 * math.sin(psi), 0.9],
-                            0.04, (0.05, 0.05, 0.05, 1), "arrow")
+                s.connector([x, y, 0.9], [x + 1.6 * mk * math.cos(psi),
+                                          y + 1.6 * mk * math.sin(psi), 0.9],
+                            0.05 * mk, (0.05, 0.05, 0.05, 1), "arrow")
                 for n in obs_names:
-                    ox, oy = obs[n][0][k], obs[n][1][k]
-                    s.sphere([ox, oy, h_ant], 0.07, (0.58, 0.4, 0.74, 1))
-                if np.isfinite([ex[k], ey[k], eyaw[k]]).all():
-                    c, si = math.cos(eyaw[k]), math.sin(eyaw[k])
-                    s.box([ex[k], ey[k], hull_z], eyaw[k], hull_half, (0.9, 0.15, 0.15, 0.35))
-                    for bx, by in body:
-                        s.sphere([ex[k] + c * bx - si * by, ey[k] + si * bx + c * by, h_ant],
-                                 0.06, (0.9, 0.1, 0.1, 0.9))
-                    s.connector([ex[k], ey[k], 0.95], [ex[k] + 1.6 * c, ey[k] + 1.6 * si, 0.95],
-                                0.04, (0.9, 0.1, 0.1, 1), "arrow")
+                    s.sphere([obs[n][0][k], obs[n][1][k], pf.h_ant], 0.07 * math.sqrt(mk),
+                             (0.58, 0.4, 0.74, 1))
+                _ghost(s, pf, ex[k], ey[k], eyaw[k], mk)
 
             err = math.hypot(ex[k] - tx[k], ey[k] - ty[k])
             eh = math.degrees(math.remainder(eyaw[k] - tyaw[k], 2 * math.pi))
@@ -329,7 +456,8 @@ def flight_frames(series: pd.DataFrame, receivers: tuple[list[str], np.ndarray],
     for c in ("t", "mid_true_x", "front_true_x", "yaw_true"):
         if c not in series:
             raise ValueError(f"flight series: missing column {c!r}")
-    sc = _Scene(load_model(), opts)
+    # clip planes round the cameras below (top 12 m above the square, chase 8.5 m away)
+    sc = _Scene(load_model(), opts, *((5.0, 40.0) if opts.camera == "top" else (0.1, 100.0)))
     names, rec = receivers
     t = series["t"].to_numpy(float)
     col = lambda p: np.stack([series[f"{p}_{a}"].to_numpy(float) for a in "xyz"], 1)  # noqa: E731
@@ -353,7 +481,7 @@ def flight_frames(series: pd.DataFrame, receivers: tuple[list[str], np.ndarray],
                 sc.cam.distance, sc.cam.elevation, sc.cam.azimuth = 12.0, -89.0, 90.0
 
             def decorate(s: _Scene, k=k) -> None:
-                s._geom(s.mj.mjtGeom.mjGEOM_PLANE, [6, 6, 0.5], [centre[0], centre[1], -0.03],
+                s._geom(s.mj.mjtGeom.mjGEOM_PLANE, [40, 40, 0.5], [centre[0], centre[1], -0.03],
                         np.eye(3), (0.7, 0.74, 0.68, 1))
                 s.polyline(front[:, 0], front[:, 1], front[0, 2], (0, 0, 0, 0.6), 1.5)
                 f = front[k]
