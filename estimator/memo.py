@@ -1,4 +1,9 @@
-"""Per-process memo keyed by content, for estimators a sweep runs many times on the same data.
+"""Memos keyed by content, for estimators a runner calls many times on the same data.
+
+The estimators keep no caches of their own (no module-level state): a runner that wants
+reuse makes a :class:`TrackCache` (one :class:`ContentMemo` per kind of intermediate result)
+and passes it in (``track(..., cache=...)``, ``Tracker.track(..., cache=...)``); ``None``
+computes everything. The sweep keeps one per worker process and run.
 
 A sweep evaluates several techniques on identical observations (common random numbers):
 the eps-elastic fits of one window size serve the rows None, LC and LC (course)
@@ -34,7 +39,8 @@ from typing import Any, TypeVar
 
 import numpy as np
 
-__all__ = ["ContentMemo", "Ledger", "clear_all", "content_digest", "freeze", "ledger"]
+__all__ = ["ContentMemo", "Ledger", "TrackCache", "clear_all", "content_digest", "freeze",
+           "ledger", "memo_get"]
 
 T = TypeVar("T")
 
@@ -158,3 +164,47 @@ class ContentMemo:
         while len(self._entries) > self.size:
             self._entries.popitem(last=False)
         return value
+
+
+class TrackCache:
+    """The memos a tracker may use, one :class:`ContentMemo` per kind of result (sizes in
+    entries; what one entry holds, for 4000 epochs of 8 sensors):
+
+    huff : per-sample Huff weights of a recording (Section 3.3.3), (n, m) floats;
+    procrustes / elastic : window fits of one window size (positions, yaw, status), ~0.5 MB;
+    filter_pass : pose-filter forward passes (:mod:`estimator.pose_filter`), ~3.8 MB;
+    smoothed : smoothed filter states (:mod:`estimator.pose_smoother`), (n, 6) floats.
+
+    Sizes: what the per-process memos they replace kept (8, 16, 16, 4, 8). A hit is an
+    identical request (keys digest the input arrays' bytes plus every option), so a cached
+    and an uncached call give the same numbers.
+    """
+
+    def __init__(self, *, huff: int = 8, procrustes: int = 16, elastic: int = 16,
+                 filter_pass: int = 4, smoothed: int = 8) -> None:
+        self.huff = ContentMemo(huff)
+        self.procrustes = ContentMemo(procrustes)
+        self.elastic = ContentMemo(elastic)
+        self.filter_pass = ContentMemo(filter_pass)
+        self.smoothed = ContentMemo(smoothed)
+
+    def memos(self) -> dict[str, ContentMemo]:
+        """The memos by name."""
+        return {"huff": self.huff, "procrustes": self.procrustes, "elastic": self.elastic,
+                "filter_pass": self.filter_pass, "smoothed": self.smoothed}
+
+    def clear(self) -> None:
+        """Forget every entry of every memo."""
+        for memo in self.memos().values():
+            memo.clear()
+
+
+def memo_get(cache: TrackCache | None, kind: str, key: Callable[[], Hashable],
+             compute: Callable[[], T]) -> T:
+    """``compute()`` through memo ``kind`` of ``cache`` (keyed by ``key()``, which is only
+    evaluated with a cache), or directly when ``cache`` is None."""
+    if cache is None:
+        return compute()
+    if not isinstance(cache, TrackCache):
+        raise TypeError(f"cache: expected a TrackCache or None, got {type(cache).__name__}")
+    return cache.memos()[kind].get(key(), compute)

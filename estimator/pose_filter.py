@@ -149,7 +149,7 @@ from scipy.linalg.lapack import dgetri as _dgetri
 
 from estimator._checks import check_array, check_increasing_times, check_int
 from estimator._checks import check_real
-from estimator.memo import ContentMemo, content_digest, freeze
+from estimator.memo import TrackCache, content_digest, freeze, memo_get
 
 __all__ = [
     "FilterStart",
@@ -1083,13 +1083,6 @@ def run_pose_filter(t: np.ndarray, obs: np.ndarray, offsets: np.ndarray,
                             sigma_step_m=float(sigma_step), cg_offset=cg_offset)
 
 
-#: Forward passes memoised per process (:mod:`estimator.memo`): a sweep runs the EKF at
-#: several windows (it only drops the first s-1 rows), its smoothers and the smoothed
-#: heading of the lag correction on the same observations; one pass serves them all. An
-#: entry holds ~120 floats per epoch (3.8 MB for 4000 epochs).
-_PASS_MEMO = ContentMemo(4)
-
-
 def pass_key(t: np.ndarray, obs: np.ndarray, offsets: np.ndarray, params: PoseFilterParams
              ) -> tuple:
     """Memo key of a forward pass: digest of the validated t, obs and offsets, and params
@@ -1099,10 +1092,13 @@ def pass_key(t: np.ndarray, obs: np.ndarray, offsets: np.ndarray, params: PoseFi
 
 
 def memo_pose_filter(t: np.ndarray, obs: np.ndarray, offsets: np.ndarray,
-                     params: PoseFilterParams = PoseFilterParams()) -> PoseFilterResult:
-    """:func:`run_pose_filter`, memoised per process by content (:mod:`estimator.memo`):
-    the same numbers, computed once per (t, obs, offsets, params). The result is shared,
-    so its arrays are read-only."""
+                     params: PoseFilterParams = PoseFilterParams(),
+                     cache: TrackCache | None = None) -> PoseFilterResult:
+    """:func:`run_pose_filter` through ``cache.filter_pass``
+    (:class:`estimator.memo.TrackCache`; None: computed): the same numbers, computed once
+    per (t, obs, offsets, params) and cache. A sweep runs the EKF at several windows (it only drops the first s-1 rows), its
+    smoothers and the smoothed heading of the lag correction on the same observations; one
+    pass serves them all. The result may be shared, so its arrays are read-only."""
     def compute() -> PoseFilterResult:
         res = run_pose_filter(t, obs, offsets, params)
         for v in vars(res).values():
@@ -1110,7 +1106,7 @@ def memo_pose_filter(t: np.ndarray, obs: np.ndarray, offsets: np.ndarray,
                 freeze(v)
         return res
 
-    return _PASS_MEMO.get(pass_key(t, obs, offsets, params), compute)
+    return memo_get(cache, "filter_pass", lambda: pass_key(t, obs, offsets, params), compute)
 
 
 def _prior_lost(Pp: np.ndarray, lever: float, var_min: float) -> bool:

@@ -44,7 +44,7 @@ import numpy as np
 
 from estimator._checks import check_real
 from estimator.configuration import SensorConfig
-from estimator.memo import ContentMemo, freeze
+from estimator.memo import TrackCache, freeze, memo_get
 from estimator.orientation import wrap_angle
 from estimator.pose_filter import (
     V,
@@ -194,35 +194,33 @@ def fixed_lag_smooth(res: PoseFilterResult, t: np.ndarray, lag_s: float,
     return SmoothedStates(states=_constrain(Xs, reverse), covariances=None)
 
 
-#: Smoothed states memoised per process (:mod:`estimator.memo`), on the memoised forward
-#: pass: the RTS states serve the smoother row at every window and the smoothed heading of
-#: the lag correction. An entry holds 6 floats per epoch.
-_SMOOTH_MEMO = ContentMemo(8)
-
-
 def memo_smoothed_states(t: np.ndarray, obs: np.ndarray, offsets: np.ndarray,
-                         params: PoseFilterParams, lag_s: float | None = None) -> np.ndarray:
-    """Smoothed states (n, 6) of a recording, memoised per process by content: the states
-    of :func:`rts_smooth` (``lag_s`` None) or of :func:`fixed_lag_smooth` with latency
-    ``lag_s`` (s), over :func:`estimator.pose_filter.memo_pose_filter` of (t, obs, offsets,
-    params) (shapes and units there), with ``params.reverse``. The same numbers as the
-    direct calls; the array is shared, so it is read-only."""
+                         params: PoseFilterParams, lag_s: float | None = None,
+                         cache: TrackCache | None = None) -> np.ndarray:
+    """Smoothed states (n, 6) of a recording through ``cache.smoothed``
+    (:class:`estimator.memo.TrackCache`; None: computed): the states of :func:`rts_smooth`
+    (``lag_s`` None) or of :func:`fixed_lag_smooth` with latency ``lag_s`` (s), over
+    :func:`estimator.pose_filter.memo_pose_filter` of (t, obs, offsets, params, cache)
+    (shapes and units there), with ``params.reverse``. The same numbers as the direct calls;
+    the RTS states serve the smoother row at every window and the smoothed heading of the
+    lag correction. The array may be shared, so it is read-only."""
     lag = None if lag_s is None else check_real(lag_s, "lag_s", lo=0.0)
 
     def compute() -> np.ndarray:
-        res = memo_pose_filter(t, obs, offsets, params)
+        res = memo_pose_filter(t, obs, offsets, params, cache)
         if lag is None:
             sm = rts_smooth(res, params.reverse, covariances=False)
         else:
             sm = fixed_lag_smooth(res, np.asarray(t, dtype=float), lag, params.reverse)
         return freeze(sm.states)
 
-    return _SMOOTH_MEMO.get((*pass_key(t, obs, offsets, params), lag), compute)
+    return memo_get(cache, "smoothed", lambda: (*pass_key(t, obs, offsets, params), lag),
+                    compute)
 
 
 def smoothed_heading(t: np.ndarray, obs: np.ndarray, config: SensorConfig,
-                     params: PoseFilterParams | None = None, lag_s: float | None = None
-                     ) -> np.ndarray:
+                     params: PoseFilterParams | None = None, lag_s: float | None = None,
+                     *, cache: TrackCache | None = None) -> np.ndarray:
     """Smoothed heading of a recording, one value per epoch (rad, CCW from +x, (-pi, pi]).
 
     t (n,) s, obs (n, m, 2) metres (NaN = missing), config : the sensor configuration.
@@ -230,13 +228,14 @@ def smoothed_heading(t: np.ndarray, obs: np.ndarray, config: SensorConfig,
     lag_s : None = full RTS (every epoch from all the data); a number = fixed-lag.
     NaN before the filter starts (:mod:`estimator.pose_filter`). Meant as the heading input
     of other estimators, e.g. the lag correction (Section 3.4.2 of the dissertation uses the
-    platform's orientation; a smoothed one removes most of its noise). The forward pass and
-    the smoothing are memoised per process (:func:`memo_smoothed_states`), so a heading of
-    data the filter has already run on costs a look-up.
+    platform's orientation; a smoothed one removes most of its noise). ``cache``: a
+    :class:`estimator.memo.TrackCache` for the forward pass and the smoothing
+    (:func:`memo_smoothed_states`), so a heading of data the filter has already run on with
+    that cache costs a look-up; None computes them.
     """
     if not isinstance(config, SensorConfig):
         raise TypeError(f"config: expected a SensorConfig, got {type(config).__name__}")
     cfg = config.planar()
     p = params if params is not None else PoseFilterParams()
-    states = memo_smoothed_states(t, obs, cfg.body_positions - cfg.cg_body, p, lag_s)
+    states = memo_smoothed_states(t, obs, cfg.body_positions - cfg.cg_body, p, lag_s, cache)
     return states[:, YAW].copy()

@@ -389,7 +389,7 @@ def test_a_window_fit_does_not_depend_on_its_batch():
     """Every array operation of the iteration is per window (reductions run over pairs,
     sensors and axes, never across windows): a window's fit alone, in a slice or in the whole
     track agree to round-off (1e-9 m; bit for bit on this machine's numpy)."""
-    from estimator.tracking import _cumsum_means
+    from estimator.trackers._windows import cumsum_means as _cumsum_means
     from experiments.bench import straight_line_obs
 
     cfg = SensorConfig.load("rover_gps8")
@@ -408,10 +408,10 @@ def test_a_window_fit_does_not_depend_on_its_batch():
 
 
 def test_track_memo_is_transparent():
-    """track(solver="elastic") memoises fits by content: a repeated request (another
-    technique on the same data) returns what a fresh call returns, bit for bit, and random
-    weights are never memoised."""
-    from estimator import tracking
+    """track(solver="elastic", cache=...) memoises fits by content: a repeated request
+    (another technique on the same data) returns what a fresh call returns, bit for bit, and
+    random weights are never memoised."""
+    from estimator.memo import TrackCache
     from experiments.bench import straight_line_obs
 
     cfg = SensorConfig.load("rover_gps8")
@@ -421,17 +421,16 @@ def test_track_memo_is_transparent():
     turning[80:120] = True
     kw = {"window": 10, "weighting": "huff", "solver": "elastic", "dynamic_window": 1,
           "turning": turning}
-    tracking._ELASTIC_MEMO.clear()
-    fresh = track(t, obs, cfg, **kw)
-    assert len(tracking._ELASTIC_MEMO) == 1          # one batched fit, every window size
-    again = track(t, obs, cfg, **kw)                 # from the memo
+    cache = TrackCache()
+    fresh = track(t, obs, cfg, **kw, cache=cache)
+    assert len(cache.elastic) == 1                   # one batched fit, every window size
+    again = track(t, obs, cfg, **kw, cache=cache)    # from the memo
     pd.testing.assert_frame_equal(again, fresh)
-    tracking._ELASTIC_MEMO.clear()
-    pd.testing.assert_frame_equal(track(t, obs, cfg, **kw), fresh)
-    tracking._ELASTIC_MEMO.clear()
+    pd.testing.assert_frame_equal(track(t, obs, cfg, **kw), fresh)     # no cache
+    cache.clear()
     track(t, obs, cfg, window=5, weighting="random", solver="elastic",
-          rng=np.random.default_rng(0))
-    assert not tracking._ELASTIC_MEMO
+          rng=np.random.default_rng(0), cache=cache)
+    assert not cache.elastic
 
 
 def test_dynamic_window_rows_are_their_own_window_fits():

@@ -1,6 +1,7 @@
-"""The per-process content memo (estimator.memo) and the memoised pose-filter pass and
-smoothers built on it: a hit returns exactly what the computation returns, shared values
-cannot be changed, and the reused cost is accounted for."""
+"""The content memo (estimator.memo), the TrackCache a runner passes to the trackers, and
+the pose-filter pass and smoothers through it: a hit returns exactly what the computation
+returns, shared values cannot be changed, the reused cost is accounted for, and nothing is
+cached without a cache (no module-level memos in estimator/)."""
 
 import math
 
@@ -12,7 +13,7 @@ from hypothesis.extra import numpy as hnp
 
 from estimator import memo
 from estimator.configuration import SensorConfig
-from estimator.memo import ContentMemo, content_digest, freeze, ledger
+from estimator.memo import ContentMemo, TrackCache, content_digest, freeze, ledger
 from estimator.pose_filter import PoseFilterParams, memo_pose_filter, run_pose_filter
 from estimator.pose_smoother import (
     fixed_lag_smooth,
@@ -149,17 +150,21 @@ def test_memoised_pass_is_the_direct_pass_and_shared_read_only(drive):
     t, obs, _cfg, off = drive
     p = PoseFilterParams()
     direct = run_pose_filter(t, obs, off, p)
-    a = memo_pose_filter(t, obs, off, p)
-    b = memo_pose_filter(t.copy(), obs.copy(), off.copy(), p)     # equal content: a hit
+    cache = TrackCache()
+    a = memo_pose_filter(t, obs, off, p, cache)
+    b = memo_pose_filter(t.copy(), obs.copy(), off.copy(), p, cache)     # equal content: a hit
     assert b is a
+    assert memo_pose_filter(t, obs, off, p) is not a                     # no cache: computed
     for name, v in vars(direct).items():
         if isinstance(v, np.ndarray):
             np.testing.assert_array_equal(getattr(a, name), v)
             assert not getattr(a, name).flags.writeable, name
-    other = memo_pose_filter(t, obs, off, PoseFilterParams(max_accel_mps2=1.0))
+    other = memo_pose_filter(t, obs, off, PoseFilterParams(max_accel_mps2=1.0), cache)
     assert other is not a                                          # params are in the key
     with pytest.raises(ValueError, match="obs"):
-        memo_pose_filter(t, obs[:, :, :1], off, p)
+        memo_pose_filter(t, obs[:, :, :1], off, p, cache)
+    with pytest.raises(TypeError, match="cache"):
+        memo_pose_filter(t, obs, off, p, {})
 
 
 @pytest.mark.parametrize("lag_s", [None, 0.0, 5.0])
@@ -169,12 +174,18 @@ def test_memoised_smoothers_equal_the_direct_ones(drive, lag_s):
     res = run_pose_filter(t, obs, off, p)
     want = (rts_smooth(res, p.reverse).states if lag_s is None
             else fixed_lag_smooth(res, t, lag_s, p.reverse).states)
-    got = memo_smoothed_states(t, obs, off, p, lag_s)
+    cache = TrackCache()
+    got = memo_smoothed_states(t, obs, off, p, lag_s, cache)
     np.testing.assert_array_equal(got, want)
     assert not got.flags.writeable
-    assert memo_smoothed_states(t, obs, off, p, lag_s) is got
+    assert memo_smoothed_states(t, obs, off, p, lag_s, cache) is got
+    assert len(cache.filter_pass) == 1 and len(cache.smoothed) == 1
+    np.testing.assert_array_equal(memo_smoothed_states(t, obs, off, p, lag_s), want)
     if lag_s is None:
         np.testing.assert_array_equal(smoothed_heading(t, obs, cfg, p), want[:, 2])
+        np.testing.assert_array_equal(smoothed_heading(t, obs, cfg, p, cache=cache),
+                                      want[:, 2])
+        assert len(cache.smoothed) == 1                            # the heading was a hit
 
 
 @pytest.mark.parametrize("lag_s", [-1.0, math.nan, math.inf, "1"])
@@ -188,25 +199,59 @@ def test_track_rows_are_copies_not_the_memo(drive):
     """The filter rows of a track share one memoised pass; changing a track's output in
     place must not change what the next track returns."""
     t, obs, cfg, _ = drive
-    first = track(t, obs, cfg, window=5, method="ekf_smoother", layout_check=False)
-    again = track(t, obs, cfg, window=5, method="ekf_smoother", layout_check=False)
+    kw = {"window": 5, "method": "ekf_smoother", "layout_check": False, "cache": TrackCache()}
+    first = track(t, obs, cfg, **kw)
+    again = track(t, obs, cfg, **kw)
     first.loc[:, ["speed", "yaw_rate", "n_used", "cg_x"]] = -1
-    third = track(t, obs, cfg, window=5, method="ekf_smoother", layout_check=False)
+    third = track(t, obs, cfg, **kw)
     np.testing.assert_array_equal(third.to_numpy(), again.to_numpy())
-    ekf1 = track(t, obs, cfg, window=1, method="ekf", layout_check=False)
-    ekf5 = track(t, obs, cfg, window=5, method="ekf", layout_check=False)
+    ekf1 = track(t, obs, cfg, window=1, method="ekf", layout_check=False, cache=kw["cache"])
+    ekf5 = track(t, obs, cfg, window=5, method="ekf", layout_check=False, cache=kw["cache"])
     np.testing.assert_array_equal(ekf5.drop(columns="window").to_numpy(),
                                   ekf1.iloc[4:].drop(columns="window").to_numpy())
 
 
-def test_module_memos_are_bounded(drive):
+def test_cache_memos_are_bounded(drive):
     t, obs, _cfg, off = drive
-    from estimator import pose_filter, pose_smoother
+    cache = TrackCache(filter_pass=2, smoothed=3)
+    for i in range(4):
+        memo_smoothed_states(t, obs, off, PoseFilterParams(lag_s=1.0 + i), None, cache)
+    assert len(cache.filter_pass) == 2 and len(cache.smoothed) == 3
+    cache.clear()
+    assert not any(len(m) for m in cache.memos().values())
 
-    for i in range(pose_filter._PASS_MEMO.size + 2):
-        memo_pose_filter(t, obs, off, PoseFilterParams(lag_s=1.0 + i))
-    assert len(pose_filter._PASS_MEMO) == pose_filter._PASS_MEMO.size
-    assert len(pose_smoother._SMOOTH_MEMO) <= pose_smoother._SMOOTH_MEMO.size
+
+def test_no_module_level_memos_in_the_estimators():
+    """Caching is the runner's (issue 24): no module of estimator/ holds a ContentMemo or a
+    TrackCache at import, and a track without a cache leaves no memo behind."""
+    import importlib
+    import pkgutil
+
+    import estimator
+
+    for info in pkgutil.walk_packages(estimator.__path__, "estimator."):
+        if info.name == "estimator.gtsam_peer" or info.name.endswith(".peer"):
+            continue                      # imports nothing optional at import, but skip
+        mod = importlib.import_module(info.name)
+        for name, value in vars(mod).items():
+            assert not isinstance(value, (ContentMemo, TrackCache)), (info.name, name)
+    before = {id(m): len(m) for m in list(memo._MEMOS)}
+    cfg, t, obs = _small_track_inputs()
+    for kw in ({"weighting": "huff"}, {"solver": "elastic"}, {"method": "ekf_smoother"}):
+        track(t, obs, cfg, window=5, layout_check=False, **kw)
+    assert {id(m): len(m) for m in list(memo._MEMOS)} == before
+
+
+def _small_track_inputs():
+    cfg = SensorConfig.load("rover_gps8").planar()
+    rng = np.random.default_rng(3)
+    n = 60
+    t = np.arange(n, dtype=float)
+    off = cfg.body_positions[:, :2] - cfg.cg_body[:2]
+    xy = np.c_[0.5 * t, 0.1 * t]
+    obs = xy[:, None, :] + off[None] + rng.normal(0, 0.05, (n, cfg.m, 2))
+    obs[:, ~cfg.alive_mask] = np.nan
+    return cfg, t, obs
 
 
 def test_clear_all_empties_every_memo():

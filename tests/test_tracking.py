@@ -497,7 +497,7 @@ def test_warm_start_with_dynamic_window_starts_from_the_previous_row(warm, monke
     where the window size changes (the rows used to be fitted per window size, so x0 came
     from the previous row *of the same size*); without warm_start there is no x0, and
     the rows are fitted as before."""
-    import estimator.tracking as tracking
+    import estimator.trackers._windows as tracking  # where the window kernels live
 
     calls = []
     real = tracking.fit_window
@@ -655,11 +655,11 @@ def test_random_weights_path_equals_stacked_windows(dynamic, monkeypatch):
     stacked-window result bit for bit (same weights from the same Generator, same
     summation order), also across chunk boundaries and on the non-contiguous rows of a
     dynamic window."""
-    import estimator.tracking as tr
+    import estimator.trackers._windows as tr  # where the window kernels live
     from estimator.weights import random_weights
     from estimator.window import procrustes_batch, window_means
 
-    monkeypatch.setattr(tr, "_CHUNK_SAMPLES", 8 * 12 * 7)  # 7 windows per chunk
+    monkeypatch.setattr(tr, "CHUNK_SAMPLES", 8 * 12 * 7)  # 7 windows per chunk
     rng = np.random.default_rng(11)
     cfg, t, _cg, _yaw, clean = straight(n=90)
     obs = clean + rng.normal(0, 1.0, clean.shape)
@@ -675,8 +675,8 @@ def test_random_weights_path_equals_stacked_windows(dynamic, monkeypatch):
     cg = np.full((ends.size, 2), np.nan)
     for w in np.unique(wsize):
         sel = np.flatnonzero(wsize == w)
-        for a in range(0, sel.size, max(1, tr._CHUNK_SAMPLES // (w * 8))):
-            rows = sel[a:a + max(1, tr._CHUNK_SAMPLES // (w * 8))]
+        for a in range(0, sel.size, max(1, tr.CHUNK_SAMPLES // (w * 8))):
+            rows = sel[a:a + max(1, tr.CHUNK_SAMPLES // (w * 8))]
             e = ends[rows]
             st_ = obs[e[:, None] - np.arange(w - 1, -1, -1)[None, :]]
             means, sw = window_means(st_, random_weights(st_.shape[:3], g))

@@ -1,0 +1,120 @@
+"""The pose filter (causal EKF on the antennas with the configuration as measurement model)
+and its two smoothers, fixed-lag and full RTS, as trackers.
+
+Beyond the dissertation (000_8f82f8df647bf685.txt); the filter is :mod:`estimator.pose_filter`,
+the smoothers :mod:`estimator.pose_smoother`; described in :mod:`estimator.tracking`
+(``method="ekf"``, ``"ekf_fixed_lag"``, ``"ekf_smoother"``).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Any, ClassVar
+
+import numpy as np
+import pandas as pd
+
+from estimator.memo import TrackCache
+from estimator.pose_filter import PoseFilterParams, memo_pose_filter
+from estimator.pose_smoother import memo_smoothed_states
+from estimator.trackers._common import Rows, TrackerOptions, cg_and_heading, frame, settings
+
+__all__ = ["FilterOptions", "FixedLagSmootherTracker", "PoseFilterTracker",
+           "RtsSmootherTracker"]
+
+
+@dataclass(frozen=True, kw_only=True, eq=False)
+class FilterOptions(TrackerOptions):
+    """Options of the pose-filter family: filter_params, a
+    :class:`estimator.pose_filter.PoseFilterParams` (platform limits, noise levels, no-slip
+    point, reverse mode, smoother lag; None: the rover's defaults). ``window`` s only drops
+    the first s-1 rows (the filter starts when the data allow: rows before that are NaN,
+    status "waiting"/"no_data"). Extra columns ``speed`` (m/s), ``yaw_rate`` (rad/s)."""
+
+    filter_params: PoseFilterParams | None = None
+
+    def __post_init__(self) -> None:
+        super().__post_init__()
+        fp = self.filter_params
+        if fp is not None and not isinstance(fp, PoseFilterParams):
+            raise TypeError(f"filter_params: expected a PoseFilterParams, got "
+                            f"{type(fp).__name__}")
+        object.__setattr__(self, "filter_params", fp or PoseFilterParams())
+
+    def _states(self, tt: np.ndarray, o: np.ndarray, offsets: np.ndarray,
+                cache: TrackCache | None) -> tuple[np.ndarray, np.ndarray, dict]:
+        """States (n, 6) [x, y, yaw, v, a, yaw rate], status (n,), extra columns (n,)."""
+        raise NotImplementedError
+
+    def track(self, t: Any, obs: Any, config: Any, *, cache: TrackCache | None = None
+              ) -> pd.DataFrame:
+        """Track a recording: t (n,) s, obs (n, m, 2) m (NaN missing), config a
+        :class:`estimator.configuration.SensorConfig`; ``cache`` a
+        :class:`estimator.memo.TrackCache` (the forward pass and the smoothing) or None."""
+        tt, o, cfg = self._start(t, obs, config)
+        k0 = self.window - 1
+        offsets = cfg.body_positions - cfg.cg_body
+        r_m = offsets - np.asarray(self.filter_params.no_slip_point_m)
+        X, status, extra = self._states(tt, o, offsets, cache)
+        X = X[k0:]
+        c, sn = np.cos(X[:, 2]), np.sin(X[:, 2])
+        R = np.stack([np.stack([c, -sn], -1), np.stack([sn, c], -1)], -2)  # (N, 2, 2)
+        pos = X[:, None, :2] + np.einsum("nab,mb->nma", R, r_m)
+        extra = {"speed": X[:, 3].copy(), "yaw_rate": X[:, 5].copy(),
+                 **{k: v[k0:].copy() for k, v in extra.items()}}
+        rows = Rows.fixed(tt.size, self.window)
+        cg, yaw_loc = cg_and_heading(cfg, pos)
+        return frame(tt, o, cfg, rows, pos=pos, cg=cg, yaw=X[:, 2].copy(), yaw_loc=yaw_loc,
+                     status=np.asarray(status[k0:], dtype=object), extra=extra,
+                     settings=settings(self.name, self.window, cfg),
+                     layout_check=self.layout_check)
+
+
+def _filter_counts(res) -> dict[str, np.ndarray]:
+    """Fixes accepted / rejected and displacements accepted per epoch (n,)."""
+    return {"n_used": res.n_used, "n_gated": res.n_gated, "n_steps": res.n_steps}
+
+
+@dataclass(frozen=True, kw_only=True, eq=False)
+class PoseFilterTracker(FilterOptions):
+    """The causal pose filter (``method="ekf"``, :mod:`estimator.pose_filter`); extra
+    columns ``n_used, n_gated, n_steps``. Options: :class:`FilterOptions`."""
+
+    name: ClassVar[str] = "ekf"
+
+    def _states(self, tt, o, offsets, cache):
+        # one forward pass per (observations, params) and cache, shared by the rows at every
+        # window, the smoothers and the smoothed heading of the lag correction; the cached
+        # arrays are read-only, the rows copy
+        res = memo_pose_filter(tt, o, offsets, self.filter_params, cache)
+        return res.states, res.status, _filter_counts(res)
+
+
+@dataclass(frozen=True, kw_only=True, eq=False)
+class FixedLagSmootherTracker(FilterOptions):
+    """The filter's fixed-lag smoother (``method="ekf_fixed_lag"``, latency
+    ``filter_params.lag_s``; :func:`estimator.pose_smoother.fixed_lag_smooth`); the status
+    and counts of the forward pass. Options: :class:`FilterOptions`."""
+
+    name: ClassVar[str] = "ekf_fixed_lag"
+
+    def _states(self, tt, o, offsets, cache):
+        p = self.filter_params
+        res = memo_pose_filter(tt, o, offsets, p, cache)
+        X = memo_smoothed_states(tt, o, offsets, p, p.lag_s, cache)
+        return X, res.status, _filter_counts(res)
+
+
+@dataclass(frozen=True, kw_only=True, eq=False)
+class RtsSmootherTracker(FilterOptions):
+    """The filter's full RTS smoother (``method="ekf_smoother"``;
+    :func:`estimator.pose_smoother.rts_smooth`); the status and counts of the forward pass.
+    Options: :class:`FilterOptions`."""
+
+    name: ClassVar[str] = "ekf_smoother"
+
+    def _states(self, tt, o, offsets, cache):
+        p = self.filter_params
+        res = memo_pose_filter(tt, o, offsets, p, cache)
+        X = memo_smoothed_states(tt, o, offsets, p, None, cache)
+        return X, res.status, _filter_counts(res)
