@@ -63,7 +63,7 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from estimator.memo import ledger
+from estimator.memo import TrackCache, ledger
 from estimator.track_options import FILTER_METHODS
 from estimator.window import SOLVERS
 from experiments import cli
@@ -129,6 +129,9 @@ class CellContext:
     session_s: float
     want_epochs: bool
     memo: OrderedDict[tuple, Any]
+    #: the trackers' memos (fits, Huff weights, filter passes) shared by the cells of a
+    #: worker and run (estimator.memo.TrackCache); None: each cell computes everything
+    cache: TrackCache | None = None
 
 
 @dataclass
@@ -410,7 +413,7 @@ def _track_cell(cell: Cell, t: np.ndarray, obs: np.ndarray, config, turning, ctx
         # observations replaces the law-of-cosines heading in step 5 of 3.4.2
         from estimator.pose_smoother import smoothed_heading
 
-        heading = smoothed_heading(t, obs, config, filter_params)
+        heading = smoothed_heading(t, obs, config, filter_params, cache=ctx.cache)
     kw = tech.track_arguments(dyn_window=cell.dyn_window, dyn_growth=cell.dyn_growth,
                               heading=heading)
     flags = None
@@ -421,7 +424,8 @@ def _track_cell(cell: Cell, t: np.ndarray, obs: np.ndarray, config, turning, ctx
     return track(t, obs, config, window=cell.window,
                  weighting="none" if cell.weighting == "-" else cell.weighting, turning=flags,
                  solver="procrustes" if cell.solver == "-" else cell.solver,
-                 rng=cell_rng(ctx.spec_seed, cell.seed, STREAM_ESTIMATOR), **kw, **kw_extra)
+                 rng=cell_rng(ctx.spec_seed, cell.seed, STREAM_ESTIMATOR), cache=ctx.cache,
+                 **kw, **kw_extra)
 
 
 def evaluate_recording_cell(cell: Cell, rec, ctx: CellContext) -> CellOutput:
@@ -498,6 +502,9 @@ def _coverage_rows(df: pd.DataFrame) -> list[dict]:
 
 # --------------------------------------------------------------------------- workers
 _WORKER_MEMO: OrderedDict[tuple, Any] = OrderedDict()
+#: The trackers' memos of this worker (the techniques of one noise key share fits and filter
+#: passes: in the thesis preset 470 of 840 procrustes fits are repeats); reset with the memo.
+_WORKER_CACHE = TrackCache()
 _WORKER_RUN = ""  # the run the memo belongs to
 
 
@@ -515,13 +522,14 @@ def _run_batch(cells: list[Cell], truth, spec_seed: int, masks: tuple[str, ...],
     global _WORKER_RUN
     if _WORKER_RUN != run_id:
         _WORKER_MEMO.clear()
+        _WORKER_CACHE.clear()
         _WORKER_RUN = run_id
     fn = cell_fn or evaluate_cell
     store = CellStore(Path(store_dir)) if store_dir else None
     out = []
     for cell, w in zip(cells, want):
         ctx = CellContext(spec_seed=spec_seed, masks=masks, session_s=session_s,
-                          want_epochs=w, memo=_WORKER_MEMO)
+                          want_epochs=w, memo=_WORKER_MEMO, cache=_WORKER_CACHE)
         t0 = time.perf_counter()
         try:
             with ledger() as reused:
