@@ -7,8 +7,9 @@ estimation). The page shows
 - a replay of every cell with saved per-epoch estimates (the spec's ``[epochs]`` table):
   choose the cell by its axes (path, window, technique, weighting, seed, ... whatever the
   sweep varied); the true path and the estimate over the whole square, a close-up with the
-  platform drawn as its antenna layout at the estimated and at the true pose, heading arrows
-  and the observed antennas of that epoch; a time slider and a play button; below, the error
+  platform drawn as its antenna layout (outline: the convex hull, :mod:`experiments.outline`)
+  at the estimated and at the true pose, heading arrows and the observed antennas of that
+  epoch; a time slider and a play button; below, the error
   over time (x, y, heading) with the turning sections shaded (the live display of position
   and heading that the ultrasonic thesis's DAQ program gave, 003_691aa933e2e3c7e2.txt
   Fig 3.4, for every cell of a run);
@@ -68,6 +69,7 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
+from experiments.outline import layout_outline
 from sim.atomic import atomic_write_text
 
 __all__ = ["ASSETS", "build_page", "flight_source", "main", "own_replay", "replay_source",
@@ -203,6 +205,7 @@ def _track(ep: _EpochFile, max_points: int) -> dict:
     tr: dict[str, Any] = {
         "t": _b64(t_full[idx] - t0), "t0": t0, "origin": [x0, y0], "step": step,
         "n_full": int(len(t_full)), "names": names, "body": np.round(body, 4).tolist(),
+        "outline": layout_outline(np.round(body, 4)),    # convex hull, never angle order
         "truth": None, "turning": None,
         "_t": t_full, "_idx": idx, "_names": names, "_tx": tx if has_truth else None}
     if has_truth:

@@ -19,6 +19,7 @@ from matplotlib.lines import Line2D
 
 from estimator.configuration import SensorConfig
 from estimator.noise_stats import acf, ar1_fit
+from experiments.outline import layout_outline
 from sim.gps import StationarySession
 
 __all__ = ["DPI", "plot_all"]
@@ -242,7 +243,7 @@ def _config_poly(ax, pos: np.ndarray, alive: list[int], color: str, label: str,
     p = pos[alive]
     if not np.isfinite(p).all():
         return
-    c = p.mean(axis=0)
-    order = np.argsort(np.arctan2(p[:, 1] - c[1], p[:, 0] - c[0]))
-    q = p[np.r_[order, order[0]]]
+    hull = layout_outline(p)            # not by angle round the mean: that can cross itself
+    q = p[hull + hull[:1]]
     ax.plot(q[:, 0], q[:, 1], "-o", color=color, ms=4, lw=lw, label=label)
+    ax.plot(p[:, 0], p[:, 1], "o", color=color, ms=4)     # every antenna, inside ones too

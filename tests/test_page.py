@@ -21,6 +21,7 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 from experiments import page
+from experiments.outline import is_simple_polygon, layout_outline
 from experiments.spec import Spec
 from experiments.sweep import run
 
@@ -59,7 +60,9 @@ def tiny_run(tmp_path_factory) -> Path:
 
 # --------------------------------------------------------------------------- synthetic recordings
 BODY = np.array([[0.8, 0.4], [0.8, -0.4], [-0.7, 0.45], [-0.7, -0.45]])   # m, x fwd, y left
-NAMES = ["a", "b", "c", "d"]
+#: An antenna at the reference point on the layout's rear edge: ordered by angle round the
+#: origin (as the page did), the outline crossed itself (issue 23).
+EDGE_ORIGIN = np.array([[0.0, 0.0], [1.0, 1.0], [1.0, -1.0], [2.0, 0.2], [2.0, -0.2]])
 
 
 def _pose_track(n: int, x0: float, y0: float, t0: float, rng) -> dict:
@@ -71,21 +74,23 @@ def _pose_track(n: int, x0: float, y0: float, t0: float, rng) -> dict:
     return {"t": t, "cx": cx, "cy": cy, "yaw": yaw}
 
 
-def _antennas(cx, cy, yaw) -> tuple[np.ndarray, np.ndarray]:
+def _antennas(cx, cy, yaw, body=BODY) -> tuple[np.ndarray, np.ndarray]:
     c, s = np.cos(yaw)[:, None], np.sin(yaw)[:, None]
-    return (cx[:, None] + c * BODY[:, 0] - s * BODY[:, 1],
-            cy[:, None] + s * BODY[:, 0] + c * BODY[:, 1])
+    return (cx[:, None] + c * body[:, 0] - s * body[:, 1],
+            cy[:, None] + s * body[:, 0] + c * body[:, 1])
 
 
-def write_recording_folder(folder: Path, n: int = 300, seed: int = 0) -> dict:
+def write_recording_folder(folder: Path, n: int = 300, seed: int = 0, body=BODY) -> dict:
     """The page's file contract, as a recording run would write it: two recordings (one with
-    an RTK-like reference, one without), two techniques each, UTM coordinates."""
+    an RTK-like reference, one without), two techniques each, UTM coordinates; antennas
+    "a", "b", ... at ``body`` (m, x forward, y left)."""
     rng = np.random.default_rng(seed)
+    names = [chr(ord("a") + j) for j in range(len(body))]
     (folder / "epochs").mkdir(parents=True, exist_ok=True)
     recs, truths = [], {}
     for rec_name, ref in (("drive_a", True), ("drive_b", False)):
         tr = _pose_track(n, 500_123.0, 4_100_456.0, 1.7e9 + (0 if ref else 1e4), rng)
-        ax, ay = _antennas(tr["cx"], tr["cy"], tr["yaw"])
+        ax, ay = _antennas(tr["cx"], tr["cy"], tr["yaw"], body)
         obs_x, obs_y = ax + rng.normal(0, 1, ax.shape), ay + rng.normal(0, 1, ay.shape)
         obs_x[rng.random(ax.shape) < 0.1] = np.nan
         truths[rec_name] = {**tr, "ref": ref, "obs_x": obs_x}
@@ -93,9 +98,9 @@ def write_recording_folder(folder: Path, n: int = 300, seed: int = 0) -> dict:
             k = f"{rec_name}_{tech}"
             ex, ey = tr["cx"] + off * np.sin(tr["yaw"]), tr["cy"] - off * np.cos(tr["yaw"])
             eyaw = np.angle(np.exp(1j * (tr["yaw"] + 0.05)))
-            ebx, eby = _antennas(ex, ey, eyaw)
+            ebx, eby = _antennas(ex, ey, eyaw, body)
             cols = {"t": tr["t"], "cg_x": ex, "cg_y": ey, "yaw": eyaw}
-            for j, nm in enumerate(NAMES):
+            for j, nm in enumerate(names):
                 cols[f"x_{nm}"], cols[f"y_{nm}"] = ebx[:, j], eby[:, j]
                 cols[f"obs_{nm}_x"] = obs_x[:, j].astype(np.float32)
                 cols[f"obs_{nm}_y"] = obs_y[:, j].astype(np.float32)
@@ -103,7 +108,7 @@ def write_recording_folder(folder: Path, n: int = 300, seed: int = 0) -> dict:
                 cols.update({"truth_cg_x": tr["cx"], "truth_cg_y": tr["cy"],
                              "truth_yaw": tr["yaw"],
                              "truth_turning": (np.arange(n) % 100) > 80})
-                for j, nm in enumerate(NAMES):
+                for j, nm in enumerate(names):
                     cols[f"truth_{nm}_x"], cols[f"truth_{nm}_y"] = ax[:, j], ay[:, j]
             pd.DataFrame(cols).to_parquet(folder / "epochs" / f"{k}.parquet", index=False)
             for mask in ("full", "no_turns"):
@@ -187,6 +192,17 @@ def test_recording_folder_contract(tmp_path):
                                equal_nan=True)      # float32 in the file: 0.06 m at 5e5 m
     html = page.build_page(tmp_path, ultrasonic=None)
     assert payload(html)["gps"][0]["cells"][0]["axes"]["recording"] in ("drive_a", "drive_b")
+
+
+def test_layout_outline_is_the_convex_hull(tmp_path):
+    """The payload's outline: the hull's indices (page.js draws exactly these), simple, with
+    the antenna at the origin as a corner; the rover_gps8-like layout without one inside."""
+    write_recording_folder(tmp_path, n=120, body=EDGE_ORIGIN)
+    for tr in page.replay_source(tmp_path)["tracks"]:
+        body = np.asarray(tr["body"])
+        np.testing.assert_allclose(body, EDGE_ORIGIN, atol=1e-4)
+        assert tr["outline"] == layout_outline(EDGE_ORIGIN) == [0, 2, 4, 3, 1]
+        assert is_simple_polygon(body[tr["outline"]])
 
 
 def test_extra_folders_are_replayed_beside_the_run(tiny_run, tmp_path):
@@ -409,4 +425,33 @@ def test_page_in_headless_chromium(tiny_run, tmp_path, browser_page):
     pg.screenshot(path=str(tmp_path / "page.png"))
     assert all((tmp_path / f"page{s}.png").stat().st_size > 20_000
                for s in ("", "_replay", "_recording", "_flight"))
+    assert pg.errors == []
+
+
+def test_page_draws_the_layout_hull_in_chromium(tmp_path, browser_page):
+    """The drawn outline (canvas pixels, from state()) of both poses, for a layout with an
+    antenna at the origin: a simple polygon through the hull's antennas, in the hull's order
+    (by angle round the origin it was a bow-tie)."""
+    write_recording_folder(tmp_path / "rec", n=120, body=EDGE_ORIGIN)
+    html = tmp_path / "index.html"
+    page.write_page(tmp_path / "rec", out=html, ultrasonic=None)
+    pg = browser_page
+    pg.goto(html.as_uri())
+    pg.wait_for_function("window.configpose && window.configpose.ready", timeout=10_000)
+    pg.locator("#replay-0 .slider").focus()
+    pg.keyboard.press("PageUp")
+    st = _state(pg, "gps[0]")
+    assert st["truth"] is not None
+    hull = layout_outline(EDGE_ORIGIN)
+    for which, (x, y, yaw) in (("estOutlinePx", st["est"]), ("truthOutlinePx", st["truth"])):
+        poly = np.asarray(st[which], float)
+        assert poly.shape == (len(hull), 2) and is_simple_polygon(poly), (which, poly)
+        # the same corners as the layout's hull at that pose (screen y points down: flip)
+        c, s = np.cos(yaw), np.sin(yaw)
+        world = np.stack([c * EDGE_ORIGIN[:, 0] - s * EDGE_ORIGIN[:, 1],
+                          s * EDGE_ORIGIN[:, 0] + c * EDGE_ORIGIN[:, 1]], 1)
+        scale = np.linalg.norm(poly[1] - poly[0]) / np.linalg.norm(world[hull[1]] - world[hull[0]])
+        want = (world[hull] - world[hull[0]]) * [scale, -scale] + poly[0]
+        # 1 px: positions are float32 (1e-5 m, < 0.01 px at the close-up scale); margin only
+        np.testing.assert_allclose(poly, want, atol=1.0)
     assert pg.errors == []

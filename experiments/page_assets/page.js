@@ -169,18 +169,23 @@
   }
   function plotBox(w, h) { return { x: 58, y: 18, w: w - 58 - 14, h: h - 18 - 38 }; }
 
-  /* Antenna layout polygon (convex-hull order) with heading arrow; returns the CG in px. */
-  function drawPlatform(F, cx, cy, yaw, body, style, dead) {
+  /* Antenna layout with heading arrow at a pose. The outline is tr.outline: the indices of
+     the layout's convex hull from page.py (experiments/outline.py), never an order by angle
+     (an antenna at the body origin has no angle and crossed the polygon). Returns
+     { cg: [px, py], outline: [[px, py], ...] } (what was drawn) or null. */
+  function drawPlatform(F, cx, cy, yaw, tr, style, dead) {
     if (!fin(cx) || !fin(cy) || !fin(yaw)) return null;
-    const c = F.ctx, co = Math.cos(yaw), si = Math.sin(yaw);
+    const body = tr.body, c = F.ctx, co = Math.cos(yaw), si = Math.sin(yaw);
     const pts = body.map(([bx, by]) => [cx + co * bx - si * by, cy + si * bx + co * by]);
-    const order = body.map((p, i) => i).sort((i, j) =>
-      Math.atan2(body[i][1], body[i][0]) - Math.atan2(body[j][1], body[j][0]));
+    const poly = (tr.outline || []).map((i) => [F.X(pts[i][0]), F.Y(pts[i][1])]);
     c.save(); c.strokeStyle = style.color; c.fillStyle = style.fill; c.lineWidth = 1.6;
     c.setLineDash(style.dash || []);
-    c.beginPath();
-    order.forEach((i, k) => { const p = pts[i]; if (k) c.lineTo(F.X(p[0]), F.Y(p[1])); else c.moveTo(F.X(p[0]), F.Y(p[1])); });
-    c.closePath(); c.fill(); c.stroke(); c.setLineDash([]);
+    if (poly.length >= 2) {
+      c.beginPath();
+      poly.forEach(([x, y], k) => { if (k) c.lineTo(x, y); else c.moveTo(x, y); });
+      c.closePath(); c.fill(); c.stroke();
+    }
+    c.setLineDash([]);
     const pxPerM = Math.abs(F.X(1) - F.X(0));
     const r = Math.max(2.5, Math.min(6, pxPerM * 0.07));
     pts.forEach((p, i) => {
@@ -199,7 +204,7 @@
     c.lineTo(x1 - hl * Math.cos(a + 0.4), y1 - hl * Math.sin(a + 0.4)); c.closePath(); c.fill();
     c.beginPath(); c.arc(x0, y0, 3, 0, 2 * Math.PI); c.fill();
     c.restore();
-    return [x0, y0];
+    return { cg: [x0, y0], outline: poly };
   }
 
   function legend(parent, items) {
@@ -382,8 +387,9 @@
           ctx.strokeStyle = "#1f5fa8"; ctx.lineWidth = 1.5;
           ctx.strokeRect(F.X(cx - z), F.Y(cy + z), F.X(cx + z) - F.X(cx - z), F.Y(cy - z) - F.Y(cy + z));
         }
-        this.overPx = drawPlatform(F, d.x[i], d.y[i], d.yaw[i], tr.body, { color: "#d62728", fill: "rgba(214,39,40,0.15)" });
-        if (hasT) drawPlatform(F, tr.tx[i], tr.ty[i], tr.tyaw[i], tr.body, { color: "#111", fill: "rgba(0,0,0,0.08)" });
+        const ov = drawPlatform(F, d.x[i], d.y[i], d.yaw[i], tr, { color: "#d62728", fill: "rgba(214,39,40,0.15)" });
+        this.overPx = ov && ov.cg;
+        if (hasT) drawPlatform(F, tr.tx[i], tr.ty[i], tr.tyaw[i], tr, { color: "#111", fill: "rgba(0,0,0,0.08)" });
         ctx.restore();
       }
       // close-up, centred on the true pose (the estimate when there is no reference)
@@ -402,10 +408,10 @@
           F.dots(xs, ys, { color: "#9467bd", r: 3.5 });
         }
         let tp = null;
-        if (hasT) tp = drawPlatform(F, tr.tx[i], tr.ty[i], tr.tyaw[i], tr.body, { color: "#111", fill: "rgba(0,0,0,0.08)" }, dead);
-        const ep = drawPlatform(F, d.x[i], d.y[i], d.yaw[i], tr.body, { color: "#d62728", fill: "rgba(214,39,40,0.15)", dash: [5, 3] }, dead);
+        if (hasT) tp = drawPlatform(F, tr.tx[i], tr.ty[i], tr.tyaw[i], tr, { color: "#111", fill: "rgba(0,0,0,0.08)" }, dead);
+        const ep = drawPlatform(F, d.x[i], d.y[i], d.yaw[i], tr, { color: "#d62728", fill: "rgba(214,39,40,0.15)", dash: [5, 3] }, dead);
         if (!ep) { ctx.fillStyle = "#444"; ctx.font = "13px system-ui"; ctx.fillText("no estimate at this epoch", F.box.x + 8, F.box.y + 18); }
-        this.px = { est: ep, truth: tp };
+        this.px = { est: ep && ep.cg, truth: tp && tp.cg, estOutline: ep && ep.outline, truthOutline: tp && tp.outline };
         ctx.restore();
       }
       // error over time
@@ -430,7 +436,8 @@
       const d = this.cell._d, i = this.i, tr = this.tr;
       return { key: this.cell.key, axes: this.cell.axes, index: i, n: tr.tt.length, t: tr.tt[i] + tr.t0,
                est: [d.x[i], d.y[i], d.yaw[i]], truth: tr.tx ? [tr.tx[i], tr.ty[i], tr.tyaw[i]] : null,
-               estPx: this.px.est, truthPx: this.px.truth, overviewPx: this.overPx };
+               estPx: this.px.est, truthPx: this.px.truth, overviewPx: this.overPx,
+               estOutlinePx: this.px.estOutline, truthOutlinePx: this.px.truthOutline };
     }
   }
 
