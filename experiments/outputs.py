@@ -207,10 +207,11 @@ def write_outputs(table: pd.DataFrame, out_dir: str | Path, *, spec: Any = None,
     step = on_step or (lambda _name: None)
     state_path = out / STATE_FILE
     try:
-        state = json.loads(state_path.read_text())
+        state_text = state_path.read_text()
+        state = json.loads(state_text)
         units = state.get("units", {}) if isinstance(state, dict) else {}
     except (OSError, ValueError):
-        units = {}
+        state_text, units = None, {}
     code = code_digest()
     man = out / "manifest.json"
     manifest = man.read_text() if man.exists() else ""
@@ -294,7 +295,9 @@ def write_outputs(table: pd.DataFrame, out_dir: str | Path, *, spec: Any = None,
         new["page"] = {"inputs": page_in, "files": _stats(out, ["index.html"])}
     step("page")
     units.update(new)
-    atomic_write_text(state_path, json.dumps({"units": units}, indent=1, sort_keys=True))
+    text = json.dumps({"units": units}, indent=1, sort_keys=True)
+    if text != state_text:          # unchanged: not rewritten (a read-only finished run reruns)
+        atomic_write_text(state_path, text)
     written = [u[0] if u[0] in unit_in else u[-1] for u in todo if u[0] != "replay"] \
         + (["page"] if "page_s" in seconds else [])
     return {"written": written, "skipped": sorted(set(new) - set(written)),

@@ -9,6 +9,7 @@ import functools
 import json
 import operator
 import subprocess
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -183,3 +184,35 @@ def test_real_logs_of_the_shared_folder(realdata_dir):
     q = imp.set_index("log").loc["gpsd/quectel-eg25-g.log"]
     assert q.reacquired == 1
     assert (imp.error == "").sum() >= 30
+
+
+@pytest.mark.parametrize("kind", ["missing", "folder", "readme", "random_bytes", "foreign_csv",
+                                  "random_npz", "other_npz", "empty_npz"])
+def test_session_file_errors_are_one_line_naming_the_file(kind, tmp_path, capsys):
+    """--session on a missing file, a README, random bytes, a foreign CSV or an .npz that is
+    no session gave 19-25-line tracebacks (issue 23): now one line, exit 2, naming the file."""
+    from experiments import cli
+    from experiments.stationary import main
+
+    rng = np.random.default_rng(5)
+    f = tmp_path / {"missing": "gone.nmea", "folder": "logs", "readme": "README.md",
+                    "random_bytes": "r.bin", "foreign_csv": "foreign.csv",
+                    "random_npz": "r.npz", "other_npz": "other.npz",
+                    "empty_npz": "empty.npz"}[kind]
+    if kind == "folder":
+        f.mkdir()
+    elif kind == "readme":
+        f.write_text((Path(__file__).resolve().parents[1] / "README.md").read_text())
+    elif kind in ("random_bytes", "random_npz"):
+        f.write_bytes(rng.integers(0, 256, 3000, dtype=np.uint8).tobytes())
+    elif kind == "foreign_csv":
+        f.write_text("a,b,c\n1,2,3\n4,5,6\n")
+    elif kind == "other_npz":
+        np.savez(f, a=np.zeros(3))
+    elif kind == "empty_npz":
+        f.write_bytes(b"")
+    code = cli.call(main, ["--session", str(f), "--out", str(tmp_path / "out")])
+    err = capsys.readouterr().err.strip().splitlines()
+    assert code == 2 and len(err) == 1, err
+    assert f"error: --session {f}" in err[0]
+    assert "internal error" not in err[0] and "Traceback" not in err[0]
