@@ -62,6 +62,7 @@ __all__ = [
     "RangingResult",
     "TightResult",
     "best_triple",
+    "check_range_geometry",
     "epoch_ranges",
     "filter_fixes",
     "gate_streams",
@@ -742,7 +743,8 @@ class RangeFilter:
 
     receivers (k, 3) m; levers (T, 3) m body frame or None; height_m: known z of the body
     origin or None. Streaming use: :meth:`initialise`, then :meth:`update` per range in time
-    order; :meth:`state_at` extrapolates without changing the filter.
+    order (a range before the filter's time raises ValueError; equal times are fine);
+    :meth:`state_at` extrapolates without changing the filter.
     """
 
     def __init__(self, receivers: np.ndarray, *, sigma_range_m: float, accel_std_mps2: float,
@@ -803,8 +805,23 @@ class RangeFilter:
         self.initialised = True
 
     def predict(self, t: float) -> None:
-        """Propagate the state to time t (s; no-op for t <= the filter's time)."""
-        self._predict(check_real(t, "t", lo=-_MAX_T, hi=_MAX_T))
+        """Propagate the state to time t (s; no-op for t equal to the filter's time).
+        ValueError naming ``t`` and the filter's time for a t before it, or before
+        :meth:`initialise`."""
+        if not self.initialised:
+            raise ValueError("predict: the filter is not initialised (call initialise first)")
+        self._predict(self._check_time(t))
+
+    def _check_time(self, t: float) -> float:
+        """t (s) as a float, not before the filter's time :attr:`t`: a filter cannot go back
+        (a range older than the state would be applied as if it were new). Equal times are
+        accepted: several ranges measured at one instant (receivers sampled together) are
+        applied one after another with no prediction between them."""
+        t = check_real(t, "t", lo=-_MAX_T, hi=_MAX_T)
+        if t < self.t:
+            raise ValueError(f"t: {t!r} s is before the filter's time {self.t!r} s; ranges "
+                             "must come in time order (equal times are fine)")
+        return t
 
     def _predict(self, t: float) -> None:
         dt = t - self.t
@@ -833,12 +850,13 @@ class RangeFilter:
         return p, np.array([-s * lx - c * ly, c * lx - s * ly])
 
     def update(self, t: float, receiver: int, transmitter: int, r: float) -> bool:
-        """Predict to t (s), then update with range r (m, NaN: predict only) of
-        (transmitter, receiver). Returns True if the range was used, False if the gate
-        rejected it (or r is NaN). Before :meth:`initialise`: ValueError."""
+        """Predict to t (s, not before the filter's time; equal is fine), then update with
+        range r (m, NaN: predict only) of (transmitter, receiver). Returns True if the range
+        was used, False if the gate rejected it (or r is NaN). Before :meth:`initialise`, or
+        a t before the filter's time: ValueError."""
         if not self.initialised:
             raise ValueError("update: the filter is not initialised (call initialise first)")
-        t = check_real(t, "t", lo=-_MAX_T, hi=_MAX_T)
+        t = self._check_time(t)
         check_int(receiver, "receiver", lo=0, hi=self.rec.shape[0] - 1)
         ntx = 1 if self.levers is None else self.levers.shape[0]
         check_int(transmitter, "transmitter", lo=0, hi=max(ntx - 1, 0))
@@ -950,6 +968,68 @@ def _initial_fix(rec, levers, height, latest_t, latest_r, t, max_gap, sigma, pri
     return body, float(yaw), max(stds)
 
 
+#: Fewest range pairs for a verdict of :func:`check_range_geometry`.
+_MIN_GEOMETRY_PAIRS = 20
+
+
+def _geometry_excess(streams: RangeStreams, rec: np.ndarray, config: RangingConfig
+                     ) -> np.ndarray:
+    """Triangle-inequality excess (m) of each pair of consecutive finite ranges to one
+    transmitter from two different receivers i, j at most ``max_gap_s`` apart (dt):
+    ``max(|r_i - r_j| - d_ij, d_ij - (r_i + r_j)) - (2 noise_margin + max_speed dt)``,
+    d_ij the receivers' distance; <= 0 for ranges of one point in the receivers' unit."""
+    fin = np.isfinite(streams.r)
+    out = []
+    for j in range(streams.n_transmitters):
+        idx = np.flatnonzero(fin & (streams.transmitter == j))
+        a, b = idx[:-1], idx[1:]
+        ra, rb = streams.receiver[a], streams.receiver[b]
+        dt = streams.t[b] - streams.t[a]
+        keep = (ra != rb) & (dt <= config.max_gap)
+        a, b, dt = a[keep], b[keep], dt[keep]
+        d = np.linalg.norm(rec[streams.receiver[a]] - rec[streams.receiver[b]], axis=1)
+        r1, r2 = streams.r[a], streams.r[b]
+        worst = np.maximum(np.abs(r1 - r2) - d, d - (r1 + r2))
+        out.append(worst - (2.0 * config.noise_margin + config.max_speed_mps * dt))
+    return np.concatenate(out) if out else np.zeros(0)
+
+
+def check_range_geometry(streams: RangeStreams, receivers: np.ndarray,
+                         config: RangingConfig) -> None:
+    """Ranges that fit the receivers' geometry, or a ValueError naming ``r``.
+
+    The ranges of one point to receivers i and j obey the triangle inequality,
+    ``|r_i - r_j| <= d_ij <= r_i + r_j`` (d_ij the receivers' distance), up to the noise
+    (``2 noise_margin``) and the motion between the two samples (``max_speed dt``). Tested
+    on each pair of consecutive ranges to one transmitter from two receivers at most
+    ``max_gap_s`` apart (:func:`_geometry_excess`): when more than half of at least
+    :data:`_MIN_GEOMETRY_PAIRS` pairs break it, the ranges and the receivers are not in
+    one unit (millimetre ranges against metre receivers make the range differences ~1000x
+    the separations; a filter on them never initialises and tries a fix at every sample).
+    Spikes and NLOS ranges are a minority and pass; fewer pairs give no verdict.
+    streams : :class:`RangeStreams`; receivers (k, 3) m; config : its noise margin,
+    top speed and ``max_gap_s``.
+    """
+    rec = np.asarray(receivers, dtype=float)
+    ex = _geometry_excess(streams, rec, config)
+    if ex.size < _MIN_GEOMETRY_PAIRS:
+        return
+    bad = int(np.count_nonzero(ex > 0))
+    if 2 * bad > ex.size:
+        raise ValueError(
+            f"r: the ranges do not fit the receivers' geometry: {bad} of {ex.size} pairs of "
+            "near-simultaneous ranges to one transmitter break the triangle inequality "
+            f"(median excess {np.median(ex):.4g} m beyond noise and motion; receivers span "
+            f"{_span(rec):.4g} m); are the ranges in millimetres? pass metres "
+            "(r_mm * 1e-3), and the receivers in metres too")
+
+
+def _span(rec: np.ndarray) -> float:
+    """Largest distance between two receivers (k, 3), m."""
+    d = rec[:, None, :] - rec[None, :, :]
+    return float(np.sqrt((d * d).sum(-1)).max()) if rec.size else 0.0
+
+
 def tight_filter(streams: RangeStreams, receivers: np.ndarray, config: RangingConfig,
                  epochs: np.ndarray, *, rejected: np.ndarray | None = None) -> TightResult:
     """Run :class:`RangeFilter` over the streams in time order; report it at the epochs.
@@ -962,12 +1042,16 @@ def tight_filter(streams: RangeStreams, receivers: np.ndarray, config: RangingCo
     rejected, the filter has lost the platform and restarts from a fresh damped fix (prior:
     its own position). ``rejected`` (N,): samples to skip (Filter 1's mask when
     ``tight_uses_gate1``). Epoch outputs are causal: the state after every sample at or before
-    the epoch, extrapolated to it.
+    the epoch, extrapolated to it. Ranges that do not fit the receivers' geometry (e.g.
+    millimetres) raise ValueError (:func:`check_range_geometry`). The loop is one pass over
+    the N samples; each initialisation attempt is one damped fix per transmitter, capped at
+    :data:`estimator.trilateration.DLS_MAX_ITER` iterations.
     """
     _check_types(streams, config)
     rec = check_array(receivers, "receivers", max_abs=tri.MAX_ABS_M)
     if rec.ndim != 2 or rec.shape != (streams.n_receivers, 3):
         raise ValueError(f"receivers: expected shape ({streams.n_receivers}, 3), got {rec.shape}")
+    check_range_geometry(streams, rec, config)
     te = _check_epochs(epochs)
     nt, k = streams.n_transmitters, streams.n_receivers
     levers = config.levers(nt)
@@ -1086,6 +1170,7 @@ def localize(streams: RangeStreams, receivers: np.ndarray, config: RangingConfig
     rec = check_array(receivers, "receivers", max_abs=tri.MAX_ABS_M)
     if rec.shape != (streams.n_receivers, 3):
         raise ValueError(f"receivers: expected shape ({streams.n_receivers}, 3), got {rec.shape}")
+    check_range_geometry(streams, rec, config)       # before any stage: fail fast
     nt = streams.n_transmitters
     levers = config.levers(nt)
     sync = config.sync or ("sample" if streams.is_synchronous() else "interpolate")
