@@ -750,7 +750,7 @@ def _parquet_readable(path: Path) -> bool:
 #: scoring). Their digest is stored with every finished cell; a rerun recomputes the cells
 #: that other code produced instead of mixing results of two code versions.
 CELL_SOURCES = tuple(sorted(
-    [*(REPO / "estimator").glob("*.py"), *(REPO / "sim").glob("*.py"),
+    [*(REPO / "estimator").rglob("*.py"), *(REPO / "sim").glob("*.py"),
      REPO / "experiments" / "sweep.py", REPO / "experiments" / "spec.py",
      REPO / "experiments" / "techniques.py"]))
 
