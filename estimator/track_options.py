@@ -1,4 +1,5 @@
-"""Options of :func:`estimator.tracking.track`, grouped by what they configure.
+"""Options of the trackers (:mod:`estimator.trackers`) and of :func:`estimator.tracking.track`,
+grouped by what they configure.
 
 Source: 000_8f82f8df647bf685.txt (GPS dissertation), Sections 3.1.2, 3.4.1, 3.4.2 and
 3.4.2.1; the methods beyond it are described in :mod:`estimator.tracking`.
@@ -16,8 +17,9 @@ comes as one small object per concern, each validated once, where it is built:
 - :class:`MotionOptions`: the motion-compensated window's yaw-rate model;
 - the pose-filter family takes :class:`estimator.pose_filter.PoseFilterParams`.
 
-What depends on the recording (lengths, the window size) or on another argument (the
-method, the solver) is checked by ``track``.
+What depends on another option (the method, the solver, the window) is checked by the
+tracker class that takes them, where it is built; what depends on the recording (lengths)
+by its ``track``.
 
 Vocabularies (defined here once; experiments derive theirs from them): :data:`METHODS`,
 :data:`FILTER_METHODS`, :data:`WEIGHTED_METHODS`, :data:`GROWTH_RULES`, and
