@@ -104,7 +104,8 @@ the receivers' values instead.
 Forward speed that cannot flip silently
 ---------------------------------------
 With ``reverse=False`` (a platform that does not reverse: the default) the speed is
-non-negative: after each update a negative speed is projected to 0. A heading that is off
+non-negative: at every epoch (after an update, and on rows predicted through an outage,
+where ``v + a dt`` of a braking platform passes 0) a negative speed is projected to 0. A heading that is off
 by pi shows as sustained backward travel: when the distance the no-slip point travelled
 backwards (its displacement from the previous pose along the heading, both re-estimated with
 the epoch's data) over consecutive intervals exceeds the start's motion threshold
@@ -135,6 +136,11 @@ If every fix (or every displacement) is rejected for ``max_rejects`` consecutive
 heading's sd has grown beyond :data:`LOST_YAW_SD` (a few seconds without any fix: the
 prediction, acceleration included, means nothing any more), the track is lost: the filter
 returns to waiting and restarts from the data (status ``"reset"`` on the restart epoch).
+So is a prediction too wide for an update in double precision (after an hour's gap in
+``t``: its spread at the antennas beyond :data:`MAX_PRIOR_RATIO` times the fixes'
+variance); the epoch's own data then restart it. A lost row is NaN and carries no clone,
+so no smoother links across it. A value that overflowed also counts as lost: a row is
+either finite or NaN, never inf.
 """
 
 from __future__ import annotations
@@ -202,6 +208,9 @@ MAX_OFFSET_M = 1e4
 MIN_EXTENT_M = 1e-6
 #: Largest |time|, s (seconds since an epoch are ~2e9; nanoseconds would be ~2e18).
 MAX_TIME_S = 1e12
+#: Shortest time step, s (a nanosecond: far below any receiver's interval; at 1e-300 s the
+#: start's speed, a displacement over the step, overflowed when squared).
+MIN_STEP_S = 1e-9
 #: A prediction whose spread at the antennas (position variance + lever^2 x heading
 #: variance) exceeds this many times the smallest measurement variance means nothing any
 #: more: the gain-form update ``P - K S K^T`` would cancel ~12 of the 16 digits (relative
@@ -878,6 +887,12 @@ def _check_run_args(t, obs, offsets, params):
         k = 0 if abs(tt[0]) > MAX_TIME_S else n - 1
         raise ValueError(f"t: |time| must be <= {MAX_TIME_S:g} s; t[{k}] = {tt[k]!r} "
                          "(nanoseconds? pass seconds)")
+    if n > 1:
+        step = np.diff(tt)
+        k = int(step.argmin())
+        if step[k] < MIN_STEP_S:
+            raise ValueError(f"t: steps must be >= {MIN_STEP_S:g} s; t[{k + 1}] - t[{k}] = "
+                             f"{step[k]!r} s")
     off = check_array(offsets, "offsets", shape=(m, 2), max_abs=MAX_OFFSET_M)
     if _extent(off) < MIN_EXTENT_M:
         at = f"({off[0, 0]:g}, {off[0, 1]:g})" if m else "(none)"
@@ -910,10 +925,14 @@ def run_pose_filter(t: np.ndarray, obs: np.ndarray, offsets: np.ndarray,
                     params: PoseFilterParams = PoseFilterParams()) -> PoseFilterResult:
     """Run the filter over a recording (module docstring for the model).
 
-    t : (n,) s, finite and strictly increasing (uneven steps are fine).
-    obs : (n, m, 2) metres (world x east, y north), NaN = the antenna did not report.
+    t : (n,) s, finite and strictly increasing (uneven steps are fine), steps >= 1 ns
+        (:data:`MIN_STEP_S`), |t| <= :data:`MAX_TIME_S`.
+    obs : (n, m, 2) metres (world x east, y north), NaN = the antenna did not report;
+        |value| <= :data:`MAX_COORD_M`.
     offsets : (m, 2) metres, antenna body positions relative to the configuration's CG
-        (body x forward, y left); dead antennas simply never report.
+        (body x forward, y left); dead antennas simply never report. At least two distinct
+        positions (layout extent >= :data:`MIN_EXTENT_M`: a layout at one point gives no
+        heading), |offset| <= :data:`MAX_OFFSET_M`.
     params : :class:`PoseFilterParams` (limits, noise levels or None = estimated, no-slip
         point, reverse mode, gates).
 

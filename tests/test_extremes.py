@@ -151,3 +151,47 @@ def test_turn_flags_and_first_observations_survive_extremes(n, special, pos, see
     first, idx = lag.first_observations(np.where(np.isfinite(o), o, np.nan), np.array([0]),
                                         np.array([n - 1]))
     assert first.shape == (1, cfg.m, 2) and idx.shape == (1, cfg.m)
+
+
+# ------------------------------------------------------ pose filter and smoothers (issue 23)
+@settings(max_examples=40, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+@given(n=st.integers(2, 30), step=st.sampled_from([1e-300, 1e-9, 1e-3, 1.0, 1e4, 1e10]),
+       speed=st.sampled_from([0.0, -1.0, 1.0, 1e3, 1e7]),
+       noise=st.sampled_from([0.0, 1e-3, 0.3, 1e4]),
+       sigma=st.sampled_from([None, 1e-6, 0.05, 1e6, 1e300]),
+       gap=st.sampled_from([0.0, 3600.0, 1e11]), miss=st.floats(0.0, 0.9),
+       reverse=st.booleans(), seed=st.integers(0, 2**16))
+def test_pose_filter_and_smoothers_never_fail_or_give_inf(n, step, speed, noise, sigma, gap,
+                                                          miss, reverse, seed):
+    """Generated inputs as in issue 23's attack (tiny and huge steps, an hour's or 3000
+    years' gap, noise-free to 10 km noise, absurd noise levels, missing fixes, both speed
+    modes): a named ValueError/TypeError, or a pass whose every row is all finite or all
+    NaN (states and covariances, never inf), forward-mode speeds >= 0, and smoothers with
+    a finite row exactly where the filter has one (no NaN carried back)."""
+    from estimator.pose_filter import PoseFilterParams, run_pose_filter
+    from estimator.pose_smoother import fixed_lag_smooth, rts_smooth
+
+    rng = np.random.default_rng(seed)
+    off = np.array([[0.75, 0.5], [0.75, 0.0], [-0.75, 0.5], [-0.75, -0.5]])
+    t = np.cumsum(rng.uniform(0.5, 1.5, n)) * step
+    t[n // 2:] += gap
+    obs = np.c_[speed * t, np.zeros(n)][:, None, :] + off[None]
+    obs = obs + rng.normal(0, 1.0, obs.shape) * noise
+    obs[rng.random((n, 4)) < miss] = np.nan
+
+    def run():
+        p = PoseFilterParams(reverse=reverse, **(
+            {} if sigma is None else {"sigma_abs_m": sigma, "sigma_step_m": sigma}))
+        return run_pose_filter(t, obs, off, p)
+
+    res = _ok(run)
+    if res is None:
+        return
+    out = np.isfinite(res.states[:, 0])
+    assert np.array_equal(np.isfinite(res.states).all(1), out)
+    assert not np.isinf(res.states).any() and not np.isinf(res.covariances).any()
+    assert np.isfinite(res.covariances[out]).all()
+    if not reverse:
+        assert (res.states[out, 3] >= 0).all()
+    for sm in (rts_smooth(res, reverse).states, fixed_lag_smooth(res, t, 5.0, reverse).states):
+        assert np.array_equal(np.isfinite(sm).all(1), out)

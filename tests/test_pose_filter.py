@@ -721,6 +721,7 @@ def _valid_args():
     ("t", np.arange(5.0)),                    # wrong length
     ("t", np.r_[0.0, 1.0, np.nan, 3.0, 4.0, 5.0]),
     ("t", np.r_[0.0, 1.0, 2.0, 3.0, 4.0, 1e30]),       # beyond MAX_TIME_S
+    ("t", np.arange(6.0) * 1e-300),                     # steps below MIN_STEP_S: overflow
     ("params", "fast"),
     ("obs", np.full((6, 4, 2), 1e300)),                # issue 23: a silent inf covariance
     ("obs", np.zeros((6, 4, 2)) + OFFSETS[None] + 1e300),  # offsets lost to rounding
