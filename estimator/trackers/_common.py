@@ -29,6 +29,8 @@ NO_WEIGHTS = Weighting.parse("none")
 
 
 def check_inputs(t: Any, obs: Any, config: Any) -> tuple[np.ndarray, np.ndarray, SensorConfig]:
+    """(t (n,) s, obs (n, m, 2) m, the planar config) checked: strictly increasing finite
+    times, the configuration's m sensors, no infinities, NaN in both coordinates or none."""
     if not isinstance(config, SensorConfig):
         raise ValueError(  # noqa: TRY004 (bad input is ValueError by contract)
             f"config: expected a SensorConfig, got {type(config).__name__}")

@@ -164,8 +164,8 @@ def stack_windows(obs: np.ndarray, ends: np.ndarray, w: int) -> np.ndarray:
 
 
 def window_weights(stack: np.ndarray, cfg: SensorConfig, weighting: str,
-                    rng: np.random.Generator | None, huff_threshold: float | None,
-                    huber_c: float, huff: np.ndarray | None = None) -> np.ndarray | None:
+                   rng: np.random.Generator | None, huff_threshold: float | None,
+                   huber_c: float, huff: np.ndarray | None = None) -> np.ndarray | None:
     """Weights of stacked windows. ``huff``: the Huff weights of the same stack, gathered
     from one call on the whole recording (they depend on their own sample only)."""
     if weighting == "none":
@@ -211,7 +211,7 @@ def chunks(ends: np.ndarray, w: int, m: int):
 
 
 def cumsum_means(obs: np.ndarray, ends: np.ndarray, w: int,
-                  weights: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+                 weights: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
     """Window means (N, m, 2) and total weights (N, m) by cumulative sums: O(n).
 
     w : window size, an int or (N,) ints (one per window).
@@ -446,7 +446,7 @@ def detect_turning(t: np.ndarray, obs: np.ndarray, config: SensorConfig,
 
 
 def lag_correct(tt, o, cfg, ends, wsize, pos, cg, heading, s, mode, span, dynamic, common,
-                 eps):
+                eps):
     """Section 3.4.2 shift for every row (see :mod:`estimator.lag`); ``heading`` (N,) rad
     is the orientation of step 5 (the law-of-cosines heading, or ``lag_heading``)."""
     if dynamic:
@@ -454,7 +454,7 @@ def lag_correct(tt, o, cfg, ends, wsize, pos, cg, heading, s, mode, span, dynami
         # between small- and large-window rows
         # (procrustes, whatever the rows' solver: the series only feeds the velocity)
         p, _, _, _ = fit_windows(o, cfg, ends, s, solver="procrustes", eps=eps,
-                                  warm_start=False, fit_kw={}, **common)
+                                 warm_start=False, fit_kw={}, **common)
         vel_cg = cfg.cg_from_positions(p)
     else:
         vel_cg = cg
