@@ -88,7 +88,6 @@ import itertools
 import json
 import math
 import re
-import tomllib
 from collections.abc import Iterable
 from dataclasses import dataclass, field, replace
 from pathlib import Path
@@ -96,7 +95,7 @@ from typing import Any
 
 from estimator.metrics import MASKS
 from estimator.model_files import MODELS_DIR as MODELS
-from estimator.model_files import SOURCE_CHECKOUT
+from estimator.model_files import SOURCE_CHECKOUT, parse_toml, resolve_model_file
 from estimator.track_options import GROWTH_RULES
 from estimator.weights import WEIGHTINGS as WEIGHT_SCHEMES
 from estimator.weights import Weighting
@@ -189,34 +188,28 @@ def _sha(path: Path) -> str:
     return hashlib.sha256(path.read_bytes()).hexdigest()[:16]
 
 
-def _resolve(kind: str, value: str, base: Path, where: str) -> Path:
-    """Resolve a resource name to a file: ``models/<kind>/<name>.toml`` or a path."""
+def _resolve(kind: str | None, value: str, base: Path | None, where: str) -> Path:
+    """A file the spec names: ``models/<kind>/<name>.toml`` for a bare name, else a path
+    under the one rule of :func:`estimator.model_files.resolve_model_file` (relative to the
+    spec's folder, then the project; never outside them). ``kind`` None: no bare names (a
+    ``session:`` file)."""
+    return resolve_model_file(value, None if kind is None else MODELS / kind, where,
+                              base=base, error=SpecError)
+
+
+def _session_file(value: str, base: Path | None, where: str) -> Path:
+    """The file of a ``session:<file>`` noise, under the same rule as every other file."""
+    return _resolve(None, value[len("session:"):], base, where)
+
+
+def _label(value: str) -> str:
+    """The label of a path / config / noise value in cells, tables and file names: a file
+    given by path is labelled by its stem (``my.toml`` -> ``my``), a name is itself."""
     p = Path(value)
-    if p.suffix or "/" in value:
-        if p.is_absolute():
-            if not p.is_file():
-                raise SpecError(f"{where}: no such file {value!r}")
-            return p.resolve()
-        # a relative name is a file shipped beside the spec (or in the project): it may not
-        # climb out of both, e.g. '../../../../etc/hostname' (give an absolute path instead)
-        for root in (base, REPO):
-            cand = (root / p).resolve()
-            if cand.is_file() and cand.is_relative_to(root.resolve()):
-                return cand
-        inside = [r for r in (base, REPO) if (r / p).resolve().is_relative_to(r.resolve())]
-        if not inside:
-            raise SpecError(f"{where}: relative path {value!r} leaves the spec's folder "
-                            f"({base}) and the project; give an absolute path")
-        raise SpecError(f"{where}: no such file {value!r} (looked in {base} and {REPO})")
-    cand = MODELS / kind / f"{value}.toml"
-    if not cand.is_file():
-        known = sorted(q.stem for q in (MODELS / kind).glob("*.toml"))
-        raise SpecError(f"{where}: unknown {kind[:-1]} {value!r}; known: {known} "
-                        f"(add models/{kind}/{value}.toml or give a file path)")
-    return cand
+    return p.stem if p.suffix or p.parent != Path(".") else value
 
 
-def _resolve_recording(value: str, base: Path, where: str) -> Path:
+def _resolve_recording(value: str, base: Path | None, where: str) -> Path:
     """A recording name in ``models/recordings/`` or a ``.toml`` file (relative to the spec)."""
     return _resolve("recordings", value, base, where)
 
@@ -304,6 +297,23 @@ def _canon(d: dict) -> str:
     return json.dumps(d, sort_keys=True, separators=(",", ":"))
 
 
+def _cell_labels(v: dict, files: dict, seen: dict, where: str) -> dict[str, str]:
+    """The labels of a combination's path / config / noise (:func:`_label`); two files with
+    one label on one axis would merge in the tables, so that is an error naming both."""
+    out = {}
+    for axis in ("path", "config", "noise"):
+        val = v[axis]
+        session = axis == "noise" and val.startswith("session:")
+        lab = "session:" + _label(val[len("session:"):]) if session else _label(val)
+        out[axis] = lab
+        f = files.get(axis, (val,))[0]
+        prev = seen.setdefault((axis, lab), f)
+        if prev != f:
+            raise SpecError(f"{where}.{axis}: {val!r} ({f}) and {prev} would both be labelled "
+                            f"{lab!r}; rename one of the files")
+    return out
+
+
 # --------------------------------------------------------------------------- spec
 @dataclass(frozen=True)
 class Spec:
@@ -322,6 +332,13 @@ class Spec:
     source: str = "<dict>"
     base_dir: Path = REPO
     raw: dict = field(default_factory=dict, repr=False)
+    #: Built in Python without ``base_dir``: file paths are the caller's, taken as given.
+    direct_paths: bool = False
+
+    @property
+    def _base(self) -> Path | None:
+        """The folder files are named relative to, None for direct paths (``_resolve``)."""
+        return None if self.direct_paths else self.base_dir
 
     # ---------------------------------------------------------------- construction
     @classmethod
@@ -329,6 +346,9 @@ class Spec:
                   ) -> Spec:
         """Validate ``data`` (the TOML table) and build a Spec; errors name the field."""
         base = Path(base_dir) if base_dir is not None else REPO
+        # a spec built in Python without a folder names files directly (the caller's own
+        # paths); one read from a file names them under the rule for files in files
+        rbase = None if base_dir is None else base
         src = source
         if not isinstance(data, dict):
             raise SpecError(f"{src}: expected a table")
@@ -379,7 +399,7 @@ class Spec:
         defaults = data.get("defaults", {})
         if not isinstance(defaults, dict):
             raise SpecError(f"{src}: defaults: must be a table")
-        defaults = {k: _check_axis(k, v, f"{src}: defaults.{k}", base, scalar=True)
+        defaults = {k: _check_axis(k, v, f"{src}: defaults.{k}", rbase, scalar=True)
                     for k, v in defaults.items()}
         grid_raw = data.get("grid")
         if not isinstance(grid_raw, list) or not grid_raw:
@@ -399,7 +419,7 @@ class Spec:
                 if not vals:
                     raise SpecError(f"{where}.{k}: empty list")
                 out[k] = [_check_axis(k, x, f"{where}.{k}" + (f"[{i}]" if isinstance(v, list)
-                                                               else ""), base, scalar=True)
+                                                               else ""), rbase, scalar=True)
                           for i, x in enumerate(vals)]
             has_rec = any(r != "-" for r in out.get("recording", [defaults.get("recording", "-")]))
             for req in ("path", "window"):
@@ -410,14 +430,15 @@ class Spec:
             grid.append(out)
         epochs = data.get("epochs")
         if epochs is not None:
-            epochs = _check_epochs(epochs, f"{src}: epochs", base)
+            epochs = _check_epochs(epochs, f"{src}: epochs", rbase)
         n_grid = sum(math.prod(len(b[k]) for k in b if k != "name") for b in grid)
         if n_grid * len(seeds) > MAX_CELLS:
             raise SpecError(f"{src}: grid: {n_grid} axis combinations x {len(seeds)} seeds = "
                             f"{n_grid * len(seeds)} cells, more than {MAX_CELLS}; split the spec")
         spec = cls(name=name, description=desc, seed=int(seed), seeds=seeds, masks=masks,
                    sim_seed=int(sim_seed), defaults=defaults, grid=tuple(grid), epochs=epochs,
-                   session_s=float(session_s), source=src, base_dir=base, raw=data)
+                   session_s=float(session_s), source=src, base_dir=base, raw=data,
+                   direct_paths=base_dir is None)
         spec.expand()   # resolve and check every file now, so bad names fail at load time
         return spec
 
@@ -427,6 +448,7 @@ class Spec:
         cells: dict[str, Cell] = {}
         hashes: dict[tuple[str, str], str] = {}
         checked: set = set()
+        labels: dict[tuple[str, str], str] = {}
         for gi, block in enumerate(self.grid):
             axes = {k: block.get(k, [self.defaults[k]] if k in self.defaults else [AXES[k]])
                     for k in AXES}
@@ -454,8 +476,9 @@ class Spec:
                                     "dynamic technique must be <= the window)")
                 files = self._files(v, hashes, f"{self.source}: grid[{gi}]")
                 self._check_overrides(v, files, checked, f"{self.source}: grid[{gi}]")
+                lab = _cell_labels(v, files, labels, f"{self.source}: grid[{gi}]")
                 for seed in self.seeds:
-                    cell = Cell(path=v["path"], config=v["config"], noise=v["noise"],
+                    cell = Cell(path=lab["path"], config=lab["config"], noise=lab["noise"],
                                 window=int(v["window"]), weighting=v["weighting"],
                                 technique=v["technique"], solver=v["solver"], seed=int(seed),
                                 dyn_window=int(v["dyn_window"]), turning=v["turning"],
@@ -528,7 +551,7 @@ class Spec:
         if v["path_overrides"]:
             raise SpecError(f"{where}: path_overrides do not apply to recording "
                             f"{v['recording']!r}")
-        rfile = _resolve_recording(v["recording"], self.base_dir, f"{where}.recording")
+        rfile = _resolve_recording(v["recording"], self._base, f"{where}.recording")
         k = ("recordings", str(rfile))
         try:
             if k not in hashes:
@@ -555,7 +578,7 @@ class Spec:
         if v["recording"] != "-":
             out["recording"] = v["_recording_file"]
             cpath = Path(v["_config_file"]) if "_config_file" in v else \
-                _resolve("configs", v["config"], self.base_dir, f"{where}.config")
+                _resolve("configs", v["config"], self._base, f"{where}.config")
             k = ("configs", str(cpath))
             if k not in hashes:
                 hashes[k] = _sha(cpath)
@@ -566,13 +589,9 @@ class Spec:
             if axis == "noise" and val == "none":
                 continue
             if axis == "noise" and val.startswith("session:"):
-                p = Path(val[len("session:"):])
-                p = p if p.is_absolute() else self.base_dir / p
-                if not p.is_file():
-                    raise SpecError(f"{where}.noise: session file {val!r} not found ({p})")
-                path = p.resolve()
+                path = _session_file(val, self._base, f"{where}.noise")
             else:
-                path = _resolve(kind, val, self.base_dir, f"{where}.{axis}")
+                path = _resolve(kind, val, self._base, f"{where}.{axis}")
             k = (kind, str(path))
             if k not in hashes:
                 if axis != "noise" or not val.startswith("session:"):
@@ -735,7 +754,9 @@ def _check_axis(axis: str, v: object, where: str, base: Path, *, scalar: bool) -
         _resolve("paths", v, base, where)
     elif axis == "config":
         _resolve("configs", v, base, where)
-    elif axis == "noise" and v != "none" and not v.startswith("session:"):
+    elif axis == "noise" and v.startswith("session:"):
+        _session_file(v, base, where)
+    elif axis == "noise" and v != "none":
         _resolve("noise", v, base, where)
     return v
 
@@ -786,11 +807,5 @@ def load_spec(path_or_name: str | Path) -> Spec:
                             f"{available_presets()}")
     if not p.is_file():
         raise SpecError(f"spec {str(path_or_name)!r}: no such file")
-    try:
-        data = tomllib.loads(p.read_text(encoding="utf-8"))
-    except UnicodeDecodeError as exc:
-        raise SpecError(f"{p}: not UTF-8 text (byte {exc.start}: {exc.object[exc.start:exc.start + 1]!r}); "
-                        "a spec is a TOML file") from None
-    except tomllib.TOMLDecodeError as exc:
-        raise SpecError(f"{p}: not valid TOML: {exc}") from None
+    data = parse_toml(p.read_bytes(), p, error=SpecError)
     return Spec.from_dict(data, source=str(p), base_dir=p.resolve().parent)

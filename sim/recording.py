@@ -58,7 +58,6 @@ from __future__ import annotations
 import hashlib
 import math
 import re
-import tomllib
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 from datetime import UTC, datetime
@@ -68,7 +67,7 @@ import numpy as np
 
 from estimator._checks import check_real
 from estimator.configuration import SensorConfig
-from estimator.model_files import MODELS_DIR
+from estimator.model_files import MODELS_DIR, parse_toml, resolve_model_file
 from sim.gps import REPLAY_MODES, SESSION_REPLAY_KEYS, StationarySession, observe
 from sim.nmea import LogFixes, read_nmea, read_tumbleweed_csv, utm_epsg
 from sim.truth import Truth
@@ -927,38 +926,22 @@ _REPLAY_KEYS = {"logs", "session", "mode", "receiver", "shift_s", "model", "over
                 "duration_s", "rate_hz"}
 
 
-def _resolve_file(value: object, base: Path, where: str) -> Path:
-    if not isinstance(value, str) or not value:
-        raise RecordingError(f"{where}: must be a file path (string), got {value!r}")
-    p = Path(value)
-    cand = p if p.is_absolute() else base / p
-    if cand.is_file():
-        return cand.resolve()
-    if not p.is_absolute() and (REPO / p).is_file():
-        return (REPO / p).resolve()
-    raise RecordingError(f"{where}: no such file {value!r} (looked in {base} and {REPO})")
+def _resolve_file(value: object, base: Path, where: str, folder: Path | None = None) -> Path:
+    """A file the recording names, under the one rule of
+    :func:`estimator.model_files.resolve_model_file`: relative to the recording's folder,
+    then the project, never outside them (or the shared data folder beside the project);
+    ``folder``: where a bare name is looked up (configurations, noise models)."""
+    return resolve_model_file(value, folder, where, base=base, error=RecordingError)
 
 
 def _resolve_recording(path_or_name: str | Path) -> Path:
-    p = Path(path_or_name)
-    if not p.suffix and p.parent == Path("."):
-        p = RECORDINGS_DIR / f"{path_or_name}.toml"
-        if not p.is_file():
-            known = sorted(f.stem for f in RECORDINGS_DIR.glob("*.toml"))
-            raise RecordingError(f"recording {str(path_or_name)!r}: no such file {p}; known "
-                                 f"names: {known}")
-    if not p.is_file():
-        raise RecordingError(f"recording {str(path_or_name)!r}: no such file")
-    return p.resolve()
+    """A recording: a name in ``models/recordings/`` or a file given by the user."""
+    return resolve_model_file(path_or_name, RECORDINGS_DIR, "recording",
+                              error=RecordingError).resolve()
 
 
 def _read_toml(path: Path) -> dict:
-    try:
-        return tomllib.loads(path.read_text(encoding="utf-8"))
-    except UnicodeDecodeError as exc:
-        raise RecordingError(f"{path}: not UTF-8 text ({exc.reason})") from None
-    except tomllib.TOMLDecodeError as exc:
-        raise RecordingError(f"{path}: not valid TOML: {exc}") from None
+    return parse_toml(path.read_bytes(), path, error=RecordingError)
 
 
 def _parse(path: Path) -> dict:
@@ -977,11 +960,7 @@ def _parse(path: Path) -> dict:
         raise RecordingError(f"{src}: config: required, a name in models/configs/ or a file")
     from estimator.configuration import CONFIGS_DIR
 
-    cp = Path(cfgv)
-    out["config"] = (_resolve_file(cfgv, base, f"{src}: config") if cp.suffix or
-                     cp.parent != Path(".") else CONFIGS_DIR / f"{cfgv}.toml")
-    if not out["config"].is_file():
-        raise RecordingError(f"{src}: config: unknown configuration {cfgv!r}")
+    out["config"] = _resolve_file(cfgv, base, f"{src}: config", CONFIGS_DIR)
     for key in ("rate_hz", "max_offset_s"):
         if key in data:
             try:
@@ -1108,9 +1087,11 @@ def _parse_replay(rep: object, base: Path, where: str) -> dict:
             raise RecordingError(f"{where}.model: only with mode 'common_plus_model'")
         if not isinstance(rep["model"], str):
             raise RecordingError(f"{where}.model: must be a noise-model name or file")
-        mp = Path(rep["model"])
-        nov["model"] = str(_resolve_file(rep["model"], base, f"{where}.model")
-                           if mp.suffix or mp.parent != Path(".") else rep["model"])
+        mp = _resolve_file(rep["model"], base, f"{where}.model", MODELS_DIR / "noise")
+        # a bare name stays a name (sim.gps loads it), a file is passed resolved
+        nov["model"] = rep["model"] if mp.parent == MODELS_DIR / "noise" and \
+            Path(rep["model"]).parent == Path(".") and not Path(rep["model"]).suffix \
+            else str(mp)
     elif mode == "common_plus_model":
         raise RecordingError(f"{where}.model: required with mode 'common_plus_model'")
     ov = rep.get("overrides", {})

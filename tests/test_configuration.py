@@ -153,12 +153,44 @@ def test_model_files_resolution_and_errors(tmp_path):
     own = tmp_path / "rover_gps8.toml"
     own.write_text('name = "x"\n')
     assert read_model_toml(own, folder, "config") == ({"name": "x"}, own)
-    with pytest.raises(ConfigError, match=r"config 'sub/rover_gps8': no such file"):
+    with pytest.raises(ConfigError, match=r"config: no such file 'sub/rover_gps8'"):
         resolve_model_file("sub/rover_gps8", folder, "config", error=ConfigError)
     bad = tmp_path / "bad.toml"
     bad.write_text("[[sensor\n")
     with pytest.raises(ValueError, match=r"bad\.toml: not valid TOML"):
         read_model_toml(bad, folder, "config")
+    deep = tmp_path / "deep.toml"
+    deep.write_text("a = " + "[" * 3000 + "]" * 3000 + "\n")
+    with pytest.raises(ConfigError, match=r"deep\.toml: not usable TOML: .*nested too deeply"):
+        read_model_toml(deep, folder, "config", error=ConfigError)
+
+
+def test_one_rule_for_files_named_inside_a_file(tmp_path):
+    """Issue 24: a file named inside a spec or recording (``base`` = its folder) resolves
+    against that folder, then the project, and never outside them and the shared data."""
+    from estimator.model_files import MODELS_DIR, PROJECT_DIR, resolve_model_file
+
+    (tmp_path / "sub").mkdir()
+    mine = tmp_path / "mine.toml"
+    mine.write_text('name = "x"\n')
+    base = tmp_path / "sub"
+    assert resolve_model_file("mine.toml", None, "f", base=tmp_path) == mine.resolve()
+    assert resolve_model_file(str(mine), None, "f", base=tmp_path) == mine.resolve()
+    # the project is the second place a relative name is looked up
+    rel = "models/configs/rover_gps8.toml"
+    assert resolve_model_file(rel, None, "f", base=base) == (PROJECT_DIR / rel).resolve()
+    for bad in ("../mine.toml", str(mine), "../../../../../../../../etc/hostname",
+                "/etc/hostname"):
+        with pytest.raises(ConfigError, match=r"f: .* leaves the folder of the file naming"):
+            resolve_model_file(bad, None, "f", base=base, error=ConfigError)
+    # a symbolic link inside the folder that points outside it is outside
+    (base / "link.toml").symlink_to("/etc/hostname")
+    with pytest.raises(ConfigError, match="leaves the folder"):
+        resolve_model_file("link.toml", None, "f", base=base, error=ConfigError)
+    with pytest.raises(ConfigError, match=r"f: no such file 'nope.toml'"):
+        resolve_model_file("nope.toml", None, "f", base=base, error=ConfigError)
+    with pytest.raises(ConfigError, match=r"f: must be a file name or path"):
+        resolve_model_file(3, MODELS_DIR / "configs", "f", base=base, error=ConfigError)
 
 
 # --------------------------------------------------------------------------- issue 13 classes

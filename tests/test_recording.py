@@ -155,8 +155,7 @@ def test_recording_without_reference_gets_coverage_rows(rig, tmp_path):
     from experiments.sweep import run
 
     text = rig.files["toml"].read_text().split("[[reference.antenna]]")[0]
-    text = text.replace('log = "', f'log = "{rig.files["1"].parent}/')
-    noref = tmp_path / "noref.toml"
+    noref = rig.files["toml"].parent / "noref.toml"     # beside the logs it names
     noref.write_text(text)
     rec = load_recording(noref)
     assert rec.reference is None
@@ -204,7 +203,7 @@ def test_mirrored_layout_is_reported_by_track_the_reference_and_the_sweep(rig, r
     res = run(spec, out=tmp_path / "out", jobs=1, progress=False, outputs=False)
     assert res.n_failed == 0, res.errors
     assert list(res.cells["layout_mirror_verdict"]) == ["mirrored"]
-    assert res.cells["config"].iloc[0] == str(cfg_file)
+    assert res.cells["config"].iloc[0] == "mirror4"        # a file is labelled by its stem
 
 
 def test_from_distances_with_an_observed_snapshot_recovers_the_real_hand(rig, rec):
@@ -441,17 +440,12 @@ def test_recording_toml_errors_name_the_field(rig, tmp_path, change, match):
     import tomli_w
 
     data = tomllib.loads(rig.files["toml"].read_text())
-    for k in ("antenna",):
-        for e in data[k]:
-            e["log"] = str(rig.files["toml"].parent / e["log"])
-    for e in data["reference"]["antenna"]:
-        e["log"] = str(rig.files["toml"].parent / e["log"])
     for k, v in change.items():
         if v is None:
             data.pop(k)
         else:
             data[k] = v
-    p = tmp_path / "bad.toml"
+    p = rig.files["toml"].parent / f"bad_{tmp_path.name}.toml"    # beside the logs
     p.write_text(tomli_w.dumps(data))
     with pytest.raises(RecordingError, match=match):
         load_recording(p)
@@ -527,7 +521,7 @@ def test_worked_example_on_real_logs(realdata_dir, tmp_path):
     assert df.loc[("home_square4", "replay:identical"), "eh_max"] < 1e-9
     right = df.loc[("home_square4", "replay:shifted")]
     assert right["eh_mean"] < math.radians(1.0) and right["layout_mirror_verdict"] == "consistent"
-    wrong = df.loc[("wrong_left.toml", "replay:shifted")]
+    wrong = df.loc[("wrong_left", "replay:shifted")]
     assert wrong["eh_mean"] > math.radians(90.0) and wrong["layout_mirror_verdict"] == "mirrored"
 
 
@@ -600,3 +594,45 @@ def test_reacquisition_transients_are_left_out_and_counted():
     assert c["reacquired"] == 1 and c["aligned"] == 29
     assert rec.meta["logs"]["b"]["fixes"] == sum(v for k, v in c.items() if k != "interpolated")
     assert np.isnan(rec.obs[10, 1]).all() and np.isfinite(rec.obs[10, 0]).all()
+
+
+# --------------------------------------------------------------------------- path rule (issue 23/24)
+@pytest.mark.parametrize("key, value", [
+    ("config", "/etc/hostname"),
+    ("config", "../../../../../../../../../etc/hostname"),
+    ("log", "/etc/hostname"),
+    ("log", "../../../../../../../../../etc/hostname"),
+])
+def test_recording_files_follow_the_path_rule(rig, tmp_path, key, value):
+    import tomllib
+
+    import tomli_w
+
+    data = tomllib.loads(rig.files["toml"].read_text())
+    if key == "config":
+        data["config"] = value
+    else:
+        data["antenna"][0]["log"] = value
+    p = rig.files["toml"].parent / f"esc_{tmp_path.name}.toml"
+    p.write_text(tomli_w.dumps(data))
+    with pytest.raises(RecordingError, match=r"leaves the folder of the file naming it"):
+        load_recording(p)
+
+
+def test_deeply_nested_recording_toml_is_a_one_line_error(tmp_path):
+    p = tmp_path / "deep.toml"
+    p.write_text('config = "rover_gps4"\nx = ' + "[" * 3000 + "]" * 3000 + "\n")
+    with pytest.raises(RecordingError, match=r"deep\.toml: not usable TOML") as ei:
+        load_recording(p)
+    assert "\n" not in str(ei.value)
+
+
+def test_shipped_recordings_resolve_under_the_rule():
+    # the shipped recordings name ../shared/realdata logs: inside the allowed roots
+    from sim.recording import RECORDINGS_DIR, _parse
+
+    for toml in sorted(RECORDINGS_DIR.glob("*.toml")):
+        try:
+            _parse(toml)
+        except RecordingError as exc:
+            assert "no such file" in str(exc), exc      # realdata absent: not a rule error

@@ -78,9 +78,9 @@ def test_top_level_errors_name_the_field(changes, field):
     ({"weighting": "huff:-1"}, r"grid\[0\].weighting"),
     ({"technique": ["none", "kalman"]}, r"grid\[0\].technique\[1\]: unknown technique"),
     ({"solver": "ipopt"}, r"grid\[0\].solver: unknown solver"),
-    ({"path": "square999"}, r"grid\[0\].path: unknown path 'square999'"),
-    ({"config": "rover_gps99"}, r"grid\[0\].config: unknown config 'rover_gps99'"),
-    ({"noise": "gps_nope"}, r"grid\[0\].noise: unknown nois"),
+    ({"path": "square999"}, r"grid\[0\].path: unknown name 'square999' .*; known names"),
+    ({"config": "rover_gps99"}, r"grid\[0\].config: unknown name 'rover_gps99' .*; known names"),
+    ({"noise": "gps_nope"}, r"grid\[0\].noise: unknown name 'gps_nope'"),
     ({"noise_overrides": 3}, r"grid\[0\].noise_overrides: must be a table"),
     ({"path_overrides": {"waypoints": []}}, r"grid\[0\].path_overrides"),
     ({"technique": "dyn", "dyn_window": 10}, r"dyn_window: 10 exceeds window"),
@@ -249,7 +249,7 @@ def test_relative_paths_may_not_leave_the_spec_folder_and_the_project(tmp_path):
         window = 1
         config = "../../../../../../../../../etc/hostname"
     """))
-    with pytest.raises(SpecError, match="leaves the spec's folder"):
+    with pytest.raises(SpecError, match="leaves the folder of the file naming it"):
         load_spec(sub / "s.toml")
 
 
@@ -258,3 +258,62 @@ def test_non_utf8_spec_is_a_spec_error(tmp_path):
     p.write_bytes(b'name = "k\xff\xfe"\n')
     with pytest.raises(SpecError, match="not UTF-8"):
         load_spec(p)
+
+
+def _block_spec(tmp_path, **block) -> Path:
+    sub = tmp_path / "specs"
+    sub.mkdir(exist_ok=True)
+    block = {"path": "square20", **block}
+    lines = ['name = "k"', "[[grid]]", "window = 1"]
+    lines += [f'{k} = "{v}"' for k, v in block.items()]
+    (sub / "s.toml").write_text("\n".join(lines) + "\n")
+    return sub / "s.toml"
+
+
+@pytest.mark.parametrize("value", ["session:../../../../../../../../etc/passwd",
+                                   "session:/etc/passwd"])
+def test_session_files_follow_the_path_rule(tmp_path, value):
+    # issue 23: a session: file escaped the rule every other file follows
+    with pytest.raises(SpecError, match=r"grid\[0\].noise: .* leaves the folder"):
+        load_spec(_block_spec(tmp_path, noise=value))
+
+
+def test_absolute_paths_outside_the_spec_folder_and_project_are_refused(tmp_path):
+    with pytest.raises(SpecError, match=r"grid\[0\].config: '/etc/hostname' leaves the folder"):
+        load_spec(_block_spec(tmp_path, config="/etc/hostname"))
+
+
+def test_absolute_and_relative_paths_inside_the_spec_folder_are_accepted(tmp_path):
+    spec = _block_spec(tmp_path)
+    shutil.copy(Path("models/configs/rover_gps4.toml"), spec.parent / "mine.toml")
+    for value in ("mine.toml", str(spec.parent / "mine.toml")):
+        cells = load_spec(_block_spec(tmp_path, config=value)).expand()
+        assert cells[0].file("config") == str((spec.parent / "mine.toml").resolve())
+
+
+def test_a_file_given_by_path_is_labelled_by_its_stem(tmp_path):
+    # issue 23: labels and file names kept ".toml" ("my.toml")
+    spec = _block_spec(tmp_path)
+    (spec.parent / "my.toml").write_text(
+        Path("models/paths/square20.toml").read_text().replace('"square20"', '"my"'))
+    shutil.copy(Path("models/configs/rover_gps4.toml"), spec.parent / "layout.toml")
+    cell = load_spec(_block_spec(tmp_path, path="my.toml", config="layout.toml")).expand()[0]
+    assert (cell.path, cell.config) == ("my", "layout")
+
+
+def test_two_files_with_one_label_are_an_error(tmp_path):
+    spec = _block_spec(tmp_path)
+    (spec.parent / "a").mkdir()
+    shutil.copy(Path("models/configs/rover_gps4.toml"), spec.parent / "a" / "rover_gps8.toml")
+    spec.write_text(spec.read_text().replace('window = 1', 'window = 1\nconfig = ["rover_gps8", "a/rover_gps8.toml"]'))
+    with pytest.raises(SpecError, match="would both be labelled 'rover_gps8'"):
+        load_spec(spec)
+
+
+def test_deeply_nested_toml_is_a_one_line_spec_error(tmp_path):
+    # issue 23: a 3,000-deep array raised RecursionError out of load_spec
+    p = tmp_path / "deep.toml"
+    p.write_text('name = "k"\nx = ' + "[" * 3000 + "]" * 3000 + "\n")
+    with pytest.raises(SpecError, match="deep.toml: not usable TOML: .*nested too deeply") as ei:
+        load_spec(p)
+    assert "\n" not in str(ei.value)
