@@ -4,8 +4,11 @@ Tiny specs only (square20 path, 2 seeds, windows 1 and 5) so the file stays well
 minute on the shared 2-core machine.
 """
 
+import contextlib
 import json
 import os
+import re
+import shlex
 import signal
 import subprocess
 import sys
@@ -637,3 +640,210 @@ def test_end_of_run_imports_leave_matplotlib_to_the_workers():
     out = subprocess.run([sys.executable, "-c", code], cwd=REPO, capture_output=True,
                          text=True, check=True).stdout.strip()
     assert out == "False"
+
+
+# --------------------------------------------------------------------------- interrupts, locks
+def _descendants(pid: int) -> set[int]:
+    """Every live descendant of ``pid`` (Linux /proc)."""
+    out, todo = set(), [pid]
+    while todo:
+        p = todo.pop()
+        for task in Path(f"/proc/{p}/task").glob("*"):
+            with contextlib.suppress(OSError):
+                kids = {int(k) for k in (task / "children").read_text().split()}
+                todo.extend(kids - out)
+                out |= kids
+    return out
+
+
+def _alive(pid: int) -> bool:
+    """Whether ``pid`` still runs (a zombie waiting to be reaped does not)."""
+    try:
+        status = Path(f"/proc/{pid}/status").read_text()
+    except OSError:
+        return False
+    return "\nState:\tZ" not in status
+
+
+@pytest.mark.skipif(not Path("/proc/self/task").is_dir(), reason="needs Linux /proc")
+@pytest.mark.parametrize("sig, code", [(signal.SIGINT, 130), (signal.SIGTERM, 143)])
+def test_interrupt_is_one_line_marks_the_manifest_and_leaves_no_worker(sig, code, tmp_path):
+    """Ctrl-C (SIGINT) and SIGTERM mid-run: exit 130 / 143, ONE line on stderr (no traceback,
+    no joblib warning), manifest.json "interrupted", no child process of the run survives it
+    (the loky workers ran on for minutes after SIGTERM), and the rerun resumes the finished
+    cells. The signal lands once the first cell is written (the workers are computing)."""
+    out = tmp_path / "run"
+    cmd = [sys.executable, "-m", "experiments.sweep", "--preset", "quick", "--seeds", "6",
+           "--out", str(out), "--jobs", "2", "--quiet", "--no-figures"]
+    env = {**os.environ, "OPENBLAS_NUM_THREADS": "1", "OMP_NUM_THREADS": "1"}
+    proc = subprocess.Popen(cmd, cwd=REPO, env=env, stdout=subprocess.PIPE,
+                            stderr=subprocess.PIPE, text=True)
+    deadline = time.time() + 120
+    while time.time() < deadline and proc.poll() is None:
+        if (out / "cells").is_dir() and any((out / "cells").glob("*.json")):
+            break
+        time.sleep(0.02)
+    kids = _descendants(proc.pid)
+    assert proc.poll() is None and kids, "the run ended before it could be interrupted"
+    proc.send_signal(sig)
+    try:
+        _stdout, stderr = proc.communicate(timeout=60)
+    except subprocess.TimeoutExpired:            # a worker kept the pipes open
+        for k in kids | {proc.pid}:
+            with contextlib.suppress(OSError):
+                os.kill(k, signal.SIGKILL)
+        raise
+    err = stderr.strip().splitlines()
+    assert proc.returncode == code, stderr
+    assert len(err) == 1 and "interrupted" in err[0], stderr
+    assert "rerun the same command to resume" in err[0]
+    assert json.loads((out / "manifest.json").read_text())["status"] == "interrupted"
+    t_end = time.time() + 10                     # killed workers are gone within moments
+    while time.time() < t_end and any(_alive(k) for k in kids):
+        time.sleep(0.1)
+    assert not [k for k in kids if _alive(k)]
+    assert not (out / sweep_module().LOCK_FILE).exists()
+    if sig == signal.SIGINT:                     # the rerun resumes (once: it costs ~10 s)
+        n_kept = len(list((out / "cells").glob("*.json")))
+        r = subprocess.run(cmd, cwd=REPO, env=env, capture_output=True, text=True,
+                           check=False, timeout=300)
+        assert r.returncode == 0, r.stderr
+        m = re.search(r"(\d+) computed, (\d+) resumed", r.stdout)
+        assert m and int(m.group(2)) in (n_kept, 0), r.stdout   # 0: others changed the code
+        assert json.loads((out / "manifest.json").read_text())["status"] == "complete"
+
+
+def sweep_module():
+    from experiments import sweep
+
+    return sweep
+
+
+def test_in_process_interrupt_marks_the_manifest_and_keeps_the_cells(tmp_path):
+    """A KeyboardInterrupt inside the cells (jobs=1): manifest "interrupted", the message
+    counts the finished cells, the lock is released, and the rerun resumes them."""
+    spec = _fake_spec()
+    n = len(spec.expand())
+    seen = []
+
+    def interrupting(cell, truth, ctx):
+        if len(seen) == 3:
+            raise KeyboardInterrupt
+        seen.append(cell.key)
+        return fake_cell(cell, truth, ctx)
+
+    with pytest.raises(KeyboardInterrupt) as exc:
+        _fake_run(spec, tmp_path, cell_fn=interrupting)
+    assert f"3 of {n} cells are finished" in str(exc.value)
+    assert json.loads((tmp_path / "manifest.json").read_text())["status"] == "interrupted"
+    assert not (tmp_path / sweep_module().LOCK_FILE).exists()
+    r = _fake_run(spec, tmp_path, cell_fn=fake_cell)
+    assert (r.n_resumed, r.n_computed) == (3, n - 3)
+    assert json.loads((tmp_path / "manifest.json").read_text())["status"] == "complete"
+
+
+_HOLD_LOCK = ("import sys, time\n"
+              "from pathlib import Path\n"
+              "from experiments.sweep import folder_lock\n"
+              "with folder_lock(Path(sys.argv[1])) as why:\n"
+              "    assert why is None\n"
+              "    print('held', flush=True)\n"
+              "    time.sleep(60)\n")
+
+
+def test_second_run_into_one_folder_fails_at_once_naming_folder_and_pid(tmp_path, capsys):
+    """Two sweeps into one --out both computed every cell; now the second fails at once
+    (exit 3, one line naming the folder and the holder's pid) and computes nothing."""
+    out = tmp_path / "out"
+    out.mkdir()
+    holder = subprocess.Popen([sys.executable, "-c", _HOLD_LOCK, str(out)], cwd=REPO,
+                              stdout=subprocess.PIPE, text=True)
+    try:
+        assert holder.stdout.readline().strip() == "held"
+        spec = tmp_path / "s.toml"
+        spec.write_text(_toml({**TINY, "defaults": {"noise": "none"}}))
+        t0 = time.perf_counter()
+        assert main([str(spec), "--out", str(out), "--quiet", "--jobs", "1"]) == 3
+        assert time.perf_counter() - t0 < 20           # no cell computed
+        err = capsys.readouterr().err.strip().splitlines()
+        assert len(err) == 1 and str(out) in err[0] and f"pid {holder.pid}" in err[0], err
+        assert not (out / "cells").exists() or not any((out / "cells").iterdir())
+    finally:
+        holder.kill()
+        holder.wait()
+    # the holder died without releasing: its stale lock is taken over
+    lock = out / sweep_module().LOCK_FILE
+    assert json.loads(lock.read_text())["pid"] == holder.pid
+    r = _fake_run(_fake_spec(), out, cell_fn=fake_cell)
+    assert r.n_failed == 0 and r.n_computed == len(_fake_spec().expand())
+    assert not lock.exists()                         # released at the end
+
+
+def test_stale_lock_of_a_dead_pid_is_taken_over(tmp_path):
+    dead = subprocess.run([sys.executable, "-c", "import os; print(os.getpid())"],
+                          capture_output=True, text=True, check=True)
+    pid = int(dead.stdout)
+    (tmp_path / sweep_module().LOCK_FILE).write_text(json.dumps({"pid": pid}) + "\n")
+    r = _fake_run(_fake_spec(), tmp_path, cell_fn=fake_cell)
+    assert r.n_failed == 0 and not (tmp_path / sweep_module().LOCK_FILE).exists()
+
+
+def test_rerun_with_nothing_to_compute_writes_nothing(tmp_path):
+    """A finished run rerun with nothing to compute rewrites no file (only the git-ignored
+    run.local.json sidecar, where the folder allows it), so a read-only folder reruns."""
+    spec = _fake_spec()
+    _fake_run(spec, tmp_path, cell_fn=fake_cell)
+    _fake_run(spec, tmp_path, cell_fn=fake_cell)      # (settles what the first one left)
+
+    def stamps():
+        return {p: p.stat().st_mtime_ns for p in tmp_path.rglob("*")
+                if p.is_file() and p.name != "run.local.json"}
+
+    before = stamps()
+    time.sleep(0.01)
+    r = _fake_run(spec, tmp_path, cell_fn=fake_cell)
+    assert r.n_computed == 0 and stamps() == before
+
+
+def _read_only_run(out: Path, cmd: list[str]) -> subprocess.CompletedProcess:
+    """``cmd`` with ``out`` bind-mounted read-only in a private mount namespace."""
+    q = shlex.quote(str(out))
+    script = f"mount --bind {q} {q} && mount -o remount,ro,bind {q} && {shlex.join(cmd)}"
+    return subprocess.run(["unshare", "-m", "sh", "-c", script], cwd=REPO,
+                          capture_output=True, text=True, check=False, timeout=300)
+
+
+def _can_mount_read_only(tmp_path: Path) -> bool:
+    import shutil
+
+    if shutil.which("unshare") is None:
+        return False
+    d = tmp_path / "probe"
+    d.mkdir()
+    r = _read_only_run(d, ["touch", str(d / "x")])
+    return r.returncode != 0 and "Read-only file system" in r.stderr
+
+
+def test_finished_run_on_a_read_only_folder_reruns(tmp_path):
+    """A finished run on a read-only folder could not be rerun even with nothing to compute;
+    now it reruns (exit 0), and one with cells to compute says it cannot write, in one line.
+    The folder is made read-only by a bind mount (root ignores file permissions)."""
+    if not _can_mount_read_only(tmp_path):
+        pytest.skip("needs unshare and mount permissions for a read-only bind mount")
+    spec = tmp_path / "s.toml"
+    spec.write_text(_toml({**TINY, "defaults": {"noise": "none"}, "seeds": 1}))
+    out = tmp_path / "out"
+    cmd = [sys.executable, "-m", "experiments.sweep", str(spec), "--out", str(out), "--jobs",
+           "1", "--quiet", "--no-figures"]
+    for _attempt in range(3):   # others editing this tree change the code between the runs
+        subprocess.run(cmd, cwd=REPO, check=True, capture_output=True, timeout=300)
+        subprocess.run(cmd, cwd=REPO, check=True, capture_output=True, timeout=300)
+        ro = _read_only_run(out, cmd)
+        if ro.returncode == 0:
+            break
+    assert ro.returncode == 0, ro.stderr
+    assert "0 computed" in ro.stdout
+    (out / "cells" / next((out / "cells").iterdir()).name).unlink()    # a cell to compute
+    ro = _read_only_run(out, cmd)
+    err = ro.stderr.strip().splitlines()
+    assert ro.returncode == 3 and len(err) == 1 and "Read-only file system" in err[0], ro.stderr
