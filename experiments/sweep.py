@@ -1439,8 +1439,10 @@ def _likely_work(args: argparse.Namespace) -> bool:
 
 
 def main(argv: list[str] | None = None) -> int:
-    """CLI entry point; returns the exit code (0 ok, 1 some cells failed, 2 bad spec,
-    3 the run could not go on: unreachable scheduler, unwritable results folder)."""
+    """CLI entry point; returns the exit code (0 ok, 1 some cells failed, 2 bad spec or
+    option, 3 the run could not go on: unreachable scheduler, unwritable results folder,
+    the folder in use by another run). Through :mod:`experiments.cli` (``python -m``):
+    130 on Ctrl-C, 143 on SIGTERM, the manifest marked ``interrupted``, no worker left."""
     args = build_parser().parse_args(argv)
     if args.spec and args.preset:
         print("error: give a spec file or --preset, not both", file=sys.stderr)

@@ -600,8 +600,8 @@ def test_warm_up_lock_lets_one_worker_at_a_time(tmp_path):
 
 
 def test_cli_exit_codes_and_no_leftover_temporary_folders(tmp_path):
-    """The command line ends through the exit handlers without the interpreter's teardown
-    (experiments.sweep._exit_now): the exit code is main()'s, the summary line is printed,
+    """The command line ends through experiments.cli after stopping its workers
+    (experiments.sweep._stop_workers): the exit code is main()'s, the summary line is printed,
     and joblib's shared-memory folders of the run's workers are removed."""
     spec_file = tmp_path / "tiny.toml"
     spec_file.write_text(_toml({**TINY, "grid": [TINY["grid"][0]], "seeds": 1}))
