@@ -37,6 +37,7 @@ import math
 import warnings
 from collections.abc import Iterable, Sequence
 from dataclasses import dataclass, field
+from functools import cached_property
 from pathlib import Path
 
 import numpy as np
@@ -330,6 +331,27 @@ def _as_float_array(a: object, field_name: str) -> np.ndarray:
 
 
 @dataclass(frozen=True, eq=False)
+class PairGeometry:
+    """Constants of a layout that the window fits use on every call, computed once per
+    configuration (:attr:`SensorConfig.pair_geometry`); every array is read-only.
+
+    I, J : (P,) int, the pairs i < j in ``np.triu_indices(m, 1)`` order, P = m (m - 1) / 2.
+    a : (P,) metres, their distances a_ij (Section 3.1.1). min_distance : min a_ij, metres.
+    difference : (P, m) float, +1 at (k, I[k]) and -1 at (k, J[k]): ``difference @ p`` is
+        ``p[I] - p[J]`` (exactly: every product is by 1, -1 or 0).
+    cg_mask : (m,) bool, the CG members (Eq. 3.8); cg_index : their indices.
+    """
+
+    I: np.ndarray
+    J: np.ndarray
+    a: np.ndarray
+    min_distance: float
+    difference: np.ndarray
+    cg_mask: np.ndarray
+    cg_index: np.ndarray
+
+
+@dataclass(frozen=True, eq=False)
 class SensorConfig:
     """A rigid sensor layout in the platform's body frame.
 
@@ -485,6 +507,22 @@ class SensorConfig:
         """(m, m) pairwise distances a_ij in metres (Section 3.1.1), zero diagonal."""
         diff = self.body_positions[:, None, :] - self.body_positions[None, :, :]
         return np.sqrt((diff**2).sum(-1))
+
+    @cached_property
+    def pair_geometry(self) -> PairGeometry:
+        """The pairs, their distances and the CG members as arrays (:class:`PairGeometry`),
+        computed on first use and kept on this object (the layout is immutable)."""
+        I, J = np.triu_indices(self.m, 1)
+        E = np.zeros((I.size, self.m))
+        E[np.arange(I.size), I] = 1.0
+        E[np.arange(I.size), J] = -1.0
+        a = self.distances()[I, J]
+        cg = self.cg_mask
+        arrays = (I, J, a, E, cg, np.flatnonzero(cg))
+        for arr in arrays:
+            arr.setflags(write=False)
+        return PairGeometry(I=I, J=J, a=a, min_distance=float(a.min()), difference=E,
+                            cg_mask=cg, cg_index=arrays[-1])
 
     def cg_from_positions(self, positions: np.ndarray) -> np.ndarray:
         """CG of estimated sensor positions, Eq. 3.8: mean over the CG members.
