@@ -666,18 +666,22 @@ def _alive(pid: int) -> bool:
 
 
 @pytest.mark.skipif(not Path("/proc/self/task").is_dir(), reason="needs Linux /proc")
-@pytest.mark.parametrize("sig, code", [(signal.SIGINT, 130), (signal.SIGTERM, 143)])
-def test_interrupt_is_one_line_marks_the_manifest_and_leaves_no_worker(sig, code, tmp_path):
+@pytest.mark.parametrize("sig, code, group", [(signal.SIGINT, 130, False),
+                                              (signal.SIGINT, 130, True),
+                                              (signal.SIGTERM, 143, False)])
+def test_interrupt_is_one_line_marks_the_manifest_and_leaves_no_worker(sig, code, group,
+                                                                      tmp_path):
     """Ctrl-C (SIGINT) and SIGTERM mid-run: exit 130 / 143, ONE line on stderr (no traceback,
     no joblib warning), manifest.json "interrupted", no child process of the run survives it
     (the loky workers ran on for minutes after SIGTERM), and the rerun resumes the finished
-    cells. The signal lands once the first cell is written (the workers are computing)."""
+    cells. The signal lands once the first cell is written (the workers are computing);
+    ``group``: to the whole process group, workers included, as a terminal's Ctrl-C does."""
     out = tmp_path / "run"
     cmd = [sys.executable, "-m", "experiments.sweep", "--preset", "quick", "--seeds", "6",
            "--out", str(out), "--jobs", "2", "--quiet", "--no-figures"]
     env = {**os.environ, "OPENBLAS_NUM_THREADS": "1", "OMP_NUM_THREADS": "1"}
     proc = subprocess.Popen(cmd, cwd=REPO, env=env, stdout=subprocess.PIPE,
-                            stderr=subprocess.PIPE, text=True)
+                            stderr=subprocess.PIPE, text=True, start_new_session=True)
     deadline = time.time() + 120
     while time.time() < deadline and proc.poll() is None:
         if (out / "cells").is_dir() and any((out / "cells").glob("*.json")):
@@ -685,7 +689,10 @@ def test_interrupt_is_one_line_marks_the_manifest_and_leaves_no_worker(sig, code
         time.sleep(0.02)
     kids = _descendants(proc.pid)
     assert proc.poll() is None and kids, "the run ended before it could be interrupted"
-    proc.send_signal(sig)
+    if group:
+        os.killpg(proc.pid, sig)
+    else:
+        proc.send_signal(sig)
     try:
         _stdout, stderr = proc.communicate(timeout=60)
     except subprocess.TimeoutExpired:            # a worker kept the pipes open
@@ -703,7 +710,7 @@ def test_interrupt_is_one_line_marks_the_manifest_and_leaves_no_worker(sig, code
         time.sleep(0.1)
     assert not [k for k in kids if _alive(k)]
     assert not (out / sweep_module().LOCK_FILE).exists()
-    if sig == signal.SIGINT:                     # the rerun resumes (once: it costs ~10 s)
+    if group:                                    # the rerun resumes (once: it costs ~10 s)
         n_kept = len(list((out / "cells").glob("*.json")))
         r = subprocess.run(cmd, cwd=REPO, env=env, capture_output=True, text=True,
                            check=False, timeout=300)
