@@ -1354,6 +1354,10 @@ _EPILOG = """examples:
   python -m experiments.figures results/thesis     # re-plot from saved files, no simulation
 
 A rerun of the same spec resumes: finished cells are skipped (--force recomputes).
+One run per results folder at a time (its lock.local.json names the holder's pid; a lock
+left by a dead process is taken over). Ctrl-C / SIGTERM: exit 130 / 143 in one line, the
+manifest says "interrupted", no worker is left running, the rerun resumes. --debug shows
+the traceback of an error.
 presets: {presets}
 
 {axes}
