@@ -937,14 +937,25 @@ class TightResult:
     n_updates: int
 
 
+#: Consecutive failed initial fixes of :func:`tight_filter` before its attempts are
+#: throttled to one per ``max_gap_s``.
+_FREE_FIX_ATTEMPTS = 20
+
+
+def _enough_fresh(latest_t, latest_r, t, max_gap) -> bool:
+    """Every transmitter has >= 3 channels with a range at most max_gap (s) old at t."""
+    fresh = np.isfinite(latest_r) & (t - latest_t <= max_gap)
+    return bool(np.all(fresh.sum(axis=1) >= 3))
+
+
 def _initial_fix(rec, levers, height, latest_t, latest_r, t, max_gap, sigma, prior=None):
     """A damped fix per transmitter from each channel's newest range at most max_gap old;
     returns (body position (3,), yaw, position std) or None when too few channels report or
     the fix is not usable (degenerate, bounded, or mirror-ambiguous without a prior)."""
     nt = latest_r.shape[0]
-    fresh = np.isfinite(latest_r) & (t - latest_t <= max_gap)
-    if np.any(fresh.sum(axis=1) < 3):
+    if not _enough_fresh(latest_t, latest_r, t, max_gap):
         return None
+    fresh = np.isfinite(latest_r) & (t - latest_t <= max_gap)
     pts = np.full((nt, 3), np.nan)
     stds = []
     for j in range(nt):
@@ -1043,9 +1054,12 @@ def tight_filter(streams: RangeStreams, receivers: np.ndarray, config: RangingCo
     its own position). ``rejected`` (N,): samples to skip (Filter 1's mask when
     ``tight_uses_gate1``). Epoch outputs are causal: the state after every sample at or before
     the epoch, extrapolated to it. Ranges that do not fit the receivers' geometry (e.g.
-    millimetres) raise ValueError (:func:`check_range_geometry`). The loop is one pass over
-    the N samples; each initialisation attempt is one damped fix per transmitter, capped at
-    :data:`estimator.trilateration.DLS_MAX_ITER` iterations.
+    millimetres) raise ValueError (:func:`check_range_geometry`). Bounded work: one pass
+    over the N samples; an initialisation attempt is one damped fix per transmitter (capped
+    at :data:`estimator.trilateration.DLS_MAX_ITER` iterations, ~13 ms when it fails); after
+    :data:`_FREE_FIX_ATTEMPTS` consecutive failed fixes, at most one attempt per
+    ``max_gap_s`` (the ranges' freshness window) until one succeeds (normal data fail at
+    most 2 in a row, measured on the synthetic scenes, so they are never throttled).
     """
     _check_types(streams, config)
     rec = check_array(receivers, "receivers", max_abs=tri.MAX_ABS_M)
@@ -1076,6 +1090,7 @@ def tight_filter(streams: RangeStreams, receivers: np.ndarray, config: RangingCo
     max_gap = config.max_gap
     reinit = []
     run = 0
+    failed, next_try = 0, -math.inf      # consecutive failed fixes; next allowed attempt (s)
     e = 0
     ts, rs, rxs, txs = streams.t, streams.r, streams.receiver, streams.transmitter
     for s in range(N):
@@ -1092,11 +1107,16 @@ def tight_filter(streams: RangeStreams, receivers: np.ndarray, config: RangingCo
             continue
         latest_t[tx, rx], latest_r[tx, rx] = ti, ri
         if not filt.initialised or run >= lost_after:
+            if failed >= _FREE_FIX_ATTEMPTS and ti < next_try:
+                continue                          # throttled: see the docstring
             prior = filt.state_at(ti)[0] if filt.initialised else None
             fix = _initial_fix(rec, levers, height, latest_t, latest_r, ti, max_gap,
                                config.sigma_range_m, prior)
             if fix is None:
+                if _enough_fresh(latest_t, latest_r, ti, max_gap):   # a fix was tried
+                    failed, next_try = failed + 1, ti + max_gap
                 continue
+            failed = 0
             if filt.initialised:
                 reinit.append(float(ti))
             filt.initialise(ti, fix[0], position_std=max(2.0 * fix[2], 1e-6),
