@@ -53,10 +53,8 @@ from; re-plotting with :func:`plot_identification` never re-simulates),
 
 from __future__ import annotations
 
-import argparse
 import json
 import math
-import sys
 import tempfile
 import time
 from collections.abc import Callable, Mapping

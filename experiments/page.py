@@ -56,7 +56,6 @@ page (78 cells with epochs) is 2.3 MB (measured, README).
 
 from __future__ import annotations
 
-import argparse
 import base64
 import html
 import json

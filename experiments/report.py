@@ -180,12 +180,10 @@ def write_report(cells: pd.DataFrame, out_dir: str | Path, spec=None) -> Path:
 def main(argv: list[str] | None = None) -> int:
     """``python -m experiments.report results/thesis``: rewrite tables, REPORT.md and the
     page (index.html) from the folder's cells.parquet (no simulation, no estimation)."""
-    import argparse
     import sys
 
-    from experiments.tables import write_tables
-
     from experiments.cli import ArgumentParser
+    from experiments.tables import write_tables
 
 
     p = ArgumentParser(

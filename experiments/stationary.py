@@ -38,7 +38,6 @@ folder layout), the evidence behind the default noise model.
 
 from __future__ import annotations
 
-import argparse
 import json
 import math
 import sys

@@ -19,7 +19,7 @@ from experiments import cli
 REPO = Path(__file__).resolve().parents[1]
 #: Every module of experiments/ with a command line (python -m experiments.X).
 CLI_MODULES = sorted(p.stem for p in (REPO / "experiments").glob("*.py")
-                     if re.search(r"^def main\(", p.read_text(), re.M))
+                     if re.search(r"^def main\(", p.read_text(), re.MULTILINE))
 
 
 def _err_lines(capsys) -> list[str]:
@@ -148,9 +148,10 @@ def test_sweep_jobs_must_be_a_positive_integer(jobs, capsys):
 @pytest.fixture
 def results_folder(tmp_path):
     """A finished (fake) sweep folder with cells.parquet."""
+    from test_sweep import TINY, fake_cell, fake_truth
+
     from experiments.spec import Spec
     from experiments.sweep import run
-    from test_sweep import TINY, fake_cell, fake_truth
 
     spec = Spec.from_dict({**TINY, "defaults": {"noise": "none"}}, source="fake")
     run(spec, out=tmp_path / "res", jobs=1, progress=False, outputs=False,
