@@ -185,7 +185,6 @@ def main(argv: list[str] | None = None) -> int:
     from experiments.cli import ArgumentParser
     from experiments.tables import write_tables
 
-
     p = ArgumentParser(
         prog="python -m experiments.report",
         description="Rewrite tables.md, the table CSVs, REPORT.md, claims.csv and index.html "
