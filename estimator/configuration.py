@@ -52,6 +52,7 @@ __all__ = [
     "MODELS_DIR",
     "ConfigError",
     "LayoutWarning",
+    "MAX_DISTANCE_SENSORS",
     "SensorConfig",
 ]
 
@@ -74,6 +75,11 @@ MAX_BODY_M = 1e6
 #: decimetres: one rover_gps8 distance 0.1 m off is rejected. Pass ``tol_m`` for other
 #: instruments (e.g. 0.005 for a total station).
 DISTANCE_TOL_M = 0.05
+
+#: Most sensors :meth:`SensorConfig.from_distances` accepts. Its triangle-inequality check
+#: looks at every (i, j, k) triple, m^3 operations in O(m^2) memory: 0.4 s at m = 500 on one
+#: core (3.4 s at 1000); an antenna array of a vehicle has a few dozen at most.
+MAX_DISTANCE_SENSORS = 500
 
 
 class ConfigError(ValueError):
@@ -134,23 +140,35 @@ def _check_distance_matrix(names: tuple[str, ...], D: object, tol: float) -> np.
         i, j = np.unravel_index(np.argmin(off), off.shape)
         raise ConfigError(f"D: pair ({names[i]!r}, {names[j]!r}) has distance {Dm[i, j]!r}; "
                           f"distinct sensors cannot coincide")
-    # triangle inequality: excess[i, j, k] = D[i,j] - D[i,k] - D[k,j] for all k. Three
-    # measured distances, each within tol of the truth, can exceed it by up to 3 tol (three
-    # collinear antennas); the embedding residual check then judges the whole matrix
-    excess = Dm[:, :, None] - Dm[:, None, :] - Dm.T[None, :, :]
-    if excess.max() > 3.0 * tol:
-        i, j, k = np.unravel_index(np.argmax(excess), excess.shape)
-        raise ConfigError(
-            f"D: triangle inequality violated by {excess[i, j, k]:.6g} m (> 3 tol_m = "
-            f"{3 * tol:g} m) for pair ({names[i]!r}, {names[j]!r}) via {names[k]!r}")
+    _check_triangles(names, Dm, tol)
     return Dm
+
+
+def _check_triangles(names: tuple[str, ...], Dm: np.ndarray, tol: float) -> None:
+    """Triangle inequality: excess[i, j, k] = D[i,j] - D[i,k] - D[k,j] over all k, one k at
+    a time (O(m^2) memory). Three measured distances, each within tol of the truth, can
+    exceed it by up to 3 tol (three collinear antennas); the embedding residual check then
+    judges the whole matrix."""
+    worst, at = -np.inf, (0, 0, 0)
+    for k in range(Dm.shape[0]):
+        excess = Dm - Dm[:, k, None] - Dm[None, k, :]
+        flat = int(np.argmax(excess))
+        if excess.flat[flat] > worst:
+            worst = float(excess.flat[flat])
+            at = (*np.unravel_index(flat, excess.shape), k)
+    if worst > 3.0 * tol:
+        i, j, k = at
+        raise ConfigError(
+            f"D: triangle inequality violated by {worst:.6g} m (> 3 tol_m = "
+            f"{3 * tol:g} m) for pair ({names[i]!r}, {names[j]!r}) via {names[k]!r}")
 
 
 def _embed(D: np.ndarray, d: int) -> np.ndarray:
     """Classical MDS: B = -1/2 J D^2 J, X = V_d sqrt(max(L_d, 0)); (m, d), centroid at 0."""
     m = D.shape[0]
-    J = np.eye(m) - 1.0 / m
-    B = -0.5 * J @ (D**2) @ J
+    D2 = D**2
+    row = D2.mean(axis=1)                    # J D^2 J without the (m, m) products
+    B = -0.5 * (D2 - row[:, None] - row[None, :] + row.mean())
     evals, evecs = np.linalg.eigh(B)
     order = np.argsort(evals)[::-1]
     evals, evecs = evals[order], evecs[:, order]
@@ -168,31 +186,35 @@ def _residuals(X: np.ndarray, D: np.ndarray) -> np.ndarray:
 
 def _refine_embedding(X0: np.ndarray, D: np.ndarray) -> np.ndarray:
     """Least-squares embedding: minimize sum_{i<j} (|x_i - x_j| - D_ij)^2 from X0 (scipy
-    least_squares, analytic Jacobian, in units of max(D) so tolerances are relative).
-    Returns the refined positions, centred, or X0 if refinement did not lower the cost."""
+    least_squares, trust-region with LSMR on the sparse analytic Jacobian, 2d non-zeros per
+    pair: O(m^2) memory; in units of max(D) so tolerances are relative). Tolerances 1e-12:
+    the cost agrees with a dense exact solve to 12 digits. Returns the refined positions,
+    centred, or X0 if refinement did not lower the cost."""
+    from scipy import sparse
     from scipy.optimize import least_squares
 
     m, d = X0.shape
     I, J = np.triu_indices(m, 1)
     s = float(D.max())
     target = D[I, J] / s
+    rows = np.repeat(np.arange(I.size), 2 * d)
+    cols = np.concatenate([I[:, None] * d + np.arange(d), J[:, None] * d + np.arange(d)],
+                          axis=1).ravel()
 
     def fun(x: np.ndarray) -> np.ndarray:
         X = x.reshape(m, d)
         return np.sqrt(((X[I] - X[J]) ** 2).sum(1)) - target
 
-    def jac(x: np.ndarray) -> np.ndarray:
+    def jac(x: np.ndarray) -> sparse.csr_matrix:
         X = x.reshape(m, d)
         diff = X[I] - X[J]
         u = diff / np.maximum(np.sqrt((diff**2).sum(1)), 1e-300)[:, None]
-        Jm = np.zeros((I.size, m, d))
-        Jm[np.arange(I.size), I] = u
-        Jm[np.arange(I.size), J] = -u
-        return Jm.reshape(I.size, m * d)
+        vals = np.concatenate([u, -u], axis=1).ravel()
+        return sparse.csr_matrix((vals, (rows, cols)), shape=(I.size, m * d))
 
     x0 = (X0 / s).ravel()
-    sol = least_squares(fun, x0, jac=jac, method="trf", xtol=1e-15, ftol=1e-15, gtol=1e-15,
-                        max_nfev=200 * m * d)
+    sol = least_squares(fun, x0, jac=jac, method="trf", tr_solver="lsmr", xtol=1e-12,
+                        ftol=1e-12, gtol=1e-12, max_nfev=100)
     if not np.all(np.isfinite(sol.x)) or sol.cost > 0.5 * float((fun(x0) ** 2).sum()):
         return X0
     X = sol.x.reshape(m, d) * s
@@ -224,10 +246,10 @@ def _frame_from_names(cfg: SensorConfig, forward: object, left: object, tol_m: f
             raise ConfigError(f"forward: a (rear, front) pair needs 2 names, got {forward!r}")
         a = _name_index(cfg, forward[0], "forward[0]")
         b = _name_index(cfg, forward[1], "forward[1]")
-        vec, what = X[b] - X[a], f"{cfg.names[a]!r} -> {cfg.names[b]!r}"
+        vec, what, axis_names = X[b] - X[a], f"{cfg.names[a]!r} -> {cfg.names[b]!r}", (a, b)
     else:
         b = _name_index(cfg, forward, "forward")
-        vec, what = X[b] - cg, f"CG -> {cfg.names[b]!r}"
+        vec, what, axis_names = X[b] - cg, f"CG -> {cfg.names[b]!r}", (b,)
     norm = float(np.hypot(vec[0], vec[1]))
     if norm <= tol_m:
         raise ConfigError(f"forward: {what} is {norm:.3g} m long, within tol_m = {tol_m:g} m "
@@ -242,6 +264,11 @@ def _frame_from_names(cfg: SensorConfig, forward: object, left: object, tol_m: f
                       "image", LayoutWarning, stacklevel=3)
         return B, note + "; handedness arbitrary"
     k = _name_index(cfg, left, "left")
+    if k in axis_names:
+        # a sensor that names the forward axis lies on it; with a (rear, front) pair off
+        # the CG its body y is the CG's offset, and the hand would follow where the CG is
+        raise ConfigError(f"left: sensor {cfg.names[k]!r} lies on the forward axis {what} "
+                          f"(it names it); name a sensor to one side of it")
     if abs(B[k, 1]) <= tol_m:
         raise ConfigError(f"left: sensor {cfg.names[k]!r} lies {B[k, 1]:.3g} m from the "
                           f"forward axis (within tol_m = {tol_m:g} m); name a sensor clearly "
@@ -576,7 +603,8 @@ class SensorConfig:
         """A body frame from measured pairwise distances (Section 3.1.1: the fit needs only
         the distances a_ij; the frame matters for heading, lag correction and the EKF).
 
-        names : m >= 2 sensor names. D : (m, m) metres, finite, <= :data:`MAX_BODY_M`.
+        names : 2 <= m <= :data:`MAX_DISTANCE_SENSORS` sensor names. D : (m, m) metres,
+            finite, <= :data:`MAX_BODY_M`. Memory O(m^2); time O(m^3) (0.1-0.3 s at m = 250).
         d : 2 or 3, the dimension of the layout.
         tol_m : metres (default :data:`DISTANCE_TOL_M`, reasoning there): the largest
             accepted asymmetry |D_ij - D_ji|, diagonal entry, triangle-inequality excess
@@ -594,8 +622,9 @@ class SensorConfig:
 
         - ``forward`` = a sensor name (body +x points from the CG to it) or a pair
           ``(rear, front)`` (+x along rear -> front), and ``left`` = a sensor name that
-          lies to the left of that axis (body y > 0; within ``tol_m`` of the axis is an
-          error). d = 2 only: in 3-D, named antennas cannot tell which side is up.
+          lies to the left of that axis (body y > 0; within ``tol_m`` of the axis, or one
+          of the sensors naming it, is an error: it fixes no hand). d = 2 only: in 3-D,
+          named antennas cannot tell which side is up.
         - ``observed`` = (m, 2|3) world positions of the antennas at one moment (x east,
           y north, z up, metres; NaN rows for unobserved antennas; e.g. RTK fixes or a
           long stationary average) and ``heading`` = the yaw of the platform's forward
@@ -613,6 +642,9 @@ class SensorConfig:
         m = len(names_t)
         if m < 2:
             raise ConfigError(f"names: a configuration needs at least 2 sensors, got {m}")
+        if m > MAX_DISTANCE_SENSORS:
+            raise ConfigError(f"names: from_distances takes at most MAX_DISTANCE_SENSORS = "
+                              f"{MAX_DISTANCE_SENSORS} sensors, got {m}")
         d = check_int(d, "d")
         if d not in (2, 3):
             raise ConfigError(f"d: must be 2 or 3, got {d!r}")

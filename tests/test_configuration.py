@@ -501,3 +501,64 @@ def test_layout_check_extremes(window, fill, span):
         return
     assert out.mirror_verdict in ("consistent", "mirrored", "undetermined", "not_applicable")
     assert out.to_dict()["warnings"] == list(out.warnings)
+
+
+# --------------------------------------------------------------------------- issue 23 from_distances
+def _noisy_layout(m: int, seed: int = 0, sigma: float = 0.001) -> tuple[list[str], np.ndarray]:
+    rng = np.random.default_rng(seed)
+    X = rng.uniform(0.0, 5.0, (m, 2))
+    D = np.hypot(*(X[:, None] - X[None]).transpose(2, 0, 1))
+    E = np.triu(rng.normal(0.0, sigma, (m, m)), 1)
+    return [f"s{i}" for i in range(m)], D + E + E.T
+
+
+@pytest.mark.parametrize("forward, left", [(("b", "a"), "a"), (("b", "a"), "b"), ("a", "a")])
+def test_left_on_the_forward_axis_is_refused(forward, left):
+    # before: with a (rear, front) pair off the CG, one of the pair itself was accepted as
+    # "left" and the hand followed where the CG lay
+    c = SensorConfig(list("abcd"), [[1, 0], [-1, 0.5], [-1, -0.5], [0, 1]])
+    with pytest.raises(ConfigError, match=r"left: sensor '.' lies on the forward axis"):
+        SensorConfig.from_distances(c.names, c.distances(), forward=forward, left=left)
+
+
+def test_from_distances_250_sensors_is_fast_and_quadratic_in_memory():
+    import time
+    import tracemalloc
+
+    names, D = _noisy_layout(250)
+    tracemalloc.start()
+    t0 = time.perf_counter()
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", LayoutWarning)
+        got = SensorConfig.from_distances(names, D)
+    elapsed = time.perf_counter() - t0
+    peak = tracemalloc.get_traced_memory()[1]
+    tracemalloc.stop()
+    # before: 24 s and m^3 arrays (250^3 x 8 B = 125 MB for the triangle check alone, plus
+    # a dense (m^2/2, 2m) Jacobian); now ~0.2 s and ~16 MB measured. Bounds with room for
+    # a loaded machine: 2 s (the brief's target) x 2.5, 60 MB
+    assert elapsed < 5.0, elapsed
+    assert peak < 60e6, peak
+    resid = np.abs(got.distances() - D)
+    assert resid.max() < 0.01                       # 1 mm noise, least-squares fit
+
+
+def test_from_distances_bounds_the_number_of_sensors():
+    from estimator.configuration import MAX_DISTANCE_SENSORS
+
+    names = [f"s{i}" for i in range(MAX_DISTANCE_SENSORS + 1)]
+    with pytest.raises(ConfigError, match="names: from_distances takes at most"):
+        SensorConfig.from_distances(names, np.zeros((len(names), len(names))))
+
+
+def test_sparse_refinement_matches_the_dense_least_squares_optimum():
+    # the cost of the least-squares embedding (the dense exact solve before the change gave
+    # 1.7784249316247922e-05 in units of max(D) on this layout; relative 1e-9)
+    from estimator.configuration import _embed, _refine_embedding
+
+    _, D = _noisy_layout(60)
+    X = _refine_embedding(_embed(D, 2), D)
+    diff = X[:, None] - X[None]
+    iu = np.triu_indices(60, 1)
+    cost = 0.5 * float((((np.sqrt((diff**2).sum(-1)) - D) / D.max())[iu] ** 2).sum())
+    assert cost == pytest.approx(1.7784249316247922e-05, rel=1e-9)
