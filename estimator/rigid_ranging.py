@@ -38,7 +38,7 @@ down, with their own docstrings.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
@@ -52,12 +52,14 @@ __all__ = [
     "BIAS_MODES",
     "ROBUST",
     "STATUSES",
+    "STATE",
     "FilterConfig",
     "RigidPoseFit",
     "TrackResult",
     "closed_form_start",
     "fit_pose",
     "grid_to_stream",
+    "nees",
     "smooth",
     "track",
 ]
@@ -86,6 +88,11 @@ _MAX_ABS_M = 1e7
 _SINGULAR_REL = 1e-12
 #: cost tie band of the mirror checks, in units of scale^2 (as damped_ls's 9 sigma^2)
 _TIE = 9.0
+#: iteration cap of the two mirror-check fits: their costs are upper bounds of the minima, so
+#: a capped check can miss a tie (never invent one); 10 iterations reach the exact mirror of
+#: a collinear array from its reflected start in 3-5 (measured) and cap the cost of the
+#: checks at about that of the main fit
+_CHECK_ITER = 10
 
 
 @dataclass(frozen=True)
@@ -475,7 +482,7 @@ def _reflected(model, pos, R, b, r, J, w, s, obj, ok, status, A, B, robust, sig,
     p2, R2 = _reflect_start(pos, R, B, A)
     p2[~ok] = np.nan
     pb, Rb, bb, _, _, wb, _, rb, Jb = _solve_lm(model, p2, R2, b.copy(), robust, sig,
-                                                max_iter, tol)
+                                                min(max_iter, _CHECK_ITER), tol)
     objb = _rho(rb, model.mask, robust, s)
     yaw_a = np.arctan2(R[:, 1, 0], R[:, 0, 0])
     yaw_b = np.arctan2(Rb[:, 1, 0], Rb[:, 0, 0])
@@ -518,8 +525,379 @@ def _mirror_layout(model, pos, R, ok, robust, sig, s, max_iter, tol, B):
     p0[:, :2] = fit.translation
     p0[~okk] = np.nan
     out = _solve_lm(mm, p0, _rz(np.nan_to_num(fit.yaw)), np.zeros((2 * E, mm.nb)),
-                    robust, sig, max_iter, tol)
+                    robust, sig, min(max_iter, _CHECK_ITER), tol)
     cost = _rho(out[7], mm.mask, robust, np.concatenate([s, s]))
     mobj = np.fmin(cost[:E], cost[E:])
     mobj[~ok] = np.nan
     return mobj
+
+
+# ============================================================ tightly coupled filter
+@dataclass(frozen=True)
+class FilterConfig:
+    """Settings of :func:`track` (SI units; physical defaults for a hand-pushed trolley or a
+    small ground robot with UWB tags, not fitted to any recording).
+
+    sigma_range_m : range noise std (m). q_accel : white-acceleration spectral density of x
+    and y (m^2/s^3). q_yaw_accel : same for yaw (rad^2/s^3). q_bias : random walk of the common
+    range bias (m^2/s; 0 with init_sigma_bias_m 0 switches the bias state off).
+    gate_sigma : innovation gate, |nu| / sqrt(S) (4: a chi-square(1) tail of 6e-5).
+    reinit_epochs : consecutive epochs with more gated than accepted ranges (>= 2 gated) that
+    trigger a re-initialisation from the joint fit. nis_limit : the same when the running mean
+    NIS (weight 1/200 per update, each NIS clipped at 100) exceeds it (expected 1).
+    init_sigma_* : initial standard deviations (m, rad, m/s, rad/s, m) at (re)initialisation.
+    max_init_age_s : a joint fit older than this cannot (re)initialise the filter.
+    """
+
+    sigma_range_m: float = 0.05
+    q_accel: float = 1.0
+    q_yaw_accel: float = 1.0
+    q_bias: float = 1e-6
+    gate_sigma: float = 4.0
+    reinit_epochs: int = 10
+    nis_limit: float = 10.0
+    init_sigma_pos_m: float = 0.1
+    init_sigma_yaw: float = 0.1
+    init_sigma_vel: float = 1.0
+    init_sigma_yaw_rate: float = 1.0
+    init_sigma_bias_m: float = 0.3
+    max_init_age_s: float = 0.5
+
+    def __post_init__(self):
+        for f in ("sigma_range_m", "q_accel", "q_yaw_accel", "gate_sigma", "nis_limit",
+                  "init_sigma_pos_m", "init_sigma_yaw", "init_sigma_vel",
+                  "init_sigma_yaw_rate", "max_init_age_s"):
+            check_real(getattr(self, f), f"FilterConfig.{f}", lo=0.0, lo_open=True, hi=1e6)
+        for f in ("q_bias", "init_sigma_bias_m"):
+            check_real(getattr(self, f), f"FilterConfig.{f}", lo=0.0, hi=1e6)
+        check_int(self.reinit_epochs, "FilterConfig.reinit_epochs", lo=1, hi=10**9)
+
+
+#: state order of :func:`track`
+STATE = ("x", "y", "yaw", "vx", "vy", "yaw_rate", "bias")
+_IU, _JU = np.triu_indices(7)
+
+
+@dataclass(frozen=True)
+class TrackResult:
+    """Per epoch (T distinct update times) and per range update (K).
+
+    times (T,) s; state_pred / state_post (T, 7) before / after the epoch's updates
+    (order :data:`STATE`, yaw unwrapped); cov_pred / cov_post (T, 7, 7); segment (T,) int
+    (a new segment starts at every (re)initialisation; -1 before the first); reinit (T,)
+    bool; n_accepted / n_gated (T,); nis (K,) normalised innovation squared of every update
+    (NaN before initialisation), accepted (K,) bool; seconds : wall time of the loop;
+    updates : number of range updates processed.
+    """
+
+    times: np.ndarray
+    state_pred: np.ndarray
+    cov_pred: np.ndarray
+    state_post: np.ndarray
+    cov_post: np.ndarray
+    segment: np.ndarray
+    reinit: np.ndarray
+    n_accepted: np.ndarray
+    n_gated: np.ndarray
+    nis: np.ndarray
+    accepted: np.ndarray
+    seconds: float
+    updates: int
+
+    @property
+    def pose(self) -> np.ndarray:
+        """(T, 3) x, y (m), wrapped yaw (rad) after each epoch's updates."""
+        return np.column_stack([self.state_post[:, :2], wrap_angle(self.state_post[:, 2])])
+
+
+def grid_to_stream(times, ranges):
+    """(T,) s and (T, N, M) m ranges (NaN missing) -> long stream (t, tag, anchor, r), finite
+    ranges only, in time order then tag, anchor (each one asynchronous update)."""
+    t = check_array(times, "times")
+    D = check_array(ranges, "ranges", allow_nan=True)
+    if t.ndim != 1 or D.ndim != 3 or D.shape[0] != t.size:
+        raise ValueError(f"ranges: expected shape ({t.size}, N, M) for times {t.shape}, "
+                         f"got {D.shape}")
+    e, n, m = np.nonzero(np.isfinite(D))
+    return t[e], n, m, D[e, n, m]
+
+
+def _check_stream(t, tag, anc, r, N, M):
+    t = check_array(t, "t")
+    r = check_array(r, "r", max_abs=_MAX_ABS_M)
+    tag, anc = np.asarray(tag), np.asarray(anc)
+    if not (t.ndim == 1 and t.shape == r.shape == tag.shape == anc.shape):
+        raise ValueError(f"t, tag, anchor, r: expected equal 1-D shapes, got {t.shape}, "
+                         f"{tag.shape}, {anc.shape}, {r.shape}")
+    if t.size and np.any(np.diff(t) < 0):
+        k = int(np.flatnonzero(np.diff(t) < 0)[0])
+        raise ValueError(f"t: must be non-decreasing, t[{k + 1}] = {t[k + 1]!r} < {t[k]!r}")
+    for name, a, hi in (("tag", tag, N), ("anchor", anc, M)):
+        if a.size and (not np.issubdtype(a.dtype, np.integer) or a.min() < 0 or a.max() >= hi):
+            raise ValueError(f"{name}: must be integers in [0, {hi}), got {a.dtype} "
+                             f"[{a.min()}, {a.max()}]")
+    return t, tag.astype(int), anc.astype(int), r
+
+
+def track(anchors, body, t, tag, anchor, r, init_times, init_pose, *, origin_z_m=0.0,
+          init_bias=None, config: FilterConfig | None = None) -> TrackResult:
+    """Tightly coupled EKF on (x, y, yaw, vx, vy, yaw rate, common bias): each range is one
+    scalar update at its time (thesis Appendix C's constant-velocity model, extended to the
+    rigid pose and the range model of :func:`fit_pose`).
+
+    anchors (M, 3), body (N, 2|3) m as :func:`fit_pose`; t (K,) s non-decreasing, tag (K,),
+    anchor (K,) indices, r (K,) m (see :func:`grid_to_stream`). init_times (L,) s,
+    init_pose (L, 3) x, y, yaw, init_bias (L,) m or None: joint fits (NaN = none) that
+    initialise the filter and re-initialise it when the innovations stay inconsistent
+    (:class:`FilterConfig`). Gated ranges are not used; the gate cannot lock the filter
+    out because of the re-initialisation. Returns :class:`TrackResult`.
+    """
+    import time as _time
+
+    cfg = FilterConfig() if config is None else config
+    A, B, _, _ = _check_geometry(anchors, body, np.zeros((np.shape(body)[0],
+                                                          np.shape(anchors)[0])))
+    z0 = check_real(origin_z_m, "origin_z_m", lo=-_MAX_ABS_M, hi=_MAX_ABS_M)
+    t, tag, anc, r = _check_stream(t, tag, anchor, r, B.shape[0], A.shape[0])
+    it = check_array(init_times, "init_times")
+    ip = check_array(init_pose, "init_pose", allow_nan=True)
+    if ip.shape != (it.size, 3):
+        raise ValueError(f"init_pose: expected shape ({it.size}, 3), got {ip.shape}")
+    ib = np.zeros(it.size) if init_bias is None else check_array(init_bias, "init_bias",
+                                                                 allow_nan=True)
+    if ib.shape != it.shape:
+        raise ValueError(f"init_bias: expected shape {it.shape}, got {ib.shape}")
+    times, first = np.unique(t, return_index=True)
+    k = np.searchsorted(it, times, side="right") - 1
+    valid = (k >= 0) & (times - it[np.maximum(k, 0)] <= cfg.max_init_age_s)
+    valid &= np.all(np.isfinite(ip[np.maximum(k, 0)]), axis=1)
+    init = [tuple(ip[j]) + (float(np.nan_to_num(ib[j])),) if ok else None
+            for j, ok in zip(k, valid)]
+    dz = (z0 + B[:, 2])[:, None] - A[None, :, 2]
+    args = (B[tag, 0].tolist(), B[tag, 1].tolist(), (dz[tag, anc] ** 2).tolist(),
+            A[anc, 0].tolist(), A[anc, 1].tolist())
+    start = _time.perf_counter()
+    out = _run(t.tolist(), r.tolist(), first.tolist() + [t.size], *args, init, cfg)
+    seconds = _time.perf_counter() - start
+    xs_pred, ps_pred, xs_post, ps_post, seg, rei, nacc, ngat, nis, acc = out
+    return TrackResult(times=times, state_pred=np.array(xs_pred).reshape(-1, 7),
+                       cov_pred=_unpack(ps_pred), state_post=np.array(xs_post).reshape(-1, 7),
+                       cov_post=_unpack(ps_post), segment=np.array(seg), reinit=np.array(rei),
+                       n_accepted=np.array(nacc), n_gated=np.array(ngat), nis=np.array(nis),
+                       accepted=np.array(acc, dtype=bool), seconds=seconds, updates=t.size)
+
+
+def _unpack(rows):
+    P = np.zeros((len(rows), 7, 7))
+    if rows:
+        U = np.array(rows)
+        P[:, _IU, _JU] = U
+        P[:, _JU, _IU] = U
+    return P
+
+
+def _run(t, r, bounds, bx, by, dz2, ax, ay, init, cfg):
+    """The filter loop in scalar Python: the 28 covariance entries (upper triangle, p{i}{j},
+    state order :data:`STATE`) are local variables, the predict and update steps are written
+    out (F sparse, H = [hx, hy, hyaw, 0, 0, 0, 1]), so one range update does no allocation.
+    bx, by, ax, ay, dz2 (K,): the updates' tag x, y (body), anchor x, y and squared height
+    difference, zipped with the ranges (no indexing in the loop)."""
+    sqrt, cos, sin = math.sqrt, math.cos, math.sin
+    R = cfg.sigma_range_m ** 2
+    gate2 = cfg.gate_sigma ** 2
+    qa, qw, qb = cfg.q_accel, cfg.q_yaw_accel, cfg.q_bias
+    v0 = (cfg.init_sigma_pos_m ** 2, cfg.init_sigma_pos_m ** 2, cfg.init_sigma_yaw ** 2,
+          cfg.init_sigma_vel ** 2, cfg.init_sigma_vel ** 2, cfg.init_sigma_yaw_rate ** 2,
+          cfg.init_sigma_bias_m ** 2)
+    nan = float("nan")
+    xs_pred, ps_pred, xs_post, ps_post = [], [], [], []
+    seg, rei, nacc, ngat = [], [], [], []
+    nis_out = [nan] * len(t)
+    acc_out = [False] * len(t)
+    x0 = x1 = x2 = x3 = x4 = x5 = x6 = 0.0
+    (p00, p01, p02, p03, p04, p05, p06, p11, p12, p13, p14, p15, p16, p22, p23, p24, p25, p26,
+        p33, p34, p35, p36, p44, p45, p46, p55, p56, p66) = (0.0,) * 28
+    live = False
+    segment = -1
+    bad_run = 0
+    ewma = 1.0
+    t_prev = 0.0
+    for e in range(len(bounds) - 1):
+        lo, hi = bounds[e], bounds[e + 1]
+        te = t[lo]
+        restart = init[e] is not None and (not live or bad_run >= cfg.reinit_epochs
+                                           or ewma > cfg.nis_limit)
+        if restart:
+            x0, x1, x2, x6 = init[e][0], init[e][1], init[e][2], init[e][3]
+            x3 = x4 = x5 = 0.0
+            (p00, p01, p02, p03, p04, p05, p06, p11, p12, p13, p14, p15, p16, p22, p23, p24, p25,
+                p26, p33, p34, p35, p36, p44, p45, p46, p55, p56, p66) = (0.0,) * 28
+            p00, p11, p22, p33, p44, p55, p66 = v0
+            live, segment, bad_run, ewma = True, segment + 1, 0, 1.0
+        elif live:
+            dt = te - t_prev
+            dt2 = dt * dt
+            qa1, qa2, qa3 = qa * dt, qa * dt2 / 2, qa * dt2 * dt / 3
+            qw1, qw2, qw3 = qw * dt, qw * dt2 / 2, qw * dt2 * dt / 3
+            qb1 = qb * dt
+            x0 += x3 * dt
+            x1 += x4 * dt
+            x2 += x5 * dt
+            (p00, p01, p02, p03, p04, p05, p06, p11, p12, p13, p14, p15, p16, p22, p23, p24, p25,
+                p26, p33, p34, p35, p36, p44, p45, p46, p55, p56, p66) = (
+                p00 + dt * (p03 + p03) + dt2 * p33 + qa3,
+                p01 + dt * (p13 + p04) + dt2 * p34,
+                p02 + dt * (p23 + p05) + dt2 * p35,
+                p03 + dt * (p33) + qa2,
+                p04 + dt * (p34),
+                p05 + dt * (p35),
+                p06 + dt * (p36),
+                p11 + dt * (p14 + p14) + dt2 * p44 + qa3,
+                p12 + dt * (p24 + p15) + dt2 * p45,
+                p13 + dt * (p34),
+                p14 + dt * (p44) + qa2,
+                p15 + dt * (p45),
+                p16 + dt * (p46),
+                p22 + dt * (p25 + p25) + dt2 * p55 + qw3,
+                p23 + dt * (p35),
+                p24 + dt * (p45),
+                p25 + dt * (p55) + qw2,
+                p26 + dt * (p56),
+                p33 + qa1,
+                p34,
+                p35,
+                p36,
+                p44 + qa1,
+                p45,
+                p46,
+                p55 + qw1,
+                p56,
+                p66 + qb1,
+            )
+        t_prev = te
+        xs_pred.append((x0, x1, x2, x3, x4, x5, x6))
+        ps_pred.append((p00, p01, p02, p03, p04, p05, p06, p11, p12, p13, p14, p15, p16, p22,
+                        p23, p24, p25, p26, p33, p34, p35, p36, p44, p45, p46, p55, p56, p66))
+        na = ng = 0
+        if live:
+            for u, bxu, byu, axu, ayu, dzu, ru in zip(range(lo, hi), bx[lo:hi], by[lo:hi],
+                                                     ax[lo:hi], ay[lo:hi], dz2[lo:hi],
+                                                     r[lo:hi]):
+                c, s = cos(x2), sin(x2)
+                rx = c * bxu - s * byu
+                ry = s * bxu + c * byu
+                ex = x0 + rx - axu
+                ey = x1 + ry - ayu
+                rho = sqrt(ex * ex + ey * ey + dzu)
+                hx, hy = ex / rho, ey / rho
+                ht = (ey * rx - ex * ry) / rho
+                nu = ru - rho - x6
+                h0 = p00 * hx + p01 * hy + p02 * ht + p06
+                h1 = p01 * hx + p11 * hy + p12 * ht + p16
+                h2 = p02 * hx + p12 * hy + p22 * ht + p26
+                h3 = p03 * hx + p13 * hy + p23 * ht + p36
+                h4 = p04 * hx + p14 * hy + p24 * ht + p46
+                h5 = p05 * hx + p15 * hy + p25 * ht + p56
+                h6 = p06 * hx + p16 * hy + p26 * ht + p66
+                S = hx * h0 + hy * h1 + ht * h2 + h6 + R
+                nis = nu * nu / S
+                nis_out[u] = nis
+                ewma += ((nis if nis < 100.0 else 100.0) - ewma) * 0.005
+                if nis > gate2:
+                    ng += 1
+                    continue
+                na += 1
+                acc_out[u] = True
+                si = 1.0 / S
+                k0, k1, k2, k3, k4, k5, k6 = h0 * si, h1 * si, h2 * si, h3 * si, h4 * si, \
+                    h5 * si, h6 * si
+                x0 += k0 * nu
+                x1 += k1 * nu
+                x2 += k2 * nu
+                x3 += k3 * nu
+                x4 += k4 * nu
+                x5 += k5 * nu
+                x6 += k6 * nu
+                p00 -= k0 * h0
+                p01 -= k0 * h1
+                p02 -= k0 * h2
+                p03 -= k0 * h3
+                p04 -= k0 * h4
+                p05 -= k0 * h5
+                p06 -= k0 * h6
+                p11 -= k1 * h1
+                p12 -= k1 * h2
+                p13 -= k1 * h3
+                p14 -= k1 * h4
+                p15 -= k1 * h5
+                p16 -= k1 * h6
+                p22 -= k2 * h2
+                p23 -= k2 * h3
+                p24 -= k2 * h4
+                p25 -= k2 * h5
+                p26 -= k2 * h6
+                p33 -= k3 * h3
+                p34 -= k3 * h4
+                p35 -= k3 * h5
+                p36 -= k3 * h6
+                p44 -= k4 * h4
+                p45 -= k4 * h5
+                p46 -= k4 * h6
+                p55 -= k5 * h5
+                p56 -= k5 * h6
+                p66 -= k6 * h6
+            bad_run = bad_run + 1 if (ng >= 2 and ng > na) else 0
+        xs_post.append((x0, x1, x2, x3, x4, x5, x6))
+        ps_post.append((p00, p01, p02, p03, p04, p05, p06, p11, p12, p13, p14, p15, p16, p22,
+                        p23, p24, p25, p26, p33, p34, p35, p36, p44, p45, p46, p55, p56, p66))
+        seg.append(segment if live else -1)
+        rei.append(restart)
+        nacc.append(na)
+        ngat.append(ng)
+    return xs_pred, ps_pred, xs_post, ps_post, seg, rei, nacc, ngat, nis_out, acc_out
+
+
+def _f_matrix(dt):
+    F = np.eye(7)
+    F[0, 3] = F[1, 4] = F[2, 5] = dt
+    return F
+
+
+def smooth(res: TrackResult) -> TrackResult:
+    """Rauch-Tung-Striebel smoother over :func:`track`'s epochs, per segment (a
+    re-initialisation breaks the chain). Returns a TrackResult whose ``state_post`` /
+    ``cov_post`` are the smoothed ones (the other fields as in ``res``)."""
+    xs, Ps = res.state_post.copy(), res.cov_post.copy()
+    T = res.times.size
+    for k in range(T - 2, -1, -1):
+        if res.segment[k] < 0 or res.segment[k + 1] != res.segment[k]:
+            continue
+        F = _f_matrix(res.times[k + 1] - res.times[k])
+        Pp = res.cov_pred[k + 1]
+        try:  # C = P_k F' Pp^-1 = (Pp^-1 F P_k)' (both symmetric)
+            C = np.linalg.solve(Pp, F @ res.cov_post[k]).T
+        except np.linalg.LinAlgError:  # singular prediction (bias state off): pseudo-inverse
+            C = res.cov_post[k] @ F.T @ np.linalg.pinv(Pp, hermitian=True)
+        xs[k] = res.state_post[k] + C @ (xs[k + 1] - res.state_pred[k + 1])
+        Ps[k] = res.cov_post[k] + C @ (Ps[k + 1] - Pp) @ C.T
+    return replace(res, state_post=xs, cov_post=Ps)
+
+
+def nees(res: TrackResult, truth_times, truth_pose) -> np.ndarray:
+    """(T,) normalised estimation error squared of (x, y, yaw) against truth (L, 3) given at
+    truth_times (L,) s (linear interpolation, yaw unwrapped; NaN outside or before init)."""
+    tt = check_array(truth_times, "truth_times")
+    tp = check_array(truth_pose, "truth_pose")
+    if tp.shape != (tt.size, 3):
+        raise ValueError(f"truth_pose: expected shape ({tt.size}, 3), got {tp.shape}")
+    yaw = np.unwrap(tp[:, 2])
+    ref = np.column_stack([np.interp(res.times, tt, tp[:, 0]), np.interp(res.times, tt, tp[:, 1]),
+                           np.interp(res.times, tt, yaw)])
+    err = res.state_post[:, :3] - ref
+    err[:, 2] = wrap_angle(err[:, 2])
+    P = res.cov_post[:, :3, :3]
+    out = np.full(res.times.size, np.nan)
+    ok = (res.segment >= 0) & (res.times >= tt[0]) & (res.times <= tt[-1])
+    if ok.any():
+        out[ok] = np.einsum("ei,ei->e", err[ok], np.linalg.solve(P[ok], err[ok][..., None])[..., 0])
+    return out
