@@ -153,24 +153,23 @@ import numpy as np
 from scipy.linalg.lapack import dgetrf as _dgetrf
 from scipy.linalg.lapack import dgetri as _dgetri
 
-from estimator._checks import check_array, check_increasing_times, check_int
-from estimator._checks import check_real
+from estimator._checks import check_array, check_increasing_times, check_int, check_real
 from estimator.memo import TrackCache, content_digest, freeze, memo_get
 
 __all__ = [
-    "FilterStart",
     "INIT_MAX_YAW_SD",
     "INIT_MOTION_SIGMAS",
     "LOST_YAW_SD",
     "MAX_ITERATIONS",
+    "FilterStart",
     "PoseFilterParams",
     "PoseFilterResult",
     "antenna_jacobians",
     "ctra_predict",
-    "motion_integrals",
     "estimate_noise",
     "kalman_update",
     "memo_pose_filter",
+    "motion_integrals",
     "pass_key",
     "run_pose_filter",
 ]
@@ -718,10 +717,10 @@ def estimate_noise(obs: np.ndarray, offsets: np.ndarray) -> tuple[float, float]:
     next to the layout; when the noise is as large as the layout (consumer GPS on a 1.5 m
     roof) the fitted rotation absorbs less of it and the estimate is high by up to
     ``sqrt((1 - 2/(2k)) / (1 - 3/(2k)))`` (4 % with 7 fixes, 15 % with 3).
-    Raises ValueError if no epoch has 3 or more fixes (nothing to estimate from).
+    Raises ValueError if no epoch has 3 or more fixes (nothing to estimate from), and for
+    the bad obs / offsets :func:`run_pose_filter` refuses (naming the argument).
     """
-    obs = np.asarray(obs, dtype=float)
-    off = np.asarray(offsets, dtype=float)
+    obs, off = _check_obs_offsets(obs, offsets)
     _, yaw, cnt, res = _rigid_fits(obs, off)
     good = cnt >= 3
     if not good.any():
@@ -877,11 +876,25 @@ def _iterated_update(y, Y, z, pat, gate, lever, tol):
     return y1, Y1, acc
 
 
-def _check_run_args(t, obs, offsets, params):
+def _check_obs_offsets(obs, offsets) -> tuple[np.ndarray, np.ndarray]:
+    """obs (n, m, 2) m (NaN = missing, |value| <= MAX_COORD_M) and offsets (m, 2) m
+    (|value| <= MAX_OFFSET_M, layout extent >= MIN_EXTENT_M) as float arrays, or a
+    ValueError naming the argument."""
     obs = check_array(obs, "obs", allow_nan=True, max_abs=MAX_COORD_M)
     if obs.ndim != 3 or obs.shape[2] != 2:
         raise ValueError(f"obs: expected shape (n, m, 2) metres, got {obs.shape}")
-    n, m = obs.shape[:2]
+    m = obs.shape[1]
+    off = check_array(offsets, "offsets", shape=(m, 2), max_abs=MAX_OFFSET_M)
+    if _extent(off) < MIN_EXTENT_M:
+        at = f"({off[0, 0]:g}, {off[0, 1]:g})" if m else "(none)"
+        raise ValueError(f"offsets: the {m} antenna(s) are all at one point {at} m (layout "
+                         f"extent below {MIN_EXTENT_M:g} m): the layout cannot give the "
+                         "heading; the filter needs two antennas at distinct positions")
+    return obs, off
+
+
+def _check_times(t, n: int) -> np.ndarray:
+    """t (n,) s: finite, strictly increasing, |t| <= MAX_TIME_S, steps >= MIN_STEP_S."""
     tt = check_increasing_times(t, "t", n=n, min_size=1)
     if abs(tt[0]) > MAX_TIME_S or abs(tt[-1]) > MAX_TIME_S:
         k = 0 if abs(tt[0]) > MAX_TIME_S else n - 1
@@ -893,12 +906,12 @@ def _check_run_args(t, obs, offsets, params):
         if step[k] < MIN_STEP_S:
             raise ValueError(f"t: steps must be >= {MIN_STEP_S:g} s; t[{k + 1}] - t[{k}] = "
                              f"{step[k]!r} s")
-    off = check_array(offsets, "offsets", shape=(m, 2), max_abs=MAX_OFFSET_M)
-    if _extent(off) < MIN_EXTENT_M:
-        at = f"({off[0, 0]:g}, {off[0, 1]:g})" if m else "(none)"
-        raise ValueError(f"offsets: the {m} antenna(s) are all at one point {at} m (layout "
-                         f"extent below {MIN_EXTENT_M:g} m): the layout cannot give the "
-                         "heading; the filter needs two antennas at distinct positions")
+    return tt
+
+
+def _check_run_args(t, obs, offsets, params):
+    obs, off = _check_obs_offsets(obs, offsets)
+    tt = _check_times(t, obs.shape[0])
     if not isinstance(params, PoseFilterParams):
         raise TypeError(f"params: expected a PoseFilterParams, got {type(params).__name__}")
     nan = np.isnan(obs)

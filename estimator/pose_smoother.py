@@ -47,10 +47,10 @@ from estimator.configuration import SensorConfig
 from estimator.memo import TrackCache, freeze, memo_get
 from estimator.orientation import wrap_angle
 from estimator.pose_filter import (
-    V,
     YAW,
     PoseFilterParams,
     PoseFilterResult,
+    V,
     memo_pose_filter,
     pass_key,
 )

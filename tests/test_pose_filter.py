@@ -638,6 +638,16 @@ def test_estimate_noise_recovers_white_noise_levels():
     assert ss == pytest.approx(0.3 * math.sqrt(2), rel=0.04)
 
 
+@pytest.mark.parametrize("obs, off, field", [
+    (np.full((10, 4, 2), 1e300), OFFSETS, "obs"),        # was (0.001, 0.001): the floor
+    (np.zeros((10, 4, 2)), np.zeros((4, 2)), "offsets"),  # was (nan, nan), silently
+    (np.zeros((10, 4, 3)), OFFSETS, "obs"),
+])
+def test_estimate_noise_refuses_what_the_filter_refuses(obs, off, field):
+    with pytest.raises(ValueError, match=rf"^{field}:"):
+        estimate_noise(obs, off)
+
+
 def test_estimate_noise_needs_three_fixes_somewhere():
     obs = np.full((5, 4, 2), np.nan)
     obs[:, :2] = 1.0
