@@ -89,6 +89,13 @@ class RangeRecording:
     t0_ns: int
 
 
+#: Largest coordinate or range accepted from a file, m (the estimators' own bound,
+#: estimator.ranging): larger values are not metres of a UWB run.
+_MAX_ABS_M = 1e8
+#: Time-stamp columns (checked by _ns instead).
+_STAMP_COLS = ("field.stamp", "timestamp")
+
+
 def _read_csv(path: Path, columns: tuple[str, ...]) -> pd.DataFrame:
     """A CSV with the given numeric columns; errors name the file, the column and the row."""
     if not path.is_file():
@@ -110,6 +117,11 @@ def _read_csv(path: Path, columns: tuple[str, ...]) -> pd.DataFrame:
             i = int(np.argmax(bad.to_numpy()))
             raise ValueError(f"{path}: column {c!r}, data row {i + 1}: not a finite number: "
                              f"{df[c].iloc[i]!r}")
+        big = ~bad & (vals.abs() > _MAX_ABS_M) & (c not in _STAMP_COLS)
+        if big.any():
+            i = int(np.argmax(big.to_numpy()))
+            raise ValueError(f"{path}: column {c!r}, data row {i + 1}: |value| "
+                             f"{abs(float(vals.iloc[i])):.6g} m exceeds {_MAX_ABS_M:g} m")
         out[c] = vals
     return pd.DataFrame(out)
 

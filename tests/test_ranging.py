@@ -473,6 +473,25 @@ def test_cli_absurd_time_stamps_are_one_line_naming_file_and_column(synthetic_di
     assert not (tmp_path / "o").exists()                 # failed before writing anything
 
 
+@pytest.mark.parametrize("name, col", [("A1.csv", "field.distanceFromTag"),
+                                       ("A2.csv", "field.x"), ("trajectory.csv", "x")])
+def test_cli_absurd_values_name_the_file_not_internal_arrays(synthetic_dir, tmp_path, capsys,
+                                                             name, col):
+    """1e300 m in a range or coordinate: the error named internal arrays ('channels[0].r',
+    'receivers') or, in the reference, the run went on to overflow warnings and exit 0."""
+    import shutil
+
+    bad = tmp_path / "bad"
+    shutil.copytree(synthetic_dir, bad)
+    df = pd.read_csv(bad / name, dtype=str)
+    df[col] = "1e300"
+    df.to_csv(bad / name, index=False)
+    assert cli.main([str(bad), "--out", str(tmp_path / "o"), "--no-figures"]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and f"{name}: column {col!r}, data row 1" in err[0], err
+    assert "channels" not in err[0] and "receivers" not in err[0]
+
+
 def test_cli_scoring_window_error_names_the_file_not_a_variable(synthetic_dir, tmp_path,
                                                                 capsys):
     """A reference that never enters the scoring window names trajectory.csv and
