@@ -74,7 +74,9 @@ grid handles as ``off_grid`` when they miss a grid point by more than a quarter 
 :func:`flag_reacquisitions` flags them; sessions drop them by default.
 
 Frame: latitude/longitude (WGS 84) are projected with pyproj to UTM; the zone is chosen
-from the mean fix of the data (with the Norway/Svalbard exceptions), EPSG 326zz north /
+from the mean fix of the data (the circular mean of the longitudes, :func:`mean_longitude`,
+so fixes astride the antimeridian get the zone of 180 degrees; with the Norway/Svalbard
+exceptions), EPSG 326zz north /
 327zz south. The local frame is x = UTM easting - origin, y = UTM northing - origin
 (grid north, as the dissertation's UTM plots; it differs from true north by the meridian
 convergence, under 3 degrees within a zone at mid latitudes). The origin is the mean of all
@@ -134,6 +136,7 @@ __all__ = [
     "flag_reacquisitions",
     "import_session",
     "log_format",
+    "mean_longitude",
     "parse_nmea",
     "read_log",
     "read_nmea",
@@ -761,6 +764,18 @@ def utm_epsg(lat: float, lon: float) -> int:
     return (32600 if lat >= 0 else 32700) + zone
 
 
+def mean_longitude(lon: np.ndarray) -> float:
+    """Circular mean of longitudes, degrees in [-180, 180) (NaN ignored): the zone of fixes
+    astride the antimeridian (179.9 E and 179.9 W) is that of 180, not of 0 as the
+    arithmetic mean would give. ValueError when no longitude is finite."""
+    a = np.radians(np.asarray(lon, dtype=float).ravel())
+    a = a[np.isfinite(a)]
+    if a.size == 0:
+        raise ValueError("lon: no finite longitude to average")
+    mean = math.degrees(math.atan2(float(np.sin(a).mean()), float(np.cos(a).mean())))
+    return ((mean + 180.0) % 360.0) - 180.0
+
+
 def _project(lat: np.ndarray, lon: np.ndarray, epsg: int) -> tuple[np.ndarray, np.ndarray]:
     from pyproj import Transformer
 
@@ -935,7 +950,7 @@ def session_from_fixes(
                    "origin_mode": origin}
     valid = np.isfinite(lat)
     if origin == "common":
-        epsg = utm_epsg(float(np.nanmean(lat)), float(np.nanmean(lon)))
+        epsg = utm_epsg(float(np.nanmean(lat)), mean_longitude(lon[valid]))
         e, nn = _project(np.where(valid, lat, 0.0), np.where(valid, lon, 0.0), epsg)
         e0, n0 = float(np.mean(e[valid])), float(np.mean(nn[valid]))
         obs[..., 0] = np.where(valid, e - e0, np.nan)
@@ -946,7 +961,7 @@ def session_from_fixes(
     else:
         for j in range(m):
             v = valid[:, j]
-            epsg = utm_epsg(float(np.mean(lat[v, j])), float(np.mean(lon[v, j])))
+            epsg = utm_epsg(float(np.mean(lat[v, j])), mean_longitude(lon[v, j]))
             e, nn = _project(lat[v, j], lon[v, j], epsg)
             e0, n0 = float(e.mean()), float(nn.mean())
             obs[v, j, 0] = e - e0

@@ -13,10 +13,12 @@ dissertation's experiment, 000_8f82f8df647bf685.txt, Section 4.1, with real rece
   heading) follows by a rigid fit of the layout, or a CG track (one RTK receiver at the
   CG: position is scored, heading is not);
 - ``height_m`` (n, m) ellipsoidal heights where the logs give them (not used by the planar
-  estimators), and ``meta`` (files, per-log counts, frame, grid).
+  estimators), and ``meta`` (files, per-log counts, frame, grid; plain Python values, so
+  ``json.dumps(rec.meta)`` works).
 
 Frame: latitude/longitude (WGS 84) projected with pyproj to the UTM zone of the mean fix
-(:func:`sim.nmea.utm_epsg`); x = easting - origin, y = northing - origin, metres (grid
+(:func:`sim.nmea.utm_epsg`; the longitudes' circular mean, :func:`sim.nmea.mean_longitude`,
+so a recording astride the antimeridian gets the zone of 180 degrees); x = easting - origin, y = northing - origin, metres (grid
 north: it differs from true north by the meridian convergence, < 3 degrees within a zone at
 mid latitudes, the same for the observations and the reference). The origin is the mean of
 the antenna fixes (of the reference when there are no antenna logs), recorded in
@@ -69,7 +71,14 @@ from estimator._checks import check_real
 from estimator.configuration import SensorConfig
 from estimator.model_files import MODELS_DIR, parse_toml, resolve_model_file
 from sim.gps import REPLAY_MODES, SESSION_REPLAY_KEYS, StationarySession, observe
-from sim.nmea import LogFixes, read_nmea, read_tumbleweed_csv, utm_epsg
+from sim.nmea import (
+    MAX_RATE_HZ,
+    LogFixes,
+    mean_longitude,
+    read_nmea,
+    read_tumbleweed_csv,
+    utm_epsg,
+)
 from sim.truth import Truth
 
 __all__ = [
@@ -346,7 +355,7 @@ def _grid_from(logs: Sequence[LogFixes], rate_hz: float | None, what: str,
                                  f"infer the sample interval (give rate_hz)")
         dt = float(np.median(dts))
     else:
-        dt = 1.0 / check_real(rate_hz, "rate_hz", lo=0.0, lo_open=True)
+        dt = 1.0 / _check_rate(rate_hz, "rate_hz")
     spans = {lg.name: (float(t[0]), float(t[-1])) for lg, t in zip(logs, tv)}
     first = min(a for a, _ in spans.values())
     last = max(b for _, b in spans.values())
@@ -368,6 +377,36 @@ def _grid_from(logs: Sequence[LogFixes], rate_hz: float | None, what: str,
     n = round((last - t0) / dt) + 1
     _check_grid_size(n, m_arrays, dt, what)
     return _Grid(t0_utc=float(t0), dt=dt, n=n)
+
+
+def _check_rate(rate_hz: object, what: str) -> float:
+    """A grid rate, Hz: finite, at most :data:`sim.nmea.MAX_RATE_HZ` (100 Hz, the fastest
+    GNSS output) and an interval of at most :data:`MAX_GRID_DAYS`; RecordingError naming
+    ``what`` and the value otherwise (1e308 overflowed the grid arithmetic)."""
+    try:
+        return check_real(rate_hz, what, lo=1.0 / (MAX_GRID_DAYS * 86400.0), hi=MAX_RATE_HZ)
+    except ValueError as exc:
+        raise RecordingError(f"{exc} Hz (the interval may not exceed MAX_GRID_DAYS = "
+                             f"{MAX_GRID_DAYS:g} days; GNSS receivers output at most "
+                             f"{MAX_RATE_HZ:g} Hz)") from None
+
+
+def _plain(obj: object) -> object:
+    """``obj`` with numpy scalars and arrays, tuples and paths as plain Python values, so
+    ``json.dumps`` takes it (``Recording.meta`` is JSON-ready)."""
+    if isinstance(obj, Mapping):
+        return {str(k): _plain(v) for k, v in obj.items()}
+    if isinstance(obj, (list, tuple, np.ndarray)):
+        return [_plain(v) for v in obj]
+    if isinstance(obj, np.bool_):
+        return bool(obj)
+    if isinstance(obj, np.integer):
+        return int(obj)
+    if isinstance(obj, np.floating):
+        return float(obj)
+    if isinstance(obj, Path):
+        return str(obj)
+    return obj
 
 
 def _check_grid_size(n: int, m: int, dt: float, what: str) -> None:
@@ -428,7 +467,7 @@ class _Frame:
         from pyproj import Transformer
 
         try:
-            self.epsg = utm_epsg(float(np.mean(lat)), float(np.mean(lon)))
+            self.epsg = utm_epsg(float(np.mean(lat)), mean_longitude(lon))
         except ValueError as exc:
             raise RecordingError(f"frame: {exc}") from None
         self._tr = Transformer.from_crs("EPSG:4326", f"EPSG:{self.epsg}", always_xy=True)
@@ -593,7 +632,7 @@ class Recording:
         if self.height_m is not None and np.asarray(self.height_m).shape != (n, m):
             raise RecordingError(f"height_m: expected shape ({n}, {m})")
         object.__setattr__(self, "t", t)
-        object.__setattr__(self, "meta", dict(self.meta))
+        object.__setattr__(self, "meta", _plain(self.meta))
 
     @property
     def n(self) -> int:
@@ -964,7 +1003,8 @@ def _parse(path: Path) -> dict:
     for key in ("rate_hz", "max_offset_s"):
         if key in data:
             try:
-                out[key] = check_real(data[key], key, lo=0.0, lo_open=key == "rate_hz")
+                out[key] = _check_rate(data[key], key) if key == "rate_hz" else \
+                    check_real(data[key], key, lo=0.0)
             except (TypeError, ValueError) as exc:
                 raise RecordingError(f"{src}: {exc}") from None
     if "interpolate" in data and not isinstance(data["interpolate"], bool):
@@ -1078,7 +1118,8 @@ def _parse_replay(rep: object, base: Path, where: str) -> dict:
     for key in ("shift_s", "duration_s", "rate_hz"):
         if key in rep:
             try:
-                v = check_real(rep[key], f"{where}.{key}", lo=0.0, lo_open=True)
+                v = _check_rate(rep[key], f"{where}.{key}") if key == "rate_hz" else \
+                    check_real(rep[key], f"{where}.{key}", lo=0.0, lo_open=True)
             except (TypeError, ValueError) as exc:
                 raise RecordingError(str(exc)) from None
             (nov if key == "shift_s" else out)[key] = v

@@ -315,7 +315,10 @@ def test_alignment_counts_off_grid_duplicates_and_gaps():
     (1.7e9 + np.arange(5.0), 1.7e9 + np.r_[0.0, 1.0, 9e5], {}, "MAX_GRID_DAYS"),
     (1.7e9 + np.arange(5.0), 1.7e9 + np.arange(5.0), {"max_offset_s": 0.6}, "max_offset_s"),
     (1.7e9 + np.arange(5.0), 1.7e9 + np.arange(5.0), {"rate_hz": 0.0}, "rate_hz"),
-    (1.7e9 + np.arange(5.0), 1.7e9 + np.arange(5.0), {"rate_hz": 1e9}, "MAX_GRID_BYTES"),
+    (1.7e9 + np.arange(5.0), 1.7e9 + np.arange(5.0), {"rate_hz": 1e9}, "rate_hz: must be"),
+    # 5.8 days at the largest rate, 100 Hz, 2 antennas: 1.6 GB
+    (1.7e9 + np.r_[0.0, 1.0, 5e5], 1.7e9 + np.r_[0.0, 1.0, 5e5], {"rate_hz": 100.0},
+     "MAX_GRID_BYTES"),
 ])
 def test_alignment_errors_name_the_cause(t1, t2, kw, match):
     with pytest.raises((RecordingError, ValueError), match=match):
@@ -636,3 +639,47 @@ def test_shipped_recordings_resolve_under_the_rule():
             _parse(toml)
         except RecordingError as exc:
             assert "no such file" in str(exc), exc      # realdata absent: not a rule error
+
+
+# --------------------------------------------------------------------------- issue 23 grid / frame / meta
+@pytest.mark.parametrize("rate", [1e308, float("inf"), float("nan"), 0.0, -1.0, 1e3, 1e-9])
+def test_rate_hz_is_validated(rate):
+    # 1e308 overflowed the grid arithmetic (OverflowError); now a RecordingError naming it
+    base = 1.7e9 + np.arange(20.0)
+    with pytest.raises(RecordingError, match="rate_hz: must be"):
+        _two(base, base, rate_hz=rate)
+
+
+def test_rate_hz_at_the_bounds_is_accepted():
+    base = 1.7e9 + np.arange(20.0)
+    assert _two(base, base, rate_hz=1.0).n == 20
+    assert _two(base, base, rate_hz=100.0).n == 1901
+
+
+def test_utm_zone_of_a_recording_astride_the_antimeridian():
+    # the arithmetic mean of 179.9995 E and 179.9995 W is 0 (zone 31, ~20,000 km away)
+    from sim.nmea import mean_longitude, utm_epsg
+
+    cfg = SensorConfig(["a", "b"], [[0.5, 0.0], [-0.5, 0.0]])
+    t = 1.7e9 + np.arange(10.0)
+    one = np.ones(10)
+    a = LogFixes(name="a", t_utc=t, lat=-17.0 * one, lon=179.9995 * one,
+                 quality=np.ones(10, np.int64), date_known=True)
+    b = LogFixes(name="b", t_utc=t, lat=-17.0 * one, lon=-179.9995 * one,
+                 quality=np.ones(10, np.int64), date_known=True)
+    rec = Recording.from_logs({"a": a, "b": b}, cfg)
+    assert rec.meta["frame"]["epsg"] in (32701, 32760)          # zone 1 or 60, south
+    assert mean_longitude([179.9995, -179.9995]) in (180.0, -180.0)
+    assert utm_epsg(-17.0, mean_longitude([10.0, 20.0])) == 32733
+    # the two antennas lie ~106 m apart (0.001 degree of longitude at 17 S), not 1e7 m
+    d = np.linalg.norm(rec.obs[0, 0] - rec.obs[0, 1])
+    assert 100.0 < d < 112.0
+
+
+def test_recording_meta_is_json_ready(rig, rec):
+    import json
+
+    # skip counts were numpy integers: json.dumps raised TypeError
+    json.dumps(rec.meta)
+    base = 1.7e9 + np.arange(20.0)
+    json.dumps(_two(base, base).meta)
