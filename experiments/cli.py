@@ -23,6 +23,7 @@ Every CLI builds its parser with :class:`ArgumentParser` and ends with
 from __future__ import annotations
 
 import argparse
+import math
 import signal
 import sys
 import threading
@@ -31,7 +32,8 @@ from collections.abc import Callable, Iterator, Sequence
 from contextlib import contextmanager
 from typing import NoReturn
 
-__all__ = ["ArgumentParser", "Terminated", "call", "jobs_arg", "run", "sigterm_as_interrupt"]
+__all__ = ["ArgumentParser", "Terminated", "call", "finite_float", "jobs_arg",
+           "nonnegative_float", "positive_float", "run", "seed_arg", "sigterm_as_interrupt"]
 
 EXIT_USAGE = 2
 EXIT_BUG = 1
@@ -68,6 +70,30 @@ def jobs_arg(text: str) -> int:
         raise argparse.ArgumentTypeError(f"must be a positive integer (1 = in this process), "
                                          f"got {n}")
     return n
+
+
+def _number(convert: Callable[[str], float], ok: Callable[[float], bool], what: str
+            ) -> Callable[[str], float]:
+    """An argparse type: ``convert(text)`` that must satisfy ``ok`` (else "must be WHAT")."""
+    def parse(text: str):
+        try:
+            value = convert(text)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"must be {what}, got {text!r}") from None
+        if not ok(value):
+            raise argparse.ArgumentTypeError(f"must be {what}, got {text!r}")
+        return value
+
+    parse.__name__ = what.replace(" ", "_")             # argparse names the type by it
+    return parse
+
+
+#: argparse types for numbers: finite floats (m, s), seeds (numpy needs them >= 0).
+finite_float = _number(float, math.isfinite, "a finite number")
+positive_float = _number(float, lambda v: math.isfinite(v) and v > 0, "a finite number > 0")
+nonnegative_float = _number(float, lambda v: math.isfinite(v) and v >= 0,
+                            "a finite number >= 0")
+seed_arg = _number(int, lambda v: v >= 0, "an integer >= 0")
 
 
 @contextmanager

@@ -790,14 +790,14 @@ def plot_identification(out_dir: str | Path) -> list[Path]:
 
 def main(argv: list[str] | None = None) -> int:
     """CLI: ``python -m experiments.identification``."""
-    from experiments.cli import ArgumentParser
+    from experiments.cli import ArgumentParser, nonnegative_float, seed_arg
 
     ap = ArgumentParser(prog="python -m experiments.identification",
                         description=__doc__.split("\n")[0])
     ap.add_argument("--out", default=str(REPO / "results" / "ultrasonic"),
                     help="output folder (default results/ultrasonic)")
-    ap.add_argument("--seed", type=int, default=0)
-    ap.add_argument("--noise-m", type=float, default=0.01,
+    ap.add_argument("--seed", type=seed_arg, default=0)
+    ap.add_argument("--noise-m", type=nonnegative_float, default=0.01,
                     help="white measurement noise on position outputs, metres (default 0.01)")
     ap.add_argument("--quick", action="store_true", help="fewer starts/runs, no step run")
     a = ap.parse_args(argv)

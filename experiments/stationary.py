@@ -665,7 +665,7 @@ def _rel(p: Path) -> str:
 
 def main(argv: list[str] | None = None) -> int:
     raw = sys.argv[1:] if argv is None else list(argv)
-    from experiments.cli import ArgumentParser
+    from experiments.cli import ArgumentParser, positive_float, seed_arg
 
     ap = ArgumentParser(prog="python -m experiments.stationary",
                         description=__doc__.split("\n\n")[0])
@@ -679,9 +679,9 @@ def main(argv: list[str] | None = None) -> int:
                      help="a saved session .npz, or NMEA/CSV logs (one per receiver)")
     ap.add_argument("--model", default="gps_stationary", help="noise model name or TOML path")
     ap.add_argument("--config", default="rover_gps8", help="sensor configuration name or TOML path")
-    ap.add_argument("--duration", type=float, default=4300.0,
+    ap.add_argument("--duration", type=positive_float, default=4300.0,
                     help="synthetic session length in s, before discarding the power failure")
-    ap.add_argument("--seed", type=int, default=0)
+    ap.add_argument("--seed", type=seed_arg, default=0)
     ap.add_argument("--out", type=Path, default=None,
                     help=f"output folder (default {_rel(DEFAULT_OUT)}, ignored by git; "
                          f"{_rel(REFERENCE_OUT)} only through --reference)")

@@ -676,7 +676,7 @@ def _discussion(spec: StudySpec, mct: pd.DataFrame, flt: pd.DataFrame) -> list[s
 
 
 def main(argv: list[str] | None = None) -> int:
-    from experiments.cli import ArgumentParser
+    from experiments.cli import ArgumentParser, finite_float, seed_arg
 
     ap = ArgumentParser(prog="python -m experiments.ultrasonic", description=__doc__,
                         formatter_class=argparse.RawDescriptionHelpFormatter)
@@ -686,9 +686,9 @@ def main(argv: list[str] | None = None) -> int:
                     help="regenerate the committed reference run results/ultrasonic/ "
                          "(default spec only)")
     ap.add_argument("--n-mc", type=int, default=StudySpec.n_mc)
-    ap.add_argument("--z-plane", type=float, default=StudySpec.z_plane_m,
+    ap.add_argument("--z-plane", type=finite_float, default=StudySpec.z_plane_m,
                     help="height (m) of the Monte Carlo slice (Appendix B: 5 m)")
-    ap.add_argument("--seed", type=int, default=0)
+    ap.add_argument("--seed", type=seed_arg, default=0)
     ap.add_argument("--triple", choices=("appendix_c", "best"), default="appendix_c")
     ap.add_argument("--quick", action="store_true",
                     help="smoke run: 5000 Monte Carlo points, 20 s of flight, no identification")

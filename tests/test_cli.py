@@ -173,3 +173,25 @@ def test_page_with_a_missing_folder_exits_2_and_writes_no_page(results_folder, t
         assert code == 2 and len(err) == 1, err
         assert f"--with {extra}: {why}" in err[0]
         assert not out.exists()
+
+
+@pytest.mark.parametrize("module, option, bad", [
+    ("identification", "--noise-m", "-1"), ("identification", "--seed", "-1"),
+    ("ultrasonic", "--z-plane", "nan"), ("stationary", "--duration", "-5"),
+    ("stationary", "--duration", "inf"), ("stationary", "--seed", "x")])
+def test_numeric_options_name_the_option_not_the_parameter(module, option, bad, capsys):
+    """These named the function parameter ('noise_m', 'duration_s') or an internal array
+    ('tx_positions/receivers' for --z-plane nan); now argparse names the option."""
+    import importlib
+
+    main = importlib.import_module(f"experiments.{module}").main
+    with pytest.raises(SystemExit) as ex:
+        main([option, bad])
+    err = _err_lines(capsys)
+    assert ex.value.code == 2 and len(err) == 1, err
+    assert f"argument {option}: must be" in err[0] and repr(bad) in err[0]
+
+
+def test_number_types_accept_valid_values():
+    assert cli.finite_float("-2.5") == -2.5 and cli.positive_float("1e-3") == 1e-3
+    assert cli.nonnegative_float("0") == 0.0 and cli.seed_arg("7") == 7
