@@ -119,6 +119,35 @@ MAPPED: dict[str, tuple[str, str]] = {
     "python -m experiments.identification": (
         "python -m experiments.identification --quick",
         "fewer starts and runs (~10 s instead of ~21 s), same default output folder"),
+    "python -m experiments.ultrasonic --out /tmp/us --n-mc 20000": (
+        "python -m experiments.ultrasonic --out {tmp}/us --n-mc 20000 --quick",
+        "the full flight and identification take ~90 s: the smoke run into the custom folder "
+        "(--quick fixes 5000 Monte Carlo points)"),
+    "python -m experiments.ultrasonic --reference": (
+        "rc=0; python -m experiments.ultrasonic --reference --quick || rc=$?; test $rc -eq 2",
+        "the reference run takes ~90 s (the coordinator's reference regeneration runs it): "
+        "here, that --reference refuses any other option (exit 2), so it can only regenerate "
+        "the committed folder exactly"),
+    "python -m experiments.stationary --reference": (
+        "rc=0; python -m experiments.stationary --reference --seed 1 || rc=$?; test $rc -eq 2",
+        "the reference run takes ~35 s (the coordinator's reference regeneration runs it): "
+        "here, that --reference refuses any other option (exit 2)"),
+    "python -m experiments.render results/thesis --where path=square100 window=100 "
+    "technique=none weighting=huff noise_overrides={} seed=0 --out clip.mp4": (
+        "python -m experiments.render results/thesis --where path=square100 window=100 "
+        "technique=none weighting=huff 'noise_overrides={{}}' seed=0 --out clip.mp4 --frames 40",
+        "the whole clip is ~500 frames: the same cell and writer, 40 frames"),
+    "python -m experiments.render results/thesis --where path=square100 window=100 "
+    "technique=lc+dyn weighting=huff dyn_growth=refill noise_overrides={} seed=0 --out clip.mp4": (
+        "python -m experiments.render results/thesis --where path=square100 window=100 "
+        "technique=lc+dyn weighting=huff dyn_growth=refill 'noise_overrides={{}}' seed=0 "
+        "--out clip.mp4 --frames 40",
+        "the whole clip is ~500 frames: the same cell and writer, 40 frames"),
+    "python -m experiments.render --flight results/ultrasonic --out flight.gif --fps 15 "
+    "--size 480x360": (
+        "python -m experiments.render --flight results/ultrasonic --out flight.gif --fps 15 "
+        "--size 480x360 --frames 40",
+        "the whole flight is ~300 frames: the same writer and size, 40 frames"),
     "python -m experiments.ranging DIR [DIR ...]": (
         "python -m experiments.ranging ../shared/realdata/uwb_hanyang/LOS/Trajectory_A/Case_1",
         "DIR stands for recordings: the shared LOS case (default output, results/local/ranging)"),
@@ -133,24 +162,21 @@ AS_WRITTEN: set[str] = {
     "python -m experiments.export results/thesis --where path=square100 window=100 "
     "technique=lc+dyn weighting=huff dyn_growth=refill noise_overrides={} seed=0",
     "python -m experiments.page results/thesis",
-    "python -m experiments.render results/thesis --where path=square100 window=100 "
-    "technique=none weighting=huff noise_overrides={} seed=0 --out clip.mp4",
-    "python -m experiments.render --flight results/ultrasonic --out flight.gif --fps 15 "
-    "--size 480x360",
     "python -m experiments.paths_figure",
     "python -m experiments.paths_figure --reference",
     "python -m experiments.stationary",
-    "python -m experiments.stationary --reference",
     "python -m experiments.stationary --session ../shared/realdata/gpsd/quectel-eg25-g.log "
     "--out results/local/quectel",
     "python -c from sim.nmea import read_log, session_from_fixes as s; import numpy ...",
     "python -m experiments.sweep --preset example_recording",
+    "mkdir -p /tmp/rdemo && cat > /tmp/rdemo/replay_demo.toml ...",
+    "python -m experiments.sweep /tmp/rdemo/replay_demo.toml --out /tmp/rdemo/out",
+    "ls /tmp/rdemo/out/epochs",
+    "python -m experiments.export /tmp/rdemo/out --where window=10 technique=lc seed=0",
     "mkdir -p /tmp/hs && python -c ...",
     "cat > /tmp/hs/home_square.toml ...",
     "python -m experiments.sweep /tmp/hs/home_square.toml --out /tmp/hs/out",
     "python -m experiments.ultrasonic --quick",
-    "python -m experiments.ultrasonic --out /tmp/us --n-mc 20000",
-    "python -m experiments.ultrasonic --reference",
     "python -m experiments.ranging ../shared/realdata/uwb_hanyang/LOS/Trajectory_A/Case_1 "
     "--out /tmp/los",
     "python -m experiments.ranging --reference",
@@ -159,8 +185,6 @@ AS_WRITTEN: set[str] = {
     "python -m experiments.export /tmp/quick --where window=10 technique=lc seed=0",
     "python -m experiments.export results/thesis --where path=square100 window=100 "
     "technique=lc+dyn weighting=huff dyn_growth=refill noise_overrides={} seed=0 --out /tmp/tum",
-    "python -m experiments.render results/thesis --where path=square100 window=100 "
-    "technique=lc+dyn weighting=huff dyn_growth=refill noise_overrides={} seed=0 --out clip.mp4",
     "python -m experiments.figures results/thesis",
 }
 
@@ -303,6 +327,7 @@ def scratch_clone(base: Path) -> Path:
     """``base/main``: a clone of the checkout with its working tree copied over (tracked
     edits, deletions, new unignored files), ``base/shared`` -> the checkout's ``../shared``,
     and the truth cache copied."""
+    base.mkdir(parents=True, exist_ok=True)
     repo = base / "main"
     subprocess.run(["git", "clone", "-q", "--no-hardlinks", str(ROOT), str(repo)], check=True)
     for rel in _git(ROOT, "ls-files", "-z", "--cached", "--others",
@@ -345,12 +370,29 @@ def _leaked(repo: Path, before: set[str], after: set[str], allowed: list[str]) -
             if not any(ln[3:] == a or ln[3:].startswith(a + "/") for a in ok)]
 
 
-@pytest.fixture(scope="module")
-def runs(tmp_path_factory) -> dict[str, dict]:
-    """Run every documented command once (as written or its MAPPED form), in order, in the
-    scratch clone; returns per normalized command its exit code, output tail, seconds and
-    the status lines it changed outside what it may write."""
-    base = tmp_path_factory.mktemp("commands")
+#: Commands that read or write the thesis or quick results folders (or the shared spec file
+#: my_spec.toml) run in one lane, in order; the others (the side studies) in a second lane, in a clone of their
+#: own, at the same time (two lanes: the 2-core machine).
+_SWEEP_LANE = re.compile(r"results/(thesis|quick)|/tmp/quick|my_spec|evo_ape"
+                         r"|^(pip install -e \. && )?python -m experiments\.sweep( --preset quick)?$")
+
+
+def _in_sweep_lane(keys: list[str]) -> set[str]:
+    """The keys of the sweeps lane: those _SWEEP_LANE matches, and every key that shares a
+    ``/tmp/<name>`` folder with one of them (a block's commands depend on each other)."""
+    def tmp_dirs(k: str) -> set[str]:
+        return set(re.findall(r"/tmp/([\w.-]+)", k))
+
+    lane = {k for k in keys
+            if _SWEEP_LANE.search(k) or _SWEEP_LANE.search(MAPPED.get(k, ("",))[0])}
+    shared = set().union(*(tmp_dirs(k) for k in lane))
+    return lane | {k for k in keys if tmp_dirs(k) & shared}
+
+
+def _run_lane(base: Path, keys: list[str]) -> dict[str, dict]:
+    """Run ``keys`` one after the other in a scratch clone under ``base``; per key its exit
+    code, output tail, seconds, the command run and the status lines it changed outside
+    what it may write."""
     repo = scratch_clone(base)
     tmp = base / "tmp"
     tmp.mkdir()
@@ -359,11 +401,9 @@ def runs(tmp_path_factory) -> dict[str, dict]:
     env.pop("PYTHONPATH", None)
     results: dict[str, dict] = {}
     done: dict[str, dict] = {}      # a quick form shared by two documented commands runs once
-    for key in DOCUMENTED:
-        if not _declared(key):
-            continue
-        cmd = MAPPED[key][0] if key in MAPPED else STATEMENT[key]
-        cmd = cmd.replace("{tmp}", str(tmp)).replace("{{", "{").replace("}}", "}")
+    for key in keys:
+        form = MAPPED[key][0] if key in MAPPED else STATEMENT[key]
+        cmd = form.replace("{tmp}", str(tmp)).replace("{{", "{").replace("}}", "}")
         cmd = cmd.replace("/tmp/", f"{tmp}/")
         if cmd in done:
             results[key] = done[cmd]
@@ -377,11 +417,29 @@ def runs(tmp_path_factory) -> dict[str, dict]:
             code, tail = proc.returncode, (proc.stdout[-1500:] + proc.stderr[-2500:])
         except subprocess.TimeoutExpired:
             code, tail = None, f"timed out after {TIMEOUT_S} s"
-        allowed = _named_paths(repo, cmd) + list(ASKED_WRITES.get(
-            MAPPED[key][0] if key in MAPPED else key, ()))
-        results[key] = {"code": code, "tail": tail, "s": time.perf_counter() - t0,
-                        "cmd": cmd, "leaked": _leaked(repo, before, _status(repo), allowed)}
-        done[cmd] = results[key]
+        allowed = _named_paths(repo, cmd) + list(ASKED_WRITES.get(form, ()))
+        results[key] = done[cmd] = {
+            "code": code, "tail": tail, "s": round(time.perf_counter() - t0, 2), "cmd": cmd,
+            "leaked": _leaked(repo, before, _status(repo), allowed)}
+    return results
+
+
+@pytest.fixture(scope="module")
+def runs(tmp_path_factory) -> dict[str, dict]:
+    """Every declared documented command run once (as written or its MAPPED form), in
+    documented order within its lane (_SWEEP_LANE), the two lanes side by side."""
+    from concurrent.futures import ThreadPoolExecutor
+
+    base = tmp_path_factory.mktemp("commands")
+    keys = [k for k in DOCUMENTED if _declared(k)]
+    sweeps = _in_sweep_lane(keys)
+    lanes = {"sweeps": [k for k in keys if k in sweeps],
+             "studies": [k for k in keys if k not in sweeps]}
+    with ThreadPoolExecutor(len(lanes)) as pool:
+        futures = [pool.submit(_run_lane, base / name, ks) for name, ks in lanes.items()]
+        results = {k: v for f in futures for k, v in f.result().items()}
+    # what ran, with its seconds, beside the scratch clones (pytest keeps the last few)
+    (base / "runs.json").write_text(json.dumps(results, indent=1))
     return results
 
 
