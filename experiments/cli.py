@@ -33,7 +33,7 @@ from contextlib import contextmanager
 from typing import NoReturn
 
 __all__ = ["ArgumentParser", "Terminated", "call", "finite_float", "jobs_arg",
-           "nonnegative_float", "positive_float", "run", "seed_arg", "sigterm_as_interrupt"]
+           "nonnegative_float", "positive_float", "positive_int", "run", "seed_arg", "sigterm_as_interrupt"]
 
 EXIT_USAGE = 2
 EXIT_BUG = 1
@@ -94,6 +94,7 @@ positive_float = _number(float, lambda v: math.isfinite(v) and v > 0, "a finite 
 nonnegative_float = _number(float, lambda v: math.isfinite(v) and v >= 0,
                             "a finite number >= 0")
 seed_arg = _number(int, lambda v: v >= 0, "an integer >= 0")
+positive_int = _number(int, lambda v: v >= 1, "an integer >= 1")
 
 
 @contextmanager

@@ -1400,7 +1400,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--solver", choices=SOLVERS,
                    help="override every cell's solver; results go to results/<name>-<solver>/, "
                         "e.g. --solver slsqp")
-    p.add_argument("--seeds", type=int, metavar="N",
+    p.add_argument("--seeds", type=cli.positive_int, metavar="N",
                    help="override the number of seeds (seeds 0..N-1), e.g. --seeds 3")
     p.add_argument("--cache-dir", metavar="DIR",
                    help="simulated-truth cache (default results/cache/truth), e.g. "

@@ -357,9 +357,14 @@ def test_observations_memo_keys_on_the_session_length(truth_cache):
     assert obs(4000.0) is a  # memoised
 
 
-def test_cli_rejects_zero_seeds(capsys):
-    assert main(["--preset", "quick", "--seeds", "0", "--out", "/nonexistent/never"]) == 2
-    assert "seeds" in capsys.readouterr().err
+@pytest.mark.parametrize("n", ["0", "-1"])
+def test_cli_rejects_zero_seeds(n, capsys):
+    """--seeds -1 said 'seeds: must be non-negative integers, got ()'."""
+    with pytest.raises(SystemExit) as ex:
+        main(["--preset", "quick", "--seeds", n, "--out", "/nonexistent/never"])
+    err = capsys.readouterr().err.strip().splitlines()
+    assert ex.value.code == 2 and len(err) == 1
+    assert f"argument --seeds: must be an integer >= 1, got '{n}'" in err[0]
 
 
 def test_spec_rejects_a_noise_file_that_is_not_a_gps_model():
