@@ -371,8 +371,11 @@ def _solve_lm(model, pos, R, b, robust, floor, max_iter, tol):
 
 def _covariance(J, w, sigma):
     H = _normal(J, w)
-    ev = np.linalg.eigvalsh(H)
-    good = (ev[:, 0] > _SINGULAR_REL * ev[:, -1]) & np.isfinite(ev).all(axis=1)
+    fin = np.flatnonzero(np.isfinite(H).all(axis=(1, 2)))
+    good = np.zeros(H.shape[0], dtype=bool)
+    if fin.size:
+        ev = np.linalg.eigvalsh(H[fin])
+        good[fin] = ev[:, 0] > _SINGULAR_REL * ev[:, -1]
     cov = np.full_like(H, np.nan)
     if good.any():
         cov[good] = sigma ** 2 * np.linalg.inv(H[good])
@@ -393,7 +396,8 @@ def _reflect_start(pos, R, B, A):
     h = (pts - c) @ nrm
     refl = pts - 2 * h[..., None] * nrm
     cfg = SensorConfig([f"t{i}" for i in range(B.shape[0])], B[:, :2])
-    fit = procrustes_batch(refl, np.ones(refl.shape[:2]), cfg)
+    fin = np.all(np.isfinite(refl), axis=2)
+    fit = procrustes_batch(np.where(fin[..., None], refl, np.nan), fin.astype(float), cfg)
     p2 = pos.copy()
     p2[:, :2] = fit.translation
     return p2, _rz(fit.yaw)
@@ -517,7 +521,7 @@ def _mirror_layout(model, pos, R, ok, robust, sig, s, max_iter, tol, B):
     c, nrm = _anchor_line(model.A)
     refl = pts - 2 * ((pts - c) @ nrm)[..., None] * nrm
     both = np.concatenate([pts, refl])
-    okk = np.concatenate([ok, ok])
+    okk = np.concatenate([ok, ok]) & np.all(np.isfinite(both), axis=(1, 2))
     cfg = SensorConfig([f"t{i}" for i in range(N)], Bm[:, :2])
     fit = procrustes_batch(np.where(okk[:, None, None], both, np.nan),
                            np.where(okk, 1.0, 0.0)[:, None] * np.ones(both.shape[:2]), cfg)

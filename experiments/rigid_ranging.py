@@ -1,0 +1,267 @@
+"""Score rigid-body ranging runs: ``python -m experiments.rigid_ranging RUN_DIR [...] --out OUT``.
+
+Each RUN_DIR holds a ``setup.toml`` (:mod:`sim.range_recording`; e.g. the shared
+``../shared/realdata/uwb_rigid/*/*``). Every method estimates the planar pose (x, y, yaw) at
+every row of ranges, with physical defaults (range noise 0.05 m), nothing fitted to a run:
+
+=====================  ========================================================================
+``baseline``           the independent baseline of issue 26: per-tag trilateration + Procrustes
+                       start, joint Gauss-Newton (LM) on the raw ranges, no robust weights
+``robust``             joint fit with Huber IRLS weights (scale from the MAD), mirror checks
+``robust_bias``        ``robust`` plus one common range-bias state
+``filter``             tightly coupled EKF (one update per range, common bias state), initialised
+                       and re-initialised from ``robust_bias``
+``smoother``           RTS smoother over ``filter``
+``*_calibrated``       ``baseline`` and ``robust_bias`` on the authors' calibrated ranges, for
+                       runs with a ``[calibration]`` section
+=====================  ========================================================================
+
+Scoring. Static reference: errors against the known pose at every row. Trajectory reference:
+one constant clock offset (reference time = range time + offset) is estimated per method by a
+grid over +-1 s (5 ms) refined by a bounded scalar search, minimising the 2-D RMSE; the
+reference is interpolated at the shifted times (yaw unwrapped). Columns of ``summary.csv``:
+``run, method, rmse_2d_m, yaw_rmse_deg, max_error_2d_m, mean_error_2d_m, clock_offset_s,
+coverage`` (share of rows, within the reference's span, with an estimate), ``flagged`` (share
+of rows whose joint fit reported a status other than ``ok``), ``epochs``. Also
+``summary.md`` and per run ``<run>/errors.png`` and ``<run>/trajectory.png``.
+
+``run(dirs, out)`` is the callable entry point; ``main(argv)`` parses arguments.
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+from scipy.optimize import minimize_scalar
+
+from estimator import rigid_ranging as rr
+from estimator.orientation import wrap_angle
+from experiments.markdown import markdown_table
+from sim.range_recording import (RangeRecording, StaticReference, TrajectoryReference,
+                                 load_range_recording)
+
+__all__ = ["COLUMNS", "METHODS", "estimate", "main", "run", "score", "score_static",
+           "score_trajectory"]
+
+#: range noise std (m) assumed by every method: the order of UWB ranging noise (the authors'
+#: calibration gives 0.01-0.04 m per pair), never fitted to a run
+SIGMA_M = 0.05
+METHODS = ("baseline", "robust", "robust_bias", "filter", "smoother")
+COLUMNS = ("run", "method", "rmse_2d_m", "yaw_rmse_deg", "max_error_2d_m", "mean_error_2d_m",
+           "clock_offset_s", "coverage", "flagged", "epochs")
+#: clock-offset search: grid half-width and step (s)
+OFFSET_SPAN_S, OFFSET_STEP_S = 1.0, 0.005
+REPO = Path(__file__).resolve().parents[1]
+DEFAULT_OUT = REPO / "results" / "local" / "rigid_ranging"
+
+
+def _fit(rec: RangeRecording, D: np.ndarray, **kw) -> rr.RigidPoseFit:
+    return rr.fit_pose(rec.anchors, rec.body, D, origin_z_m=rec.origin_z_m, sigma_m=SIGMA_M,
+                       **kw)
+
+
+def estimate(rec: RangeRecording, calibrated: RangeRecording | None = None) -> dict:
+    """{method: (pose (n, 3) x, y, yaw, flagged (n,) bool)} at the rows of ``rec``."""
+    out = {}
+    base = _fit(rec, rec.ranges, robust="none", mirror_check=False)
+    out["baseline"] = (base.pose, base.status != "ok")
+    rob = _fit(rec, rec.ranges, robust="huber")
+    out["robust"] = (rob.pose, rob.status != "ok")
+    rb = _fit(rec, rec.ranges, robust="huber", bias="common")
+    out["robust_bias"] = (rb.pose, rb.status != "ok")
+    usable = np.isin(rb.status, ("ok", "maxiter"))
+    init = np.where(usable[:, None], rb.pose, np.nan)
+    t, tag, anc, r = rr.grid_to_stream(rec.times, rec.ranges)
+    tr = rr.track(rec.anchors, rec.body, t, tag, anc, r, rec.times, init,
+                  init_bias=rb.bias[:, 0], origin_z_m=rec.origin_z_m,
+                  config=rr.FilterConfig(sigma_range_m=SIGMA_M))
+    sm = rr.smooth(tr)
+    for name, res in (("filter", tr), ("smoother", sm)):
+        out[name] = (_at_rows(rec.times, res), np.zeros(rec.times.size, dtype=bool))
+    out["_track"] = tr
+    if calibrated is not None:
+        cb = _fit(calibrated, calibrated.ranges, robust="none", mirror_check=False)
+        out["baseline_calibrated"] = (cb.pose, cb.status != "ok")
+        cr = _fit(calibrated, calibrated.ranges, robust="huber", bias="common")
+        out["robust_bias_calibrated"] = (cr.pose, cr.status != "ok")
+    return out
+
+
+def _at_rows(times: np.ndarray, res: rr.TrackResult) -> np.ndarray:
+    """The filter's pose at each row time (rows sharing a time get the same pose)."""
+    k = np.searchsorted(res.times, times)
+    pose = res.pose[np.clip(k, 0, res.times.size - 1)]
+    pose[res.segment[np.clip(k, 0, res.times.size - 1)] < 0] = np.nan
+    return pose
+
+
+def _errors(pose: np.ndarray, ref: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    e = np.hypot(pose[:, 0] - ref[:, 0], pose[:, 1] - ref[:, 1])
+    return e, np.degrees(np.abs(wrap_angle(pose[:, 2] - ref[:, 2])))
+
+
+def _row(e, ey, inside, offset):
+    ok = np.isfinite(e) & inside
+    if not ok.any():
+        return dict(rmse_2d_m=np.nan, yaw_rmse_deg=np.nan, max_error_2d_m=np.nan,
+                    mean_error_2d_m=np.nan, clock_offset_s=offset, coverage=0.0)
+    return dict(rmse_2d_m=float(np.sqrt(np.mean(e[ok] ** 2))),
+                yaw_rmse_deg=float(np.sqrt(np.mean(ey[ok] ** 2))),
+                max_error_2d_m=float(np.max(e[ok])), mean_error_2d_m=float(np.mean(e[ok])),
+                clock_offset_s=offset, coverage=float(ok.sum() / max(inside.sum(), 1)))
+
+
+def score_static(pose: np.ndarray, ref: StaticReference) -> tuple[dict, np.ndarray]:
+    """Scores against a fixed pose; returns the summary fields and the 2-D error (n,)."""
+    r = np.broadcast_to([ref.x_m, ref.y_m, ref.yaw], pose.shape)
+    e, ey = _errors(pose, r)
+    return _row(e, ey, np.ones(e.size, dtype=bool), np.nan), e
+
+
+def _reference_at(ref: TrajectoryReference, t: np.ndarray):
+    yaw = np.unwrap(ref.yaw)
+    r = np.column_stack([np.interp(t, ref.times, ref.xyz[:, 0]),
+                         np.interp(t, ref.times, ref.xyz[:, 1]), np.interp(t, ref.times, yaw)])
+    return r, (t >= ref.times[0]) & (t <= ref.times[-1])
+
+
+def score_trajectory(times: np.ndarray, pose: np.ndarray, ref: TrajectoryReference
+                     ) -> tuple[dict, np.ndarray]:
+    """Scores after the clock offset that minimises the 2-D RMSE (module docstring)."""
+    def rmse(off):
+        r, inside = _reference_at(ref, times + off)
+        e, _ = _errors(pose, r)
+        ok = inside & np.isfinite(e)
+        return float(np.sqrt(np.mean(e[ok] ** 2))) if ok.sum() > 0.5 * ok.size else np.inf
+
+    grid = np.arange(-OFFSET_SPAN_S, OFFSET_SPAN_S + OFFSET_STEP_S / 2, OFFSET_STEP_S)
+    costs = np.array([rmse(o) for o in grid])
+    if not np.isfinite(costs).any():
+        raise ValueError("reference: overlaps fewer than half of the ranges' rows at every "
+                         f"clock offset within +-{OFFSET_SPAN_S} s")
+    g = grid[int(np.argmin(costs))]
+    best = minimize_scalar(rmse, bounds=(g - OFFSET_STEP_S, g + OFFSET_STEP_S),
+                           method="bounded", options={"xatol": 1e-5})
+    off = float(best.x) if best.fun <= costs.min() else float(g)
+    r, inside = _reference_at(ref, times + off)
+    e, ey = _errors(pose, r)
+    return _row(e, ey, inside, off), e
+
+
+def score(rec: RangeRecording, pose: np.ndarray) -> tuple[dict, np.ndarray]:
+    if isinstance(rec.reference, StaticReference):
+        return score_static(pose, rec.reference)
+    return score_trajectory(rec.times, pose, rec.reference)
+
+
+def _label(folder: Path) -> str:
+    p = folder.resolve().parts
+    return "/".join(p[-2:])
+
+
+def _plots(rec: RangeRecording, label: str, est: dict, errors: dict, offsets: dict,
+           out: Path) -> None:
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    t = rec.times - rec.times[0]
+    fig, ax = plt.subplots(figsize=(9, 4))
+    for m, e in errors.items():
+        ax.plot(t, e, lw=0.7, label=m)
+    ax.set_yscale("log")
+    ax.set_xlabel("time since the first row (s)")
+    ax.set_ylabel("2-D position error (m)")
+    ax.set_title(f"{label}: error vs time")
+    ax.legend(fontsize=7, ncol=3)
+    fig.tight_layout()
+    fig.savefig(out / "errors.png", dpi=90)
+    plt.close(fig)
+    fig, ax = plt.subplots(figsize=(6, 6))
+    if isinstance(rec.reference, TrajectoryReference):
+        ax.plot(rec.reference.xyz[:, 0], rec.reference.xyz[:, 1], "k-", lw=1.5,
+                label="reference")
+    else:
+        ax.plot(rec.reference.x_m, rec.reference.y_m, "k+", ms=14, mew=2, label="reference")
+    for m in ("baseline", "robust_bias", "smoother"):
+        ax.plot(est[m][0][:, 0], est[m][0][:, 1], ".", ms=1, label=m)
+    ax.plot(rec.anchors[:, 0], rec.anchors[:, 1], "k^", label="anchors")
+    ax.set_aspect("equal")
+    ax.set_xlabel("x (m)")
+    ax.set_ylabel("y (m)")
+    ax.set_title(f"{label}: trajectory overlay")
+    ax.legend(fontsize=7, markerscale=6)
+    fig.tight_layout()
+    fig.savefig(out / "trajectory.png", dpi=90)
+    plt.close(fig)
+    del offsets
+
+
+def evaluate(folder: Path) -> tuple[list[dict], dict]:
+    """Rows of the summary for one run folder, and the estimates."""
+    rec = load_range_recording(folder)
+    cal = load_range_recording(folder, calibrate=True) if rec.calibration is not None else None
+    est = estimate(rec, cal)
+    tr = est.pop("_track")
+    rows, errors, offsets = [], {}, {}
+    for m, (pose, flagged) in est.items():
+        fields, e = score(rec, pose)
+        rows.append({"run": _label(folder), "method": m, **fields,
+                     "flagged": float(flagged.mean()), "epochs": int(rec.times.size)})
+        errors[m], offsets[m] = e, fields["clock_offset_s"]
+    est["_track"] = tr
+    return rows, {"rec": rec, "est": est, "errors": errors, "offsets": offsets}
+
+
+def run(folders, out: str | Path = DEFAULT_OUT, *, figures: bool = True) -> pd.DataFrame:
+    """Score each run folder; write ``out/summary.csv`` / ``summary.md`` (one table, a
+    ``run`` column) and the figures. Returns the table."""
+    dirs = [Path(f) for f in folders]
+    if not dirs:
+        raise ValueError("folders: give at least one run folder")
+    for d in dirs:
+        if not (d / "setup.toml").is_file():
+            raise ValueError(f"folders: {d} holds no setup.toml")
+    out = Path(out)
+    out.mkdir(parents=True, exist_ok=True)
+    rows = []
+    for d in dirs:
+        r, ev = evaluate(d)
+        rows += r
+        tr = ev["est"]["_track"]
+        print(f"{_label(d)}: filter {1e6 * tr.seconds / max(tr.updates, 1):.1f} us/update, "
+              f"{(ev['rec'].times[-1] - ev['rec'].times[0]) / tr.seconds:.0f}x real time, "
+              f"{int(tr.reinit.sum())} (re)initialisations", file=sys.stderr)
+        if figures:
+            sub = out / _label(d).replace("/", "_")
+            sub.mkdir(parents=True, exist_ok=True)
+            _plots(ev["rec"], _label(d), ev["est"], ev["errors"], ev["offsets"], sub)
+    table = pd.DataFrame(rows, columns=list(COLUMNS))
+    table.to_csv(out / "summary.csv", index=False, float_format="%.6g")
+    (out / "summary.md").write_text(markdown_table(table, floatfmt=".3f") + "\n")
+    return table
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(prog="python -m experiments.rigid_ranging",
+                                 description=__doc__,
+                                 formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("dirs", nargs="+", metavar="RUN_DIR", help="run folders with setup.toml")
+    ap.add_argument("--out", default=str(DEFAULT_OUT), help="output folder")
+    ap.add_argument("--no-figures", action="store_true")
+    a = ap.parse_args(argv)
+    try:
+        table = run(a.dirs, a.out, figures=not a.no_figures)
+    except ValueError as exc:
+        print(f"error: {exc}", file=sys.stderr)
+        return 2
+    print(markdown_table(table, floatfmt=".3f"))
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
