@@ -77,7 +77,17 @@ Axes (scalar or list; the dict-valued ones take a table or a list of tables):
   as diagnostics, never as estimator results.
 
 Names resolve to files at load time, and each cell's identity includes a hash of the files'
-contents, so editing a configuration invalidates exactly the cells that used it.
+contents, so editing a configuration invalidates exactly the cells that used it. Every file
+a spec names (``path``, ``config``, ``noise``, ``session:<file>``, ``recording``) follows
+one rule (:func:`estimator.model_files.resolve_model_file`): a bare name is looked up in
+``models/<kind>/``; a path is relative to the spec's folder, then the project, and must
+resolve to a file inside the spec's folder, the project or the shared data beside it
+(``../`` escapes and absolute paths elsewhere, such as ``/etc/hostname``, are errors). A
+spec built in Python with ``Spec.from_dict`` and no ``base_dir`` names its files directly.
+A file given by path is labelled by its model's ``name`` (a path file's name is its stem)
+in cells, tables and file names (``path = "my.toml"`` -> ``my``), never with ``.toml``; two
+files with one label on one axis are an error.
+TOML nested too deeply for the parser is a one-line :class:`SpecError` naming the file.
 """
 
 from __future__ import annotations
@@ -202,11 +212,19 @@ def _session_file(value: str, base: Path | None, where: str) -> Path:
     return _resolve(None, value[len("session:"):], base, where)
 
 
-def _label(value: str) -> str:
-    """The label of a path / config / noise value in cells, tables and file names: a file
-    given by path is labelled by its stem (``my.toml`` -> ``my``), a name is itself."""
+def _is_file_value(value: str) -> bool:
     p = Path(value)
-    return p.stem if p.suffix or p.parent != Path(".") else value
+    return bool(p.suffix) or p.parent != Path(".")
+
+
+def _file_label(path: str) -> str:
+    """The label of a model file given by path: its ``name`` field (as the tables show it,
+    issue 13; a path file's name is its stem), else the file's stem, never ``.toml``."""
+    try:
+        name = parse_toml(Path(path).read_bytes(), path, error=SpecError).get("name")
+    except (OSError, SpecError):
+        name = None
+    return name if isinstance(name, str) and name else Path(path).stem
 
 
 def _resolve_recording(value: str, base: Path | None, where: str) -> Path:
@@ -298,15 +316,20 @@ def _canon(d: dict) -> str:
 
 
 def _cell_labels(v: dict, files: dict, seen: dict, where: str) -> dict[str, str]:
-    """The labels of a combination's path / config / noise (:func:`_label`); two files with
-    one label on one axis would merge in the tables, so that is an error naming both."""
+    """The labels of a combination's path / config / noise: a name is itself, a file given
+    by path its model's name (:func:`_file_label`), a ``session:`` file ``session:<stem>``.
+    Two files with one label on one axis would merge in the tables: an error naming both."""
     out = {}
     for axis in ("path", "config", "noise"):
         val = v[axis]
-        session = axis == "noise" and val.startswith("session:")
-        lab = "session:" + _label(val[len("session:"):]) if session else _label(val)
-        out[axis] = lab
         f = files.get(axis, (val,))[0]
+        if axis == "noise" and val.startswith("session:"):
+            lab = "session:" + Path(f).stem
+        elif _is_file_value(val) and axis in files:
+            lab = _file_label(f)
+        else:
+            lab = val
+        out[axis] = lab
         prev = seen.setdefault((axis, lab), f)
         if prev != f:
             raise SpecError(f"{where}.{axis}: {val!r} ({f}) and {prev} would both be labelled "

@@ -203,7 +203,7 @@ def test_mirrored_layout_is_reported_by_track_the_reference_and_the_sweep(rig, r
     res = run(spec, out=tmp_path / "out", jobs=1, progress=False, outputs=False)
     assert res.n_failed == 0, res.errors
     assert list(res.cells["layout_mirror_verdict"]) == ["mirrored"]
-    assert res.cells["config"].iloc[0] == "mirror4"        # a file is labelled by its stem
+    assert res.cells["config"].iloc[0] == mir.name     # a file is labelled by its model's name
 
 
 def test_from_distances_with_an_observed_snapshot_recovers_the_real_hand(rig, rec):

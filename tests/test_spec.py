@@ -291,21 +291,24 @@ def test_absolute_and_relative_paths_inside_the_spec_folder_are_accepted(tmp_pat
         assert cells[0].file("config") == str((spec.parent / "mine.toml").resolve())
 
 
-def test_a_file_given_by_path_is_labelled_by_its_stem(tmp_path):
-    # issue 23: labels and file names kept ".toml" ("my.toml")
+def test_a_file_given_by_path_is_labelled_by_its_name_never_toml(tmp_path):
+    # issue 23: labels and file names kept ".toml" ("my.toml"); a model file's label is its
+    # name field (issue 13: tables show it), a path file's name is its stem
     spec = _block_spec(tmp_path)
     (spec.parent / "my.toml").write_text(
         Path("models/paths/square20.toml").read_text().replace('"square20"', '"my"'))
     shutil.copy(Path("models/configs/rover_gps4.toml"), spec.parent / "layout.toml")
     cell = load_spec(_block_spec(tmp_path, path="my.toml", config="layout.toml")).expand()[0]
-    assert (cell.path, cell.config) == ("my", "layout")
+    assert (cell.path, cell.config) == ("my", "rover_gps4")
 
 
 def test_two_files_with_one_label_are_an_error(tmp_path):
     spec = _block_spec(tmp_path)
     (spec.parent / "a").mkdir()
-    shutil.copy(Path("models/configs/rover_gps4.toml"), spec.parent / "a" / "rover_gps8.toml")
-    spec.write_text(spec.read_text().replace('window = 1', 'window = 1\nconfig = ["rover_gps8", "a/rover_gps8.toml"]'))
+    (spec.parent / "a" / "x.toml").write_text(Path("models/configs/rover_gps4.toml").read_text()
+                                              .replace('"rover_gps4"', '"rover_gps8"'))
+    spec.write_text(spec.read_text().replace(
+        'window = 1', 'window = 1\nconfig = ["rover_gps8", "a/x.toml"]'))
     with pytest.raises(SpecError, match="would both be labelled 'rover_gps8'"):
         load_spec(spec)
 
