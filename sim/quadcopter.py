@@ -120,9 +120,12 @@ __all__ = [
     "SENSOR_NAMES",
     "STICK_CHANNELS",
     "Gains",
+    "ImpulseFlight",
     "ImpulseResponse",
     "PitchChain",
     "StickChannel",
+    "constants_matched_to_thesis",
+    "impulse_flight",
     "impulse_response",
     "load_model",
     "model_variant",
@@ -794,23 +797,12 @@ def impulse_response(axis: str, *, duration_s: float = 8.0, pre_s: float = 1.0,
     the thesis's window is 1 s before and 4 s after the impulse, the default 8 s lets the
     1.8 s yaw pole settle.
     """
-    if axis not in AXES:
-        raise ValueError(f"axis: expected one of {AXES}, got {axis!r}")
-    if pitch_mode not in PITCH_MODES:
-        raise ValueError(f"pitch_mode: expected one of {PITCH_MODES}, got {pitch_mode!r}")
-    amp0, pulse0 = _PITCH_DEFAULTS[pitch_mode] if axis == "pitch" else _IMPULSE_DEFAULTS[axis]
-    amplitude = amp0 if amplitude is None else amplitude
-    pulse_s = pulse0 if pulse_s is None else pulse_s
-    for name, v in (("duration_s", duration_s), ("pulse_s", pulse_s),
-                    ("sample_interval_s", sample_interval_s)):
-        check_real(v, name, lo=0.0, lo_open=True)
-    check_real(pre_s, "pre_s", lo=0.0)
-    check_real(amplitude, "amplitude")
-    check_real(altitude_m, "altitude_m")
+    amplitude, pulse_s = _impulse_setup(axis, pitch_mode, amplitude, pulse_s, duration_s,
+                                        pre_s, altitude_m)
+    check_real(sample_interval_s, "sample_interval_s", lo=0.0, lo_open=True)
     gains = gains if gains is not None else Gains()
     channel = channel if channel is not None else STICK_CHANNELS[axis]
     plant = _Plant(model_path)
-    m, d = plant.model, plant.data
     dt = plant.dt
     nctrl = round(1.0 / (gains.control_rate_hz * dt))
     h = nctrl * dt
@@ -821,16 +813,91 @@ def impulse_response(axis: str, *, duration_s: float = 8.0, pre_s: float = 1.0,
                          f"physics steps ({dt} s)")
     # the returned u is the input held on the grid (zero-order hold), so the pulse edges must
     # fall on grid points and on controller updates, or u would misstate what was applied
+    _check_edges(pre_s, pulse_s, ((sample_interval_s, "sample_interval_s"),
+                                  (h, "control period")))
+    n = math.floor(duration_s / sample_interval_s + 1e-9) + 1
+    steps = np.arange(n) * k_grid
+    p0 = np.array([0.0, 0.0, altitude_m])
+    y = np.empty(n)
+    out = _Output(plant, axis, p0)
+
+    def sample(j: int) -> None:
+        y[j] = out()
+
+    _fly_impulse(plant, gains, channel, axis, pitch_mode, amplitude, pre_s, pulse_s, p0,
+                 steps, sample, out)
+    t = np.arange(n) * sample_interval_s
+    u = np.where((t >= pre_s - 1e-9) & (t < pre_s + pulse_s - 1e-9), amplitude, 0.0)
+    return ImpulseResponse(t=t, u=u, y=y)
+
+
+def _impulse_setup(axis, pitch_mode, amplitude, pulse_s, duration_s, pre_s, altitude_m):
+    """Checks shared by the impulse experiments; returns the (default-filled) amplitude and
+    pulse length."""
+    if axis not in AXES:
+        raise ValueError(f"axis: expected one of {AXES}, got {axis!r}")
+    if pitch_mode not in PITCH_MODES:
+        raise ValueError(f"pitch_mode: expected one of {PITCH_MODES}, got {pitch_mode!r}")
+    amp0, pulse0 = _PITCH_DEFAULTS[pitch_mode] if axis == "pitch" else _IMPULSE_DEFAULTS[axis]
+    amplitude = amp0 if amplitude is None else amplitude
+    pulse_s = pulse0 if pulse_s is None else pulse_s
+    for name, v in (("duration_s", duration_s), ("pulse_s", pulse_s)):
+        check_real(v, name, lo=0.0, lo_open=True)
+    check_real(pre_s, "pre_s", lo=0.0)
+    check_real(amplitude, "amplitude")
+    check_real(altitude_m, "altitude_m")
+    return amplitude, pulse_s
+
+
+def _check_edges(pre_s: float, pulse_s: float, periods) -> None:
+    """The pulse edges must be whole multiples of each ``(period, what)``."""
     for name, edge in (("pre_s", pre_s), ("pre_s + pulse_s", pre_s + pulse_s)):
-        for period, what in ((sample_interval_s, "sample_interval_s"), (h, "control period")):
+        for period, what in periods:
             q = edge / period
             if abs(q - round(q)) > 1e-6:
                 raise ValueError(f"{name}: {edge} s is not a whole multiple of the {what} "
                                  f"({period:g} s); the pulse edges must be grid points")
-    n = math.floor(duration_s / sample_interval_s + 1e-9) + 1
-    total_steps = (n - 1) * k_grid
-    n_ticks = math.ceil(total_steps / nctrl) + 1
-    p0 = np.array([0.0, 0.0, altitude_m])
+
+
+class _Output:
+    """The impulse experiment's output from the state: altitude change (thrust), x
+    displacement (pitch) or the unwrapped heading change (yaw_rate; call it at least every
+    controller tick so the unwrapping stays continuous)."""
+
+    def __init__(self, plant: _Plant, axis: str, p0: np.ndarray) -> None:
+        self.d, self.qadr, self.axis, self.p0 = plant.data, plant.qadr, axis, p0
+        self.heading = 0.0
+        self.last_yaw = 0.0
+
+    def __call__(self) -> float:
+        q = self.d.qpos[self.qadr:self.qadr + 7]
+        if self.axis == "thrust":
+            return float(q[2] - self.p0[2])
+        if self.axis == "pitch":
+            return float(q[0] - self.p0[0])
+        return self.unwrapped_heading()
+
+    def unwrapped_heading(self) -> float:
+        q = self.d.qpos[self.qadr:self.qadr + 7]
+        w, x, yq, z = q[3:7]
+        yw = math.atan2(2 * (w * z + x * yq), 1 - 2 * (yq * yq + z * z))
+        self.heading += (yw - self.last_yaw + math.pi) % (2 * math.pi) - math.pi
+        self.last_yaw = yw
+        return self.heading
+
+
+def _fly_impulse(plant: _Plant, gains: Gains, channel: StickChannel, axis: str,
+                 pitch_mode: str, amplitude: float, pre_s: float, pulse_s: float,
+                 p0: np.ndarray, steps: np.ndarray, sample, out: _Output) -> None:
+    """Fly one impulse experiment from hover at ``p0``: one controller update per tick with
+    the stick through ``channel``; ``sample(j)`` is called when the physics has reached step
+    ``steps[j]`` (increasing whole steps from 0), ``out.unwrapped_heading()`` once per tick
+    (yaw only)."""
+    m, d = plant.model, plant.data
+    nctrl = round(1.0 / (gains.control_rate_hz * plant.dt))
+    h = nctrl * plant.dt
+    n = steps.shape[0]
+    n_ticks = math.ceil(int(steps[-1]) / nctrl) + 1
     plant.reset_hover(p0, 0.0)
     ctrl = _Controller(plant, gains, drag_moment_ff=False)
     stick = _Stick(channel, h)
@@ -838,39 +905,21 @@ def impulse_response(axis: str, *, duration_s: float = 8.0, pre_s: float = 1.0,
     t_tick = np.arange(n_ticks) * h
     u_tick = np.where((t_tick >= pre_s - 1e-9) & (t_tick < pre_s + pulse_s - 1e-9),
                       amplitude, 0.0)
-    y = np.empty(n)
-    qadr = plant.qadr
-    heading = 0.0
-    last_yaw = 0.0
-
-    def output() -> float:
-        nonlocal heading, last_yaw
-        q = d.qpos[qadr:qadr + 7]
-        if axis == "thrust":
-            return float(q[2] - p0[2])
-        if axis == "pitch":
-            return float(q[0] - p0[0])
-        w, x, yq, z = q[3:7]
-        yw = math.atan2(2 * (w * z + x * yq), 1 - 2 * (yq * yq + z * z))
-        heading += (yw - last_yaw + math.pi) % (2 * math.pi) - math.pi
-        last_yaw = yw
-        return heading
-
+    pitch_kw = "pitch_rate_open" if pitch_mode == "rate" else "tilt_x_open"
     cur = 0
     j = 0
     for tick in range(n_ticks):
         s = stick(float(u_tick[tick]))
-        pitch_kw = "pitch_rate_open" if pitch_mode == "rate" else "tilt_x_open"
         kw = {"thrust": {"thrust_open": s}, "pitch": {pitch_kw: s},
               "yaw_rate": {"yaw_rate_open": s}}[axis]
         ctrl.update(p0, zero3, zero3, 0.0, 0.0, **kw)
         end = cur + nctrl
-        while j < n and j * k_grid <= end:
-            k = j * k_grid - cur
+        while j < n and steps[j] <= end:
+            k = int(steps[j]) - cur
             if k > 0:
                 mujoco.mj_step(m, d, k)
                 cur += k
-            y[j] = output()
+            sample(j)
             j += 1
         if j >= n:
             break
@@ -878,10 +927,90 @@ def impulse_response(axis: str, *, duration_s: float = 8.0, pre_s: float = 1.0,
             mujoco.mj_step(m, d, end - cur)
             cur = end
         if axis == "yaw_rate":
-            output()  # keep the heading unwrapping continuous between grid points
-    t = np.arange(n) * sample_interval_s
+            out.unwrapped_heading()  # keep the heading unwrapping continuous between samples
+
+
+class ImpulseFlight(NamedTuple):
+    """An impulse experiment logged like a flight (:func:`impulse_flight`).
+
+    t : (n,) s, uneven sample times from 0; the pulse starts at ``pre_s``.
+    u : (n,) the stick as sent (before the stick channel) at each sample time.
+    sensor_positions : (n, 2, 3) m, world positions of the transmitters ("front" = T20,
+        "rear" = T21), read after ``mj_kinematics``.
+    y : (n,) the truth output of :func:`impulse_response` at these times (altitude change,
+        x displacement of the body origin, unwrapped heading change).
+    pre_s, pulse_s, amplitude : the pulse as applied.
+    """
+
+    t: np.ndarray
+    u: np.ndarray
+    sensor_positions: np.ndarray
+    y: np.ndarray
+    pre_s: float
+    pulse_s: float
+    amplitude: float
+
+
+def impulse_flight(axis: str, rng: np.random.Generator, *, duration_s: float = 17.0,
+                   pre_s: float = 10.0, amplitude: float | None = None,
+                   pulse_s: float | None = None,
+                   sample_interval_s: tuple[float, float] = (0.03, 0.10),
+                   channel: StickChannel | None = None, altitude_m: float = 2.5,
+                   gains: Gains | None = None, pitch_mode: str = "rate",
+                   model_path: str | FsPath = MODEL_PATH) -> ImpulseFlight:
+    """The experiment of :func:`impulse_response`, logged at uneven ultrasonic sample times
+    with the transmitters' truth, for the thesis's processing chain (003 Sections 3.2-3.3,
+    Appendix C: ranges -> Filters 1/2 -> CMD -> Kalman -> resampling).
+
+    Same plant, controller, stick channel and defaults as :func:`impulse_response` (with the
+    same sample times both give the same ``y`` bit for bit, tested). Sample intervals are
+    drawn from ``rng`` uniformly over whole physics steps in ``sample_interval_s`` (default
+    0.03-0.10 s, :class:`sim.ultrasonic.UltrasonicNoiseModel`'s ``min/max_interval_s``:
+    Section 3.2.2 "maximum sampling interval is roughly 0.1 seconds"). The default hover
+    before the pulse (10 s) covers Appendix C's 40-sample lead-in and lets its Kalman filter
+    settle; the thesis's impulse came 86.7 s into a flight.
+    """
+    if not isinstance(rng, np.random.Generator):
+        raise ValueError(f"rng: expected numpy.random.Generator, got {type(rng).__name__}")  # noqa: TRY004 (DESIGN: ValueError)
+    amplitude, pulse_s = _impulse_setup(axis, pitch_mode, amplitude, pulse_s, duration_s,
+                                        pre_s, altitude_m)
+    gains = gains if gains is not None else Gains()
+    channel = channel if channel is not None else STICK_CHANNELS[axis]
+    plant = _Plant(model_path)
+    dt = plant.dt
+    h = round(1.0 / (gains.control_rate_hz * dt)) * dt
+    _check_edges(pre_s, pulse_s, ((h, "control period"),))
+    interval = _check_pair(sample_interval_s)
+    steps = _sample_steps(rng, round(duration_s / dt), dt, interval)
+    n = steps.shape[0]
+    p0 = np.array([0.0, 0.0, altitude_m])
+    tx = np.empty((n, 2, 3))
+    y = np.empty(n)
+    out = _Output(plant, axis, p0)
+    m, d = plant.model, plant.data
+
+    def sample(j: int) -> None:
+        y[j] = out()
+        mujoco.mj_kinematics(m, d)
+        tx[j] = d.site_xpos[plant.tx]
+
+    _fly_impulse(plant, gains, channel, axis, pitch_mode, amplitude, pre_s, pulse_s, p0,
+                 steps, sample, out)
+    t = steps * dt
     u = np.where((t >= pre_s - 1e-9) & (t < pre_s + pulse_s - 1e-9), amplitude, 0.0)
-    return ImpulseResponse(t=t, u=u, y=y)
+    return ImpulseFlight(t=t, u=u, sensor_positions=tx, y=y, pre_s=float(pre_s),
+                         pulse_s=float(pulse_s), amplitude=float(amplitude))
+
+
+def _check_pair(sample_interval_s) -> tuple[float, float]:
+    try:
+        lo, hi = (float(x) for x in sample_interval_s)
+    except (TypeError, ValueError):
+        raise ValueError(f"sample_interval_s: expected (min, max) seconds, got "
+                         f"{sample_interval_s!r}") from None
+    if not (math.isfinite(lo) and math.isfinite(hi) and 0 < lo <= hi):
+        raise ValueError(f"sample_interval_s: need 0 < min <= max, got {sample_interval_s!r}")
+    return (lo, hi)
 
 
 # ------------------------------------------------- linearised chains (Section 3.3 constants)
@@ -1050,6 +1179,53 @@ def simulator_constants(*, pitch_mode: str = "rate", gains: Gains | None = None,
             "lag": (yw.delay_s + yw.tau_s + rate_lag, "sum of the above"),
         },
     }
+
+
+def constants_matched_to_thesis(model_path: str | FsPath = MODEL_PATH) -> list[dict]:
+    """The simulator's constants that were chosen to reproduce a value published in thesis
+    003 Section 3.3 (not measured or derived from physics), each with its current value.
+
+    One dict per constant: ``constant`` (where it lives), ``value``, ``unit``, ``role``,
+    ``published`` (the thesis parameter it was chosen from), ``published_value`` (NaN for
+    a structural choice) and ``source`` (the comment that says so). Values are read from
+    :data:`STICK_CHANNELS`, :data:`PITCH_MODES` and the compiled model, so the list follows
+    the code.
+    """
+    m = load_model(model_path)
+    mass = float(m.body(_BODY).mass[0])
+    drag_z = float(m.numeric("drag_z").data[0])
+    th, pi, yw = (STICK_CHANNELS[a] for a in AXES)
+    doc = "sim/quadcopter.py module docstring"
+    return [
+        {"constant": "STICK_CHANNELS['thrust'].tau_s", "value": th.tau_s, "unit": "s",
+         "role": "throttle input filter: one thrust pole", "published": "thrust Tp1 (3.3.1)",
+         "published_value": 0.40885, "source": f"{doc}: 'chosen to match'"},
+        {"constant": "drag_z (models/quadcopter.xml) as m / drag_z", "value": mass / drag_z,
+         "unit": "s", "role": f"vertical inflow damping {drag_z:g} N s/m (momentum theory "
+         "gives ~2.4 N s/m, ~0.5 s): the other thrust pole", "published": "thrust Tp2 (3.3.1)",
+         "published_value": 0.42283, "source": "models/quadcopter.xml: 'so that m / drag_z "
+         "= 0.42 s, the slower thrust pole identified in thesis 003'"},
+        {"constant": "STICK_CHANNELS['thrust'].delay_s", "value": th.delay_s, "unit": "s",
+         "role": "link delay (+ 30 ms motor lag + 12 ms actuator delay = the thrust Td)",
+         "published": "thrust Td (3.3.1)", "published_value": 0.6585,
+         "source": f"{doc}: 'link delay 0.62 s (chosen)'"},
+        {"constant": "STICK_CHANNELS['pitch'].delay_s", "value": pi.delay_s, "unit": "s",
+         "role": "link delay of the pitch stick", "published": "pitch Td (3.3.2)",
+         "published_value": 0.36505, "source": f"{doc}: 'chosen near the thesis's 0.365 s'"},
+        {"constant": "impulse_response(pitch_mode=...) default", "value": PITCH_MODES[0],
+         "unit": "-", "role": "the stick sets the pitch rate (self-levelling off)",
+         "published": "the shape of the pitch model: underdamped, still accelerating 4 s "
+         "after the impulse (3.3.2)", "published_value": math.nan,
+         "source": f"{doc}: 'Rate mode is chosen because the thesis's fitted model keeps "
+         "accelerating'"},
+        {"constant": "STICK_CHANNELS['yaw_rate'].tau_s", "value": yw.tau_s, "unit": "s",
+         "role": "yaw stick input filter: the yaw pole", "published": "yaw Tp1 (3.3.3)",
+         "published_value": 1.8439, "source": f"{doc}: '1.80 s stick filter (chosen)'"},
+        {"constant": "STICK_CHANNELS['yaw_rate'].delay_s", "value": yw.delay_s, "unit": "s",
+         "role": "no link delay on yaw", "published": "yaw Td (3.3.3)",
+         "published_value": 0.0044, "source": "STICK_CHANNELS comment: 'chosen so that "
+         "identified constants are of the thesis's order'"},
+    ]
 
 
 def model_variant(*, drag_xy: float | None = None, rotor_height_m: float | None = None,
