@@ -486,3 +486,23 @@ def test_documented_command_leaves_git_status_alone(key, runs):
     command names or was asked to regenerate (ASKED_WRITES)."""
     r = runs[key]
     assert r["leaked"] == [], f"{r['cmd']}\nchanged git status: {r['leaked']}"
+
+
+def test_every_preset_defaults_to_a_committed_or_ignored_folder():
+    """Without --out a preset (with or without --solver) writes a committed reference folder
+    or one git ignores (results/local/), never a new untracked one (issue 23)."""
+    from estimator.window import SOLVERS
+    from experiments.spec import PRESETS_DIR
+    from experiments.sweep import default_out
+
+    names = [p.stem for p in PRESETS_DIR.glob("*.toml")]
+    assert "example_gps4" in names
+    folders = {n: default_out(n).resolve().relative_to(ROOT.resolve()).as_posix()
+               for n in names + [f"{n}-{s}" for n in names for s in SOLVERS]}
+    committed = {"/".join(f.split("/")[:2]) for f in _git(ROOT, "ls-files", "results").split()}
+    probe = "\n".join(f"{d}/tables.md" for d in folders.values()) + "\n"
+    ignored = subprocess.run(["git", "check-ignore", "--stdin"], cwd=ROOT, input=probe,
+                             capture_output=True, text=True, check=False).stdout.split()
+    bad = {n: d for n, d in folders.items()
+           if d not in committed and f"{d}/tables.md" not in ignored}
+    assert bad == {}
