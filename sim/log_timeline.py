@@ -122,13 +122,15 @@ def continuous_tod(tod: np.ndarray, fix: np.ndarray | None = None) -> np.ndarray
     nxt = np.minimum.accumulate(np.where(fix, np.arange(n), n)[::-1])[::-1]
     best = np.full(n, np.inf)
     for ref in (prev, nxt):
-        okr = (ref >= 0) & (ref < n) & ~fix
-        r = np.clip(ref, 0, n - 1)
-        cand = tod + DAY_S * np.round((c[r] - tod) / DAY_S)
+        # only epochs without a fix that have this neighbour (ref is then a fix epoch, whose
+        # c is set; the others' c is still unset and never read)
+        i = np.flatnonzero((ref >= 0) & (ref < n) & ~fix)
+        r = ref[i]
+        cand = tod[i] + DAY_S * np.round((c[r] - tod[i]) / DAY_S)
         d = np.abs(cand - c[r])
-        take = okr & (d < best)
-        c = np.where(take, cand, c)
-        best = np.where(take, d, best)
+        take = d < best[i]
+        c[i[take]] = cand[take]
+        best[i[take]] = d[take]
     return c
 
 
