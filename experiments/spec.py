@@ -243,6 +243,11 @@ def _check_session_overrides(ov: dict, where: str) -> None:
     if mode == "common_plus_model":
         if not isinstance(ov.get("model"), str):
             raise SpecError(f"{where}.model: mode 'common_plus_model' needs a noise-model name")
+        if _is_file_value(ov["model"]):
+            # the replay loads the model by name at run time: a file here would escape the
+            # spec's path rule (and its hash); models live in models/noise/
+            raise SpecError(f"{where}.model: must be a noise-model name in models/noise/, got "
+                            f"the file path {ov['model']!r}")
         try:
             GpsNoiseModel.load(ov["model"]).with_overrides(**{k: ov[k] for k in rest})
         except (GpsModelError, TypeError, ValueError) as exc:

@@ -320,3 +320,17 @@ def test_deeply_nested_toml_is_a_one_line_spec_error(tmp_path):
     with pytest.raises(SpecError, match="deep.toml: not usable TOML: .*nested too deeply") as ei:
         load_spec(p)
     assert "\n" not in str(ei.value)
+
+
+def test_a_replay_model_in_noise_overrides_is_a_name_not_a_file(tmp_path):
+    # the last file a spec could name outside the path rule (loaded at run time by name)
+    np = pytest.importorskip("numpy")
+    from sim.gps import StationarySession
+
+    spec = _block_spec(tmp_path)
+    StationarySession(t=np.arange(10.0), obs=np.zeros((10, 1, 2)), names=("a",)).save(
+        spec.parent / "one.npz")
+    spec.write_text(spec.read_text() + 'noise = "session:one.npz"\nnoise_overrides = '
+                    '{replay = "common_plus_model", model = "../../../../../etc/hostname"}\n')
+    with pytest.raises(SpecError, match=r"noise_overrides.model: must be a noise-model name"):
+        load_spec(spec)
