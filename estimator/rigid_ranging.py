@@ -268,6 +268,7 @@ class _Model:
 
 def _masked_median(x, mask):
     """Row medians (E,) of x (E, K) over mask (NaN for an empty row); sort-based, fast."""
+    mask = mask & np.isfinite(x)
     n = mask.sum(axis=1)
     xs = np.sort(np.where(mask, x, np.inf), axis=1)
     lo = np.clip((n - 1) // 2, 0, None)
@@ -289,7 +290,7 @@ def _robust_weights(r, mask, kind, floor):
     k = ROBUST[kind]
     med = _masked_median(r, mask)
     mad = 1.4826 * _masked_median(np.abs(r - med[:, None]), mask)
-    s = np.maximum(np.nan_to_num(mad, nan=floor), floor)
+    s = np.maximum(np.nan_to_num(mad, nan=floor, posinf=floor), floor)
     if k is None:
         return mask.astype(float), s
     a = np.abs(r) / (k * s[:, None])
