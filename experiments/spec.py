@@ -828,12 +828,9 @@ def load_spec(path_or_name: str | Path) -> Spec:
     Raises :class:`SpecError` naming the file and field for any invalid content.
     """
     p = Path(path_or_name)
-    if not p.suffix and "/" not in str(path_or_name):
-        p = PRESETS_DIR / f"{path_or_name}.toml"
-        if not p.is_file():
-            raise SpecError(f"preset {str(path_or_name)!r}: not found; available: "
-                            f"{available_presets()}")
-    if not p.is_file():
-        raise SpecError(f"spec {str(path_or_name)!r}: no such file")
+    bare = not p.suffix and p.parent == Path(".")
+    p = resolve_model_file(path_or_name, PRESETS_DIR,
+                           f"{'preset' if bare else 'spec'} {str(path_or_name)!r}",
+                           error=SpecError)
     data = parse_toml(p.read_bytes(), p, error=SpecError)
     return Spec.from_dict(data, source=str(p), base_dir=p.resolve().parent)
