@@ -366,7 +366,9 @@ class PairGeometry:
     a : (P,) metres, their distances a_ij (Section 3.1.1). min_distance : min a_ij, metres.
     difference : (P, m) float, +1 at (k, I[k]) and -1 at (k, J[k]): ``difference @ p`` is
         ``p[I] - p[J]`` (exactly: every product is by 1, -1 or 0).
-    cg_mask : (m,) bool, the CG members (Eq. 3.8); cg_index : their indices.
+    cg_mask : (m,) bool, the CG members (Eq. 3.8); cg_index : their indices (ints).
+    body1 : (m, d + 1), the body positions less their centroid, with a column of ones
+        (a rigid fit's moments in one product; centring keeps them free of cancellation).
     """
 
     I: np.ndarray
@@ -375,7 +377,8 @@ class PairGeometry:
     min_distance: float
     difference: np.ndarray
     cg_mask: np.ndarray
-    cg_index: np.ndarray
+    cg_index: tuple[int, ...]
+    body1: np.ndarray
 
 
 @dataclass(frozen=True, eq=False)
@@ -545,11 +548,14 @@ class SensorConfig:
         E[np.arange(I.size), J] = -1.0
         a = self.distances()[I, J]
         cg = self.cg_mask
-        arrays = (I, J, a, E, cg, np.flatnonzero(cg))
+        B = self.body_positions
+        B1 = np.hstack([B - B.mean(axis=0), np.ones((self.m, 1))])
+        arrays = (I, J, a, E, cg, B1)
         for arr in arrays:
             arr.setflags(write=False)
         return PairGeometry(I=I, J=J, a=a, min_distance=float(a.min()), difference=E,
-                            cg_mask=cg, cg_index=arrays[-1])
+                            cg_mask=cg,
+                            cg_index=tuple(np.flatnonzero(cg).tolist()), body1=B1)
 
     def cg_from_positions(self, positions: np.ndarray) -> np.ndarray:
         """CG of estimated sensor positions, Eq. 3.8: mean over the CG members.

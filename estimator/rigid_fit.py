@@ -11,14 +11,13 @@ neither, so the two solvers' modules do not import each other.
 
 from __future__ import annotations
 
-import weakref
 from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
 
 from estimator._checks import check_array, check_real
-from estimator.configuration import SensorConfig
+from estimator.configuration import PairGeometry, SensorConfig
 from estimator.orientation import wrap_angle
 
 __all__ = [
@@ -177,26 +176,10 @@ def procrustes_batch(means: Any, sensor_weight: Any, config: SensorConfig) -> Ba
                     yaw=yaw, status=status, objective=obj, mirror_objective=mobj)
 
 
-@dataclass(frozen=True)
-class _Geometry:
-    """Per-configuration constants (pairs i < j, their distances a_ij, CG mask)."""
-
-    I: np.ndarray
-    J: np.ndarray
-    a: np.ndarray
-    cg_mask: np.ndarray
-
-
-_GEOMETRY: weakref.WeakKeyDictionary[SensorConfig, _Geometry] = weakref.WeakKeyDictionary()
-
-
-def _geometry(config: SensorConfig) -> _Geometry:
-    g = _GEOMETRY.get(config)
-    if g is None:
-        I, J = np.triu_indices(config.m, 1)
-        g = _Geometry(I, J, config.distances()[I, J], config.cg_mask)
-        _GEOMETRY[config] = g
-    return g
+def _geometry(config: SensorConfig) -> PairGeometry:
+    """Per-configuration constants (pairs i < j, distances a_ij, CG mask): the config's own
+    :attr:`~estimator.configuration.SensorConfig.pair_geometry`, computed once per config."""
+    return config.pair_geometry
 
 
 def _pairs(m: int) -> tuple[np.ndarray, np.ndarray]:
@@ -205,7 +188,7 @@ def _pairs(m: int) -> tuple[np.ndarray, np.ndarray]:
 
 def _check_eps(eps: Any, config: SensorConfig) -> float:
     e = check_real(eps, "eps")
-    dmin = float(_geometry(config).a.min())
+    dmin = config.pair_geometry.min_distance
     if not 0.0 < e < dmin / 2.0:
         raise ValueError(
             f"eps: must satisfy 0 < eps < min distance / 2 = {dmin / 2.0:.6g} m for config "

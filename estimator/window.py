@@ -324,8 +324,8 @@ def _max_violation(positions: np.ndarray, config: SensorConfig) -> float:
 
 def _objective(obs0: np.ndarray, wa: np.ndarray, positions: np.ndarray) -> float:
     """Exact Eq. 3.9/3.12 value: sum w (o - p)^2 over present samples (obs0 has 0 there)."""
-    r = obs0 - positions[None]
-    return float((wa * r * r).sum())
+    r = obs0 - positions
+    return float(np.add.reduce(wa * r * r, axis=None))
 
 
 def _check_x0(x0: Any, config: SensorConfig) -> np.ndarray | None:
@@ -359,6 +359,170 @@ def _yaw_of(positions: np.ndarray, config: SensorConfig) -> float:
     return float(fit.yaw[0])
 
 
+# ----------------------------------------------------------------------------- one-window fast path
+# fit_window(solver="procrustes") on an ordinary 2-D window: the same checks as the general
+# path as a few whole-array reductions (one isnan, one magnitude and one weight min/max),
+# the window moments in a handful of numpy calls and the d = 2 closed form in Python floats.
+# Anything unusual (a check that would fail, insufficient data, d = 3, tiny total weight)
+# returns None and the general path below decides, so its messages and statuses hold.
+
+#: smallest total window weight the fast path takes: below it the weighted sums underflow
+#: towards subnormals, and the general path's order of operations is kept instead
+FAST_MIN_WEIGHT = 1e-250
+
+#: types of eps the fast path takes as they are (others: the general path's check_real)
+_FAST_REALS = (float, int, np.float64)
+
+
+def _x0_ok(x0: Any, config: SensorConfig) -> bool:
+    """Whether ``x0`` passes :func:`_check_x0` (procrustes uses it only without data)."""
+    try:
+        _check_x0(x0, config)
+    except (TypeError, ValueError):
+        return False
+    return True
+
+
+def _fast_obs(obs: Any, config: SensorConfig):
+    """(obs as float (s, m, 2), its NaN mask, present (s, m), window centre (2,)) if ``obs``
+    passes every check of :func:`_check_obs` and fit_window's shape check and has a sample;
+    else None.
+
+    A sample is present where x is not NaN; its y must then be finite (the magnitude check
+    on the present samples catches a NaN), so y is NaN only where x is, and the count of
+    NaNs (twice the missing samples) says it is NaN at every one: together the general
+    path's half-NaN check.
+    """
+    try:
+        arr = np.asarray(obs, dtype=float)
+    except (TypeError, ValueError):
+        return None
+    if arr.ndim != 3 or arr.shape[1:] != (config.m, 2):
+        return None
+    nan = np.isnan(arr)
+    present = ~nan[..., 0]
+    sel = arr[present]
+    k = sel.shape[0]
+    if k == 0 or not np.maximum.reduce(np.abs(sel), axis=None) <= MAX_COORD_M:
+        return None  # no sample, or an inf, a NaN y or a coordinate beyond MAX_COORD_M
+    if np.count_nonzero(nan) != 2 * (present.size - k):
+        return None  # a sample with x NaN and y not
+    return arr, nan, present, np.add.reduce(sel, axis=0) / k  # == arr[present].mean(0)
+
+
+def _fast_weights(weights: Any, present: np.ndarray) -> np.ndarray | None:
+    """Weights zeroed at missing samples, (s, m) isotropic or (s, m, 2) per axis (None in:
+    None out), or False if they would fail :func:`_check_weights` (shape, NaN, inf, < 0,
+    > MAX_WEIGHT)."""
+    if weights is None:
+        return None
+    try:
+        w = np.asarray(weights, dtype=float)
+    except (TypeError, ValueError):
+        return False
+    if w.shape == present.shape:
+        mask = present
+    elif w.shape == present.shape + (2,):
+        mask = present[..., None]
+    else:
+        return False
+    if not (w.min() >= 0.0 and w.max() <= MAX_WEIGHT):  # NaN fails both comparisons
+        return False
+    return np.where(mask, w, 0.0)
+
+
+def _fast_moments(obs0: np.ndarray, present: np.ndarray, wa: np.ndarray | None):
+    """Per-sensor means (m, 2) of the centred obs (0 where a sensor or axis has no weight),
+    sensor weights (m,) and the weights as a factor of (s, m, 2) arrays, as the general
+    path computes them (bit for bit: a weight of 1 or 0 times a value is exact)."""
+    if wa is None:
+        Wa = np.add.reduce(present, axis=0, dtype=float)
+        means = np.add.reduce(obs0, axis=0) / np.maximum(Wa, 1.0)[:, None]
+        return means, Wa, present[..., None]
+    Wa = np.add.reduce(wa, axis=0)
+    if wa.ndim == 2:
+        means = np.add.reduce(wa[..., None] * obs0, axis=0) / np.maximum(Wa, 5e-324)[:, None]
+        return means, Wa, wa[..., None]
+    means = np.add.reduce(wa * obs0, axis=0) / np.maximum(Wa, 5e-324)  # 0 / tiny = 0
+    full = (Wa[:, 0] > 0.0) & (Wa[:, 1] > 0.0)
+    return means, np.where(full, np.add.reduce(Wa, axis=1) / 2.0, 0.0), wa
+
+
+def _rigid_2d(means: np.ndarray, sw: np.ndarray, B1: np.ndarray):
+    """Closed-form weighted rigid fit in 2-D (Kabsch without scale, as procrustes_batch).
+
+    means (m, 2) metres (0 where ``sw`` is 0), sw (m,) weights, B1 = [body - centroid, 1]
+    (m, 3) (:class:`~estimator.configuration.PairGeometry`). ``M = sum_i w_i (y_i - ybar)
+    (b_i - bbar)^T`` from one product with the moments ``sum w y b^T - W ybar bbar^T``
+    (means and body are both centred, so nothing cancels). Returns None if the total weight
+    W < FAST_MIN_WEIGHT, else W, the proper fit (c, s, t_x, t_y) (world = R b + t with b a
+    row of B1[:, :2], R = [[c, -s], [s, c]]), ``best - best_mirror`` (half the objective gap
+    to the mirror fit) and the mirror fit (c, s, t_x, t_y) with R_m = [[c, s], [s, -c]].
+    """
+    sb0, sb1, W = (sw @ B1).tolist()
+    if not W >= FAST_MIN_WEIGHT:
+        return None  # weights near underflow: the general path's order of operations
+    wy = means.T * sw
+    (k00, k01, sy0), (k10, k11, sy1) = (wy @ B1).tolist()
+    sy0, sy1, sb0, sb1 = sy0 / W, sy1 / W, sb0 / W, sb1 / W  # ybar, bbar
+    m00, m01 = k00 - W * sy0 * sb0, k01 - W * sy0 * sb1
+    m10, m11 = k10 - W * sy1 * sb0, k11 - W * sy1 * sb1
+    pc, ps = m00 + m11, m10 - m01
+    qc, qs = m00 - m11, m01 + m10
+    th = math.atan2(ps, pc)
+    c, s = math.cos(th), math.sin(th)
+    proper = (c, s, sy0 - (c * sb0 - s * sb1), sy1 - (s * sb0 + c * sb1))
+    ph = math.atan2(qs, qc)
+    cm, sm = math.cos(ph), math.sin(ph)
+    mirror = (cm, sm, sy0 - (cm * sb0 + sm * sb1), sy1 - (sm * sb0 - cm * sb1))
+    return W, proper, math.hypot(pc, ps) - math.hypot(qc, qs), mirror
+
+
+def _fast_procrustes(obs: Any, config: SensorConfig, weights: Any | None, eps: Any,
+                     x0: Any, maxiter: Any) -> WindowFit | None:
+    """fit_window(obs, config, weights, eps, "procrustes", x0, maxiter=maxiter) for a 2-D
+    window that passes every check and has enough data, in ~30 numpy calls; None sends the
+    call to the general path (which checks again and names the field, or fits)."""
+    g = config.pair_geometry
+    if config.d != 2 or type(eps) not in _FAST_REALS or not 0.0 < eps < g.min_distance / 2.0:
+        return None
+    if type(maxiter) is not int or maxiter < 1:
+        return None
+    got = _fast_obs(obs, config)
+    if got is None:
+        return None
+    arr, nan, present, centre = got
+    wa = _fast_weights(weights, present)
+    if wa is False:
+        return None
+    obs0 = arr - centre
+    obs0[nan] = 0.0
+    means, sw, wa3 = _fast_moments(obs0, present, wa)
+    if np.count_nonzero(sw) < 2:
+        return None  # insufficient data: the general path reports it
+    fit = _rigid_2d(means, sw, g.body1)
+    if fit is None or (x0 is not None and not _x0_ok(x0, config)):
+        return None
+    _, (c, s, tx, ty), gap, (cm, sm, mx, my) = fit
+    p_c = g.body1 @ np.array([[c, s], [-s, c], [tx, ty]])  # R b + t
+    obj = _objective(obs0, wa3, p_c)
+    if wa3.shape[-1] == 1:
+        mirror = max(obj + 2.0 * gap, 0.0)  # isotropic: Z_mirror - Z = 2 (best - best_mirror)
+    else:
+        mirror = _objective(obs0, wa3, g.body1 @ np.array([[cm, sm], [sm, -cm], [mx, my]]))
+    yaw = math.atan2(s, c)
+    if yaw <= -math.pi:
+        yaw = math.pi
+    dx, dy = p_c.T @ g.difference.T
+    viol = max(map(abs, (np.hypot(dx, dy) - g.a).tolist()))
+    positions = p_c + centre
+    rows = positions.tolist()
+    cg = np.array([sum(rows[i][a] for i in g.cg_index) / len(g.cg_index) for a in (0, 1)])
+    return WindowFit(positions=positions, cg=cg, yaw=yaw, objective=obj,
+                     mirror_objective=mirror, max_violation=viol, solver="procrustes",
+                     iterations=0, status="ok")
+
+
 # ----------------------------------------------------------------------------- public fit
 def fit_window(obs: Any, config: SensorConfig, weights: Any | None = None, eps: float = 0.01,
                solver: str = "procrustes", x0: Any | None = None, *, maxiter: int = 100,
@@ -377,6 +541,10 @@ def fit_window(obs: Any, config: SensorConfig, weights: Any | None = None, eps: 
     if not isinstance(config, SensorConfig):
         raise ValueError(  # noqa: TRY004 (the project's bad-input contract is ValueError)
             f"config: expected a SensorConfig, got {type(config).__name__}")
+    if solver == "procrustes":
+        fast = _fast_procrustes(obs, config, weights, eps, x0, maxiter)
+        if fast is not None:
+            return fast
     arr, present = _check_obs(obs)
     if arr.ndim != 3 or arr.shape[1:] != (config.m, config.d):
         raise ValueError(
