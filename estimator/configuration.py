@@ -49,10 +49,10 @@ __all__ = [
     "CONFIGS_DIR",
     "DISTANCE_TOL_M",
     "MAX_BODY_M",
+    "MAX_DISTANCE_SENSORS",
     "MODELS_DIR",
     "ConfigError",
     "LayoutWarning",
-    "MAX_DISTANCE_SENSORS",
     "SensorConfig",
 ]
 

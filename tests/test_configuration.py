@@ -444,8 +444,9 @@ def test_layout_check_verdicts_on_a_known_track():
     """A straight run with a turn (rover_gps8, 0.05 m errors): the right layout is
     consistent, its mirror image is "mirrored", a layout rotated by 90 degrees or reversed
     is "not forward"; standing still the forward check does not apply."""
-    from estimator.layout_check import check_layout
     from synth_tracks import corner_path
+
+    from estimator.layout_check import check_layout
 
     cfg, t, _cg, _yaw, _turning, obs = corner_path()
     rng = np.random.default_rng(0)
@@ -472,8 +473,9 @@ def test_layout_check_verdicts_on_a_known_track():
 def test_layout_check_with_metre_errors_is_undetermined_not_alarmed():
     """Errors much larger than the platform (2 m independent): neither hand explains the
     data better by the factor 2 (module docstring), so no "mirrored" claim either way."""
-    from estimator.layout_check import check_layout
     from synth_tracks import straight
+
+    from estimator.layout_check import check_layout
 
     cfg, t, _cg, _yaw, obs = straight(n=400)
     rng = np.random.default_rng(1)
@@ -488,8 +490,9 @@ def test_layout_check_with_metre_errors_is_undetermined_not_alarmed():
        fill=st.sampled_from([math.nan, math.inf, 1e300, 0.0]),
        span=st.sampled_from([8.0, 0.0, -1.0, math.nan, math.inf]))
 def test_layout_check_extremes(window, fill, span):
-    from estimator.layout_check import check_layout
     from synth_tracks import straight
+
+    from estimator.layout_check import check_layout
 
     cfg, t, _cg, _yaw, obs = straight(n=30)
     obs = obs.copy()
