@@ -19,7 +19,9 @@ over receivers, in the session's ``meta["skipped"]``. Classes (dropped unless ma
   that follow. A timestamp without a zone is taken as UTC (``meta["host_time"]``).
 - ``binary_segments``: runs of non-NMEA bytes (UBX/RTCM binary, line noise) before, between
   or instead of sentences.
-- ``truncated``: a ``$`` fragment without a ``*hh`` checksum terminator (cut-off lines; a
+- ``truncated``: a ``$`` fragment without a ``*hh`` checksum terminator before the next
+  ``$`` (cut-off lines; ``$`` and ``*`` are reserved in NMEA 0183 and never inside a
+  sentence, so a complete sentence after a cut-off one on the same line is still read; a
   sentence whose checksum cannot be verified is not trusted).
 - ``bad_checksum``: checksum present but wrong.
 - ``parse_error``: checksum fine but pynmea2 cannot parse a sentence of another type.
