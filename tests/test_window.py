@@ -611,3 +611,198 @@ def test_memory_is_linear_in_the_window():
         peak = tracemalloc.get_traced_memory()[1]
         tracemalloc.stop()
         assert peak < 12 * size, peak / size
+
+
+# ----------------------------------------------------------------------------- fast path
+# fit_window(solver="procrustes") on 2-D windows takes a fast path (issue 27: checks as a few
+# whole-array reductions, the d = 2 closed form in Python floats). These tests compare it
+# with independent routes and with the general path it replaces.
+
+def _general(monkeypatch):
+    """fit_window with the fast path switched off (the general path alone)."""
+    import estimator.window as W
+
+    def general(*args, **kw):
+        with monkeypatch.context() as mp:
+            mp.setattr(W, "_fast_procrustes", lambda *a, **k: None)
+            return W.fit_window(*args, **kw)
+    return general
+
+
+def _fast_only(monkeypatch):
+    """fit_window that fails if the fast path hands the call to the general path."""
+    import estimator.window as W
+
+    def boom(*a, **k):
+        raise AssertionError("general path taken")
+
+    def fast(*args, **kw):
+        with monkeypatch.context() as mp:
+            mp.setattr(W, "_check_obs", boom)
+            return W.fit_window(*args, **kw)
+    return fast
+
+
+def _fast_window(rng, cfg, s, utm, missing, weights):
+    _, obs, _ = scene(rng, cfg, s, noise=float(rng.choice([0.0, 0.02, 1.0, 3.0])),
+                         missing=missing, utm=utm)
+    if weights == "sm":
+        w = rng.uniform(0.0, 3.0, size=(s, cfg.m))
+    elif weights == "smd":
+        w = rng.uniform(0.0, 3.0, size=(s, cfg.m, 2))
+        w[rng.random(w.shape) < 0.05] = 0.0
+    else:
+        w = None
+    return obs, w
+
+
+def _tol(ref):
+    """Positions: 1e-12 m plus 2 ulp of the coordinate (both routes add the window centre
+    back last; at UTM northings, 4e6 m, one ulp is 4.7e-10 m)."""
+    return 1e-12 + 2 * np.spacing(np.abs(ref))
+
+
+@pytest.mark.parametrize("weights", [None, "sm", "smd"])
+def test_fast_path_matches_batched_procrustes(monkeypatch, weights):
+    """The fast path against the batched route (window_means / window_moments +
+    procrustes_batch, the general path's own pieces) on 150 random 2-D windows with missing
+    samples, dead sensors and UTM-sized coordinates: positions and CG within 1e-12 m + 2 ulp,
+    yaw within 1e-12 rad, objectives within 1e-12 relative (+1e-12 m^2 for noise-free
+    windows whose objective is round-off); the fast path is asserted to be taken."""
+    fast = _fast_only(monkeypatch)
+    rng = np.random.default_rng(27)
+    n = 0
+    for k in range(150):
+        m = int(rng.integers(2, 9))
+        cfg = SensorConfig.load("rover_gps8") if k % 3 == 0 else \
+            random_config(rng, m, 2, dead=int(rng.integers(0, 2)) if m > 2 else 0)
+        s = int(rng.choice([1, 3, 10, 30]))
+        obs, w = _fast_window(rng, cfg, s, utm=bool(k % 2), missing=0.2 * (k % 4 == 1),
+                              weights=weights)
+        # the batched route on coordinates relative to a sample (fit_window uses the window
+        # mean): means of UTM-sized values taken directly would be off by ~1e-10 m
+        ref = obs[~np.isnan(obs[..., 0])][0] if not np.isnan(obs).all() else np.zeros(2)
+        means, sw = window_means(obs - ref, w)
+        if (sw > 0).sum() < 2:
+            continue
+        n += 1
+        fit = fast(obs, cfg, weights=w)
+        bf = procrustes_batch(means[None], sw[None], cfg)
+        pos = bf.positions[0] + ref
+        assert (np.abs(fit.positions - pos) <= _tol(pos)).all(), k
+        cg = cfg.cg_from_positions(pos)
+        assert (np.abs(fit.cg - cg) <= _tol(cg)).all(), k
+        assert abs(math.remainder(fit.yaw - bf.yaw[0], 2 * math.pi)) <= 1e-12
+        assert fit.status == "ok" and fit.iterations == 0 and fit.max_violation < 1e-9
+        wa = np.ones(obs.shape) if w is None else (w[..., None] if w.ndim == 2 else w)
+        present = ~np.isnan(obs[..., :1])
+        r = np.where(present, (obs - ref) - bf.positions[0], 0.0)  # centred: no UTM round-off
+        z = float((np.where(present, wa, 0.0) * r * r).sum())
+        assert fit.objective == pytest.approx(z, rel=1e-12, abs=1e-12)
+        if weights != "smd":
+            # isotropic: Z = reduced objective + within-window scatter for either hand
+            scatter = z - float(bf.objective[0])
+            assert fit.mirror_objective == pytest.approx(
+                float(bf.mirror_objective[0]) + scatter, rel=1e-12, abs=1e-10)
+    assert n > 100
+
+
+def test_fast_path_matches_scipy_orthogonal_procrustes(monkeypatch):
+    """Unweighted, every sample present: the fitted rotation is scipy's orthogonal
+    Procrustes rotation of the centred body onto the centred window means whenever that one
+    is proper (it is the unconstrained optimum), within 1e-12 rad."""
+    fast = _fast_only(monkeypatch)
+    rng = np.random.default_rng(5)
+    checked = 0
+    for _ in range(60):
+        cfg = random_config(rng, int(rng.integers(3, 9)), 2)
+        _, obs, _ = scene(rng, cfg, 10, noise=0.3, utm=True)
+        fit = fast(obs, cfg)
+        Y = (obs - obs[0, 0]).mean(axis=0)  # centred first: at 4e6 m a mean loses 1e-10 m
+        Yc = Y - Y.mean(axis=0)
+        Bc = cfg.body_positions - cfg.body_positions.mean(axis=0)
+        R, _ = orthogonal_procrustes(Bc, Yc)  # Bc @ R ~ Yc, R = rotation^T
+        if np.linalg.det(R) < 0:
+            continue
+        checked += 1
+        assert abs(math.remainder(fit.yaw - math.atan2(R[0, 1], R[0, 0]), 2 * math.pi)) \
+            <= 1e-12
+    assert checked > 30
+
+
+def test_fast_path_equals_general_path(monkeypatch):
+    """Fast and general path on the same 300 windows (2-D and 3-D, weights None, (s, m),
+    (s, m, d), lists, x0, insufficient data): identical statuses, positions within 1e-12 m +
+    2 ulp, yaw within 1e-12 rad, objectives within 1e-12 relative + 1e-12 m^2."""
+    general = _general(monkeypatch)
+    rng = np.random.default_rng(99)
+    for k in range(300):
+        d = 3 if k % 4 == 3 else 2
+        cfg = random_config(rng, int(rng.integers(3, 9)), d, dead=int(rng.integers(0, 2)))
+        s = int(rng.choice([1, 2, 10]))
+        true, obs, _ = scene(rng, cfg, s, noise=1.0, missing=float(rng.choice([0, 0.3, 0.9])),
+                             utm=bool(k % 2))
+        w = [None, rng.uniform(0, 2, size=(s, cfg.m)), rng.uniform(0, 2, size=obs.shape),
+             np.ones((s, cfg.m)).tolist()][k % 4]
+        x0 = true + 0.01 if k % 5 == 0 else None
+        a = fit_window(obs, cfg, weights=w, x0=x0)
+        b = general(obs, cfg, weights=w, x0=x0)
+        assert a.status == b.status, k
+        assert np.array_equal(np.isnan(a.positions), np.isnan(b.positions)), k
+        ok = np.isfinite(b.positions)
+        assert (np.abs(a.positions[ok] - b.positions[ok]) <= _tol(b.positions[ok])).all(), k
+        for f in ("objective", "mirror_objective"):
+            va, vb = getattr(a, f), getattr(b, f)
+            assert va == pytest.approx(vb, rel=1e-12, abs=1e-12, nan_ok=True), (k, f)
+        if math.isfinite(b.yaw):
+            assert abs(math.remainder(a.yaw - b.yaw, 2 * math.pi)) <= 1e-12, k
+
+
+def _bad_fast_cases():
+    cfg = SensorConfig.load("rover_gps8")
+    good = np.zeros((4, 8, 2)) + cfg.body_positions + [5.0e5, 4.0e6]
+    cases = []
+    for pos, v in (((0, 0, 1), np.nan), ((1, 2, 0), np.nan), ((0, 0, 1), np.inf),
+                   ((2, 3, 0), -np.inf), ((0, 1, 0), 1.0000001e9), ((3, 7, 1), -2e9)):
+        o = good.copy()
+        o[pos] = v
+        cases.append(({"obs": o}, "obs"))
+    o = good.copy()
+    o[1, 1] = np.nan
+    o[2, 2, 0] = np.nan  # one half-NaN sample among whole-NaN ones
+    cases.append(({"obs": o}, "obs"))
+    o = good.copy()
+    o[1, 1, 0], o[2, 2, 1] = np.nan, np.nan  # as many x as y NaNs, at different samples
+    cases.append(({"obs": o}, "obs"))
+    one_negative = np.ones((4, 8))
+    one_negative[2, 3] = -1e-3
+    for w in (np.full((4, 8, 2), 1.1e100), -np.ones((4, 8, 2)), one_negative, np.ones((4, 8, 1)),
+              np.array([[1.0] * 8] * 3 + [[np.nan] * 8]), np.ones((4, 7)), "heavy"):
+        cases.append(({"weights": w}, "weights"))
+    for e in (np.float64(0.3), True, "0.01", None, np.inf):
+        cases.append(({"eps": e}, "eps"))
+    cases += [({"maxiter": True}, "maxiter"), ({"maxiter": 0.5}, "maxiter"),
+              ({"x0": np.full((8, 2), np.inf)}, "x0"), ({"x0": np.zeros((8, 3))}, "x0"),
+              ({"obs": good.astype(object)}, None), ({"obs": good[:0]}, None)]
+    return cfg, good, cases
+
+
+def test_fast_path_keeps_every_message(monkeypatch):
+    """Every input the fast path's screens turn away gives exactly the general path's
+    exception (type and message); inputs that are fine give the same fit."""
+    general = _general(monkeypatch)
+    cfg, good, cases = _bad_fast_cases()
+    for kw, field in cases:
+        call = {"obs": good, "config": cfg, **kw}
+        try:
+            want = general(**call)
+        except (TypeError, ValueError) as exc:
+            assert field is not None and field in str(exc), (kw, exc)
+            with pytest.raises(type(exc)) as got:
+                fit_window(**call)
+            assert str(got.value) == str(exc), kw
+            continue
+        assert field is None, (kw, want)
+        have = fit_window(**call)
+        assert have.status == want.status
+        np.testing.assert_array_equal(np.isnan(have.positions), np.isnan(want.positions))
