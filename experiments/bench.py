@@ -4,6 +4,16 @@ Sections are registered in :data:`SECTIONS` (name -> function ``(quick: bool) ->
 row dicts``); each prints a Markdown table. ``--only`` runs one section, ``--quick`` uses
 fewer repetitions (for CI and smoke tests).
 
+Reference: an absolute time says little on another (or a busier) machine, so every section
+first times a fixed reference in the same process and prints it on a ``reference:`` line
+with the 1-minute load average: the numpy probe (:func:`numpy_probe`, a loop of five
+small-array numpy calls, the kind of work a single window fit or a filter epoch is made
+of). Each table has an ``x probe`` column: the figure divided by the probe's time per
+iteration (a figure of 40 us on a machine where the probe takes 2 us reads "20"), which
+compares across machines as long as both are numpy-call bound. Sections with a natural
+peer in the same run also divide by it: ``solvers`` and ``fit_window`` by SciPy SLSQP per
+window (the "speed-up" columns).
+
 Section ``solvers``: the window fit of Eq. 3.9 (dissertation 000_8f82f8df647bf685.txt) for
 m = 7 live antennas of ``rover_gps8`` (21 pairs, 42 constraints), eps = 0.01 m, window sizes
 s = 1, 5, 10, 100, on GPS-like stationary noise as in ../shared/notes/window-solvers.md:
@@ -15,6 +25,13 @@ batched paths over all windows at once: "batched" = ``window_means`` of the stac
 cost independent of s) + ``procrustes_batch``; "batched elastic" = ``window_moments`` of the
 stacked windows + ``elastic_batch`` (the eps-elastic fit of Eq. 3.9, the problem slsqp and ccp
 solve) on all windows at once. Speed-up = slsqp time / time. Timings are single-threaded (OPENBLAS_NUM_THREADS=1).
+
+Section ``fit_window``: one ``fit_window`` call (procrustes, the default) on a 10-epoch,
+8-antenna ``rover_gps8`` window as above, unweighted and with weights per sample and sensor
+(s, m) and per axis (s, m, d), and a 3-D window of the same size (the general path): median
+wall and CPU time per call over many windows, beside the batched route's time per window
+(``window_means`` + ``procrustes_batch``) and one SLSQP fit of the same windows; target
+<= 30 us per 2-D call (issue 27).
 
 Section ``sim``: wall time of each MuJoCo simulation with the cache disabled, and simulated
 seconds per wall second. Section ``ranging``: the tightly coupled range filter per range update
@@ -35,6 +52,7 @@ import argparse
 import time
 from collections.abc import Callable
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -101,6 +119,46 @@ def _fmt(seconds: float) -> str:
     return f"{seconds * 1e6:.1f} us" if seconds < 1e-3 else f"{seconds * 1e3:.2f} ms"
 
 
+#: iterations of the numpy probe per timing (about 10-30 ms)
+PROBE_ITERS = 2000
+
+
+def numpy_probe(reps: int = 5) -> float:
+    """Seconds per iteration of a fixed pure-numpy loop on (8, 2) arrays: a subtraction, a
+    square, row sums, a (2, 2) product and a comparison (five small-array calls, as a single
+    window fit or a filter epoch is made of); median of ``reps`` timings in this process."""
+    rng = np.random.default_rng(0)
+    a, b, R = rng.normal(size=(8, 2)), rng.normal(size=(8, 2)), rng.normal(size=(2, 2))
+
+    def loop() -> None:
+        for _ in range(PROBE_ITERS):
+            d = a - b
+            q = (d * d).sum(axis=1)
+            d @ R
+            (q > 1.0).any()
+
+    loop()  # warm
+    return _median_time(loop, reps) / PROBE_ITERS
+
+
+class Reference:
+    """A section's reference: the numpy probe timed now (``probe_s``, seconds per
+    iteration) and the 1-minute load average; :meth:`ratio` divides a figure by it."""
+
+    def __init__(self, reps: int = 5) -> None:
+        self.load = os.getloadavg()[0]
+        self.probe_s = numpy_probe(reps)
+
+    def ratio(self, seconds: float) -> str:
+        """``seconds`` in probe iterations, 3 significant digits (the ``x probe`` column)."""
+        return f"{seconds / self.probe_s:.3g}"
+
+    def line(self) -> str:
+        return (f"reference: numpy probe {self.probe_s * 1e6:.3g} us per iteration (five "
+                f"small-array calls); 1-min load {self.load:.2f} on {os.cpu_count()} cores; "
+                f"'x probe' = figure / probe")
+
+
 def print_table(rows: list[dict], columns: list[str]) -> None:
     """``rows`` as a Markdown table of ``columns`` on stdout (cells escaped)."""
     from experiments.markdown import md_row, md_separator
@@ -115,6 +173,7 @@ def print_table(rows: list[dict], columns: list[str]) -> None:
 @section("solvers")
 def bench_solvers(quick: bool = False) -> list[dict]:
     """Median time per window of each solver (single call) and of batched procrustes."""
+    ref = Reference(3 if quick else 5)
     cfg = live_config()
     rng = np.random.default_rng(20130501)
     eps = 0.01
@@ -165,6 +224,9 @@ def bench_solvers(quick: bool = False) -> list[dict]:
         for name, t in times.items():
             row[name] = _fmt(t)
             row[f"{name} speed-up"] = f"{times['slsqp'] / t:.1f}x"
+        row["slsqp x probe"] = ref.ratio(times["slsqp"])
+        row["procrustes x probe"] = ref.ratio(times["procrustes"])
+        row["batched procrustes x probe"] = ref.ratio(times["batched procrustes"])
         row["not ok (slsqp/ccp)"] = f"{statuses['slsqp']}/{statuses['ccp']}"
         row["not ok (batched elastic)"] = (f"{statuses['batched elastic']} of "
                                            f"{windows.shape[0]}")
@@ -172,11 +234,80 @@ def bench_solvers(quick: bool = False) -> list[dict]:
     cols = ["s", "slsqp", "ccp", "procrustes", "batched procrustes", "sliding procrustes",
             "batched elastic", "ccp speed-up", "procrustes speed-up",
             "batched procrustes speed-up", "sliding procrustes speed-up",
-            "batched elastic speed-up", "not ok (slsqp/ccp)", "not ok (batched elastic)"]
+            "batched elastic speed-up", "slsqp x probe", "procrustes x probe",
+            "batched procrustes x probe", "not ok (slsqp/ccp)", "not ok (batched elastic)"]
     print(f"### Window solvers: m = {cfg.m}, eps = {eps} m, median time per window "
           f"(speed-up = slsqp time / solver time; batched over {n_batch} windows; "
           f"'not ok' = fallbacks among the timed windows)\n")
+    print(ref.line() + "; speed-up = SciPy SLSQP per window / figure\n")
     print_table(rows, cols)
+    print()
+    return rows
+
+
+#: target of one 2-D fit_window call on a 10-epoch, 8-antenna window (issue 27), seconds
+FIT_WINDOW_TARGET_S = 30e-6
+
+
+def _per_call(fn: Callable[[Any], object], items: list) -> tuple[float, float]:
+    """``fn(item)`` for each item: median wall time of one call, and the mean CPU (thread)
+    time per call (what a busy machine distorts least)."""
+    walls = []
+    c0 = time.thread_time()
+    for item in items:
+        t0 = time.perf_counter()
+        fn(item)
+        walls.append(time.perf_counter() - t0)
+    return float(np.median(walls)), (time.thread_time() - c0) / len(items)
+
+
+def _lift_3d(obs: np.ndarray, cfg3: SensorConfig, rng: np.random.Generator) -> np.ndarray:
+    """A 2-D window (s, m, 2) with a z column (cfg3's heights + 1 m noise, NaN where missing)."""
+    z = cfg3.body_positions[:, 2] + rng.normal(size=obs.shape[:2])
+    z[np.isnan(obs[..., 0])] = np.nan
+    return np.concatenate([obs, z[..., None]], axis=2)
+
+
+@section("fit_window")
+def bench_fit_window(quick: bool = False) -> list[dict]:
+    """One ``fit_window`` call (procrustes) on a 10-epoch, 8-antenna window (issue 27)."""
+    ref = Reference(3 if quick else 5)
+    cfg = SensorConfig.load("rover_gps8")
+    cfg3 = SensorConfig(cfg.names, np.column_stack([cfg.body_positions, 0.1 * np.arange(cfg.m)]),
+                        name="rover_gps8_3d")
+    rng = np.random.default_rng(27)
+    s, n = 10, 300 if quick else 3000
+    windows = [gps_like_obs(cfg, s, rng) for _ in range(n)]
+    stack = np.stack(windows)
+    batched = _median_time(lambda: procrustes_batch(*window_means(stack), cfg), 5) / n
+    slsqp = _per_call(lambda w: fit_window(w, cfg, solver="slsqp"), windows[:n // 10])[0]
+    cases = [
+        ("2-D, unweighted", cfg, [(w, None) for w in windows]),
+        ("2-D, weights (s, m)", cfg,
+         [(w, rng.uniform(0.1, 2.0, size=(s, cfg.m))) for w in windows]),
+        ("2-D, weights (s, m, d)", cfg,
+         [(w, rng.uniform(0.1, 2.0, size=(s, cfg.m, 2))) for w in windows]),
+        ("3-D, unweighted (general path)", cfg3,
+         [(_lift_3d(w, cfg3, rng), None) for w in windows[:n // 10]])]
+    rows = []
+    for label, c, calls in cases:
+        def call(item: tuple, c: SensorConfig = c) -> None:
+            fit_window(item[0], c, weights=item[1])
+        call(calls[0])  # warm (first-use constants of the config)
+        wall, cpu = _per_call(call, calls)
+        two_d = label.startswith("2-D")
+        rows.append({"case": label, "wall per call": _fmt(wall),
+                     "CPU per call (mean)": _fmt(cpu),
+                     "x probe": ref.ratio(wall), "x batched": f"{wall / batched:.3g}",
+                     "speed-up": f"{slsqp / wall:.0f}x",
+                     "target": f"<= {FIT_WINDOW_TARGET_S * 1e6:.0f} us" if two_d else "-",
+                     "met": ("yes" if wall <= FIT_WINDOW_TARGET_S else "NO") if two_d else "-"})
+    print(f"### Single fit_window call: s = {s} epochs, m = {cfg.m} antennas, procrustes, "
+          f"median over {n} windows (3-D: {n // 10})\n")
+    print(ref.line() + f"; batched procrustes {_fmt(batched)} per window ('x batched'); "
+          f"SciPy SLSQP {_fmt(slsqp)} per window (speed-up = SLSQP / figure)\n")
+    print_table(rows, ["case", "wall per call", "CPU per call (mean)", "x probe", "x batched",
+                       "speed-up", "target", "met"])
     print()
     return rows
 
@@ -189,6 +320,7 @@ def bench_sim(quick: bool = False) -> list[dict]:
 
     runs = [("rover", "square20"), ("quadcopter", "quad_square6")] if quick else \
         [("rover", "square100"), ("rover", "square200"), ("quadcopter", "quad_square6")]
+    ref = Reference(3 if quick else 5)
     rows = []
     for platform, path in runs:
         t0 = time.perf_counter()
@@ -200,10 +332,12 @@ def bench_sim(quick: bool = False) -> list[dict]:
         simulated = float(truth.t[-1] - truth.t[0])
         rows.append({"platform": platform, "path": path, "samples": truth.n,
                      "simulated s": f"{simulated:.0f}", "wall s": f"{wall:.2f}",
-                     "simulated s / wall s": f"{simulated / wall:.0f}"})
+                     "simulated s / wall s": f"{simulated / wall:.0f}",
+                     "x probe": ref.ratio(wall)})
     print("### Simulation: one run each, cache disabled\n")
+    print(ref.line() + "\n")
     print_table(rows, ["platform", "path", "samples", "simulated s", "wall s",
-                       "simulated s / wall s"])
+                       "simulated s / wall s", "x probe"])
     print()
     return rows
 
@@ -224,6 +358,7 @@ def bench_track(quick: bool = False) -> list[dict]:
     from estimator.memo import clear_all
     from estimator.tracking import track
 
+    ref = Reference(3 if quick else 5)
     cfg = live_config()
     rng = np.random.default_rng(7)
     n = 1000
@@ -251,18 +386,21 @@ def bench_track(quick: bool = False) -> list[dict]:
         wall = _median_time(run, reps)
         rows.append({"method": method, "solver": solver, "window": s, "weighting": weighting,
                      "lag correction": "yes" if lag else "no",
-                     "wall per track": _fmt(wall), "per epoch": _fmt(wall / (n - s + 1))})
+                     "wall per track": _fmt(wall), "per epoch": _fmt(wall / (n - s + 1)),
+                     "x probe": ref.ratio(wall / (n - s + 1))})
     from estimator.layout_check import check_layout
 
     wall = _median_time(lambda: check_layout(t, obs, cfg, window=100), 3 if quick else 7)
     rows.append({"method": "(layout check, track's default)", "solver": "procrustes",
                  "window": 100, "weighting": "none", "lag correction": "no",
-                 "wall per track": _fmt(wall), "per epoch": _fmt(wall / (n - 99))})
+                 "wall per track": _fmt(wall), "per epoch": _fmt(wall / (n - 99)),
+                 "x probe": ref.ratio(wall / (n - 99))})
     print(f"### Tracking: {n} epochs, m = {cfg.m}, median over repeats (track(..., "
           f"layout_check=False), as the sweep calls it; the last row is what the check "
           f"adds by default)\n")
+    print(ref.line() + " (per epoch)\n")
     print_table(rows, ["method", "solver", "window", "weighting", "lag correction",
-                       "wall per track", "per epoch"])
+                       "wall per track", "per epoch", "x probe"])
     print()
     return rows
 
@@ -299,6 +437,7 @@ def bench_sweep(quick: bool = False) -> list[dict]:
                        ("thesis", "thesis, resumed", False),
                        ("quick", "quick, empty cache", True)]
     env = {**os.environ, "PYTHONPATH": str(Path(__file__).resolve().parents[1])}
+    ref = Reference(3 if quick else 5)
     rows = []
     with tempfile.TemporaryDirectory(prefix="bench-sweep-") as tmp:
         for preset, label, fresh in plan:
@@ -330,11 +469,13 @@ def bench_sweep(quick: bool = False) -> list[dict]:
                 "cells/s": f"{computed / t['cells_s']:.0f}" if computed else "-",
                 "outputs s": (f"{t['outputs_s']:.1f} ({len(o.get('written', []))} of "
                               f"{n_out} rewritten)" if n_out else f"{t['outputs_s']:.1f}"),
-                "CPU s": f"{cpu:.1f}", "load before": f"{load:.2f}"})
+                "CPU s": f"{cpu:.1f}", "load before": f"{load:.2f}",
+                "x probe": ref.ratio(wall)})
     cols = ["run", "cells", "wall s", "target s", "met", "simulation s", "cells s", "cells/s",
-            "outputs s", "CPU s", "load before"]
+            "outputs s", "CPU s", "load before", "x probe"]
     print(f"### Main job: `python -m experiments.sweep`, {os.cpu_count()} cores, wall time from "
           "outside (start to exit) and the run's phases\n")
+    print(ref.line() + " (wall s)\n")
     print_table(rows, cols)
     print()
     return rows
@@ -402,15 +543,17 @@ def bench_dask(quick: bool = False) -> list[dict]:
     spec = load_spec("large")
     n_cells = len((spec.with_seeds(range(10)) if quick else spec).expand())
     env = {**os.environ, "PYTHONPATH": str(Path(__file__).resolve().parents[1])}
+    ref = Reference(3 if quick else 5)
     rows = []
     with tempfile.TemporaryDirectory(prefix="bench-dask-") as tmp:
         base = ["--preset", "large", *seeds, "--no-figures", "--quiet"]
-        ref = os.path.join(tmp, "loky")
-        info = _sweep_cli([*base, "--out", ref], env)
+        loky = os.path.join(tmp, "loky")
+        info = _sweep_cli([*base, "--out", loky], env)
         rows.append({"backend": "loky (reference)", "workers": os.cpu_count(), "cells": n_cells,
                      "cells s": f"{info['timings_s']['cells_s']:.1f}",
                      "cells/s": f"{n_cells / info['timings_s']['cells_s']:.1f}",
-                     "peak RSS/worker": "-", "identical to loky": "-"})
+                     "peak RSS/worker": "-", "identical to loky": "-",
+                     "x probe": ref.ratio(info["timings_s"]["cells_s"] / n_cells)})
         rate = {}
         for nw in (1, 2):
             port = _free_port()
@@ -437,7 +580,8 @@ def bench_dask(quick: bool = False) -> list[dict]:
                              "cells": n_cells, "cells s": f"{info['timings_s']['cells_s']:.1f}",
                              "cells/s": f"{rate[nw]:.1f}",
                              "peak RSS/worker": f"{max(peaks.values()) / 2**20:.0f} MB",
-                             "identical to loky": "yes" if _numbers_equal(ref, out) else "NO"})
+                             "identical to loky": "yes" if _numbers_equal(loky, out) else "NO",
+                             "x probe": ref.ratio(1.0 / rate[nw])})
             finally:
                 for p in reversed(procs):
                     p.terminate()
@@ -448,8 +592,9 @@ def bench_dask(quick: bool = False) -> list[dict]:
                         p.kill()
     print(f"### Large preset on Dask ({n_cells} cells, {10 if quick else 100} seeds), cell phase "
           f"1 -> 2 workers: x{rate[2] / rate[1]:.2f} (linear = x2.00)\n")
+    print(ref.line() + " (cell phase per cell)\n")
     print_table(rows, ["backend", "workers", "cells", "cells s", "cells/s", "peak RSS/worker",
-                       "identical to loky"])
+                       "identical to loky", "x probe"])
     print()
     return rows
 
@@ -486,6 +631,7 @@ def bench_ranging(quick: bool = False) -> list[dict]:
     streams = RangeStreams.from_channels(chans, n_receivers=4)
     epochs = np.arange(0.1, dur, 0.1)
     reps = 3 if quick else 7
+    ref = Reference(3 if quick else 5)
 
     def timed(fn: Callable[[], object]) -> tuple[float, float]:
         """Median wall and CPU (process) time; CPU time is what a loaded machine distorts
@@ -513,9 +659,11 @@ def bench_ranging(quick: bool = False) -> list[dict]:
         up, up_cpu = timed(updates)
         n = streams.t.size
         rows.append({"what": f"tight_filter, {label}", "per unit": _fmt(wall / n),
-                     "cpu per unit": _fmt(cpu / n), "unit": "range", "total": _fmt(wall)})
+                     "cpu per unit": _fmt(cpu / n), "unit": "range", "total": _fmt(wall),
+                     "x probe": ref.ratio(wall / n)})
         rows.append({"what": f"RangeFilter.update, {label}", "per unit": _fmt(up / n_up),
-                     "cpu per unit": _fmt(up_cpu / n_up), "unit": "range", "total": _fmt(up)})
+                     "cpu per unit": _fmt(up_cpu / n_up), "unit": "range", "total": _fmt(up),
+                     "x probe": ref.ratio(up / n_up)})
     R = np.stack([np.interp(epochs, *chans[j]) for j in range(4)], 1)
     for label, fn in (("damped_ls, known height", lambda: tri.damped_ls(anchors, R,
                                                                          height_m=1.0)),
@@ -525,10 +673,11 @@ def bench_ranging(quick: bool = False) -> list[dict]:
         wall, cpu = timed(fn)
         rows.append({"what": label, "per unit": _fmt(wall / epochs.size),
                      "cpu per unit": _fmt(cpu / epochs.size), "unit": "epoch",
-                     "total": _fmt(wall)})
+                     "total": _fmt(wall), "x probe": ref.ratio(wall / epochs.size)})
     print(f"### Ranging: {streams.t.size} ranges, {epochs.size} epochs, median over {reps} "
           "repeats (wall and CPU time)\n")
-    print_table(rows, ["what", "per unit", "cpu per unit", "unit", "total"])
+    print(ref.line() + " (wall per unit)\n")
+    print_table(rows, ["what", "per unit", "cpu per unit", "unit", "total", "x probe"])
     print()
     return rows
 
