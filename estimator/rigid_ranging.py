@@ -93,6 +93,8 @@ _TIE = 9.0
 #: a collinear array from its reflected start in 3-5 (measured) and cap the cost of the
 #: checks at about that of the main fit
 _CHECK_ITER = 10
+#: iterations during which the robust scale is re-estimated from the residuals (then frozen)
+_SCALE_ITER = 5
 
 
 @dataclass(frozen=True)
@@ -285,12 +287,16 @@ def _normal(J, w, r=None):
     return H if r is None else (H, np.matmul(Jw.transpose(0, 2, 1), r[..., None])[..., 0])
 
 
-def _robust_weights(r, mask, kind, floor):
-    """IRLS weights (E, K) and scale (E,): 1.4826 MAD of the used residuals, >= floor."""
+def _robust_weights(r, mask, kind, floor, scale=None):
+    """IRLS weights (E, K) and scale (E,): ``scale`` if given, else 1.4826 MAD of the used
+    residuals, >= floor."""
     k = ROBUST[kind]
-    med = _masked_median(r, mask)
-    mad = 1.4826 * _masked_median(np.abs(r - med[:, None]), mask)
-    s = np.maximum(np.nan_to_num(mad, nan=floor, posinf=floor), floor)
+    if scale is None:
+        med = _masked_median(r, mask)
+        mad = 1.4826 * _masked_median(np.abs(r - med[:, None]), mask)
+        s = np.maximum(np.nan_to_num(mad, nan=floor, posinf=floor), floor)
+    else:
+        s = scale
     if k is None:
         return mask.astype(float), s
     a = np.abs(r) / (k * s[:, None])
@@ -366,7 +372,13 @@ def _solve_lm(model, pos, R, b, robust, floor, max_iter, tol):
         small = np.linalg.norm(step, axis=1) <= tol * (1.0 + np.linalg.norm(pos[live], axis=1))
         done[live[(small & better) | ~ok | (lam[live] > 1e8)]] = True
         if acc.size:
-            w[acc], s[acc] = _robust_weights(r[acc], model.mask[acc], robust, floor)
+            w_new, s_new = _robust_weights(r[acc], model.mask[acc], robust, floor)
+            # the scale follows the residuals for the first _SCALE_ITER iterations, then is
+            # frozen: IRLS then minimises one fixed robust cost and the step test can be met
+            s[acc] = np.where(it[acc] <= _SCALE_ITER, s_new, s[acc])
+            if ROBUST[robust] is not None:
+                w_new = _robust_weights(r[acc], model.mask[acc], robust, floor, s[acc])[0]
+            w[acc] = w_new
     return pos, R, b, it, done, w, s, r, J
 
 
@@ -407,7 +419,7 @@ def _reflect_start(pos, R, B, A):
 def fit_pose(anchors, body, ranges, *, origin_z_m: float = 0.0, dim: int = 2,
              robust: str = "huber", bias: str = "none", sigma_m: float = 0.05,
              mirror_check: bool = True, side: int = 1, x0=None, max_iter: int = 50,
-             tol: float = 1e-9) -> RigidPoseFit:
+             tol: float = 1e-8) -> RigidPoseFit:
     """Joint robust fit of the rigid pose to all ranges of each epoch (module docstring).
 
     anchors (M, 3) m; body (N, 2|3) m (tag frame); ranges (N, M) or (E, N, M) m, NaN missing.
