@@ -99,6 +99,10 @@ REL_TOL = 0.25  # identifiability threshold, as fit_transfer_function's default
 #: The thesis's identification window (Appendix C: Time Before / After Impulse, Sampling
 #: Interval) and pitch impulse (Section 3.3.2: 0.5 s; the input is normalised to +-1).
 THESIS_WINDOW = {"before_s": 1.0, "after_s": 4.0, "dt": 0.05, "pulse_s": 0.5}
+#: the chain fitted in the thesis's window (the default ChainSpec's record is 1 s + 7 s)
+THESIS_CHAIN_SPEC = ChainSpec(before_s=THESIS_WINDOW["before_s"],
+                              record_s=THESIS_WINDOW["before_s"] + THESIS_WINDOW["after_s"],
+                              grid_dt=THESIS_WINDOW["dt"])
 
 #: The thesis's printed identified values (003_691aa933e2e3c7e2.txt, Section 3.3). K is in
 #: the thesis's units: output mm (altitude, position) or degrees (heading) per second per
@@ -242,14 +246,17 @@ def _cell(fit: TransferFit | None, key: str) -> dict:
 
 def identification_table(results: Mapping[str, AxisIdentification], *,
                          constants: Mapping | None = None, noise_m: float,
-                         chain: Mapping[str, ChainFits] | None = None) -> pd.DataFrame:
+                         chain: Mapping[str, ChainFits] | None = None,
+                         chain_window: Mapping[str, ChainFits] | None = None) -> pd.DataFrame:
     """One row per (axis, parameter incl. the total lag): the thesis's value, the simulator
     chain's constant (``constants``, :func:`sim.quadcopter.simulator_constants`), the clean
     and noisy fits with their 95 % intervals and flags, whether the thesis's value lies in
     the noisy interval (``thesis_in_noisy_ci``; not for K, whose units differ), Monte
     Carlo summaries, fit percentages, status and fit times; with ``chain``
     (:func:`experiments.identification_chain.identify_chain`) the chain-fed columns of
-    :func:`_chain_columns` (NaN without it)."""
+    :func:`_chain_columns` (NaN without it); with ``chain_window`` (the same chain, fitted
+    in the thesis's own window, :data:`THESIS_WINDOW`) ``chain_win_nf`` / ``chain_win``
+    and their flags."""
     rows: list[dict] = []
     for axis, r in results.items():
         form = r.form
@@ -285,8 +292,17 @@ def identification_table(results: Mapping[str, AxisIdentification], *,
                 "noise_sigma": r.sigma if noise_m > 0 else 0.0,
                 "n_mc": len(r.mc),
                 **_chain_columns((chain or {}).get(axis), k, thesis, c["value"]),
+                **_window_columns((chain_window or {}).get(axis), k),
             })
     return pd.DataFrame(rows)
+
+
+def _window_columns(cw: ChainFits | None, key: str) -> dict:
+    """The chain-fed fits in the thesis's window: value and flag, noise-free and faults."""
+    nf, n = _cell(cw.noise_free if cw else None, key), _cell(cw.noisy if cw else None, key)
+    return {"chain_win_nf": nf["value"], "chain_win_nf_identifiable": nf["identifiable"],
+            "chain_win": n["value"], "chain_win_identifiable": n["identifiable"],
+            "chain_win_fit_pct": cw.noisy.nrmse if cw else float("nan")}
 
 
 def _chain_columns(cf: ChainFits | None, key: str, thesis: float, truth: float) -> dict:
@@ -566,7 +582,7 @@ def run_identification(
     sim_time = time.perf_counter() - t_start
 
     results = identify(data, seed=seed, noise_m=noise_m, n_mc=n_mc, n_starts=n_starts)
-    chain_fits = None
+    chain_fits = window_fits = None
     t_chain = time.perf_counter()
     if chain:
         from experiments.identification_chain import chain_flights as default_flights
@@ -575,9 +591,11 @@ def run_identification(
         flights = chain_flights if chain_flights is not None else default_flights(seed)
         chain_fits = identify_chain(flights, seed=seed, n_runs=n_chain, n_starts=n_starts,
                                     rel_tol=REL_TOL)
+        window_fits = identify_chain(flights, seed=seed, n_runs=0, n_starts=n_starts,
+                                     rel_tol=REL_TOL, spec=THESIS_CHAIN_SPEC)
     chain_time = time.perf_counter() - t_chain
     table = identification_table(results, constants=constants, noise_m=noise_m,
-                                 chain=chain_fits)
+                                 chain=chain_fits, chain_window=window_fits)
     if responses is None:
         # the thesis-window refits are ill-conditioned by nature (slow, up to max_nfev per
         # start): 10 realisations of 3 starts show it (20 x 8 gave the same medians, 5x
@@ -614,6 +632,11 @@ def _fmt(v: float, nd: int = 4) -> str:
     if v is None or (isinstance(v, float) and not math.isfinite(v)):
         return "inf" if isinstance(v, float) and math.isinf(v) else "-"
     return f"{v:.{nd}g}"
+
+
+def _flag(identifiable: object) -> str:
+    """'' or ' (n.i.)' (flagged not identifiable) for a table cell."""
+    return " (n.i.)" if identifiable is False or identifiable == 0 else ""
 
 
 def _yes(flag: object) -> str:
@@ -656,8 +679,8 @@ def _report(table: pd.DataFrame, results: Mapping[str, AxisIdentification], meta
         r = results[axis]
         th = THESIS[axis]
         c, n = r.clean, r.noisy
-        L += [f"## {axis} -> {_TARGET[axis]} (`{form}`, Section {th['section']}, "
-              f"Fig {th['figure']})", ""]
+        L += [(f"## {axis} -> {_TARGET[axis]} (`{form}`, Section {th['section']}, "
+               f"Fig {th['figure']})"), ""]
         L += [f"Fit %: clean {c.nrmse:.2f}"
               + (f", noisy {n.nrmse:.2f} (sigma {r.sigma:.4g} {_OUT_UNIT[axis]})"
                  if n else "")
@@ -747,7 +770,9 @@ def _chain_section(table: pd.DataFrame, chain: Mapping[str, ChainFits], meta: di
           f"further realisations. *shift* = noise-free chain-fed - truth-fed; *gap closed* = "
           f"how much of the truth-fed value's distance to the thesis the chain removes "
           f"(100 % = all, negative = the chain moves it away; '-' where the truth-fed value "
-          f"already matches)."), "",
+          f"already matches). The last column fits the same chain output in the thesis's own "
+          f"window (1 s before, 4 s after the pulse, Appendix C); (n.i.) = flagged not "
+          f"identifiable."), "",
          (f"The chain's filter, in closed form (`kalman_steady_state`, steady-state gain of "
           f"the discrete Riccati equation at the mean interval {dt:.3g} s): position poles "
           f"w = {kp['w_rad_s']:.3g} rad/s (= sqrt(sigma_process / sigma_measurement) = "
@@ -759,7 +784,9 @@ def _chain_section(table: pd.DataFrame, chain: Mapping[str, ChainFits], meta: di
           f"the fitted record."), "",
          md_row(["axis", "parameter", "thesis", "truth-fed", "chain-fed, noise-free",
                  "chain-fed, faults [95 % CI]", "chain MC mean +- std", "shift",
-                 "gap closed", "thesis in chain CI"]), md_separator(10)]
+                 "gap closed", "thesis in chain CI",
+                 "chain-fed in the thesis's 5 s window: noise-free / faults"]),
+         md_separator(11)]
     for axis in AXIS_FORMS:
         if axis not in chain:
             continue
@@ -771,10 +798,12 @@ def _chain_section(table: pd.DataFrame, chain: Mapping[str, ChainFits], meta: di
                    else f"{r.gap_closed_pct:.0f} %")
             L.append(md_row([axis, k, _fmt(r.thesis, 5) if k != "K" else "-",
                              _fmt(r.clean), _fmt(r.chain_nf),
-                             f"{_fmt(r.chain)} [{_fmt(r.chain_ci_low)}, "
-                             f"{_fmt(r.chain_ci_high)}]",
+                             (f"{_fmt(r.chain)} [{_fmt(r.chain_ci_low)}, "
+                              f"{_fmt(r.chain_ci_high)}]"),
                              f"{_fmt(r.chain_mc_mean)} +- {_fmt(r.chain_mc_std, 2)}",
-                             _fmt(r.chain_shift, 3), gap, _yes(r.thesis_in_chain_ci)]))
+                             _fmt(r.chain_shift, 3), gap, _yes(r.thesis_in_chain_ci),
+                             (f"{_fmt(r.chain_win_nf)}{_flag(r.chain_win_nf_identifiable)}"
+                              f" / {_fmt(r.chain_win)}{_flag(r.chain_win_identifiable)}")]))
     L += [""]
     for axis in AXIS_FORMS:
         if axis not in chain:
@@ -829,7 +858,7 @@ def _headline(table: pd.DataFrame) -> str:
     expl = [n for n, r in named if _verdict(r).startswith(("explained", "partly"))]
     broken = [a for a in AXIS_FORMS if "breaks" in _verdict(row(a, "Td"))]
     worse = all(row(a, "K").chain_nf_fit_pct < row(a, "K").clean_fit_pct for a in AXIS_FORMS)
-    return (f"**Does the chain's lag lengthen the slow poles?** "
+    return ("**Does the chain's lag lengthen the slow poles?** "
             + (f"Yes for {', '.join(grows)}. " if grows else "No. ")
             + f"Pitch Tw {pw.clean:.3g} s truth-fed, {pw.chain_nf:.3g} s chain-fed (thesis "
             f"{pw.thesis:.3g} s); zeta {pz.clean:.3g} -> {pz.chain_nf:.3g} (thesis "
@@ -839,7 +868,12 @@ def _headline(table: pd.DataFrame) -> str:
             + ". Of these three gaps the chain explains "
             + (", ".join(expl) + " (at least partly)" if expl else "none")
             + (f"; the Td of {', '.join(broken)}, matched truth-fed by the chosen stick "
-               f"channels, no longer matches chain-fed" if broken else "") + ".")
+               f"channels, no longer matches chain-fed" if broken else "") + "."
+            + (f" Fitted in the thesis's own 5 s window, the chain-fed pitch gives Tw "
+               f"{pw.chain_win_nf:.3g} s{_flag(pw.chain_win_nf_identifiable)} and zeta "
+               f"{pz.chain_win_nf:.3g}{_flag(pz.chain_win_nf_identifiable)}, yaw Td "
+               f"{yd.chain_win_nf:.3g} s{_flag(yd.chain_win_nf_identifiable)} (noise-free "
+               f"ranges)." if math.isfinite(pw.chain_win_nf) else ""))
 
 
 def _explains(axis: str, sub: pd.DataFrame) -> str:

@@ -11,7 +11,9 @@ import math
 import numpy as np
 import pandas as pd
 import pytest
+from scipy import signal as sps
 
+from estimator.ranging import RangeStreams, localize
 from estimator.sysid import FORMS, simulate, step_response
 from experiments.identification import (
     AXIS_FORMS,
@@ -23,6 +25,15 @@ from experiments.identification import (
     run_identification,
     thesis_window_study,
 )
+from experiments.identification_chain import (
+    ChainSpec,
+    chain_config,
+    chain_response,
+    identify_chain,
+    kalman_steady_state,
+    noise_free,
+)
+from sim.ultrasonic import UltrasonicNoiseModel, load_receivers, simulate_ranges
 
 # Plants of the three forms with the simulator's rough scale (sim/quadcopter.py docstring).
 TRUE = {
@@ -248,18 +259,6 @@ def test_cli_on_simulator(tmp_path, capsys):
 
 
 # ------------------------------------------------------------- the thesis's chain (issue 28)
-from scipy import signal as sps  # noqa: E402
-
-from estimator.ranging import RangeStreams, localize  # noqa: E402
-from experiments.identification_chain import (  # noqa: E402
-    ChainSpec,
-    chain_config,
-    chain_response,
-    identify_chain,
-    kalman_steady_state,
-    noise_free,
-)
-from sim.ultrasonic import UltrasonicNoiseModel, load_receivers, simulate_ranges  # noqa: E402
 
 PHYS_DT = 0.002   # models/quadcopter.xml timestep: sample times are whole physics steps
 ALT = 2.5
@@ -273,10 +272,11 @@ class _Flight:
         self.pre_s, self.pulse_s, self.amplitude = pre_s, pulse_s, amplitude
 
 
-def known_flight(axis: str, params: dict, seed: int = 0, spec: ChainSpec = ChainSpec()):
+def known_flight(axis: str, params: dict, seed: int = 0, spec: ChainSpec | None = None):
     """Transmitters moved by the exact response of ``params`` (form of ``axis``) to the
     default pulse, logged at uneven whole-step times 0.03-0.10 s like sim.ultrasonic's
     model; returns (flight, fine t, fine y)."""
+    spec = spec if spec is not None else ChainSpec()
     amp, width = AMP[axis]
     n = round((spec.pre_s + spec.record_s + 0.5) / PHYS_DT) + 1
     tf = np.arange(n) * PHYS_DT
@@ -412,7 +412,7 @@ def test_chain_fed_fit_recovers_a_known_transfer_function(axis):
     fit recovers every parameter to within the first-order tolerance that bound implies
     (x 2 for the linearisation)."""
     spec = ChainSpec()
-    flight, tf, yf = known_flight(axis, TRUE[axis], spec=spec)
+    flight, _, yf = known_flight(axis, TRUE[axis], spec=spec)
     names, _ = load_receivers(spec.receivers)
     cfg = chain_config(names, spec, **WIDE)
     t, u, y = chain_response(flight, axis, noise_free(UltrasonicNoiseModel.load()),
@@ -447,6 +447,7 @@ def test_report_has_truth_fed_and_chain_fed_rows(chain_run):
         assert col in table
     assert table.chain_nf.notna().all() and table.chain.notna().all()
     assert table.chain_mc_std.notna().all()                       # n_chain = 2
+    assert table.chain_win_nf.notna().all() and table.chain_win.notna().all()
     # the thesis's filter lags: the chain-fed delays exceed the truth-fed ones
     td = table[table.parameter == "Td"]
     assert (td.chain_nf > td.clean + 0.1).all()
