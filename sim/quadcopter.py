@@ -92,7 +92,11 @@ The chosen (non-physical) numbers are the stick-channel delays and filters and t
 stick's mode; the physical ones (motor lag, actuator delay, drag, rotor height, inertia) are
 justified in the XML. The path flights' autopilot feeds forward the rotor drag's force and
 moment (it knows the model); the stick experiments' hobby flight controller does not.
-:func:`simulator_constants` gives every chain constant that maps onto a thesis parameter.
+:func:`simulator_constants` gives every chain constant that maps onto a thesis parameter;
+:func:`constants_matched_to_thesis` lists those chosen to reproduce a published value.
+:func:`impulse_flight` flies the same impulse experiments logged like a flight (uneven
+sample times, transmitter truth) for the thesis's processing chain
+(``experiments.identification_chain``).
 """
 
 from __future__ import annotations
