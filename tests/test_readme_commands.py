@@ -403,8 +403,8 @@ def _run_lane(base: Path, keys: list[str]) -> dict[str, dict]:
     done: dict[str, dict] = {}      # a quick form shared by two documented commands runs once
     for key in keys:
         form = MAPPED[key][0] if key in MAPPED else STATEMENT[key]
-        cmd = form.replace("{tmp}", str(tmp)).replace("{{", "{").replace("}}", "}")
-        cmd = cmd.replace("/tmp/", f"{tmp}/")
+        cmd = re.sub(r"(?<![\w/.])/tmp/", f"{tmp}/", form)   # the README's /tmp, redirected
+        cmd = cmd.replace("{tmp}", str(tmp)).replace("{{", "{").replace("}}", "}")
         if cmd in done:
             results[key] = done[cmd]
             continue
@@ -417,7 +417,8 @@ def _run_lane(base: Path, keys: list[str]) -> dict[str, dict]:
             code, tail = proc.returncode, (proc.stdout[-1500:] + proc.stderr[-2500:])
         except subprocess.TimeoutExpired:
             code, tail = None, f"timed out after {TIMEOUT_S} s"
-        allowed = _named_paths(repo, cmd) + list(ASKED_WRITES.get(form, ()))
+        allowed = [*_named_paths(repo, cmd), *ASKED_WRITES.get(key, ()),
+                   *ASKED_WRITES.get(form, ())]
         results[key] = done[cmd] = {
             "code": code, "tail": tail, "s": round(time.perf_counter() - t0, 2), "cmd": cmd,
             "leaked": _leaked(repo, before, _status(repo), allowed)}
@@ -438,8 +439,12 @@ def runs(tmp_path_factory) -> dict[str, dict]:
     with ThreadPoolExecutor(len(lanes)) as pool:
         futures = [pool.submit(_run_lane, base / name, ks) for name, ks in lanes.items()]
         results = {k: v for f in futures for k, v in f.result().items()}
-    # what ran, with its seconds, beside the scratch clones (pytest keeps the last few)
-    (base / "runs.json").write_text(json.dumps(results, indent=1))
+    # what ran, with its seconds: beside the scratch clones, and where
+    # CONFIGPOSE_COMMAND_TIMES names a file (to see which command takes the time)
+    text = json.dumps(results, indent=1)
+    (base / "runs.json").write_text(text)
+    if os.environ.get("CONFIGPOSE_COMMAND_TIMES"):
+        Path(os.environ["CONFIGPOSE_COMMAND_TIMES"]).write_text(text)
     return results
 
 
