@@ -146,12 +146,13 @@ either finite or NaN, never inf.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from statistics import NormalDist
 
 import numpy as np
 from scipy.linalg.lapack import dgetrf as _dgetrf
 from scipy.linalg.lapack import dgetri as _dgetri
+from scipy.special import chdtri as _chdtri
 
 from estimator._checks import check_array, check_increasing_times, check_int, check_real
 from estimator.memo import TrackCache, content_digest, freeze, memo_get
@@ -170,6 +171,8 @@ __all__ = [
     "kalman_update",
     "memo_pose_filter",
     "motion_integrals",
+    "nees",
+    "nis_summary",
     "pass_key",
     "run_pose_filter",
 ]
@@ -183,6 +186,17 @@ INIT_MOTION_SIGMAS = 5.0
 #: Heading sd (rad) beyond which a track is lost (45 degrees: R(yaw) is no longer near its
 #: linearisation within 2 sd); reached after a few seconds without data.
 LOST_YAW_SD = math.pi / 4
+#: Window of the NIS consistency test, s, and its fewest epochs.
+NIS_WINDOW_S = 10.0
+NIS_MIN_EPOCHS = 5
+#: Heading sd (rad) of an epoch's rigid fit below which the layout checks the state's heading
+#: (3 deg: centimetre fixes on a 0.8 m frame give ~0.1-1 deg).
+MAX_FIT_YAW_SD = math.radians(3.0)
+#: Consecutive contradicting epochs before a re-initialisation from the rigid fit.
+REINIT_EPOCHS = 3
+#: Smallest heading contradiction that re-initialises, rad (5 deg: far above any bias of a
+#: consistent filter, far below a lock-out's tens of degrees).
+REINIT_MIN_YAW_RAD = math.radians(5.0)
 #: Most relinearisations of one update (iterated EKF, see the loop).
 MAX_ITERATIONS = 4
 #: Fewest displacement values for their robust scale (MAD of 50 values: ~15 % sd).
@@ -216,46 +230,70 @@ MIN_STEP_S = 1e-9
 #: error ~1e-4 of the posterior at 1e12); the track is lost and restarts from the data.
 MAX_PRIOR_RATIO = 1e12
 
-STATUSES = ("", "no_data", "waiting", "init", "reset", "ok", "predicted", "flip_corrected")
+STATUSES = ("", "no_data", "waiting", "init", "reset", "ok", "predicted", "flip_corrected",
+            "reinit", "inconsistent")
+#: The platform limits of :class:`PoseFilterParams` (None = estimated from the data).
+LIMIT_FIELDS = ("max_accel_mps2", "max_yaw_accel_radps2", "max_turn_rate_radps",
+                "max_lateral_accel_mps2", "max_speed_mps")
+#: Optional limit: None with a given acceleration limit = unbounded within a sample.
+#: Fields :meth:`PoseFilterParams.resolve` fills from the data.
+RESOLVED_FIELDS = (*LIMIT_FIELDS, "sigma_abs_m", "sigma_step_m", "no_slip_point_m",
+                   "travel_offset_rad")
 
 
 @dataclass(frozen=True)
 class PoseFilterParams:
     """Platform limits and measurement model of the pose filter (SI units).
 
-    Limits (module docstring; defaults: the rover of models/paths/square100.toml and the
-    controller's yaw-acceleration limit, sim.controllers): ``max_accel_mps2`` (longitudinal),
-    ``max_yaw_accel_radps2``, ``max_turn_rate_radps``, ``max_lateral_accel_mps2``, each in
-    :data:`LIMIT_RANGE`.
+    Limits (module docstring): ``max_accel_mps2`` (longitudinal), ``max_yaw_accel_radps2``,
+    ``max_turn_rate_radps``, ``max_lateral_accel_mps2``, ``max_speed_mps``, each in
+    :data:`LIMIT_RANGE`; None (the default) = estimated from the recording
+    (:func:`estimator.platform.estimate_limits`: robust percentiles of the per-epoch rigid
+    fits' motion, with floors), so a car is not filtered with a rover's limits (issue 25).
+    A caller who knows the platform passes them (:meth:`from_platform`, :meth:`from_limits`).
     ``sigma_abs_m`` / ``sigma_step_m``: per-axis sd of an antenna fix and of its displacement
     over one sample interval, in :data:`SIGMA_RANGE_M`; None = :func:`estimate_noise` on the
     recording. ``flip_memory_s`` and ``lag_s`` in :data:`TIME_RANGE_S`. A value outside its
     range raises ValueError naming the field and the value.
     ``no_slip_point_m``: (x, y) of the no-slip point in the body frame relative to the
-    configuration's CG. ``reverse``: the platform may drive backwards (signed speed).
+    configuration's CG; None = estimated with the travel axis
+    (:func:`estimator.platform.estimate_travel_axis`; (0, 0) where the data cannot tell).
+    ``travel_offset_rad``: direction of travel in the layout's body frame (CCW from its x
+    axis; a frame mounted 3.4 deg off the car's axis has -3.4 deg), |value| <= pi/4; None =
+    estimated from the data (0 where they cannot tell). ``reverse``: the platform may drive
+    backwards (signed speed).
     ``gate_prob``: chi-square gate probability (1 = no gating). ``max_rejects``: consecutive
     all-rejected epochs before the track is declared lost. ``flip_memory_s``: memory of the
     configuration's heading test (reverse mode). ``lag_s``: latency of the fixed-lag smoother
-    (:mod:`estimator.pose_smoother`), s.
+    (:mod:`estimator.pose_smoother`), s. :meth:`resolve` fills every None from the data.
     """
 
-    max_accel_mps2: float = 0.5
-    max_yaw_accel_radps2: float = 1.0
-    max_turn_rate_radps: float = 0.8
-    max_lateral_accel_mps2: float = 0.8
+    max_accel_mps2: float | None = None
+    max_yaw_accel_radps2: float | None = None
+    max_turn_rate_radps: float | None = None
+    max_lateral_accel_mps2: float | None = None
     sigma_abs_m: float | None = None
     sigma_step_m: float | None = None
-    no_slip_point_m: tuple[float, float] = (0.0, 0.0)
+    no_slip_point_m: tuple[float, float] | None = None
     reverse: bool = False
     gate_prob: float = 0.999
     max_rejects: int = 5
     flip_memory_s: float = 30.0
     lag_s: float = 10.0
+    max_speed_mps: float | None = None
+    travel_offset_rad: float | None = None
+    max_jerk_mps3: float | None = None
 
     def __post_init__(self) -> None:
-        for name in ("max_accel_mps2", "max_yaw_accel_radps2", "max_turn_rate_radps",
-                     "max_lateral_accel_mps2"):
-            check_real(getattr(self, name), name, lo=LIMIT_RANGE[0], hi=LIMIT_RANGE[1])
+        for name in LIMIT_FIELDS:
+            if getattr(self, name) is not None:
+                check_real(getattr(self, name), name, lo=LIMIT_RANGE[0], hi=LIMIT_RANGE[1])
+        if self.max_jerk_mps3 is not None:
+            check_real(self.max_jerk_mps3, "max_jerk_mps3", lo=LIMIT_RANGE[0],
+                       hi=LIMIT_RANGE[1])
+        if self.travel_offset_rad is not None:
+            check_real(self.travel_offset_rad, "travel_offset_rad", lo=-math.pi / 4,
+                       hi=math.pi / 4)
         for name in ("flip_memory_s", "lag_s"):
             check_real(getattr(self, name), name, lo=TIME_RANGE_S[0], hi=TIME_RANGE_S[1])
         for name in ("sigma_abs_m", "sigma_step_m"):
@@ -267,6 +305,8 @@ class PoseFilterParams:
         if not isinstance(self.reverse, bool):
             raise TypeError(f"reverse: must be True or False, got {self.reverse!r}")
         ns = self.no_slip_point_m
+        if ns is None:
+            return
         if not isinstance(ns, (tuple, list)) or len(ns) != 2:
             raise ValueError(f"no_slip_point_m: must be (x, y) metres, got {ns!r}")
         object.__setattr__(self, "no_slip_point_m", tuple(
@@ -277,22 +317,78 @@ class PoseFilterParams:
     def sigma_accel_step(self) -> float:
         """sd of the longitudinal acceleration's change over one sample interval, m/s^2:
         half the limit (module docstring, discrete Wiener-process acceleration)."""
-        return 0.5 * self.max_accel_mps2
+        return 0.5 * self._limit("max_accel_mps2")
 
     @property
     def sigma_yaw_accel(self) -> float:
         """sd of the yaw acceleration, constant over a sample interval, rad/s^2: half the
         limit (module docstring, discrete white-noise acceleration)."""
-        return 0.5 * self.max_yaw_accel_radps2
+        return 0.5 * self._limit("max_yaw_accel_radps2")
+
+    def _limit(self, name: str) -> float:
+        v = getattr(self, name)
+        if v is None:
+            raise ValueError(f"{name}: None (estimated from the data); call resolve(t, obs, "
+                             "offsets) first")
+        return v
+
+    @property
+    def resolved(self) -> bool:
+        """Every field that may be estimated from the data is set."""
+        return all(getattr(self, k) is not None for k in RESOLVED_FIELDS)
+
+    def resolve(self, t: np.ndarray, obs: np.ndarray, offsets: np.ndarray
+                ) -> PoseFilterParams:
+        """These parameters with every None filled from the recording (t (n,) s, obs
+        (n, m, 2) m, offsets (m, 2) m relative to the CG): noise levels
+        (:func:`estimate_noise`), limits (:func:`estimator.platform.estimate_limits`),
+        travel axis and no-slip point (:func:`estimator.platform.estimate_travel_axis`).
+        Given fields are kept. Returns self when nothing is None."""
+        if self.resolved:
+            return self
+        from estimator.platform import estimate_limits, estimate_travel_axis
+
+        t, obs, off = np.asarray(t, dtype=float), np.asarray(obs, dtype=float), offsets
+        kw: dict = {}
+        if self.sigma_abs_m is None or self.sigma_step_m is None:
+            sa, ss = estimate_noise(obs, off)
+            kw["sigma_abs_m"] = self.sigma_abs_m if self.sigma_abs_m is not None else sa
+            kw["sigma_step_m"] = self.sigma_step_m if self.sigma_step_m is not None else ss
+        sigma = kw.get("sigma_abs_m", self.sigma_abs_m)
+        if any(getattr(self, k) is None for k in LIMIT_FIELDS):
+            lim = estimate_limits(t, obs, off, sigma).to_dict()
+            kw.update({k: lim[k] for k in LIMIT_FIELDS if getattr(self, k) is None})
+            if self.max_accel_mps2 is None and self.max_jerk_mps3 is None:
+                kw["max_jerk_mps3"] = lim["max_jerk_mps3"]
+        if self.travel_offset_rad is None or self.no_slip_point_m is None:
+            ax = estimate_travel_axis(t, obs, off, sigma)
+            if self.travel_offset_rad is None:
+                kw["travel_offset_rad"] = ax.offset_rad
+            if self.no_slip_point_m is None:
+                kw["no_slip_point_m"] = ax.no_slip_point()
+        return replace(self, **kw)
+
+    @classmethod
+    def from_platform(cls, limits: object, **overrides: object) -> PoseFilterParams:
+        """Parameters from a :class:`estimator.platform.PlatformLimits` (a ``[platform]``
+        block) or None (= estimated from the data); ``overrides`` set any field."""
+        from estimator.platform import PlatformLimits
+
+        if limits is None:
+            return cls(**overrides)
+        if not isinstance(limits, PlatformLimits):
+            raise TypeError(f"limits: expected a PlatformLimits or None, got "
+                            f"{type(limits).__name__}")
+        return cls.from_limits(limits.to_dict(), **overrides)
 
     @classmethod
     def from_limits(cls, limits: dict, **overrides: object) -> PoseFilterParams:
         """Parameters from a platform's limits, e.g. a path file's fields plus the
         controller's: keys ``max_accel_mps2``, ``max_yaw_accel_radps2``,
-        ``max_turn_rate_radps``, ``max_lateral_accel_mps2`` (absent or None: the default);
+        ``max_turn_rate_radps``, ``max_lateral_accel_mps2``, ``max_speed_mps`` (absent or
+        None: estimated from the data);
         other keys are ignored. ``overrides`` set any field."""
-        kw = {k: limits[k] for k in ("max_accel_mps2", "max_yaw_accel_radps2",
-                                     "max_turn_rate_radps", "max_lateral_accel_mps2")
+        kw = {k: limits[k] for k in (*LIMIT_FIELDS, "max_jerk_mps3")
               if limits.get(k) is not None}
         kw.update(overrides)
         return cls(**kw)
@@ -311,7 +407,12 @@ class PoseFilterResult:
     smoother never crosses such an epoch). status (n,) str (:data:`STATUSES`). n_used /
     n_gated (n,): antenna fixes accepted / rejected; n_steps (n,): displacements accepted.
     sigma_abs_m, sigma_step_m: the noise levels used. cg_offset (2,): CG in the body frame
-    relative to the no-slip point (CG = p + R(yaw) cg_offset).
+    relative to the no-slip point (CG = p + R(yaw) cg_offset). nis (n,): normalised
+    innovation squared of the epoch's fixes and displacements against the prediction (all of
+    them, gated ones included; NaN without data or while waiting), nis_dof (n,): its degrees
+    of freedom (2 per measurement; chi-square with nis_dof dof when the filter is
+    consistent). params: the parameters used, every None filled from the data
+    (:meth:`PoseFilterParams.resolve`). The heading of every row is the layout's.
     """
 
     states: np.ndarray
@@ -327,6 +428,9 @@ class PoseFilterResult:
     sigma_abs_m: float
     sigma_step_m: float
     cg_offset: np.ndarray = field(default_factory=lambda: np.zeros(2))
+    nis: np.ndarray | None = None
+    nis_dof: np.ndarray | None = None
+    params: PoseFilterParams | None = None
 
     def cg(self, states: np.ndarray | None = None) -> np.ndarray:
         """CG (n, 2) metres of ``states`` (default the filtered ones)."""
@@ -436,18 +540,62 @@ def _predict(x: np.ndarray, P: np.ndarray, dt: float, qa: float, qy: float
     F[PX, OMEGA], F[PY, OMEGA] = dq.real, dq.imag
     F[YAW, OMEGA] = dt
     F[V, A] = dt
-    # discrete process noise (module docstring): the acceleration changes by a random
-    # increment (variance qa, per sample) along the heading, the yaw acceleration is a
-    # random constant (variance qy) over the sample
-    h = 0.5 * dt * dt
-    g = v * dt * h / 3.0                  # a yaw acceleration alpha moves M sideways by
-    G = np.array([[h * rot.real, -g * rot.imag],     # v alpha dt^3 / 6
-                  [h * rot.imag, g * rot.real],
-                  [0.0, h], [dt, 0.0], [1.0, 0.0], [0.0, dt]])
+    # process noise (module docstring): continuous white jerk along the heading and white
+    # yaw acceleration, each with the variance of its rate's change over the sample given
+    # (qa: of the acceleration, qy / dt^2 ... of the yaw rate: qy dt^2), full rank
     FP = F @ P
-    Pn = FP @ F.T + (G * (qa, qy)) @ G.T
+    Pn = FP @ F.T
+    _add_noise(Pn, rot, v, dt, qa, qy)
     xn = np.array([px + d.real, py + d.imag, _wrap(yaw + om * dt), v + acc * dt, acc, om])
     return xn, Pn, FP
+
+
+#: Moments of the continuous white-noise models over a step (Bar-Shalom et al. 2001,
+#: Section 6.2): integral_0^dt of (dt - s)^i (dt - s)^j / (i! j!) ds, divided by dt^(i+j+1),
+#: for i, j = 0, 1, 2 (rate, its integral, the double integral).
+_CW = np.array([[1.0, 1 / 2, 1 / 6], [1 / 2, 1 / 3, 1 / 8], [1 / 6, 1 / 8, 1 / 20]])
+
+
+def _add_noise(Pn: np.ndarray, rot: complex, v: float, dt: float, qa: float, qy: float
+               ) -> None:
+    """Add the process noise over dt to Pn (6, 6) in place: white jerk along the heading
+    (acceleration change of variance ``qa`` over the sample: density qa / dt) acting on
+    (a, v, along-track position), and white yaw acceleration (yaw-rate change of variance
+    ``qy dt^2``: density qy dt) acting on (omega, yaw, and through the turn the sideways
+    position, v times the yaw's integral). Continuous models (Bar-Shalom et al. 2001,
+    Sections 6.2.2-6.2.3): full rank, so a yaw rate that steps early in the sample (a
+    steering input) and one that ramps are both inside the model."""
+    c, s = rot.real, rot.imag
+    ja = (qa / dt) if dt > 0 else 0.0
+    jy = qy * dt
+    # along: (a, v, s) = (dt^0, dt^1, dt^2) moments; yaw: (omega, yaw, v x yaw integral)
+    pw = np.array([1.0, dt, dt * dt])
+    Ma = ja * dt * _CW * np.outer(pw, pw)
+    My = jy * dt * _CW * np.outer(pw, pw)
+    lat = np.array([1.0, 1.0, v])
+    My = My * np.outer(lat, lat)
+    ia = (A, V)
+    for i in range(2):
+        for j in range(2):
+            Pn[ia[i], ia[j]] += Ma[i, j]
+    for i, k in enumerate(ia):                 # along-track position: (c, s) Ma[2, i]
+        Pn[PX, k] += c * Ma[2, i]
+        Pn[k, PX] += c * Ma[2, i]
+        Pn[PY, k] += s * Ma[2, i]
+        Pn[k, PY] += s * Ma[2, i]
+    iy = (OMEGA, YAW)
+    for i in range(2):
+        for j in range(2):
+            Pn[iy[i], iy[j]] += My[i, j]
+    for i, k in enumerate(iy):                 # sideways position: (-s, c) My[2, i]
+        Pn[PX, k] -= s * My[2, i]
+        Pn[k, PX] -= s * My[2, i]
+        Pn[PY, k] += c * My[2, i]
+        Pn[k, PY] += c * My[2, i]
+    Pn[PX, PX] += c * c * Ma[2, 2] + s * s * My[2, 2]
+    Pn[PY, PY] += s * s * Ma[2, 2] + c * c * My[2, 2]
+    Pn[PX, PY] += c * s * (Ma[2, 2] - My[2, 2])
+    Pn[PY, PX] += c * s * (Ma[2, 2] - My[2, 2])
 
 
 def ctra_predict(x: np.ndarray, P: np.ndarray, dt: float, sigma_accel_step: float,
@@ -759,10 +907,49 @@ class FilterStart:
         self.sigma_abs = sigma_abs
         self.params = params
         self.anchor = -1
+        self.r = r
+        self._spread: np.ndarray | None = None
 
     def reset(self) -> None:
         """Forget the anchor (after a lost track)."""
         self.anchor = -1
+
+    def fit_heading(self, k: int) -> tuple[float, float]:
+        """Epoch k's rigid-fit heading (rad, the filter's frame) and its sd,
+        ``sigma_abs / sqrt(sum |r_i - rbar|^2)`` over the present antennas (inf with < 2)."""
+        if self.cnt[k] < 2:
+            return math.nan, math.inf
+        if self._spread is None:
+            pr = self.present
+            w = pr.astype(float)
+            with np.errstate(invalid="ignore", divide="ignore"):
+                rbar = (w @ self.r) / w.sum(1)[:, None]
+            d = self.r[None] - rbar[:, None]
+            self._spread = ((d * d).sum(-1) * w).sum(1)
+        sp = self._spread[k]
+        return float(self.yaw[k]), (self.sigma_abs / math.sqrt(sp) if sp > 0 else math.inf)
+
+    def refit(self, k: int, x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """A re-initialised state at epoch k from its rigid fit: position and heading of the
+        fit, speed from the previous epoch's fit when there is one (else the state's
+        ``x[V]``), zero acceleration, the state's yaw rate; covariance as at a start."""
+        p, sa = self.params, self.sigma_abs
+        yaw0, ysd = self.fit_heading(k)
+        v0, vsd = float(x[V]), max(abs(float(x[V])), p.max_accel_mps2)
+        if k > 0 and self.cnt[k - 1] >= 2:
+            dt = self.t[k] - self.t[k - 1]
+            d = self.origin[k] - self.origin[k - 1]
+            v0 = (d[0] * math.cos(yaw0) + d[1] * math.sin(yaw0)) / dt
+            vsd = math.hypot(p.max_accel_mps2 * dt, sa * math.sqrt(
+                1.0 / self.cnt[k] + 1.0 / self.cnt[k - 1]) / dt)
+            if not p.reverse:
+                v0 = max(v0, 0.0)
+        pvar = sa * sa / self.cnt[k]
+        xn = np.array([self.origin[k, 0], self.origin[k, 1], _wrap(yaw0), v0, 0.0,
+                       float(x[OMEGA])])
+        P = np.diag([pvar, pvar, ysd ** 2, vsd ** 2, p.max_accel_mps2 ** 2,
+                     (0.5 * p.max_turn_rate_radps) ** 2])
+        return xn, P
 
     def wait(self, k: int) -> tuple[str, tuple[np.ndarray, np.ndarray] | None]:
         """One waiting epoch: ("no_data", None) without any fix, else ("waiting", None) or
@@ -817,6 +1004,85 @@ class FilterStart:
         P = np.diag([pvar, pvar, ysd ** 2, vsd ** 2, p.max_accel_mps2 ** 2,
                      (0.5 * p.max_turn_rate_radps) ** 2])
         return x, P
+
+
+class _Monitor:
+    """Consistency of the running filter and its guard against gate lock-out (issue 25).
+
+    NIS: the normalised innovations squared of the last ``window`` epochs with data
+    (:data:`NIS_WINDOW_S`, at least :data:`NIS_MIN_EPOCHS`) summed, against the upper
+    ``gate_prob`` quantile of chi-square with the summed degrees of freedom: above it, the
+    epoch's estimate is flagged "inconsistent". Geometry: an epoch with two or more fixes
+    whose layout gives the heading to within :data:`MAX_FIT_YAW_SD` (the rigid fit of
+    :class:`FilterStart`) tests the state's heading against it (chi-square, 1 dof,
+    ``gate_prob``, and at least :data:`REINIT_MIN_YAW_RAD` off); so does an inconsistent
+    window while fixes are gated. :data:`REINIT_EPOCHS` such epochs in a row: re-initialise
+    from the epoch's fit (:meth:`FilterStart.refit`)."""
+
+    def __init__(self, starter: FilterStart, dt_med: float, gate_prob: float) -> None:
+        self.starter = starter
+        self.window = max(NIS_MIN_EPOCHS, int(round(NIS_WINDOW_S / dt_med)))
+        self.p = gate_prob if gate_prob < 1 else 0.999
+        self.thr1 = chi2_ppf(self.p, 1)
+        self.clear()
+
+    def clear(self) -> None:
+        self.nis: list[tuple[float, int]] = []
+        self.disagree = 0
+        self.locked = 0
+
+    def check(self, k: int, nis: float, dof: int, x: np.ndarray, P: np.ndarray,
+              n_gated: int) -> tuple[bool, tuple[np.ndarray, np.ndarray] | None]:
+        """(inconsistent, refit (x0, P0) or None) after epoch k's update."""
+        if dof == 0 or not math.isfinite(nis):
+            return False, None
+        self.nis.append((nis, dof))
+        if len(self.nis) > self.window:
+            self.nis.pop(0)
+        tot = sum(v for v, _ in self.nis)
+        df = sum(d for _, d in self.nis)
+        bad = tot > float(_chdtri(df, 1.0 - self.p))
+        yaw, sd = self.starter.fit_heading(k)
+        if not sd <= MAX_FIT_YAW_SD:
+            self.disagree = self.locked = 0
+            return bad, None
+        d = _wrap(yaw - x[YAW])
+        var = P[YAW, YAW] + sd * sd
+        off = d * d > self.thr1 * var and abs(d) > REINIT_MIN_YAW_RAD
+        self.disagree = self.disagree + 1 if off else 0
+        self.locked = self.locked + 1 if (bad and n_gated > 0) else 0
+        if max(self.disagree, self.locked) >= REINIT_EPOCHS:
+            self.clear()
+            return bad, self.starter.refit(k, x)
+        return bad, None
+
+
+def _prior_nis(y: np.ndarray, Y: np.ndarray, z: np.ndarray, pat: _Pattern
+               ) -> tuple[float, int]:
+    """NIS ``nu^T S^-1 nu`` of all the epoch's measurements z (k, 2) against the prediction
+    (stacked state y (12,), covariance Y), ``S = H Y H^T + R``, and its dof 2k; (NaN, 0)
+    when S is singular."""
+    h, H = _fill_measurements(y, pat.ax, pat.ay, pat.dx, pat.dy, pat.H0.copy())
+    nu = (z - h).reshape(-1)
+    Hf = H.reshape(nu.size, -1)
+    S = Hf @ Y @ Hf.T
+    S.ravel()[::nu.size + 1] += pat.var2
+    try:
+        return float(nu @ np.linalg.solve(S, nu)), int(nu.size)
+    except np.linalg.LinAlgError:
+        return math.nan, 0
+
+
+def _rotate(r: np.ndarray, a: float) -> np.ndarray:
+    """Body offsets r (m, 2) rotated by a (rad)."""
+    c, s = math.cos(a), math.sin(a)
+    return np.c_[c * r[:, 0] - s * r[:, 1], s * r[:, 0] + c * r[:, 1]]
+
+
+def _wrap_array(a: np.ndarray) -> np.ndarray:
+    """Angles (n,) to (-pi, pi] (NaN kept)."""
+    w = np.angle(np.exp(1j * a))
+    return np.where(w == -math.pi, math.pi, w)
 
 
 class _Pattern:
@@ -954,19 +1220,25 @@ def run_pose_filter(t: np.ndarray, obs: np.ndarray, offsets: np.ndarray,
     argument.
     """
     tt, obs, off = _check_run_args(t, obs, offsets, params)
+    params = params.resolve(tt, obs, off)
     n, m = obs.shape[:2]
     ns = np.asarray(params.no_slip_point_m, dtype=float)
-    r_m = off - ns                         # antenna offsets from the no-slip point
-    cg_offset = -ns                        # CG relative to the no-slip point
-    if params.sigma_abs_m is None or params.sigma_step_m is None:
-        sa, ss = estimate_noise(obs, off)
-    sigma_abs = params.sigma_abs_m if params.sigma_abs_m is not None else sa
-    sigma_step = params.sigma_step_m if params.sigma_step_m is not None else ss
+    delta = float(params.travel_offset_rad)
+    # the filter runs in the travel frame (x along the no-slip point's velocity): antenna
+    # offsets from the no-slip point rotated by -delta, heading = layout heading + delta
+    r_m = _rotate(off - ns, -delta)
+    cg_offset = -ns                        # CG relative to the no-slip point (layout frame)
+    sigma_abs, sigma_step = params.sigma_abs_m, params.sigma_step_m
+    v_max = params.max_speed_mps
     va, vs = sigma_abs ** 2, sigma_step ** 2
     dt_med = float(np.median(np.diff(tt))) if n > 1 else 1.0
     gate = chi2_ppf(params.gate_prob, 2) if params.gate_prob < 1 else math.inf
     flip_thr = chi2_ppf(params.gate_prob, 1) if params.gate_prob < 1 else 10.83
-    qa, qy = params.sigma_accel_step ** 2, params.sigma_yaw_accel ** 2
+    # the acceleration's increment per sample: half the limit, or half the jerk limit's
+    # change over a sample when that is smaller (a car at 1 Hz: 4 m/s^2 but ~3 m/s^3)
+    jerk_step = params.max_jerk_mps3 * dt_med if params.max_jerk_mps3 is not None else math.inf
+    qa = (0.5 * min(params.max_accel_mps2, jerk_step)) ** 2
+    qy = params.sigma_yaw_accel ** 2
     om_max, alat = params.max_turn_rate_radps, params.max_lateral_accel_mps2
     a_max = params.max_accel_mps2
     lever = float(np.sqrt((r_m ** 2).sum(1).max())) if m else 0.0
@@ -981,9 +1253,12 @@ def run_pose_filter(t: np.ndarray, obs: np.ndarray, offsets: np.ndarray,
     n_used = np.zeros(n, dtype=int)
     n_gated = np.zeros(n, dtype=int)
     n_steps = np.zeros(n, dtype=int)
+    nis = np.full(n, np.nan)
+    nis_dof = np.zeros(n, dtype=int)
 
     present = np.isfinite(obs[..., 0])
     starter = FilterStart(tt, obs, r_m, sigma_abs, params)
+    monitor = _Monitor(starter, dt_med, params.gate_prob)
 
     x = P = None
     lost = False          # the next start is a restart
@@ -1003,8 +1278,9 @@ def run_pose_filter(t: np.ndarray, obs: np.ndarray, offsets: np.ndarray,
         if x is not None:
             # stochastic cloning: predict x_k and keep x_{k-1} beside it, jointly Gaussian
             dt = dts[k - 1]
-            # the acceleration's increments add up over a longer gap (random walk)
-            xp, Pp, FP = _predict(x, P, dt, qa * max(1.0, dt / dt_med), qy)
+            # continuous noise of constant density: the variances of the rates' changes
+            # given per median step, scaled to this step (longer gaps: larger)
+            xp, Pp, FP = _predict(x, P, dt, qa * dt / dt_med, qy * dt_med / dt)
             if present[k].any() and _prior_lost(Pp, lever, var_min):
                 # the prediction means nothing (e.g. after an hour's gap in t): the track
                 # is lost; this epoch's data start it again (reported as "reset")
@@ -1021,6 +1297,7 @@ def run_pose_filter(t: np.ndarray, obs: np.ndarray, offsets: np.ndarray,
             status[k] = "reset" if lost else "init"
             n_used[k] = np.count_nonzero(present[k])
             rej_abs, rej_step, llr, back = 0, 0, 0.0, 0.0
+            monitor.clear()
             continue
         # -------------------------------------------------------------------- running
         y = np.concatenate((xp, x))
@@ -1035,6 +1312,7 @@ def run_pose_filter(t: np.ndarray, obs: np.ndarray, offsets: np.ndarray,
         if ik.size:
             zk = obs[k, ik]
             z = np.concatenate((zk, obs[k, js] - obs[k - 1, js])) if js.size else zk
+            nis[k], nis_dof[k] = _prior_nis(y, Y, z, pat)
             try:
                 y1, Y1, acc = _iterated_update(y, Y, z, pat, gate, lever, 0.1 * sigma_abs)
             except np.linalg.LinAlgError:   # numerically singular: nothing to trust
@@ -1059,6 +1337,18 @@ def run_pose_filter(t: np.ndarray, obs: np.ndarray, offsets: np.ndarray,
                 y[NX + YAW] = _wrap(y[NX + YAW])
         x, P = y[:NX].copy(), Y[:NX, :NX].copy()
         XC[k], PC[k], PX_[k] = y[NX:], Y[NX:, NX:], Y[:NX, NX:]
+        bad, refit = monitor.check(k, nis[k], nis_dof[k], x, P, n_gated[k])
+        if refit is not None:
+            # the state contradicts the layout's own geometry (or its innovations stay
+            # inconsistent) for REINIT_EPOCHS epochs: re-initialised from the epoch's rigid
+            # fit; a new segment (no smoother links across it)
+            x, P = refit
+            X[k], PP[k], seg[k], status[k] = x, P, True, "reinit"
+            XC[k], PC[k], PX_[k] = np.nan, np.nan, np.nan
+            rej_abs, rej_step, llr, back = 0, 0, 0.0, 0.0
+            continue
+        if bad and st == "ok":
+            st = "inconsistent"
         if ik.size:
             # ------------------------------------------------------- direction of travel
             if not params.reverse:
@@ -1099,6 +1389,8 @@ def run_pose_filter(t: np.ndarray, obs: np.ndarray, offsets: np.ndarray,
             continue
         if not params.reverse and x[V] < 0.0:
             x[V] = 0.0          # forward mode on every row: predicted ones and flips too
+        if abs(x[V]) > v_max:
+            x[V] = math.copysign(v_max, x[V])
         # limits of the platform (projection)
         lim = om_max if x[V] == 0 else min(om_max, alat / abs(x[V]))
         if abs(x[OMEGA]) > lim:
@@ -1108,11 +1400,52 @@ def run_pose_filter(t: np.ndarray, obs: np.ndarray, offsets: np.ndarray,
         X[k], PP[k], status[k] = x, P, st
         if st == "flip_corrected":
             seg[k] = True
+    for S_ in (X, XC):                     # back to the layout's heading
+        S_[:, YAW] = _wrap_array(S_[:, YAW] - delta)
     return PoseFilterResult(states=X, covariances=PP, prev_states=XC, prev_covariances=PC,
                             cross_covariances=PX_, segment_start=seg,
                             status=status.astype(str), n_used=n_used, n_gated=n_gated,
                             n_steps=n_steps, sigma_abs_m=float(sigma_abs),
-                            sigma_step_m=float(sigma_step), cg_offset=cg_offset)
+                            sigma_step_m=float(sigma_step), cg_offset=cg_offset, nis=nis,
+                            nis_dof=nis_dof, params=params)
+
+
+def nis_summary(nis: np.ndarray, dof: np.ndarray, band: float = 0.95) -> dict[str, float]:
+    """Consistency of a filter's innovations: nis (n,) and dof (n,) per row (NaN / 0 where
+    no data). Returns ``mean_nis_per_dof`` (1 for a consistent filter), ``share_in_band``
+    (share of rows whose NIS lies inside the central ``band`` interval of chi-square with
+    that row's dof; ``band`` for a consistent filter) and ``n`` rows used."""
+    v = np.asarray(nis, dtype=float)
+    d = np.asarray(dof, dtype=float)
+    ok = np.isfinite(v) & (d > 0)
+    if not ok.any():
+        return {"mean_nis_per_dof": math.nan, "share_in_band": math.nan, "n": 0}
+    lo = _chdtri(d[ok], 0.5 + 0.5 * band)
+    hi = _chdtri(d[ok], 0.5 - 0.5 * band)
+    inside = (v[ok] >= lo) & (v[ok] <= hi)
+    return {"mean_nis_per_dof": float(v[ok].sum() / d[ok].sum()),
+            "share_in_band": float(inside.mean()), "n": int(ok.sum())}
+
+
+def nees(err: np.ndarray, cov: np.ndarray) -> np.ndarray:
+    """Normalised estimation error squared per row: err (n, k) (truth minus estimate, any
+    state components, angles wrapped by the caller) and cov (n, k, k) their covariance;
+    NaN where either is NaN or cov is singular. Chi-square with k dof when consistent."""
+    e = np.asarray(err, dtype=float)
+    C = np.asarray(cov, dtype=float)
+    out = np.full(e.shape[0], np.nan)
+    ok = np.isfinite(e).all(1) & np.isfinite(C).all((1, 2))
+    if ok.any():
+        try:
+            sol = np.linalg.solve(C[ok], e[ok][..., None])[..., 0]
+            out[ok] = (e[ok] * sol).sum(1)
+        except np.linalg.LinAlgError:
+            for i in np.flatnonzero(ok):
+                try:
+                    out[i] = float(e[i] @ np.linalg.solve(C[i], e[i]))
+                except np.linalg.LinAlgError:
+                    pass
+    return out
 
 
 def pass_key(t: np.ndarray, obs: np.ndarray, offsets: np.ndarray, params: PoseFilterParams

@@ -196,26 +196,33 @@ def fixed_lag_smooth(res: PoseFilterResult, t: np.ndarray, lag_s: float,
 
 def memo_smoothed_states(t: np.ndarray, obs: np.ndarray, offsets: np.ndarray,
                          params: PoseFilterParams, lag_s: float | None = None,
-                         cache: TrackCache | None = None) -> np.ndarray:
+                         cache: TrackCache | None = None, *, covariances: bool = False
+                         ) -> np.ndarray | tuple[np.ndarray, np.ndarray]:
     """Smoothed states (n, 6) of a recording through ``cache.smoothed``
     (:class:`estimator.memo.TrackCache`; None: computed): the states of :func:`rts_smooth`
     (``lag_s`` None) or of :func:`fixed_lag_smooth` with latency ``lag_s`` (s), over
     :func:`estimator.pose_filter.memo_pose_filter` of (t, obs, offsets, params, cache)
-    (shapes and units there), with ``params.reverse``. The same numbers as the direct calls;
+    (shapes and units there), with ``params.reverse``. ``covariances`` (RTS only): return
+    (states, covariances (n, 6, 6)). The same numbers as the direct calls;
     the RTS states serve the smoother row at every window and the smoothed heading of the
-    lag correction. The array may be shared, so it is read-only."""
+    lag correction. The arrays may be shared, so they are read-only."""
     lag = None if lag_s is None else check_real(lag_s, "lag_s", lo=0.0)
+    if covariances and lag is not None:
+        raise ValueError(f"covariances: only the RTS smoother (lag_s None) has them, got "
+                         f"lag_s={lag_s!r}")
 
-    def compute() -> np.ndarray:
+    def compute():
         res = memo_pose_filter(t, obs, offsets, params, cache)
         if lag is None:
-            sm = rts_smooth(res, params.reverse, covariances=False)
+            sm = rts_smooth(res, res.params.reverse, covariances=covariances)
+            if covariances:
+                return freeze(sm.states), freeze(sm.covariances)
         else:
-            sm = fixed_lag_smooth(res, np.asarray(t, dtype=float), lag, params.reverse)
+            sm = fixed_lag_smooth(res, np.asarray(t, dtype=float), lag, res.params.reverse)
         return freeze(sm.states)
 
-    return memo_get(cache, "smoothed", lambda: (*pass_key(t, obs, offsets, params), lag),
-                    compute)
+    return memo_get(cache, "smoothed",
+                    lambda: (*pass_key(t, obs, offsets, params), lag, covariances), compute)
 
 
 def smoothed_heading(t: np.ndarray, obs: np.ndarray, config: SensorConfig,
@@ -224,7 +231,8 @@ def smoothed_heading(t: np.ndarray, obs: np.ndarray, config: SensorConfig,
     """Smoothed heading of a recording, one value per epoch (rad, CCW from +x, (-pi, pi]).
 
     t (n,) s, obs (n, m, 2) metres (NaN = missing), config : the sensor configuration.
-    params : filter parameters (default :class:`PoseFilterParams`, the rover's limits).
+    params : filter parameters (default :class:`PoseFilterParams`: limits, noise levels
+        and travel axis estimated from the data).
     lag_s : None = full RTS (every epoch from all the data); a number = fixed-lag.
     NaN before the filter starts (:mod:`estimator.pose_filter`). Meant as the heading input
     of other estimators, e.g. the lag correction (Section 3.4.2 of the dissertation uses the

@@ -92,7 +92,9 @@ def _speed_targets(rng: np.random.Generator, duration: float, v_max: float, stop
         v = float(np.clip(rng.lognormal(math.log(6.2), 0.45), 1.0, 14.0))
         if rng.random() < 0.1:
             v = rng.uniform(0.5, 2.5)
-        seg.append((t, v * scale, rng.uniform(3.0, 7.0) * scale))
+        hard = rng.random() < 0.25                  # firm braking / acceleration
+        seg.append((t, v * scale, rng.uniform(4.5, 6.5) if hard else rng.uniform(1.5, 3.5)))
+        seg[-1] = (seg[-1][0], seg[-1][1], seg[-1][2] * scale)
         t += rng.uniform(8.0, 35.0)
         if seg[-1][0] < top <= t:
             seg.append((top, v_max, 3.0 * scale))
@@ -125,14 +127,14 @@ def _command(seg: list, t: np.ndarray, col: int) -> np.ndarray:
 def _drive(rng: np.random.Generator, duration: float, v_max: float, stop: tuple
            ) -> tuple[np.ndarray, ...]:
     """Kinematic car at SUBSTEP_S: t, rear-axle xy (N, 2), travel heading, speed, yaw rate,
-    accel (N,). Limits: the segments' accel (<= 7 m/s^2), jerk 15 m/s^3, curvature 1/4.5 m, lateral
+    accel (N,). Limits: the segments' accel (<= 6.5 m/s^2), jerk 6 m/s^3, curvature 1/4.5 m, lateral
     acceleration 4.5 m/s^2 (scaled with v_max), yaw acceleration 0.6 rad/s^2."""
     t = np.arange(0.0, duration + 1e-9, SUBSTEP_S)
     sp = _speed_targets(rng, duration, v_max, stop)
     v_cmd, a_lim = _command(sp, t, 1), _command(sp, t, 2)
     w_cmd = _command(_turn_targets(rng, duration), t, 1)
     scale = v_max / 16.0
-    jerk, alat, kappa, yacc = 15.0 * scale, 4.5 * scale, 1 / 4.5, 0.6
+    jerk, alat, kappa, yacc = 6.0 * scale, 4.5 * scale, 1 / 4.5, 0.6
     n = t.size
     v = np.zeros(n)
     a = np.zeros(n)
@@ -140,7 +142,7 @@ def _drive(rng: np.random.Generator, duration: float, v_max: float, stop: tuple
     dt = SUBSTEP_S
     vk = ak = wk = 0.0
     for k in range(1, n):
-        a_want = min(max(6.0 * (v_cmd[k] - vk), -a_lim[k]), a_lim[k])
+        a_want = min(max(2.0 * (v_cmd[k] - vk), -a_lim[k]), a_lim[k])
         ak += min(max(a_want - ak, -jerk * dt), jerk * dt)
         vk = max(vk + ak * dt, 0.0)
         if vk == 0.0:
@@ -209,7 +211,7 @@ def simulate_vehicle_case(rng: np.random.Generator, *, rate_hz: float = 1.0,
                   meta={"model": "vehicle_case", "no_slip_point_m": list(ns),
                         "mount_yaw_rad": MOUNT_YAW_RAD, "rate_hz": rate})
     present = _availability(rng, ts.size, rate, outage, block)
-    limits = {"max_speed_mps": vmax, "max_accel_mps2": 7.0 * vmax / 16.0,
+    limits = {"max_speed_mps": vmax, "max_accel_mps2": 6.5 * vmax / 16.0,
               "max_turn_rate_radps": math.radians(30.5),
               "max_lateral_accel_mps2": 4.5 * vmax / 16.0, "max_yaw_accel_radps2": 0.6}
     return VehicleCase(truth=truth, config=cfg, present=present, no_slip_point_m=ns,

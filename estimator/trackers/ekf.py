@@ -15,7 +15,7 @@ import numpy as np
 import pandas as pd
 
 from estimator.memo import TrackCache
-from estimator.pose_filter import PoseFilterParams, memo_pose_filter
+from estimator.pose_filter import PoseFilterParams, PoseFilterResult, memo_pose_filter
 from estimator.pose_smoother import memo_smoothed_states
 from estimator.trackers._common import Rows, TrackerOptions, cg_and_heading, frame, settings
 
@@ -29,7 +29,16 @@ class FilterOptions(TrackerOptions):
     :class:`estimator.pose_filter.PoseFilterParams` (platform limits, noise levels, no-slip
     point, reverse mode, smoother lag; None: the rover's defaults). ``window`` s only drops
     the first s-1 rows (the filter starts when the data allow: rows before that are NaN,
-    status "waiting"/"no_data"). Extra columns ``speed`` (m/s), ``yaw_rate`` (rad/s)."""
+    status "waiting"/"no_data"). Extra columns ``speed`` (m/s), ``yaw_rate`` (rad/s),
+    ``yaw_sd`` (rad: the heading's sd from the estimate's own covariance; NaN where it has
+    none, e.g. the fixed-lag smoother), and the forward pass's consistency: ``nis``
+    (normalised innovation squared of the epoch's fixes and displacements against the
+    prediction, NaN without data) with ``nis_dof`` degrees of freedom (chi-square with
+    nis_dof dof when the filter is consistent; :func:`estimator.pose_filter.nis_summary`
+    gives the mean NIS / dof and the share inside the 95 % band). Heading NEES at scoring:
+    ``(yaw error / yaw_sd)^2``, chi-square with 1 dof (:func:`estimator.pose_filter.nees`).
+    Status "inconsistent": the innovations of the last 10 s are outside the chi-square band
+    (not "ok"); "reinit": re-initialised from the epoch's rigid fit."""
 
     filter_params: PoseFilterParams | None = None
 
@@ -42,8 +51,10 @@ class FilterOptions(TrackerOptions):
         object.__setattr__(self, "filter_params", fp or PoseFilterParams())
 
     def _states(self, tt: np.ndarray, o: np.ndarray, offsets: np.ndarray,
-                cache: TrackCache | None) -> tuple[np.ndarray, np.ndarray, dict]:
-        """States (n, 6) [x, y, yaw, v, a, yaw rate], status (n,), extra columns (n,)."""
+                cache: TrackCache | None) -> tuple[np.ndarray, np.ndarray, PoseFilterResult,
+                                                   np.ndarray]:
+        """States (n, 6) [x, y, yaw, v, a, yaw rate], their heading sd (n,) rad, and the
+        forward pass (status, counts, NIS, the parameters it used)."""
         raise NotImplementedError
 
     def track(self, t: Any, obs: Any, config: Any, *, cache: TrackCache | None = None
@@ -54,8 +65,10 @@ class FilterOptions(TrackerOptions):
         tt, o, cfg = self._start(t, obs, config)
         k0 = self.window - 1
         offsets = cfg.body_positions - cfg.cg_body
-        r_m = offsets - np.asarray(self.filter_params.no_slip_point_m)
-        X, status, extra = self._states(tt, o, offsets, cache)
+        X, yaw_sd, res = self._states(tt, o, offsets, cache)
+        r_m = offsets - np.asarray(res.params.no_slip_point_m)   # as the pass resolved it
+        status = res.status
+        extra = {**_filter_counts(res), "yaw_sd": yaw_sd}
         X = X[k0:]
         c, sn = np.cos(X[:, 2]), np.sin(X[:, 2])
         R = np.stack([np.stack([c, -sn], -1), np.stack([sn, c], -1)], -2)  # (N, 2, 2)
@@ -70,9 +83,18 @@ class FilterOptions(TrackerOptions):
                      layout_check=self.layout_check)
 
 
-def _filter_counts(res) -> dict[str, np.ndarray]:
-    """Fixes accepted / rejected and displacements accepted per epoch (n,)."""
-    return {"n_used": res.n_used, "n_gated": res.n_gated, "n_steps": res.n_steps}
+def _filter_counts(res: PoseFilterResult) -> dict[str, np.ndarray]:
+    """Fixes accepted / rejected and displacements accepted per epoch (n,), the NIS and
+    its degrees of freedom."""
+    return {"n_used": res.n_used, "n_gated": res.n_gated, "n_steps": res.n_steps,
+            "nis": res.nis, "nis_dof": res.nis_dof}
+
+
+def _yaw_sd(P: np.ndarray | None, n: int) -> np.ndarray:
+    """Heading sd (n,) rad from covariances (n, 6, 6), NaN without them."""
+    if P is None:
+        return np.full(n, np.nan)
+    return np.sqrt(np.maximum(P[:, 2, 2], 0.0))
 
 
 @dataclass(frozen=True, kw_only=True, eq=False)
@@ -87,7 +109,7 @@ class PoseFilterTracker(FilterOptions):
         # window, the smoothers and the smoothed heading of the lag correction; the cached
         # arrays are read-only, the rows copy
         res = memo_pose_filter(tt, o, offsets, self.filter_params, cache)
-        return res.states, res.status, _filter_counts(res)
+        return res.states, _yaw_sd(res.covariances, tt.size), res
 
 
 @dataclass(frozen=True, kw_only=True, eq=False)
@@ -102,7 +124,7 @@ class FixedLagSmootherTracker(FilterOptions):
         p = self.filter_params
         res = memo_pose_filter(tt, o, offsets, p, cache)
         X = memo_smoothed_states(tt, o, offsets, p, p.lag_s, cache)
-        return X, res.status, _filter_counts(res)
+        return X, _yaw_sd(None, tt.size), res
 
 
 @dataclass(frozen=True, kw_only=True, eq=False)
@@ -116,5 +138,5 @@ class RtsSmootherTracker(FilterOptions):
     def _states(self, tt, o, offsets, cache):
         p = self.filter_params
         res = memo_pose_filter(tt, o, offsets, p, cache)
-        X = memo_smoothed_states(tt, o, offsets, p, None, cache)
-        return X, res.status, _filter_counts(res)
+        X, P = memo_smoothed_states(tt, o, offsets, p, None, cache, covariances=True)
+        return X, _yaw_sd(P, tt.size), res
