@@ -147,6 +147,8 @@ def run_gtsam_peer(t: np.ndarray, obs: np.ndarray, offsets: np.ndarray,
     """
     gtsam = _import_gtsam()
     tt, obs, off = _check_run_args(t, obs, offsets, params)
+    # limits, noise and no-slip point estimated from the data where None (as the EKF)
+    params = params.resolve(tt, obs, off)
     lag = check_real(params.lag_s if lag_s is None else lag_s, "lag_s", lo=0.0)
     n, m = obs.shape[:2]
     ns = np.asarray(params.no_slip_point_m, dtype=float)
