@@ -51,8 +51,8 @@ from estimator.rigid_fit import procrustes_batch
 __all__ = [
     "BIAS_MODES",
     "ROBUST",
-    "STATUSES",
     "STATE",
+    "STATUSES",
     "FilterConfig",
     "RigidPoseFit",
     "TrackResult",
@@ -760,35 +760,31 @@ def _run(t, r, bounds, bx, by, dz2, ax, ay, init, cfg):
             x0 += x3 * dt
             x1 += x4 * dt
             x2 += x5 * dt
-            (p00, p01, p02, p03, p04, p05, p06, p11, p12, p13, p14, p15, p16, p22, p23, p24, p25,
-                p26, p33, p34, p35, p36, p44, p45, p46, p55, p56, p66) = (
+            # P <- F P F' + Q (F = I + dt [0 I; 0 0] on the (pose, rate) blocks); the
+            # rate-rate and rate-bias entries p34 p35 p36 p45 p46 p56 are unchanged
+            (p00, p01, p02, p03, p04, p05, p06, p11, p12, p13, p14, p15, p16, p22, p23, p24,
+                p25, p26, p33, p44, p55, p66) = (
                 p00 + dt * (p03 + p03) + dt2 * p33 + qa3,
                 p01 + dt * (p13 + p04) + dt2 * p34,
                 p02 + dt * (p23 + p05) + dt2 * p35,
-                p03 + dt * (p33) + qa2,
-                p04 + dt * (p34),
-                p05 + dt * (p35),
-                p06 + dt * (p36),
+                p03 + dt * p33 + qa2,
+                p04 + dt * p34,
+                p05 + dt * p35,
+                p06 + dt * p36,
                 p11 + dt * (p14 + p14) + dt2 * p44 + qa3,
                 p12 + dt * (p24 + p15) + dt2 * p45,
-                p13 + dt * (p34),
-                p14 + dt * (p44) + qa2,
-                p15 + dt * (p45),
-                p16 + dt * (p46),
+                p13 + dt * p34,
+                p14 + dt * p44 + qa2,
+                p15 + dt * p45,
+                p16 + dt * p46,
                 p22 + dt * (p25 + p25) + dt2 * p55 + qw3,
-                p23 + dt * (p35),
-                p24 + dt * (p45),
-                p25 + dt * (p55) + qw2,
-                p26 + dt * (p56),
+                p23 + dt * p35,
+                p24 + dt * p45,
+                p25 + dt * p55 + qw2,
+                p26 + dt * p56,
                 p33 + qa1,
-                p34,
-                p35,
-                p36,
                 p44 + qa1,
-                p45,
-                p46,
                 p55 + qw1,
-                p56,
                 p66 + qb1,
             )
         t_prev = te
@@ -819,7 +815,7 @@ def _run(t, r, bounds, bx, by, dz2, ax, ay, init, cfg):
                 S = hx * h0 + hy * h1 + ht * h2 + h6 + R
                 nis = nu * nu / S
                 nis_out[u] = nis
-                ewma += ((nis if nis < 100.0 else 100.0) - ewma) * 0.005
+                ewma += ((min(100.0, nis)) - ewma) * 0.005
                 if nis > gate2:
                     ng += 1
                     continue

@@ -41,8 +41,12 @@ from scipy.optimize import minimize_scalar
 from estimator import rigid_ranging as rr
 from estimator.orientation import wrap_angle
 from experiments.markdown import markdown_table
-from sim.range_recording import (RangeRecording, StaticReference, TrajectoryReference,
-                                 load_range_recording)
+from sim.range_recording import (
+    RangeRecording,
+    StaticReference,
+    TrajectoryReference,
+    load_range_recording,
+)
 
 __all__ = ["COLUMNS", "METHODS", "estimate", "main", "run", "score", "score_static",
            "score_trajectory"]
@@ -107,12 +111,12 @@ def _errors(pose: np.ndarray, ref: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
 def _row(e, ey, inside, offset):
     ok = np.isfinite(e) & inside
     if not ok.any():
-        return dict(rmse_2d_m=np.nan, yaw_rmse_deg=np.nan, max_error_2d_m=np.nan,
-                    mean_error_2d_m=np.nan, clock_offset_s=offset, coverage=0.0)
-    return dict(rmse_2d_m=float(np.sqrt(np.mean(e[ok] ** 2))),
-                yaw_rmse_deg=float(np.sqrt(np.mean(ey[ok] ** 2))),
-                max_error_2d_m=float(np.max(e[ok])), mean_error_2d_m=float(np.mean(e[ok])),
-                clock_offset_s=offset, coverage=float(ok.sum() / max(inside.sum(), 1)))
+        return {"rmse_2d_m": np.nan, "yaw_rmse_deg": np.nan, "max_error_2d_m": np.nan,
+                    "mean_error_2d_m": np.nan, "clock_offset_s": offset, "coverage": 0.0}
+    return {"rmse_2d_m": float(np.sqrt(np.mean(e[ok] ** 2))),
+                "yaw_rmse_deg": float(np.sqrt(np.mean(ey[ok] ** 2))),
+                "max_error_2d_m": float(np.max(e[ok])), "mean_error_2d_m": float(np.mean(e[ok])),
+                "clock_offset_s": offset, "coverage": float(ok.sum() / max(inside.sum(), 1))}
 
 
 def score_static(pose: np.ndarray, ref: StaticReference) -> tuple[dict, np.ndarray]:
@@ -247,21 +251,26 @@ def run(folders, out: str | Path = DEFAULT_OUT, *, figures: bool = True) -> pd.D
 
 
 def main(argv: list[str] | None = None) -> int:
-    ap = argparse.ArgumentParser(prog="python -m experiments.rigid_ranging",
-                                 description=__doc__,
-                                 formatter_class=argparse.RawDescriptionHelpFormatter)
+    from experiments.cli import ArgumentParser
+
+    ap = ArgumentParser(prog="python -m experiments.rigid_ranging", description=__doc__,
+                        formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("dirs", nargs="+", metavar="RUN_DIR", help="run folders with setup.toml")
-    ap.add_argument("--out", default=str(DEFAULT_OUT), help="output folder")
+    ap.add_argument("--out", default=str(DEFAULT_OUT),
+                    help="output folder (default results/local/rigid_ranging/, untracked)")
     ap.add_argument("--no-figures", action="store_true")
     a = ap.parse_args(argv)
     try:
         table = run(a.dirs, a.out, figures=not a.no_figures)
-    except ValueError as exc:
-        print(f"error: {exc}", file=sys.stderr)
+    except (OSError, ValueError) as exc:
+        print(f"{ap.prog}: error: {exc}", file=sys.stderr)
         return 2
     print(markdown_table(table, floatfmt=".3f"))
+    print(f"written to {a.out}")
     return 0
 
 
 if __name__ == "__main__":
-    raise SystemExit(main())
+    from experiments.cli import run as run_cli
+
+    run_cli(main)

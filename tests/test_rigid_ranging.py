@@ -10,7 +10,6 @@ from __future__ import annotations
 
 import gzip
 import math
-import time
 
 import numpy as np
 import pytest
@@ -18,8 +17,12 @@ from scipy import stats
 
 from estimator import rigid_ranging as rr
 from experiments import rigid_ranging as score
-from sim.range_recording import (RangeRecordingError, StaticReference, TrajectoryReference,
-                                 load_range_recording)
+from sim.range_recording import (
+    RangeRecordingError,
+    StaticReference,
+    TrajectoryReference,
+    load_range_recording,
+)
 
 ANCHORS = np.array([[-3.4, 3.0, 1.04], [0.0, 3.0, 1.10], [3.6, 3.0, 0.98], [3.6, 0.0, 1.06],
                     [3.5, -3.0, 1.00], [0.0, -3.0, 1.12], [-3.4, -3.0, 1.02],
@@ -61,7 +64,7 @@ def test_exact_pose_3d():
     R = rr._rotvec(np.array([[0.1, -0.2, 0.9]]))[0]
     t = np.array([0.4, -0.8, 1.2])
     D = np.linalg.norm(((R @ body.T).T + t)[:, None] - A[None], axis=2)
-    pos, R0, ok = rr.closed_form_start(A, body, D, dim=3)
+    pos, _R0, ok = rr.closed_form_start(A, body, D, dim=3)
     assert ok.all()
     np.testing.assert_allclose(pos[0], t, atol=1e-6)
     f = rr.fit_pose(A, body, D, dim=3, robust="none")
@@ -199,17 +202,17 @@ def test_mirrored_layout_detected_and_good_geometry_ok():
 
 
 @pytest.mark.parametrize("kw, field", [
-    (dict(anchors=np.zeros((2, 3))), "anchors"),
-    (dict(body=np.zeros((1, 2))), "body"),
-    (dict(ranges=np.ones((3, 7))), "ranges"),
-    (dict(ranges=-np.ones((3, 8))), "ranges"),
-    (dict(robust="l1"), "robust"),
-    (dict(bias="pair"), "bias"),
-    (dict(dim=4), "dim"),
-    (dict(sigma_m=0.0), "sigma_m"),
+    ({"anchors": np.zeros((2, 3))}, "anchors"),
+    ({"body": np.zeros((1, 2))}, "body"),
+    ({"ranges": np.ones((3, 7))}, "ranges"),
+    ({"ranges": -np.ones((3, 8))}, "ranges"),
+    ({"robust": "l1"}, "robust"),
+    ({"bias": "pair"}, "bias"),
+    ({"dim": 4}, "dim"),
+    ({"sigma_m": 0.0}, "sigma_m"),
 ])
 def test_fit_pose_validation_names_the_field(kw, field):
-    args = dict(anchors=ANCHORS, body=BODY, ranges=np.ones((3, 8)))
+    args = {"anchors": ANCHORS, "body": BODY, "ranges": np.ones((3, 8))}
     args.update({k: v for k, v in kw.items() if k in args})
     rest = {k: v for k, v in kw.items() if k not in args}
     with pytest.raises(ValueError, match=field):
