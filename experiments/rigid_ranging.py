@@ -112,11 +112,11 @@ def _row(e, ey, inside, offset):
     ok = np.isfinite(e) & inside
     if not ok.any():
         return {"rmse_2d_m": np.nan, "yaw_rmse_deg": np.nan, "max_error_2d_m": np.nan,
-                    "mean_error_2d_m": np.nan, "clock_offset_s": offset, "coverage": 0.0}
+                "mean_error_2d_m": np.nan, "clock_offset_s": offset, "coverage": 0.0}
     return {"rmse_2d_m": float(np.sqrt(np.mean(e[ok] ** 2))),
-                "yaw_rmse_deg": float(np.sqrt(np.mean(ey[ok] ** 2))),
-                "max_error_2d_m": float(np.max(e[ok])), "mean_error_2d_m": float(np.mean(e[ok])),
-                "clock_offset_s": offset, "coverage": float(ok.sum() / max(inside.sum(), 1))}
+            "yaw_rmse_deg": float(np.sqrt(np.mean(ey[ok] ** 2))),
+            "max_error_2d_m": float(np.max(e[ok])), "mean_error_2d_m": float(np.mean(e[ok])),
+            "clock_offset_s": offset, "coverage": float(ok.sum() / max(inside.sum(), 1))}
 
 
 def score_static(pose: np.ndarray, ref: StaticReference) -> tuple[dict, np.ndarray]:
@@ -167,8 +167,8 @@ def _label(folder: Path) -> str:
     return "/".join(p[-2:])
 
 
-def _plots(rec: RangeRecording, label: str, est: dict, errors: dict, offsets: dict,
-           out: Path) -> None:
+def _plots(rec: RangeRecording, label: str, est: dict, errors: dict, out: Path) -> None:
+    """errors.png (2-D error of every method vs time) and trajectory.png (overlay)."""
     import matplotlib
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
@@ -202,7 +202,6 @@ def _plots(rec: RangeRecording, label: str, est: dict, errors: dict, offsets: di
     fig.tight_layout()
     fig.savefig(out / "trajectory.png", dpi=90)
     plt.close(fig)
-    del offsets
 
 
 def evaluate(folder: Path) -> tuple[list[dict], dict]:
@@ -243,7 +242,7 @@ def run(folders, out: str | Path = DEFAULT_OUT, *, figures: bool = True) -> pd.D
         if figures:
             sub = out / _label(d).replace("/", "_")
             sub.mkdir(parents=True, exist_ok=True)
-            _plots(ev["rec"], _label(d), ev["est"], ev["errors"], ev["offsets"], sub)
+            _plots(ev["rec"], _label(d), ev["est"], ev["errors"], sub)
     table = pd.DataFrame(rows, columns=list(COLUMNS))
     table.to_csv(out / "summary.csv", index=False, float_format="%.6g")
     (out / "summary.md").write_text(markdown_table(table, floatfmt=".3f") + "\n")
