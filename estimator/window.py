@@ -52,6 +52,15 @@ Solvers (all return the proper-handed configuration, never its mirror image):
     the objective by less than ``CCP_RTOL`` = 1e-6 (relative); the subproblems use a band
     narrowed by ``CCP_MARGIN`` = 1e-8 m so solver round-off cannot leave the true band.
 
+Single calls (issue 27): ``fit_window(..., solver="procrustes")`` on a 2-D window takes a
+fast path that makes the same checks as whole-array reductions (one NaN mask, one magnitude
+and one weight min/max), forms the window sums in a handful of numpy calls and solves the
+d = 2 closed form in Python floats: about 35 us instead of 240 us for a 10-epoch, 8-antenna
+window on the reference machine (``python -m experiments.bench --only fit_window``). Any
+input it does not take as it is (a check that would fail, insufficient data, d = 3, an
+x0 to check, total weight below 1e-250) goes to the general path, so every message and
+status is the general path's; the results agree to round-off (tests/test_window.py).
+
 Handedness: pairwise distances do not distinguish the configuration from its mirror image,
 and with metre-level noise on a metre-sized platform the mirror often fits the data better
 (../shared/notes/window-solvers.md). The iterative solvers therefore start from the
@@ -401,7 +410,7 @@ def _fast_obs(obs: Any, config: SensorConfig):
         return None
     nan = np.isnan(arr)
     present = ~nan[..., 0]
-    sel = arr[present]
+    sel = arr.reshape(-1, 2)[present.ravel()]  # == arr[present], a little cheaper
     k = sel.shape[0]
     if k == 0 or not np.maximum.reduce(np.abs(sel), axis=None) <= MAX_COORD_M:
         return None  # no sample, or an inf, a NaN y or a coordinate beyond MAX_COORD_M
@@ -432,38 +441,49 @@ def _fast_weights(weights: Any, present: np.ndarray) -> np.ndarray | None:
 
 
 def _fast_moments(obs0: np.ndarray, present: np.ndarray, wa: np.ndarray | None):
-    """Per-sensor means (m, 2) of the centred obs (0 where a sensor or axis has no weight),
-    sensor weights (m,) and the weights as a factor of (s, m, 2) arrays, as the general
-    path computes them (bit for bit: a weight of 1 or 0 times a value is exact)."""
+    """Weighted sums ``sw_i * mean_i`` (m, 2) of the centred obs and the sensor weights
+    ``sw`` (m,) of the rigid fit, as the general path forms them (a weight of 1 or 0 times a
+    value is exact). Isotropic weights: the plain weighted sums. Per-axis weights: the
+    per-axis means times the sensor weight (the mean of its axis weights; 0, and no means,
+    if an axis has none: module docstring)."""
     if wa is None:
-        Wa = np.add.reduce(present, axis=0, dtype=float)
-        means = np.add.reduce(obs0, axis=0) / np.maximum(Wa, 1.0)[:, None]
-        return means, Wa, present[..., None]
+        return np.add.reduce(obs0, axis=0), np.add.reduce(present, axis=0, dtype=float)
     Wa = np.add.reduce(wa, axis=0)
     if wa.ndim == 2:
-        means = np.add.reduce(wa[..., None] * obs0, axis=0) / np.maximum(Wa, 5e-324)[:, None]
-        return means, Wa, wa[..., None]
+        return np.add.reduce(wa[..., None] * obs0, axis=0), Wa
     means = np.add.reduce(wa * obs0, axis=0) / np.maximum(Wa, 5e-324)  # 0 / tiny = 0
     full = (Wa[:, 0] > 0.0) & (Wa[:, 1] > 0.0)
-    return means, np.where(full, np.add.reduce(Wa, axis=1) / 2.0, 0.0), wa
+    sw = np.where(full, np.add.reduce(Wa, axis=1) / 2.0, 0.0)
+    return means * sw[:, None], sw
 
 
-def _rigid_2d(means: np.ndarray, sw: np.ndarray, B1: np.ndarray):
+def _fast_objective(obs0: np.ndarray, nan: np.ndarray, wa: np.ndarray | None,
+                    p: np.ndarray) -> float:
+    """:func:`_objective` at positions ``p`` (m, 2), bit for bit: unweighted, the residuals
+    are zeroed at missing samples instead of multiplied by a 0/1 weight."""
+    r = obs0 - p
+    if wa is None:
+        r[nan] = 0.0
+        return float(np.add.reduce(r * r, axis=None))
+    return float(np.add.reduce((wa[..., None] if wa.ndim == 2 else wa) * r * r, axis=None))
+
+
+def _rigid_2d(wy: np.ndarray, sw: np.ndarray, B1: np.ndarray):
     """Closed-form weighted rigid fit in 2-D (Kabsch without scale, as procrustes_batch).
 
-    means (m, 2) metres (0 where ``sw`` is 0), sw (m,) weights, B1 = [body - centroid, 1]
-    (m, 3) (:class:`~estimator.configuration.PairGeometry`). ``M = sum_i w_i (y_i - ybar)
-    (b_i - bbar)^T`` from one product with the moments ``sum w y b^T - W ybar bbar^T``
-    (means and body are both centred, so nothing cancels). Returns None if the total weight
-    W < FAST_MIN_WEIGHT, else W, the proper fit (c, s, t_x, t_y) (world = R b + t with b a
-    row of B1[:, :2], R = [[c, -s], [s, c]]), ``best - best_mirror`` (half the objective gap
-    to the mirror fit) and the mirror fit (c, s, t_x, t_y) with R_m = [[c, s], [s, -c]].
+    wy (m, 2) = sw_i * mean_i (metres; 0 where ``sw`` is 0), sw (m,) weights, B1 = [body -
+    centroid, 1] (m, 3) (:class:`~estimator.configuration.PairGeometry`). ``M = sum_i w_i
+    (y_i - ybar)(b_i - bbar)^T`` from one product with the moments ``sum w y b^T - W ybar
+    bbar^T`` (means and body are both centred, so nothing cancels). Returns None if the
+    total weight W < FAST_MIN_WEIGHT, else W, the proper fit (c, s, t_x, t_y) (world =
+    R b + t with b a row of B1[:, :2], R = [[c, -s], [s, c]]), ``best - best_mirror`` (half
+    the objective gap to the mirror fit) and the mirror fit (c, s, t_x, t_y) with
+    R_m = [[c, s], [s, -c]].
     """
     sb0, sb1, W = (sw @ B1).tolist()
     if not W >= FAST_MIN_WEIGHT:
         return None  # weights near underflow: the general path's order of operations
-    wy = means.T * sw
-    (k00, k01, sy0), (k10, k11, sy1) = (wy @ B1).tolist()
+    (k00, k01, sy0), (k10, k11, sy1) = (wy.T @ B1).tolist()
     sy0, sy1, sb0, sb1 = sy0 / W, sy1 / W, sb0 / W, sb1 / W  # ybar, bbar
     m00, m01 = k00 - W * sy0 * sb0, k01 - W * sy0 * sb1
     m10, m11 = k10 - W * sy1 * sb0, k11 - W * sy1 * sb1
@@ -497,30 +517,32 @@ def _fast_procrustes(obs: Any, config: SensorConfig, weights: Any | None, eps: A
         return None
     obs0 = arr - centre
     obs0[nan] = 0.0
-    means, sw, wa3 = _fast_moments(obs0, present, wa)
+    wy, sw = _fast_moments(obs0, present, wa)
     if np.count_nonzero(sw) < 2:
         return None  # insufficient data: the general path reports it
-    fit = _rigid_2d(means, sw, g.body1)
+    fit = _rigid_2d(wy, sw, g.body1)
     if fit is None or (x0 is not None and not _x0_ok(x0, config)):
         return None
     _, (c, s, tx, ty), gap, (cm, sm, mx, my) = fit
     p_c = g.body1 @ np.array([[c, s], [-s, c], [tx, ty]])  # R b + t
-    obj = _objective(obs0, wa3, p_c)
-    if wa3.shape[-1] == 1:
+    obj = _fast_objective(obs0, nan, wa, p_c)
+    if wa is None or wa.ndim == 2:
         mirror = max(obj + 2.0 * gap, 0.0)  # isotropic: Z_mirror - Z = 2 (best - best_mirror)
     else:
-        mirror = _objective(obs0, wa3, g.body1 @ np.array([[cm, sm], [sm, -cm], [mx, my]]))
+        mirror = _objective(obs0, wa, g.body1 @ np.array([[cm, sm], [sm, -cm], [mx, my]]))
     yaw = math.atan2(s, c)
     if yaw <= -math.pi:
         yaw = math.pi
-    dx, dy = p_c.T @ g.difference.T
-    viol = max(map(abs, (np.hypot(dx, dy) - g.a).tolist()))
+    d = g.difference @ p_c  # p[I] - p[J], exactly
+    viol = max(map(abs, (np.hypot(d[:, 0], d[:, 1]) - g.a).tolist()))
     positions = p_c + centre
     rows = positions.tolist()
     cg = np.array([sum(rows[i][a] for i in g.cg_index) / len(g.cg_index) for a in (0, 1)])
-    return WindowFit(positions=positions, cg=cg, yaw=yaw, objective=obj,
-                     mirror_objective=mirror, max_violation=viol, solver="procrustes",
-                     iterations=0, status="ok")
+    fit = object.__new__(WindowFit)  # the frozen dataclass's fields, without 9 setattr calls
+    fit.__dict__.update(positions=positions, cg=cg, yaw=yaw, objective=obj,
+                        mirror_objective=mirror, max_violation=viol, solver="procrustes",
+                        iterations=0, status="ok")
+    return fit
 
 
 # ----------------------------------------------------------------------------- public fit
