@@ -52,14 +52,15 @@ Solvers (all return the proper-handed configuration, never its mirror image):
     the objective by less than ``CCP_RTOL`` = 1e-6 (relative); the subproblems use a band
     narrowed by ``CCP_MARGIN`` = 1e-8 m so solver round-off cannot leave the true band.
 
-Single calls (issue 27): ``fit_window(..., solver="procrustes")`` on a 2-D window takes a
-fast path that makes the same checks as whole-array reductions (one NaN mask, one magnitude
-and one weight min/max), forms the window sums in a handful of numpy calls and solves the
-d = 2 closed form in Python floats: about 35 us instead of 240 us for a 10-epoch, 8-antenna
-window on the reference machine (``python -m experiments.bench --only fit_window``). Any
-input it does not take as it is (a check that would fail, insufficient data, d = 3, an
-x0 to check, total weight below 1e-250) goes to the general path, so every message and
-status is the general path's; the results agree to round-off (tests/test_window.py).
+Single calls (issue 27): ``fit_window(..., solver="procrustes")`` takes a fast path that
+makes the same checks as whole-array reductions (one NaN mask, one magnitude and one weight
+min/max), forms the window sums in a handful of numpy calls and solves the d = 2 closed form
+in Python floats (d = 3: one 3x3 SVD): about 35 us instead of 240 us for a 10-epoch,
+8-antenna 2-D window on the reference machine (``python -m experiments.bench --only
+fit_window``). Any input it does not take as it is (a check that would fail, insufficient
+data, nearly collinear 3-D sensors, a total weight below 1e-250) goes to the general path,
+so every message and status is the general path's; the results agree with it to round-off
+(1e-12 m + 2 ulp of the coordinate; tests/test_window.py).
 
 Handedness: pairwise distances do not distinguish the configuration from its mirror image,
 and with metre-level noise on a metre-sized platform the mirror often fits the data better
@@ -393,34 +394,35 @@ def _x0_ok(x0: Any, config: SensorConfig) -> bool:
 
 
 def _fast_obs(obs: Any, config: SensorConfig):
-    """(obs as float (s, m, 2), its NaN mask, present (s, m), window centre (2,)) if ``obs``
+    """(obs as float (s, m, d), its NaN mask, present (s, m), window centre (d,)) if ``obs``
     passes every check of :func:`_check_obs` and fit_window's shape check and has a sample;
     else None.
 
-    A sample is present where x is not NaN; its y must then be finite (the magnitude check
-    on the present samples catches a NaN), so y is NaN only where x is, and the count of
-    NaNs (twice the missing samples) says it is NaN at every one: together the general
-    path's half-NaN check.
+    A sample is present where x is not NaN; its other coordinates must then be finite (the
+    magnitude check on the present samples catches a NaN), so they are NaN only where x is,
+    and the count of NaNs (d per missing sample) says they are NaN at every one: together
+    the general path's half-NaN check.
     """
     try:
         arr = np.asarray(obs, dtype=float)
     except (TypeError, ValueError):
         return None
-    if arr.ndim != 3 or arr.shape[1:] != (config.m, 2):
+    d = config.d
+    if arr.ndim != 3 or arr.shape[1:] != (config.m, d):
         return None
     nan = np.isnan(arr)
     present = ~nan[..., 0]
-    sel = arr.reshape(-1, 2)[present.ravel()]  # == arr[present], a little cheaper
+    sel = arr.reshape(-1, d)[present.ravel()]  # == arr[present], a little cheaper
     k = sel.shape[0]
     if k == 0 or not np.maximum.reduce(np.abs(sel), axis=None) <= MAX_COORD_M:
         return None  # no sample, or an inf, a NaN y or a coordinate beyond MAX_COORD_M
-    if np.count_nonzero(nan) != 2 * (present.size - k):
-        return None  # a sample with x NaN and y not
+    if np.count_nonzero(nan) != d * (present.size - k):
+        return None  # a sample with x NaN and y (or z) not
     return arr, nan, present, np.add.reduce(sel, axis=0) / k  # == arr[present].mean(0)
 
 
-def _fast_weights(weights: Any, present: np.ndarray) -> np.ndarray | None:
-    """Weights zeroed at missing samples, (s, m) isotropic or (s, m, 2) per axis (None in:
+def _fast_weights(weights: Any, present: np.ndarray, d: int) -> np.ndarray | None:
+    """Weights zeroed at missing samples, (s, m) isotropic or (s, m, d) per axis (None in:
     None out), or False if they would fail :func:`_check_weights` (shape, NaN, inf, < 0,
     > MAX_WEIGHT)."""
     if weights is None:
@@ -431,7 +433,7 @@ def _fast_weights(weights: Any, present: np.ndarray) -> np.ndarray | None:
         return False
     if w.shape == present.shape:
         mask = present
-    elif w.shape == present.shape + (2,):
+    elif w.shape == present.shape + (d,):
         mask = present[..., None]
     else:
         return False
@@ -452,8 +454,8 @@ def _fast_moments(obs0: np.ndarray, present: np.ndarray, wa: np.ndarray | None):
     if wa.ndim == 2:
         return np.add.reduce(wa[..., None] * obs0, axis=0), Wa
     means = np.add.reduce(wa * obs0, axis=0) / np.maximum(Wa, 5e-324)  # 0 / tiny = 0
-    full = (Wa[:, 0] > 0.0) & (Wa[:, 1] > 0.0)
-    sw = np.where(full, np.add.reduce(Wa, axis=1) / 2.0, 0.0)
+    full = (Wa > 0.0).all(axis=1)
+    sw = np.where(full, np.add.reduce(Wa, axis=1) / Wa.shape[1], 0.0)  # == Wa.mean(axis=1)
     return means * sw[:, None], sw
 
 
@@ -475,10 +477,10 @@ def _rigid_2d(wy: np.ndarray, sw: np.ndarray, B1: np.ndarray):
     centroid, 1] (m, 3) (:class:`~estimator.configuration.PairGeometry`). ``M = sum_i w_i
     (y_i - ybar)(b_i - bbar)^T`` from one product with the moments ``sum w y b^T - W ybar
     bbar^T`` (means and body are both centred, so nothing cancels). Returns None if the
-    total weight W < FAST_MIN_WEIGHT, else W, the proper fit (c, s, t_x, t_y) (world =
-    R b + t with b a row of B1[:, :2], R = [[c, -s], [s, c]]), ``best - best_mirror`` (half
-    the objective gap to the mirror fit) and the mirror fit (c, s, t_x, t_y) with
-    R_m = [[c, s], [s, -c]].
+    total weight W < FAST_MIN_WEIGHT, else (T, gap, T_m, yaw): the proper fit as the (3, 2)
+    matrix ``T = [R^T; t]`` with window-centred positions ``B1 @ T`` (R = [[c, -s], [s, c]]),
+    ``gap = best - best_mirror`` (half the objective gap to the mirror fit), the mirror fit
+    as T_m (R_m = [[c, s], [s, -c]]) and the yaw of R, rad in (-pi, pi].
     """
     sb0, sb1, W = (sw @ B1).tolist()
     if not W >= FAST_MIN_WEIGHT:
@@ -491,20 +493,54 @@ def _rigid_2d(wy: np.ndarray, sw: np.ndarray, B1: np.ndarray):
     qc, qs = m00 - m11, m01 + m10
     th = math.atan2(ps, pc)
     c, s = math.cos(th), math.sin(th)
-    proper = (c, s, sy0 - (c * sb0 - s * sb1), sy1 - (s * sb0 + c * sb1))
+    T = [[c, s], [-s, c], [sy0 - (c * sb0 - s * sb1), sy1 - (s * sb0 + c * sb1)]]
     ph = math.atan2(qs, qc)
     cm, sm = math.cos(ph), math.sin(ph)
-    mirror = (cm, sm, sy0 - (cm * sb0 + sm * sb1), sy1 - (sm * sb0 - cm * sb1))
-    return W, proper, math.hypot(pc, ps) - math.hypot(qc, qs), mirror
+    T_m = [[cm, sm], [sm, -cm], [sy0 - (cm * sb0 + sm * sb1), sy1 - (sm * sb0 - cm * sb1)]]
+    yaw = math.atan2(s, c)
+    gap = math.hypot(pc, ps) - math.hypot(qc, qs)
+    return T, gap, T_m, (math.pi if yaw <= -math.pi else yaw)
+
+
+#: relative margin around procrustes_batch's 3-D collinearity threshold (1e-12) inside which
+#: the fast path leaves the verdict to the general path (its moments round differently)
+_COLLINEAR_MARGIN = 100.0
+
+
+def _rigid_3d(wy: np.ndarray, sw: np.ndarray, B1: np.ndarray):
+    """:func:`_rigid_2d` for d = 3 (B1 (m, 4), T (4, 3)): the weighted cross-covariance
+    ``M`` from the moments, its SVD with the determinant correction (as procrustes_batch),
+    ``gap = 2 det S_3``. None also when fewer than 3 sensors have weight or the weighted
+    body points are (nearly) collinear: the general path decides those."""
+    if np.count_nonzero(sw) < 3:
+        return None
+    G = (B1.T * sw) @ B1  # [[sum w b b^T, sum w b], [sum w b^T, W]]
+    W = float(G[3, 3])
+    if not W >= FAST_MIN_WEIGHT:
+        return None
+    bbar = G[:3, 3] / W
+    ev = np.linalg.eigvalsh(G[:3, :3] - W * np.outer(bbar, bbar))
+    if ev[1] <= _COLLINEAR_MARGIN * 1e-12 * max(ev[2], 1e-300):
+        return None
+    K = wy.T @ B1
+    ybar = K[:, 3] / W
+    U, S, Vt = np.linalg.svd(K[:, :3] - W * np.outer(ybar, bbar))
+    det = float(np.sign(np.linalg.det(U @ Vt))) or 1.0
+    R = (U * [1.0, 1.0, det]) @ Vt
+    R_m = (U * [1.0, 1.0, -det]) @ Vt
+    T = np.vstack([R.T, ybar - R @ bbar])
+    T_m = np.vstack([R_m.T, ybar - R_m @ bbar])
+    yaw = math.atan2(R[1, 0], R[0, 0])
+    return T, 2.0 * det * float(S[2]), T_m, (math.pi if yaw <= -math.pi else yaw)
 
 
 def _fast_procrustes(obs: Any, config: SensorConfig, weights: Any | None, eps: Any,
                      x0: Any, maxiter: Any) -> WindowFit | None:
-    """fit_window(obs, config, weights, eps, "procrustes", x0, maxiter=maxiter) for a 2-D
-    window that passes every check and has enough data, in ~30 numpy calls; None sends the
+    """fit_window(obs, config, weights, eps, "procrustes", x0, maxiter=maxiter) for a window
+    that passes every check and has enough data, in ~30 numpy calls (d = 2); None sends the
     call to the general path (which checks again and names the field, or fits)."""
     g = config.pair_geometry
-    if config.d != 2 or type(eps) not in _FAST_REALS or not 0.0 < eps < g.min_distance / 2.0:
+    if type(eps) not in _FAST_REALS or not 0.0 < eps < g.min_distance / 2.0:
         return None
     if type(maxiter) is not int or maxiter < 1:
         return None
@@ -512,7 +548,7 @@ def _fast_procrustes(obs: Any, config: SensorConfig, weights: Any | None, eps: A
     if got is None:
         return None
     arr, nan, present, centre = got
-    wa = _fast_weights(weights, present)
+    wa = _fast_weights(weights, present, config.d)
     if wa is False:
         return None
     obs0 = arr - centre
@@ -520,24 +556,31 @@ def _fast_procrustes(obs: Any, config: SensorConfig, weights: Any | None, eps: A
     wy, sw = _fast_moments(obs0, present, wa)
     if np.count_nonzero(sw) < 2:
         return None  # insufficient data: the general path reports it
-    fit = _rigid_2d(wy, sw, g.body1)
+    fit = (_rigid_2d if config.d == 2 else _rigid_3d)(wy, sw, g.body1)
     if fit is None or (x0 is not None and not _x0_ok(x0, config)):
         return None
-    _, (c, s, tx, ty), gap, (cm, sm, mx, my) = fit
-    p_c = g.body1 @ np.array([[c, s], [-s, c], [tx, ty]])  # R b + t
+    T, gap, T_m, yaw = fit
+    p_c = g.body1 @ np.asarray(T)  # window-centred R b + t
     obj = _fast_objective(obs0, nan, wa, p_c)
     if wa is None or wa.ndim == 2:
         mirror = max(obj + 2.0 * gap, 0.0)  # isotropic: Z_mirror - Z = 2 (best - best_mirror)
     else:
-        mirror = _objective(obs0, wa, g.body1 @ np.array([[cm, sm], [sm, -cm], [mx, my]]))
-    yaw = math.atan2(s, c)
-    if yaw <= -math.pi:
-        yaw = math.pi
-    d = g.difference @ p_c  # p[I] - p[J], exactly
-    viol = max(map(abs, (np.hypot(d[:, 0], d[:, 1]) - g.a).tolist()))
+        mirror = _objective(obs0, wa, g.body1 @ np.asarray(T_m))
+    return _fast_result(p_c, centre, g, obj, mirror, yaw)
+
+
+def _fast_result(p_c: np.ndarray, centre: np.ndarray, g: Any, obj: float, mirror: float,
+                 yaw: float) -> WindowFit:
+    """The WindowFit of :func:`_result` from window-centred positions (m, d): violation on
+    the centred positions, CG (Eq. 3.8) as the mean of the members' world positions."""
+    dif = g.difference @ p_c  # p[I] - p[J], exactly
+    dist = np.hypot(dif[:, 0], dif[:, 1]) if p_c.shape[1] == 2 else \
+        np.sqrt((dif * dif).sum(axis=1))
+    viol = max(map(abs, (dist - g.a).tolist()))
     positions = p_c + centre
     rows = positions.tolist()
-    cg = np.array([sum(rows[i][a] for i in g.cg_index) / len(g.cg_index) for a in (0, 1)])
+    cg = np.array([sum(rows[i][a] for i in g.cg_index) / len(g.cg_index)
+                   for a in range(p_c.shape[1])])
     fit = object.__new__(WindowFit)  # the frozen dataclass's fields, without 9 setattr calls
     fit.__dict__.update(positions=positions, cg=cg, yaw=yaw, objective=obj,
                         mirror_objective=mirror, max_violation=viol, solver="procrustes",

@@ -649,7 +649,7 @@ def _fast_window(rng, cfg, s, utm, missing, weights):
     if weights == "sm":
         w = rng.uniform(0.0, 3.0, size=(s, cfg.m))
     elif weights == "smd":
-        w = rng.uniform(0.0, 3.0, size=(s, cfg.m, 2))
+        w = rng.uniform(0.0, 3.0, size=(s, cfg.m, cfg.d))
         w[rng.random(w.shape) < 0.05] = 0.0
     else:
         w = None
@@ -664,26 +664,28 @@ def _tol(ref):
 
 @pytest.mark.parametrize("weights", [None, "sm", "smd"])
 def test_fast_path_matches_batched_procrustes(monkeypatch, weights):
-    """The fast path against the batched route (window_means / window_moments +
-    procrustes_batch, the general path's own pieces) on 150 random 2-D windows with missing
-    samples, dead sensors and UTM-sized coordinates: positions and CG within 1e-12 m + 2 ulp,
-    yaw within 1e-12 rad, objectives within 1e-12 relative (+1e-12 m^2 for noise-free
-    windows whose objective is round-off); the fast path is asserted to be taken."""
+    """The fast path against the batched route (window_means + procrustes_batch, the
+    general path's own pieces) on 150 random windows (2-D, and 3-D with every sensor
+    observed) with missing samples, dead sensors and UTM-sized coordinates: positions and CG
+    within 1e-12 m + 2 ulp, yaw within 1e-12 rad, objectives within 1e-12 relative (+1e-12
+    m^2 for noise-free windows whose objective is round-off); the fast path is asserted to
+    be taken."""
     fast = _fast_only(monkeypatch)
     rng = np.random.default_rng(27)
     n = 0
     for k in range(150):
-        m = int(rng.integers(2, 9))
-        cfg = SensorConfig.load("rover_gps8") if k % 3 == 0 else \
-            random_config(rng, m, 2, dead=int(rng.integers(0, 2)) if m > 2 else 0)
+        d = 3 if k % 5 == 4 else 2
+        m = int(rng.integers(d, 9))
+        cfg = SensorConfig.load("rover_gps8") if k % 3 == 0 and d == 2 else \
+            random_config(rng, m, d, dead=int(rng.integers(0, 2)) if m > d and d == 2 else 0)
         s = int(rng.choice([1, 3, 10, 30]))
-        obs, w = _fast_window(rng, cfg, s, utm=bool(k % 2), missing=0.2 * (k % 4 == 1),
-                              weights=weights)
+        obs, w = _fast_window(rng, cfg, s, utm=bool(k % 2),
+                              missing=0.2 * (k % 4 == 1 and d == 2), weights=weights)
         # the batched route on coordinates relative to a sample (fit_window uses the window
         # mean): means of UTM-sized values taken directly would be off by ~1e-10 m
-        ref = obs[~np.isnan(obs[..., 0])][0] if not np.isnan(obs).all() else np.zeros(2)
+        ref = obs[~np.isnan(obs[..., 0])][0] if not np.isnan(obs).all() else np.zeros(d)
         means, sw = window_means(obs - ref, w)
-        if (sw > 0).sum() < 2:
+        if (sw > 0).sum() < d:
             continue
         n += 1
         fit = fast(obs, cfg, weights=w)
@@ -707,26 +709,29 @@ def test_fast_path_matches_batched_procrustes(monkeypatch, weights):
     assert n > 100
 
 
-def test_fast_path_matches_scipy_orthogonal_procrustes(monkeypatch):
-    """Unweighted, every sample present: the fitted rotation is scipy's orthogonal
-    Procrustes rotation of the centred body onto the centred window means whenever that one
-    is proper (it is the unconstrained optimum), within 1e-12 rad."""
+@pytest.mark.parametrize("d", [2, 3])
+def test_fast_path_matches_scipy_orthogonal_procrustes(monkeypatch, d):
+    """Unweighted, every sample present: the fit is scipy's orthogonal Procrustes rotation
+    of the centred body onto the centred window means whenever that one is proper (it is
+    the unconstrained optimum): yaw within 1e-12 rad, positions within 1e-12 m + 2 ulp."""
     fast = _fast_only(monkeypatch)
-    rng = np.random.default_rng(5)
+    rng = np.random.default_rng(5 + d)
     checked = 0
     for _ in range(60):
-        cfg = random_config(rng, int(rng.integers(3, 9)), 2)
+        cfg = random_config(rng, int(rng.integers(d + 1, 9)), d)
         _, obs, _ = scene(rng, cfg, 10, noise=0.3, utm=True)
         fit = fast(obs, cfg)
-        Y = (obs - obs[0, 0]).mean(axis=0)  # centred first: at 4e6 m a mean loses 1e-10 m
-        Yc = Y - Y.mean(axis=0)
+        o0 = obs[0, 0]
+        Y = (obs - o0).mean(axis=0)  # centred first: at 4e6 m a mean loses 1e-10 m
         Bc = cfg.body_positions - cfg.body_positions.mean(axis=0)
-        R, _ = orthogonal_procrustes(Bc, Yc)  # Bc @ R ~ Yc, R = rotation^T
+        R, _ = orthogonal_procrustes(Bc, Y - Y.mean(axis=0))  # Bc @ R ~ Yc, R = rotation^T
         if np.linalg.det(R) < 0:
             continue
         checked += 1
         assert abs(math.remainder(fit.yaw - math.atan2(R[0, 1], R[0, 0]), 2 * math.pi)) \
             <= 1e-12
+        pos = (Bc @ R + Y.mean(axis=0)) + o0
+        assert (np.abs(fit.positions - pos) <= _tol(pos)).all()
     assert checked > 30
 
 
