@@ -28,7 +28,7 @@ solve) on all windows at once. Speed-up = slsqp time / time. Timings are single-
 
 Section ``fit_window``: one ``fit_window`` call (procrustes, the default) on a 10-epoch,
 8-antenna ``rover_gps8`` window as above, unweighted and with weights per sample and sensor
-(s, m) and per axis (s, m, d), and a 3-D window of the same size (the general path): median
+(s, m) and per axis (s, m, d), and a 3-D window of the same size (heights added): median
 wall and CPU time per call over many windows, beside the batched route's time per window
 (``window_means`` + ``procrustes_batch``) and one SLSQP fit of the same windows; target
 <= 30 us per 2-D call (issue 27).
@@ -287,7 +287,7 @@ def bench_fit_window(quick: bool = False) -> list[dict]:
          [(w, rng.uniform(0.1, 2.0, size=(s, cfg.m))) for w in windows]),
         ("2-D, weights (s, m, d)", cfg,
          [(w, rng.uniform(0.1, 2.0, size=(s, cfg.m, 2))) for w in windows]),
-        ("3-D, unweighted (general path)", cfg3,
+        ("3-D, unweighted", cfg3,
          [(_lift_3d(w, cfg3, rng), None) for w in windows[:n // 10]])]
     rows = []
     for label, c, calls in cases:

@@ -44,7 +44,7 @@ def test_fit_window_section_reports_ratios(capsys):
     assert head == ["case", "wall per call", "CPU per call (mean)", "x probe", "x batched",
                     "speed-up", "target", "met"]
     assert [r[0] for r in rows] == ["2-D, unweighted", "2-D, weights (s, m)",
-                                    "2-D, weights (s, m, d)", "3-D, unweighted (general path)"]
+                                    "2-D, weights (s, m, d)", "3-D, unweighted"]
     probe_us = float(re.search(r"numpy probe ([\d.]+) us", out).group(1))
     for r in rows:
         wall_us = float(r[1].split()[0]) * (1e3 if r[1].endswith("ms") else 1.0)
