@@ -36,7 +36,7 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from experiments.techniques import ORACLE_TECHNIQUES, REGISTRY
+from experiments.techniques import ORACLE_TECHNIQUES, REGISTRY, plugins_in_results
 
 __all__ = ["draw_all", "draw_task", "figure_tasks", "load_epochs", "main"]
 
@@ -286,8 +286,16 @@ def _orientation_figs(E: _Epochs, out: Path, written: list[Path]) -> None:
     _save(fig, out / "fig_4_119_orientation_box.png", written)
 
 
+def _tech_style(tech: str, plugins: dict) -> tuple[str, str]:
+    """(short label, colour) of a technique: its registry entry's, or its plug-in entry's
+    (experiments.techniques.plugin_entries: the spec's label and colour or the palette's)."""
+    if tech in TECH_LABELS:
+        return TECH_LABELS[tech], TECH_COLORS[tech]
+    return plugins[tech].short, plugins[tech].color
+
+
 def _technique_fig(E: _Epochs, out: Path, written: list[Path], name: str, title: str,
-                   techs: list[str], masks: list[str]) -> None:
+                   techs: list[str], masks: list[str], plugins: dict | None = None) -> None:
     path = _path1(E)
     if path is None:
         return
@@ -312,7 +320,8 @@ def _technique_fig(E: _Epochs, out: Path, written: list[Path], name: str, title:
                 v, s = E.pooled(f"err_{axis}", mask=mask, path=path, technique=t, window=w,
                                 weighting=[wt, "-"])
                 seeds += s
-                groups.append((f"w={w}\n{TECH_LABELS[t]}", v, TECH_COLORS[t]))
+                label, color = _tech_style(t, plugins or {})
+                groups.append((f"w={w}\n{label}", v, color))
             _boxes(axes[r, c], groups, f"|{axis}| CG error (m)")
             where = {"full": "full path", "no_turns": "no turns (epochs not turning)",
                      "no_turns_window": "no turns (no turning epoch in the window)"}[mask]
@@ -533,10 +542,12 @@ def _draw_task(out: Path, task: str) -> tuple[list[Path], list[str]]:
                        "lag correction combined with the dynamic window (Fig 4.123)",
                        ["none", "lc", "dyn", "lc+dyn"], ["full"])
     elif task == "beyond":
+        # the spec's plug-in trackers beside the built-in ones, in their own colours
+        plugins = plugins_in_results(E.index["technique"], out)
         _technique_fig(E, out, written, "fig_beyond.png",
                        "the dissertation's techniques and the beyond-the-thesis trackers",
-                       ["none", "lc+dyn", "lc_course+dyn", "motion_compensated", "ekf", "naive"],
-                       ["full"])
+                       ["none", "lc+dyn", "lc_course+dyn", "motion_compensated", "ekf", "naive",
+                        *plugins], ["full"], plugins)
     elif task == "overlay":
         _overlay_figs(E, out, written)
     elif task == "sensor1":

@@ -109,7 +109,7 @@ def write_report(cells: pd.DataFrame, out_dir: str | Path, spec=None) -> Path:
     When the sweep has several variants (e.g. two configurations or noise models, see
     :func:`experiments.tables.variants`), every claim is evaluated on each variant.
     """
-    from experiments.tables import run_name, side_studies, variants
+    from experiments.tables import plugin_section, run_name, side_studies, variants
 
     _COLUMNS.clear()
     cells = numpy_strings(cells)
@@ -167,6 +167,7 @@ def write_report(cells: pd.DataFrame, out_dir: str | Path, spec=None) -> Path:
     first = per_variant[0][0]
     lines += causes.seed_spread_section(evidence[first].main)
     lines += causes.observability_section(evidence[first].main, studies)
+    lines += plugin_section(cells, out, spec)      # the spec's plug-in trackers, if any
     rows: list[dict] = []
     for lab, res in per_variant:
         for r in res:

@@ -111,13 +111,16 @@ from estimator.weights import WEIGHTINGS as WEIGHT_SCHEMES
 from estimator.weights import Weighting
 from estimator.window import SOLVERS
 from experiments.techniques import (
-    DYNAMIC,
     FILTER_TECHNIQUES,
     NO_SOLVER,
     NO_WEIGHTS,
     ORACLE_TECHNIQUES,
+    PLUGIN_KEYS,
+    REGISTRY,
     TECHNIQUES,
     TURNING_SOURCES,
+    Technique,
+    plugin_entries,
     techniques_help,
 )
 from experiments.techniques import technique as _technique
@@ -186,7 +189,7 @@ MAX_SESSION_S = 7 * 86400.0
 MAX_SEEDS = 10_000
 MAX_CELLS = 200_000
 _TOP = {"name", "description", "seed", "seeds", "masks", "sim_seed", "session_s", "defaults",
-        "grid", "epochs"}
+        "grid", "epochs", "techniques"}
 
 
 class SpecError(ValueError):
@@ -289,6 +292,13 @@ class Cell:
     recording: str = "-"           # "-" = a simulated path; else a recording (spec docstring)
     key: str = field(default="", compare=False)
     files: tuple[tuple[str, str], ...] = field(default=(), compare=False, repr=False)
+    #: the plug-in entry of a plug-in technique (experiments.techniques.plugin_entries)
+    plugin: Technique | None = field(default=None, compare=False, repr=False)
+
+    @property
+    def entry(self) -> Technique:
+        """The technique's entry: the registry's, or the spec's plug-in entry."""
+        return self.plugin if self.plugin is not None else _technique(self.technique)
 
     def params(self) -> dict[str, Any]:
         """Axis values and seed as a flat dict (the cell's columns in cells.parquet)."""
@@ -362,6 +372,10 @@ class Spec:
     raw: dict = field(default_factory=dict, repr=False)
     #: Built in Python without ``base_dir``: file paths are the caller's, taken as given.
     direct_paths: bool = False
+    #: Plug-in techniques: name -> entry (kind "plugin", experiments.techniques).
+    plugins: dict = field(default_factory=dict, repr=False)
+    #: Plug-in techniques: name -> (source file of the tracker class, its sha256 prefix).
+    plugin_files: dict = field(default_factory=dict, repr=False)
 
     @property
     def _base(self) -> Path | None:
@@ -424,10 +438,12 @@ class Spec:
         if len(set(masks)) != len(masks) or not masks:
             raise SpecError(f"{src}: masks: must be non-empty without duplicates, got {masks!r}")
 
+        plugins, plugin_files = _load_plugins(data, src)
         defaults = data.get("defaults", {})
         if not isinstance(defaults, dict):
             raise SpecError(f"{src}: defaults: must be a table")
-        defaults = {k: _check_axis(k, v, f"{src}: defaults.{k}", rbase, scalar=True)
+        defaults = {k: _check_axis(k, v, f"{src}: defaults.{k}", rbase, scalar=True,
+                                   plugins=plugins)
                     for k, v in defaults.items()}
         grid_raw = data.get("grid")
         if not isinstance(grid_raw, list) or not grid_raw:
@@ -447,7 +463,8 @@ class Spec:
                 if not vals:
                     raise SpecError(f"{where}.{k}: empty list")
                 out[k] = [_check_axis(k, x, f"{where}.{k}" + (f"[{i}]" if isinstance(v, list)
-                                                               else ""), rbase, scalar=True)
+                                                               else ""), rbase, scalar=True,
+                                      plugins=plugins)
                           for i, x in enumerate(vals)]
             has_rec = any(r != "-" for r in out.get("recording", [defaults.get("recording", "-")]))
             for req in ("path", "window"):
@@ -458,7 +475,7 @@ class Spec:
             grid.append(out)
         epochs = data.get("epochs")
         if epochs is not None:
-            epochs = _check_epochs(epochs, f"{src}: epochs", rbase)
+            epochs = _check_epochs(epochs, f"{src}: epochs", rbase, plugins)
         n_grid = sum(math.prod(len(b[k]) for k in b if k != "name") for b in grid)
         if n_grid * len(seeds) > MAX_CELLS:
             raise SpecError(f"{src}: grid: {n_grid} axis combinations x {len(seeds)} seeds = "
@@ -466,7 +483,7 @@ class Spec:
         spec = cls(name=name, description=desc, seed=int(seed), seeds=seeds, masks=masks,
                    sim_seed=int(sim_seed), defaults=defaults, grid=tuple(grid), epochs=epochs,
                    session_s=float(session_s), source=src, base_dir=base, raw=data,
-                   direct_paths=base_dir is None)
+                   direct_paths=base_dir is None, plugins=plugins, plugin_files=plugin_files)
         spec.expand()   # resolve and check every file now, so bad names fail at load time
         return spec
 
@@ -492,17 +509,21 @@ class Spec:
                     self._recording_axes(v, "config" in block, hashes,
                                          f"{self.source}: grid[{gi}]")
                 tech = v["technique"]
-                if tech in NO_SOLVER:
+                entry = _technique(tech, self.plugins)
+                if not entry.uses_solver:
                     v["solver"] = "-"
-                if tech in NO_WEIGHTS:
+                if not entry.uses_weights:
                     v["weighting"] = "-"
-                if tech not in DYNAMIC:
+                if not entry.dynamic:
                     v["dyn_window"], v["turning"], v["dyn_growth"] = 0, "-", "-"
                 elif v["dyn_window"] > v["window"]:
                     raise SpecError(f"{self.source}: grid[{gi}].dyn_window: {v['dyn_window']} "
                                     f"exceeds window {v['window']} (the small window of the "
                                     "dynamic technique must be <= the window)")
                 files = self._files(v, hashes, f"{self.source}: grid[{gi}]")
+                plugin = self.plugins.get(tech)
+                if plugin is not None:
+                    files["tracker"] = self.plugin_files[tech]
                 self._check_overrides(v, files, checked, f"{self.source}: grid[{gi}]")
                 lab = _cell_labels(v, files, labels, f"{self.source}: grid[{gi}]")
                 for seed in self.seeds:
@@ -514,7 +535,8 @@ class Spec:
                                 path_overrides=_canon(v["path_overrides"]),
                                 noise_overrides=_canon(v["noise_overrides"]),
                                 recording=v["recording"],
-                                files=tuple(sorted((k, p) for k, (p, _) in files.items())))
+                                files=tuple(sorted((k, p) for k, (p, _) in files.items())),
+                                plugin=plugin)
                     params = cell.params()
                     if params["recording"] == "-":
                         del params["recording"]     # keys of simulated cells as before
@@ -522,6 +544,9 @@ class Spec:
                              "session_s": self.session_s,
                              **params,
                              "files": {k: h for k, (_, h) in sorted(files.items())}}
+                    if plugin is not None:          # built-in cells' keys as before
+                        ident["plugin"] = {"tracker": plugin.tracker,
+                                           "options": json.loads(plugin.options)}
                     key = hashlib.sha256(_canon(ident).encode()).hexdigest()[:20]
                     cells.setdefault(key, replace(cell, key=key))
         return list(cells.values())
@@ -675,7 +700,8 @@ class Spec:
                 "seeds": list(self.seeds), "masks": list(self.masks), "sim_seed": self.sim_seed,
                 "session_s": self.session_s,
                 "defaults": self.defaults, "grid": [dict(b) for b in self.grid],
-                "epochs": self.epochs, "source": self.source}
+                "epochs": self.epochs, "source": self.source,
+                **({"techniques": self.raw.get("techniques", {})} if self.plugins else {})}
 
 
 # --------------------------------------------------------------------------- validation
@@ -731,8 +757,10 @@ def axis_help() -> str:
          f"{', '.join(DYN_GROWTH)}")])
 
 
-def _check_axis(axis: str, v: object, where: str, base: Path, *, scalar: bool) -> Any:
-    """Validate one value of an axis; returns the canonical value."""
+def _check_axis(axis: str, v: object, where: str, base: Path, *, scalar: bool,
+                plugins: dict | None = None) -> Any:
+    """Validate one value of an axis (``plugins``: the spec's plug-in entries, which the
+    ``technique`` axis may name); returns the canonical value."""
     if axis not in AXES:
         raise SpecError(f"{where.rsplit('.', 1)[0]}: unknown key {axis!r}; allowed axes: "
                         f"{sorted(AXES)} (plus 'name' in a grid block)")
@@ -761,7 +789,7 @@ def _check_axis(axis: str, v: object, where: str, base: Path, *, scalar: bool) -
             raise SpecError(f"{where}: {str(exc).removeprefix('weighting: ')}") from None
     elif axis == "technique":
         try:
-            tech = _technique(v)
+            tech = _technique(v, plugins)
         except ValueError as exc:
             raise SpecError(f"{where}: {str(exc).removeprefix('technique: ')}") from None
         if tech.requires:
@@ -789,7 +817,7 @@ def _check_axis(axis: str, v: object, where: str, base: Path, *, scalar: bool) -
     return v
 
 
-def _check_epochs(e: object, where: str, base: Path) -> dict:
+def _check_epochs(e: object, where: str, base: Path, plugins: dict | None = None) -> dict:
     if not isinstance(e, dict):
         raise SpecError(f"{where}: must be a table")
     unknown = sorted(set(e) - {"seeds", "where"})
@@ -811,9 +839,130 @@ def _check_epochs(e: object, where: str, base: Path) -> dict:
             raise SpecError(f"{where}.where: unknown axis {k!r}; allowed: {sorted(AXES)} "
                             "(select seeds with epochs.seeds)")
         vals = vals if isinstance(vals, list) else [vals]
-        out["where"][k] = [_check_axis(k, x, f"{where}.where.{k}[{i}]", base, scalar=True)
+        out["where"][k] = [_check_axis(k, x, f"{where}.where.{k}[{i}]", base, scalar=True,
+                                       plugins=plugins)
                            for i, x in enumerate(vals)]
     return out
+
+
+# --------------------------------------------------------------------------- plug-ins
+_PLUGIN_NAME = re.compile(r"^[A-Za-z_][\w.:+-]*$")
+_COLOR = re.compile(r"^#[0-9a-fA-F]{6}$")
+#: Labels of the built-in table rows: a plug-in's label must differ from each.
+_BUILTIN_LABELS = frozenset(label for t in REGISTRY
+                            for label in (*(r[0] for r in t.rows), t.heading_row) if label)
+
+
+def _load_plugins(data: dict, src: str) -> tuple[dict[str, Technique], dict[str, tuple]]:
+    """The spec's plug-in techniques (README, Plug-in trackers): the ``[techniques]``
+    tables checked, every plug-in's tracker built once with its options
+    (:func:`estimator.trackers.base.load_tracker`, so a bad import path, class or option
+    fails at load naming the field), its class's source file hashed. Returns (name ->
+    entry, name -> (source file, sha256 prefix))."""
+    tables = data.get("techniques", {})
+    if not isinstance(tables, dict):
+        raise SpecError(f"{src}: techniques: must be a table of [techniques.\"<name>\"] "
+                        f"tables, got {tables!r}")
+    for name, tab in tables.items():
+        _check_plugin_table(name, tab, f"{src}: techniques.{name}")
+    entries = plugin_entries(data, _entry_point_names(data, tables))
+    labels: dict[str, str] = {}
+    for name, ent in entries.items():
+        where = _where(src, tables, data, name)
+        if not _PLUGIN_NAME.match(name):
+            raise SpecError(f"{where}: technique name {name!r}: letters, digits and _.:+- only")
+        label = ent.rows[0][0]
+        if label in _BUILTIN_LABELS or label in labels:
+            raise SpecError(f"{where}.label: {label!r} is already the label of "
+                            f"{labels.get(label, 'a built-in row')}; give a label of its own")
+        labels[label] = repr(name)
+    files = {name: _plugin_file(ent, _where(src, tables, data, name))
+             for name, ent in entries.items()}
+    return entries, files
+
+
+def _where(src: str, tables: dict, data: dict, name: str) -> str:
+    return f"{src}: techniques.{name}" if name in tables else f"{src}: {_first_use(data, name)}"
+
+
+def _check_plugin_table(name: object, tab: object, where: str) -> None:
+    """One ``[techniques."<name>"]`` table: its keys and their types."""
+    if isinstance(name, str) and name in TECHNIQUES:
+        raise SpecError(f"{where}: {name!r} is a built-in technique; a plug-in takes a name "
+                        "of its own (and 'tracker = ...' to name its class)")
+    if not isinstance(tab, dict):
+        raise SpecError(f"{where}: must be a table (tracker, options, label, color), got "
+                        f"{tab!r}")
+    unknown = sorted(set(tab) - set(PLUGIN_KEYS))
+    if unknown:
+        raise SpecError(f"{where}: unknown key(s) {unknown}; allowed: {list(PLUGIN_KEYS)}")
+    tracker = tab.get("tracker", name)
+    if not isinstance(tracker, str) or not tracker:
+        raise SpecError(f"{where}.tracker: must be an import path 'package.module:ClassName' "
+                        f"or an entry-point name, got {tracker!r}")
+    if not isinstance(tab.get("options", {}), dict):
+        raise SpecError(f"{where}.options: must be a table of option = value, got "
+                        f"{tab['options']!r}")
+    label = tab.get("label", "x")
+    if not isinstance(label, str) or not label.strip() or len(label) > 60:
+        raise SpecError(f"{where}.label: must be a non-empty string of at most 60 "
+                        f"characters, got {label!r}")
+    color = tab.get("color", "#000000")
+    if not isinstance(color, str) or not _COLOR.match(color):
+        raise SpecError(f"{where}.color: must be a colour '#rrggbb', got {color!r}")
+
+
+def _entry_point_names(data: dict, tables: dict) -> list[str]:
+    """``technique`` values of the spec that name an installed entry point of the group
+    ``configpose.trackers`` (and neither a built-in technique nor a table)."""
+    from estimator.trackers.base import ENTRY_POINT_GROUP
+
+    values = []
+    for b in [data.get("defaults") or {}, *(data.get("grid") or [])]:
+        v = b.get("technique") if isinstance(b, dict) else None
+        values += [x for x in (v if isinstance(v, list) else [v])
+                   if isinstance(x, str) and ":" not in x and x not in TECHNIQUES
+                   and x not in tables]
+    if not values:
+        return []
+    import importlib.metadata
+
+    eps = {ep.name for ep in importlib.metadata.entry_points(group=ENTRY_POINT_GROUP)}
+    return [x for x in dict.fromkeys(values) if x in eps]
+
+
+def _first_use(data: dict, name: str) -> str:
+    """Where the spec first names technique ``name``: "grid[1].technique[2]" or the like."""
+    for where, b in [("defaults", data.get("defaults") or {}),
+                     *((f"grid[{i}]", b) for i, b in enumerate(data.get("grid") or []))]:
+        v = b.get("technique") if isinstance(b, dict) else None
+        if isinstance(v, list) and name in v:
+            return f"{where}.technique[{v.index(name)}]"
+        if v == name:
+            return f"{where}.technique"
+    return "technique"
+
+
+def _plugin_file(entry: Technique, where: str) -> tuple[str, str]:
+    """Build the plug-in's tracker once (its import path, class and options checked) and
+    return its class's source file with the file's sha256 prefix (part of its cells' keys:
+    editing the file recomputes them)."""
+    import inspect
+
+    from estimator.trackers.base import TrackerLoadError, load_tracker
+
+    try:
+        tracker = load_tracker(entry.tracker, json.loads(entry.options))
+    except TrackerLoadError as exc:
+        raise SpecError(f"{where}: {exc}") from None
+    try:
+        path = Path(inspect.getsourcefile(type(tracker)) or "")
+    except TypeError:
+        path = Path()
+    if not path.is_file():
+        raise SpecError(f"{where}: the source file of {type(tracker).__name__} cannot be "
+                        "found (a plug-in's cells are keyed by its source)")
+    return str(path), _sha(path)
 
 
 # --------------------------------------------------------------------------- loading

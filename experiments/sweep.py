@@ -68,6 +68,7 @@ from estimator.track_options import FILTER_METHODS
 from estimator.window import SOLVERS
 from experiments import cli
 from experiments.provenance import code_version
+from experiments.techniques import technique
 from experiments.spec import (
     REPO,
     RESULTS_ROOT,
@@ -77,7 +78,6 @@ from experiments.spec import (
     available_presets,
     load_spec,
 )
-from experiments.techniques import technique
 from sim.atomic import atomic_write, atomic_write_text
 
 # pandas is imported where it is used: the main process simulates before it needs pandas
@@ -221,6 +221,13 @@ def simulate_truth(path_file: str, path_overrides: str, config_file: str, sim_se
 
 
 # --------------------------------------------------------------------------- cells
+def _entry(cell):
+    """The technique entry of a cell: its plug-in entry, else the registry's (duck-typed:
+    anything with ``technique`` and optionally ``plugin``)."""
+    plugin = getattr(cell, "plugin", None)
+    return plugin if plugin is not None else technique(cell.technique)
+
+
 def filter_params_for(truth):
     """The pose filter's parameters for a simulated vehicle (issue 14): its limits (the
     path's speed, acceleration, turn-rate and lateral-acceleration limits and the
@@ -298,7 +305,8 @@ def score_track(df: pd.DataFrame, truth, obs: np.ndarray, config, masks: Iterabl
     obs_ex = np.nanmean(np.abs(ob[..., 0]), axis=1) if ob.size else np.array([])
     obs_ey = np.nanmean(np.abs(ob[..., 1]), axis=1) if ob.size else np.array([])
     win = np.zeros(truth.n, dtype=np.int64)
-    win[idx] = df["window"].to_numpy(dtype=np.int64)
+    # a plug-in's table may have no window column: each estimate is its epoch's own
+    win[idx] = df["window"].to_numpy(dtype=np.int64) if "window" in df else 1
     mk_all = {k: v[idx] for k, v in evaluation_masks(truth.turning.astype(bool),
                                                       window=win).items()}
     dxy = err.dxy
@@ -352,7 +360,7 @@ def evaluate_cell(cell: Cell, truth, ctx: CellContext) -> CellOutput:
     config = ctx.memo[ckey]
     obs = _observations(cell, truth, config, ctx)
     t1 = time.perf_counter()
-    fp = filter_params_for(truth) if technique(cell.technique).uses_filter else None
+    fp = filter_params_for(truth) if _entry(cell).uses_filter else None
     df = _track_cell(cell, truth.t, obs, config, truth.turning.astype(bool), ctx,
                      true_yaw=np.asarray(truth.yaw, dtype=float), filter_params=fp,
                      layout_check=False)
@@ -404,7 +412,9 @@ def _track_cell(cell: Cell, t: np.ndarray, obs: np.ndarray, config, turning, ctx
     "lc_smoothed_heading"; None = the rover's defaults)."""
     from estimator.tracking import track
 
-    tech = technique(cell.technique)
+    tech = _entry(cell)
+    if tech.kind == "plugin":
+        return _track_plugin(tech, t, obs, config, ctx)
     heading = None
     if tech.lag_heading == "truth":
         heading = true_yaw
@@ -426,6 +436,25 @@ def _track_cell(cell: Cell, t: np.ndarray, obs: np.ndarray, config, turning, ctx
                  solver="procrustes" if cell.solver == "-" else cell.solver,
                  rng=cell_rng(ctx.spec_seed, cell.seed, STREAM_ESTIMATOR), cache=ctx.cache,
                  **kw, **kw_extra)
+
+
+def _track_plugin(tech, t: np.ndarray, obs: np.ndarray, config, ctx: CellContext
+                  ) -> pd.DataFrame:
+    """A plug-in's track (:func:`estimator.trackers.base.run_tracker`: its table checked),
+    its tracker built from the entry's import path and options. The sweep keeps the
+    columns t, cg_x, cg_y, yaw (and an integer ``window`` column, if any): the scores and
+    the page need those, and other names could clash with the per-epoch scores."""
+    from estimator.trackers.base import REQUIRED_COLUMNS, load_tracker, run_tracker
+
+    tracker = load_tracker(tech.tracker, json.loads(tech.options))
+    df = run_tracker(tracker, t, obs[..., :2], config, cache=ctx.cache)
+    keep = [*REQUIRED_COLUMNS]
+    if "window" in df and np.issubdtype(df["window"].dtype, np.integer):
+        keep.append("window")
+    out = df[keep].reset_index(drop=True)
+    for c in REQUIRED_COLUMNS:
+        out[c] = out[c].to_numpy(dtype=float)
+    return out
 
 
 def evaluate_recording_cell(cell: Cell, rec, ctx: CellContext) -> CellOutput:
@@ -474,7 +503,8 @@ def evaluate_recording_cell(cell: Cell, rec, ctx: CellContext) -> CellOutput:
                         lc.get("forward_offset_rad", float("nan"))),
                     "layout_forward_verdict": lc.get("forward_verdict", "-")})
     t3 = time.perf_counter()
-    counts = {str(k): int(v) for k, v in df["solver_status"].value_counts().items()}
+    counts = {str(k): int(v) for k, v in df["solver_status"].value_counts().items()} \
+        if "solver_status" in df else {}
     epochs = None
     if ctx.want_epochs and ep is not None:
         epochs = pd.concat([df.reset_index(drop=True), ep], axis=1)
@@ -793,8 +823,7 @@ _PASS_COST_CELLS = 8
 def _uses_pose_filter(cell: Cell) -> bool:
     """Whether a cell runs the pose filter's forward pass: the filter family, and the lag
     correction fed the smoothed heading (see :func:`evaluate_cell`)."""
-    tech = technique(cell.technique)
-    return tech.method in FILTER_METHODS or tech.lag_heading == "smoothed"
+    return _entry(cell).uses_filter
 
 
 

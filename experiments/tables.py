@@ -33,12 +33,13 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from experiments.markdown import markdown_table
+from experiments.markdown import markdown_table, md_row, md_separator
 from experiments.techniques import (
     FILTER_TECHNIQUES,
     ORACLE_TECHNIQUES,
     REGISTRY,
     heading_rows,
+    plugins_in_results,
     reading_rows,
     table_rows,
 )
@@ -60,6 +61,7 @@ __all__ = [
     "merge_window_repeats",
     "numpy_strings",
     "orientation_table",
+    "plugin_section",
     "run_name",
     "seed_ci",
     "side_studies",
@@ -365,10 +367,20 @@ def _default_weighting(cells: pd.DataFrame, path: str) -> str | None:
 
 
 # --------------------------------------------------------------------------- tables
-def _row_defs(cells: pd.DataFrame, beyond: bool) -> dict[str, tuple[str, str, str | None]]:
+def _plugins(cells: pd.DataFrame, plugins: dict | None) -> dict:
+    """The plug-in entries of ``cells`` (experiments.techniques): ``plugins`` as given,
+    else built from the technique names alone."""
+    if plugins is not None:
+        return plugins
+    return plugins_in_results(cells["technique"]) if "technique" in cells.columns else {}
+
+
+def _row_defs(cells: pd.DataFrame, beyond: bool, plugins: dict | None = None
+              ) -> dict[str, tuple[str, str, str | None]]:
     """label -> (technique, mask, growth rule or None = the faithful one) of every table row
-    this sweep can show, in table order; readings that would repeat a thesis row (the sweep
-    has no other rule or mask) are left out."""
+    this sweep can show, in table order (plug-in rows after the built-in beyond rows);
+    readings that would repeat a thesis row (the sweep has no other rule or mask) are left
+    out."""
     defs: dict[str, tuple[str, str, str | None]] = {}
     for label in THESIS_ROWS:
         defs[label] = (*thesis_row(cells, label), None)
@@ -388,20 +400,25 @@ def _row_defs(cells: pd.DataFrame, beyond: bool) -> dict[str, tuple[str, str, st
         defs.update({k: (*v, None) for k, v in BEYOND_ROWS.items()})
         defs.update({k: (t, m if m in masks else MASK_FALLBACK.get(m, m), None)
                      for k, (t, m) in ORACLE_ROWS.items()})
+        defs.update({label: (t.name, mask, None) for t in _plugins(cells, plugins).values()
+                     for label, mask in t.rows})
     return defs
 
 
-def row_kind(label: str) -> str:
-    """"thesis", "reading", "oracle" or "beyond": what a table row is."""
+def row_kind(label: str, plugins: dict | None = None) -> str:
+    """"thesis", "reading", "oracle", "plugin" or "beyond": what a table row is."""
     if label in THESIS_ROWS:
         return "thesis"
     if label in READING_ROWS:
         return "reading"
+    if any(label == r[0] for t in (plugins or {}).values() for r in t.rows):
+        return "plugin"
     return "oracle" if label in ORACLE_ROWS else "beyond"
 
 
 def thesis_table(cells: pd.DataFrame, axis: str, path: str = "square100",
-                 weighting: str | None = None, beyond: bool = True) -> pd.DataFrame:
+                 weighting: str | None = None, beyond: bool = True,
+                 plugins: dict | None = None) -> pd.DataFrame:
     """Table 4.1 (axis "x") or 4.2 (axis "y") in the dissertation's shape.
 
     One row per (window, technique row) present in ``cells``: for mean, median and std of the
@@ -410,13 +427,16 @@ def thesis_table(cells: pd.DataFrame, axis: str, path: str = "square100",
     value (``<stat>_seed_min``/``_seed_max``: the spread a single run, like the published
     one, can land in). ``weighting`` defaults to Huff when present. Column ``kind`` says
     what a row is (:func:`row_kind`): the thesis rows in their faithful reading, other
-    readings of them, oracle rows (truth-fed diagnostics), or beyond-the-thesis trackers.
+    readings of them, oracle rows (truth-fed diagnostics), beyond-the-thesis trackers, or
+    plug-ins (``plugins``: name -> entry, default built from the technique names,
+    :func:`experiments.techniques.plugins_in_results`).
     """
     if axis not in ("x", "y"):
         raise ValueError(f"axis: must be 'x' or 'y', got {axis!r}")
     weighting = weighting or _default_weighting(cells, path)
     pref = "ex" if axis == "x" else "ey"
-    rows_def = _row_defs(cells, beyond)
+    plugins = _plugins(cells, plugins)
+    rows_def = _row_defs(cells, beyond, plugins)
     # only the columns used below: each select() takes whole rows
     cells = select(cells, path=path, weighting=[weighting, "-"])
     cells = cells[[c for c in (*_LAYOUT, "dyn_growth", "seed", *(f"{pref}_{s}" for s in STATS))
@@ -436,7 +456,8 @@ def thesis_table(cells: pd.DataFrame, axis: str, path: str = "square100",
             if sub.empty:
                 continue
             row = {"path": path, "weighting": weighting, "window": int(w), "technique": label,
-                   "thesis_row": label in THESIS_ROWS, "kind": row_kind(label), "mask": mask,
+                   "thesis_row": label in THESIS_ROWS, "kind": row_kind(label, plugins),
+                   "mask": mask,
                    "n_seeds": int(sub["seed"].nunique())}
             for s in STATS:
                 m, lo, hi, _ = seed_ci(sub[f"{pref}_{s}"], lower=0.0)   # |error| >= 0
@@ -477,7 +498,7 @@ def orientation_table(cells: pd.DataFrame, technique: str = "none") -> pd.DataFr
                       "eh_outliers_pct"])
 
 
-def heading_table(cells: pd.DataFrame) -> pd.DataFrame:
+def heading_table(cells: pd.DataFrame, plugins: dict | None = None) -> pd.DataFrame:
     """Heading side by side (issue 14): the pose filter (causal), its fixed-lag and RTS
     smoothers, the GTSAM peer and the window fits, per path, full path.
 
@@ -489,9 +510,12 @@ def heading_table(cells: pd.DataFrame) -> pd.DataFrame:
     number of seeds with a heading error above 90 degrees at some epoch. The filter family ignores the
     window (it only sets the first row), so only its smallest window is listed; window fits
     and the motion-compensated window are listed at every window, with Huff weights where
-    present (else none).
+    present (else none). Plug-ins (``plugins``, as in :func:`thesis_table`) follow, at
+    their smallest window (a plug-in takes no window).
     """
-    sub = select(cells, mask="full", technique=list(HEADING_ROWS.values())).copy()
+    rows_of = {**HEADING_ROWS, **{t.heading_row: t.name
+                                  for t in _plugins(cells, plugins).values()}}
+    sub = select(cells, mask="full", technique=list(rows_of.values())).copy()
     if sub.empty or "eh_rmse" not in sub:
         return pd.DataFrame()
     sub["eh_rmse_deg"] = np.degrees(sub["eh_rmse"])
@@ -501,10 +525,10 @@ def heading_table(cells: pd.DataFrame) -> pd.DataFrame:
     reused = sub["t_reused_s"].fillna(0.0) if "t_reused_s" in sub else 0.0
     sub["us_per_epoch"] = 1e6 * (sub["t_track_s"] + reused) / sub["n_epochs"].clip(lower=1)
     rows = []
-    label_of = {v: k for k, v in HEADING_ROWS.items()}
+    label_of = {v: k for k, v in rows_of.items()}
     for path in dict.fromkeys(sub["path"]):
         sp = sub[sub["path"] == path]
-        for tech in HEADING_ROWS.values():
+        for tech in rows_of.values():
             st = sp[sp["technique"] == tech]
             if st.empty:
                 continue
@@ -512,7 +536,7 @@ def heading_table(cells: pd.DataFrame) -> pd.DataFrame:
             wt = "-" if "-" in wts else ("huff" if "huff" in wts else sorted(wts)[0])
             st = st[st["weighting"] == wt]
             windows = sorted(set(st["window"]))
-            if tech in FILTER_TECHNIQUES:
+            if tech in FILTER_TECHNIQUES or tech not in HEADING_ROWS.values():
                 windows = windows[:1]
             for w in windows:
                 g = st[st["window"] == w]
@@ -548,7 +572,7 @@ def _window_text(r: pd.Series) -> str:
     return str(r["window"]) if not isinstance(w, str) or not w else w
 
 
-def merge_window_repeats(df: pd.DataFrame) -> pd.DataFrame:
+def merge_window_repeats(df: pd.DataFrame, plugins: dict | None = None) -> pd.DataFrame:
     """Rows of a :func:`thesis_table` whose technique ignores the window (the pose-filter
     family, :data:`FILTER_TECHNIQUES`: the window only sets where its first estimate is
     scored) merged across windows where every number is identical; the kept row (the
@@ -556,11 +580,13 @@ def merge_window_repeats(df: pd.DataFrame) -> pd.DataFrame:
 
     Only exact repeats merge (the numbers compared by their ``repr``, i.e. bit for bit), so
     no value changes and a window whose numbers differ (window 100's later first estimate)
-    keeps its own row. Other rows are untouched (``windows`` "").
+    keeps its own row. Plug-in rows (``plugins``) merge the same way: a plug-in takes no
+    window. Other rows are untouched (``windows`` "").
     """
     if df.empty or "technique" not in df.columns:
         return df
     labels = {lab for lab, (tech, _) in BEYOND_ROWS.items() if tech in FILTER_TECHNIQUES}
+    labels |= {r[0] for t in (plugins or {}).values() for r in t.rows}
     out = df.copy()
     out["windows"] = ""
     vals = [c for c in df.columns if c != "window"]
@@ -598,15 +624,17 @@ def _reading_note(no_turns_mask: str, cells: pd.DataFrame) -> str:
             + (f"; the dynamic window {g}." if g else "."))
 
 
-def _variant_tables(cells: pd.DataFrame, out: Path, vlabel: str) -> list[str]:
-    """Markdown (and CSVs) for one variant of the sweep."""
+def _variant_tables(cells: pd.DataFrame, out: Path, vlabel: str, plugins: dict | None = None
+                    ) -> list[str]:
+    """Markdown (and CSVs) for one variant of the sweep (``plugins`` as in
+    :func:`thesis_table`)."""
     tag = "" if not vlabel else "_" + "".join(ch if ch.isalnum() else "_" for ch in vlabel)
     md: list[str] = []
     paths = [p for p in ("square100", "square200") if p in set(cells["path"])] + \
         sorted(set(cells["path"]) - {"square100", "square200"})
     for axis, tno in (("x", "4.1"), ("y", "4.2")):
         for p in paths:
-            df = thesis_table(cells, axis, path=p)
+            df = thesis_table(cells, axis, path=p, plugins=plugins)
             if df.empty:
                 continue
             pname = model_name(cells, "path", p)
@@ -634,11 +662,14 @@ def _variant_tables(cells: pd.DataFrame, out: Path, vlabel: str) -> list[str]:
                        f"estimated one. They show what the method gives when the heading is "
                        f"right, |{axis}| error:"), "", thesis_table_md(oracle), ""]
             if not beyond.empty:
-                merged = merge_window_repeats(beyond)
+                merged = merge_window_repeats(beyond, plugins)
                 same = (" The pose-filter rows do not use the window (it only sets the first "
                         "scored estimate): a row with the same numbers at several windows is "
                         "shown once, its windows listed."
                         if (merged["windows"] != "").any() else "")
+                if plugins and (merged["kind"] == "plugin").any():
+                    same += (" Plug-in rows (the spec's own trackers, README: Plug-in "
+                             "trackers) take no window either.")
                 md += [(f"Beyond the dissertation (and window 1), same path and weights, full "
                        f"path, |{axis}| error.{same}"), "", thesis_table_md(merged), ""]
     wt = weighting_table(cells)
@@ -661,7 +692,7 @@ def _variant_tables(cells: pd.DataFrame, out: Path, vlabel: str) -> list[str]:
                         ("mean", _ci("eh_mean_deg", 1)), ("median", _ci("eh_median_deg", 1)),
                         ("RMS", _ci("eh_rmse_deg", 1)), ("p95", _ci("eh_p95_deg", 1)),
                         ("outliers %", _ci("eh_outliers_pct", 1))]), ""]
-    ht = heading_table(cells)
+    ht = heading_table(cells, plugins)
     if not ht.empty:
         # wall times stay out of the tracked tables (a rerun must reproduce them byte for
         # byte): the estimators' time per epoch goes to an untracked *.local.csv
@@ -708,6 +739,36 @@ def _side_study_md(study: pd.DataFrame, out: Path) -> list[str]:
              "discusses them; `side_studies.csv` has the numbers."), "", _md(agg, cols), ""]
 
 
+def plugin_section(cells: pd.DataFrame, out_dir: str | Path, spec=None) -> list[str]:
+    """REPORT.md's section on the spec's plug-in trackers (none: no lines): each plug-in's
+    tracker and options, and its full-path errors beside the window fit ("none") on the
+    same paths and windows, mean over seeds with 95 % intervals. The claims are the
+    dissertation's and never use a plug-in row."""
+    plugins = plugins_in_results(cells["technique"], out_dir, getattr(spec, "raw", None))
+    if not plugins:
+        return []
+    cells = numpy_strings(cells)
+    lines = ["## Plug-in trackers", "",
+             ("The spec's own trackers (README: Plug-in trackers), run on the same observations "
+              "as the built-in rows and scored the same way; full path, errors in metres, "
+              "heading in degrees. No claim below uses them."), "",
+             md_row(["Technique", "Label", "Tracker", "Options"]), md_separator(4)]
+    lines += [md_row([f"`{t.name}`", t.short, f"`{t.tracker}`", f"`{t.options}`"])
+              for t in plugins.values()]
+    sub = select(cells, mask="full", technique=["none", *plugins]).copy()
+    windows = set(select(sub, technique=list(plugins))["window"])
+    sub = sub[sub["window"].isin(windows)]
+    sub["eh_rmse_deg"] = np.degrees(sub["eh_rmse"])
+    sub["technique"] = [plugins[t].short if t in plugins else "Window fit (none)"
+                        for t in sub["technique"]]
+    agg = aggregate(sub, ["path", "window", "weighting", "technique"],
+                    ["ex_mean", "ey_mean", "eh_rmse_deg"])
+    return [*lines, "", _md(agg, [("Path", "path"), ("Window", "window"),
+                                  ("Weights", "weighting"), ("Technique", "technique"),
+                                  ("mean |x|", _ci("ex_mean")), ("mean |y|", _ci("ey_mean")),
+                                  ("heading RMS", _ci("eh_rmse_deg", 1))]), ""]
+
+
 def numpy_strings(cells: pd.DataFrame) -> pd.DataFrame:
     """``cells`` with its string columns held as numpy object arrays instead of pandas'
     Arrow-backed ``str`` dtype (what ``read_parquet`` gives): the tables and the report
@@ -741,6 +802,7 @@ def write_tables(cells: pd.DataFrame, out_dir: str | Path, spec=None) -> Path:
     cells = numpy_strings(cells)
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
+    plugins = plugins_in_results(cells["technique"], out, getattr(spec, "raw", None))
     n_seeds = int(cells["seed"].nunique())
     solvers = sorted(set(cells["solver"]) - {"-"})
     md = [f"# Tables ({run_name(out, spec)})", "",
@@ -756,7 +818,7 @@ def write_tables(cells: pd.DataFrame, out_dir: str | Path, spec=None) -> Path:
     for vlabel, vcells in variants(cells):
         if vlabel:
             md += [f"# Variant: {vlabel}", ""]
-        md += _variant_tables(vcells, out, vlabel)
+        md += _variant_tables(vcells, out, vlabel, plugins)
     study = side_studies(cells)
     if not study.empty:
         md += _side_study_md(study, out)

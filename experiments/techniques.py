@@ -19,10 +19,19 @@ simulator's heading. Each :class:`Technique` says
 The spec validation (:mod:`experiments.spec`), the sweep's dispatch
 (:mod:`experiments.sweep`), the table rows (:mod:`experiments.tables`) and the CLI help
 derive from :data:`REGISTRY`; adding a technique is one entry here.
+
+Plug-ins (a user's tracker, :mod:`estimator.trackers.base`) become entries of kind
+"plugin" when a spec is loaded (:func:`plugin_entries`, from the spec's ``technique``
+values and its ``[techniques."<name>"]`` tables): label from the class name or the table's
+``label``, colour from :data:`PLUGIN_PALETTE` or the table's ``color``, one table row on the
+full path; no solver, weighting or dynamic-window axis applies. :func:`technique` looks
+them up beside the registry when given them.
 """
 
 from __future__ import annotations
 
+import json
+from collections.abc import Iterable, Mapping
 from dataclasses import dataclass
 from typing import Any
 
@@ -39,19 +48,33 @@ __all__ = [
     "ORACLE_TECHNIQUES",
     "REGISTRY",
     "TECHNIQUES",
+    "PLUGIN_KEYS",
+    "PLUGIN_PALETTE",
     "TURNING_SOURCES",
     "Technique",
     "course_pairs",
     "heading_rows",
+    "is_plugin_name",
     "oracle_pairs",
+    "plugin_entries",
+    "plugin_label",
+    "plugin_names",
+    "plugins_in_results",
     "reading_rows",
     "table_rows",
     "technique",
     "techniques_help",
 ]
 
-#: What a technique is: a tracker of the dissertation, one beyond it, or an oracle.
-KINDS = ("thesis", "beyond", "oracle")
+#: What a technique is: a tracker of the dissertation, one beyond it, an oracle, or a
+#: user's tracker loaded as a plug-in.
+KINDS = ("thesis", "beyond", "oracle", "plugin")
+#: Keys of a spec's ``[techniques."<name>"]`` table (:func:`plugin_entries`).
+PLUGIN_KEYS = ("tracker", "options", "label", "color")
+#: Colours of plug-in rows in figures, in the order the spec names them (none is a
+#: registry colour: tab20's darker shades not taken by the built-ins).
+PLUGIN_PALETTE = ("#393b79", "#637939", "#8c6d31", "#843c39", "#7b4173", "#3182bd",
+                  "#e6550d", "#31a354")
 #: Headings the lag correction can be fed in place of the estimated one: the simulator's
 #: (or a recording reference's) true heading (oracle) or the pose filter's RTS-smoothed one.
 LAG_HEADINGS = ("truth", "smoothed")
@@ -79,7 +102,8 @@ class Technique:
     oracle_of : for an oracle, the technique whose estimated heading it replaces with the
     truth (the pairing of the report's oracle probes). course_of : for the course-based
     lag correction, the as-written technique it is the variant of (the report's "(course)"
-    claims).
+    claims). tracker, options : a plug-in's import path or entry-point name and its
+    options as canonical JSON (kind "plugin" only; ``method`` is then "plugin").
     """
 
     name: str
@@ -98,10 +122,16 @@ class Technique:
     color: str = "#7f7f7f"
     oracle_of: str | None = None
     course_of: str | None = None
+    tracker: str | None = None
+    options: str = "{}"
 
     def __post_init__(self) -> None:
         if self.kind not in KINDS:
             raise ValueError(f"kind: must be one of {KINDS}, got {self.kind!r}")
+        if (self.kind == "plugin") != (self.tracker is not None):
+            raise ValueError(f"{self.name}: a plug-in names its tracker, and only a plug-in")
+        if self.kind == "plugin":
+            return
         if self.method not in METHODS:
             raise ValueError(f"method: must be one of {METHODS}, got {self.method!r}")
         if self.lag is not None and (self.lag not in LAG_MODES or self.method != "window"):
@@ -128,12 +158,12 @@ class Technique:
     @property
     def uses_solver(self) -> bool:
         """The window solver applies (the ``solver`` axis)."""
-        return self.method == "window"
+        return self.method == "window" and self.kind != "plugin"
 
     @property
     def uses_weights(self) -> bool:
         """The observations are weighted (the ``weighting`` axis)."""
-        return self.method in WEIGHTED_METHODS
+        return self.method in WEIGHTED_METHODS and self.kind != "plugin"
 
     @property
     def uses_filter(self) -> bool:
@@ -265,13 +295,73 @@ def course_pairs() -> dict[str, str]:
     return {t.course_of: t.name for t in REGISTRY if t.course_of is not None}
 
 
-def technique(name: str) -> Technique:
-    """The registry entry of ``name``; ValueError naming the known ones otherwise."""
+def technique(name: str, plugins: Mapping[str, Technique] | None = None) -> Technique:
+    """The registry entry of ``name``, else the plug-in entry ``plugins[name]``
+    (:func:`plugin_entries`); ValueError naming the known ones otherwise."""
     try:
         return _BY_NAME[name]
     except (KeyError, TypeError):
-        raise ValueError(f"technique: unknown technique {name!r}; allowed: "
-                         f"{list(TECHNIQUES)}") from None
+        pass
+    if plugins and isinstance(name, str) and name in plugins:
+        return plugins[name]
+    raise ValueError(f"technique: unknown technique {name!r}; allowed: {list(TECHNIQUES)}"
+                     + (f", plug-ins {list(plugins)}" if plugins else "")
+                     + ", or a plug-in 'package.module:ClassName' (README, Plug-in trackers)")
+
+
+def is_plugin_name(name: object, tables: Mapping | None = None) -> bool:
+    """Whether a ``technique`` value names a plug-in: not a registry name, and an import
+    path ("pkg.module:Name") or a name with a ``[techniques."<name>"]`` table. (An
+    entry-point name without a table is a plug-in too; :mod:`experiments.spec` checks the
+    installed entry points.)"""
+    return (isinstance(name, str) and name not in _BY_NAME
+            and (":" in name or name in (tables or {})))
+
+
+def plugin_names(raw: Mapping, extra: Iterable[str] = ()) -> list[str]:
+    """The plug-in technique names of a spec's raw table, in the order the spec first
+    names them: its ``[techniques]`` tables, then ``technique`` values of ``[defaults]``
+    and the grid blocks (import paths), then ``extra`` (e.g. entry-point names, or the
+    techniques found in a results table) that are not registry names."""
+    tables = raw.get("techniques") if isinstance(raw.get("techniques"), Mapping) else {}
+    seen: dict[str, None] = dict.fromkeys(k for k in tables if k not in _BY_NAME)
+    blocks = [raw.get("defaults") or {}, *(raw.get("grid") or [])]
+    for b in blocks:
+        v = b.get("technique") if isinstance(b, Mapping) else None
+        for x in v if isinstance(v, list) else [v]:
+            if is_plugin_name(x, tables):
+                seen.setdefault(x)
+    for x in extra:
+        if isinstance(x, str) and x not in _BY_NAME:
+            seen.setdefault(x)
+    return list(seen)
+
+
+def plugin_label(tracker: str) -> str:
+    """The default label of a plug-in: its class name ("pkg.mod:MeanTracker" ->
+    "MeanTracker"), or the entry-point name."""
+    return tracker.rpartition(":")[2].rpartition(".")[2] if ":" in tracker else tracker
+
+
+def plugin_entries(raw: Mapping, extra: Iterable[str] = ()) -> dict[str, Technique]:
+    """The plug-in entries of a spec's raw table (:func:`plugin_names`): name ->
+    :class:`Technique` of kind "plugin". Pure (imports nothing): the spec's loader
+    validates the tables and loads the trackers; the outputs rebuild the same entries
+    from the results folder's ``spec.toml``."""
+    tables = raw.get("techniques") if isinstance(raw.get("techniques"), Mapping) else {}
+    out = {}
+    for i, name in enumerate(plugin_names(raw, extra)):
+        tab = tables.get(name) or {}
+        tracker = tab.get("tracker", name)
+        label = tab.get("label") or plugin_label(tracker)
+        out[name] = Technique(
+            name, "plugin", f"plug-in {tracker}", f"plug-in tracker {tracker}",
+            method="plugin", rows=((label, "full"),), heading_row=label, short=label,
+            color=tab.get("color") or PLUGIN_PALETTE[i % len(PLUGIN_PALETTE)],
+            tracker=tracker,
+            options=json.dumps(tab.get("options") or {}, sort_keys=True,
+                               separators=(",", ":")))
+    return out
 
 
 def table_rows(kind: str) -> dict[str, tuple[str, str]]:
@@ -304,3 +394,22 @@ def techniques_help() -> str:
     return "\n".join(f"  {t.name:<{width}}  {t.summary} ({t.source})"
                      + (f" (needs: pip install -e '.[{t.requires[1]}]')" if t.requires else "")
                      for t in REGISTRY)
+
+
+def plugins_in_results(techniques: Iterable[str], out_dir: Any = None,
+                       raw: Mapping | None = None) -> dict[str, Technique]:
+    """The plug-in entries of a results table's ``techniques`` (names not in the registry):
+    built from the spec's raw table ``raw``, else from ``<out_dir>/spec.toml`` (the spec as
+    the sweep ran it), else from the names alone (default labels and colours)."""
+    names = [t for t in dict.fromkeys(techniques) if isinstance(t, str) and t not in _BY_NAME]
+    if not names:
+        return {}
+    if raw is None and out_dir is not None:
+        import tomllib
+        from pathlib import Path
+
+        try:
+            raw = tomllib.loads((Path(out_dir) / "spec.toml").read_text(encoding="utf-8"))
+        except (OSError, ValueError):
+            raw = None
+    return plugin_entries(raw or {}, names)
