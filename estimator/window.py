@@ -578,9 +578,8 @@ def _fast_result(p_c: np.ndarray, centre: np.ndarray, g: Any, obj: float, mirror
         np.sqrt((dif * dif).sum(axis=1))
     viol = max(map(abs, (dist - g.a).tolist()))
     positions = p_c + centre
-    rows = positions.tolist()
-    cg = np.array([sum(rows[i][a] for i in g.cg_index) / len(g.cg_index)
-                   for a in range(p_c.shape[1])])
+    rows = positions.tolist()  # mean of the members in order, as positions[cg].mean(axis=0)
+    cg = np.array([sum(col) / len(col) for col in zip(*[rows[i] for i in g.cg_index])])
     fit = object.__new__(WindowFit)  # the frozen dataclass's fields, without 9 setattr calls
     fit.__dict__.update(positions=positions, cg=cg, yaw=yaw, objective=obj,
                         mirror_objective=mirror, max_violation=viol, solver="procrustes",
