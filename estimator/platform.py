@@ -51,6 +51,11 @@ MAX_FIT_YAW_SD = math.radians(3.0)
 #: Travel axis: largest standard error of the offset (rad) and of the lever (m) accepted.
 MAX_AXIS_SE_RAD = math.radians(0.5)
 MAX_LEVER_SE_M = 0.2
+#: Contiguous stretches of the batch-means standard errors of the travel axis.
+AXIS_BLOCKS = 10
+#: The offset is used only when it is this many standard errors from 0 (else 0: a layout
+#: mounted along the axis must not get a noise-made offset).
+AXIS_SIGMAS = 3.0
 
 _NAMES = ("max_speed_mps", "max_accel_mps2", "max_turn_rate_radps", "max_yaw_accel_radps2",
           "max_lateral_accel_mps2", "max_jerk_mps3")
@@ -201,7 +206,7 @@ class TravelAxis:
     """Direction of travel in the layout's body frame, ``offset_rad`` (CCW from the layout's
     x axis), the CG's distance ahead of the no-slip point along it, ``lever_m``, their
     standard errors and the number of intervals used; ``known`` False when the data do not
-    determine them (then 0 and 0)."""
+    determine the offset (then 0)."""
 
     offset_rad: float
     lever_m: float
@@ -216,15 +221,29 @@ class TravelAxis:
                 -self.lever_m * math.sin(self.offset_rad))
 
 
+def _huber_fit(A: np.ndarray, b: np.ndarray) -> tuple[np.ndarray, float]:
+    """Huber-weighted least squares b ~ A x (3 passes, k = 1.5 robust sd): (x, scale)."""
+    wts = np.ones(b.size)
+    scale = 0.0
+    for _ in range(3):
+        sol, *_ = np.linalg.lstsq(A * wts[:, None], b * wts, rcond=None)
+        r = b - A @ sol
+        scale = 1.4826 * float(np.median(np.abs(r))) + 1e-12
+        wts = np.sqrt(np.minimum(1.0, 1.5 * scale / np.maximum(np.abs(r), 1e-300)))
+    return sol, scale
+
+
 def estimate_travel_axis(t: np.ndarray, obs: np.ndarray, offsets: np.ndarray,
                          sigma_abs: float) -> TravelAxis:
     """The travel axis from the per-epoch rigid fits (module docstring): over ~1 s
     intervals with precise headings and a CG speed of at least 1 m/s and 20 sd of its
     noise, the CG's body-frame velocity (u_x, u_y) and the yaw rate w satisfy
     ``u_y = tan(offset) u_x + lever w`` (no-slip point behind the CG on the travel axis);
-    Huber-weighted least squares (3 passes, k = 1.5 robust sd). offsets (m, 2) relative to
-    the CG. Not known (0, 0) with fewer than :data:`MIN_INTERVALS` intervals or standard
-    errors above :data:`MAX_AXIS_SE_RAD` / :data:`MAX_LEVER_SE_M`."""
+    Huber-weighted least squares, standard errors by batch means over :data:`AXIS_BLOCKS`
+    stretches. offsets (m, 2) relative to the CG. The offset is not known (0) with an se
+    above :data:`MAX_AXIS_SE_RAD` or within :data:`AXIS_SIGMAS` se of 0 (the lever is then
+    fitted alone, ``u_y = lever w``); the lever is kept only with se <=
+    :data:`MAX_LEVER_SE_M`; both 0 with fewer than :data:`MIN_INTERVALS` intervals."""
     tt = np.asarray(t, dtype=float)
     origin, yaw, ok_yaw = _fits(obs, offsets, sigma_abs)
     _, _, dt, d, dyaw, ym = _intervals(tt, origin, yaw, ok_yaw)
@@ -239,17 +258,25 @@ def estimate_travel_axis(t: np.ndarray, obs: np.ndarray, offsets: np.ndarray,
         return none
     A = np.c_[ux[use], w[use]]
     b = uy[use]
-    wts = np.ones(b.size)
-    for _ in range(3):
-        sol, *_ = np.linalg.lstsq(A * wts[:, None], b * wts, rcond=None)
-        r = b - A @ sol
-        scale = 1.4826 * float(np.median(np.abs(r))) + 1e-12
-        wts = np.sqrt(np.minimum(1.0, 1.5 * scale / np.maximum(np.abs(r), 1e-300)))
-    cov = scale ** 2 * np.linalg.pinv((A * wts[:, None] ** 2).T @ A)
-    se = np.sqrt(np.maximum(np.diag(cov), 0.0))
-    off = math.atan(sol[0])
-    if not (se[0] <= MAX_AXIS_SE_RAD and np.isfinite(sol).all()):
+    sol, scale = _huber_fit(A, b)
+    # standard errors by batch means over AXIS_BLOCKS contiguous stretches: GNSS errors are
+    # correlated over tens of seconds, so the least-squares se (independent rows) is far too
+    # small (car_block, 45 s of 1.5 cm fixes: LS se 0.05 deg, the estimate 0.32 deg off)
+    blocks = np.array_split(np.arange(b.size), AXIS_BLOCKS)
+    est = np.array([_huber_fit(A[i], b[i])[0] for i in blocks if i.size >= 10])
+    if est.shape[0] < 3:
         return none
-    lever_ok = se[1] <= MAX_LEVER_SE_M
-    return TravelAxis(off, float(sol[1]) if lever_ok else 0.0, float(se[0]),
-                      float(se[1]), int(use.sum()), True)
+    se = est.std(axis=0, ddof=1) / math.sqrt(est.shape[0])
+    off = math.atan(sol[0])
+    known = bool(np.isfinite(sol).all() and se[0] <= MAX_AXIS_SE_RAD
+                 and abs(off) > AXIS_SIGMAS * se[0])
+    lever, lever_se = float(sol[1]), float(se[1])
+    if not known:
+        # the layout is along the travel axis as far as the data tell: the lever alone
+        off = 0.0
+        lever = float(_huber_fit(A[:, 1:], b)[0][0])
+        lever_se = float(np.std([_huber_fit(A[i, 1:], b[i])[0][0] for i in blocks
+                                 if i.size >= 10], ddof=1) / math.sqrt(est.shape[0]))
+    if not lever_se <= MAX_LEVER_SE_M:
+        lever = 0.0
+    return TravelAxis(off, lever, float(se[0]), lever_se, int(use.sum()), known)

@@ -186,6 +186,9 @@ INIT_MOTION_SIGMAS = 5.0
 #: Heading sd (rad) beyond which a track is lost (45 degrees: R(yaw) is no longer near its
 #: linearisation within 2 sd); reached after a few seconds without data.
 LOST_YAW_SD = math.pi / 4
+#: Time scale of the jerk limit, s: the acceleration's change over a sample is bounded by
+#: the jerk times max(sample interval, this) (the data give the jerk over ~1 s).
+JERK_SCALE_S = 1.0
 #: Window of the NIS consistency test, s, and its fewest epochs.
 NIS_WINDOW_S = 10.0
 NIS_MIN_EPOCHS = 5
@@ -1235,8 +1238,10 @@ def run_pose_filter(t: np.ndarray, obs: np.ndarray, offsets: np.ndarray,
     gate = chi2_ppf(params.gate_prob, 2) if params.gate_prob < 1 else math.inf
     flip_thr = chi2_ppf(params.gate_prob, 1) if params.gate_prob < 1 else 10.83
     # the acceleration's increment per sample: half the limit, or half the jerk limit's
-    # change over a sample when that is smaller (a car at 1 Hz: 4 m/s^2 but ~3 m/s^3)
-    jerk_step = params.max_jerk_mps3 * dt_med if params.max_jerk_mps3 is not None else math.inf
+    # change over a sample when that is smaller (a car at 1 Hz: 4 m/s^2 but ~3 m/s^3); the
+    # jerk is measured over ~1 s (estimator.platform), so it bounds no shorter interval
+    jerk_step = (params.max_jerk_mps3 * max(dt_med, JERK_SCALE_S)
+                 if params.max_jerk_mps3 is not None else math.inf)
     qa = (0.5 * min(params.max_accel_mps2, jerk_step)) ** 2
     qy = params.sigma_yaw_accel ** 2
     om_max, alat = params.max_turn_rate_radps, params.max_lateral_accel_mps2

@@ -254,7 +254,7 @@ def test_smoothers_keep_every_row_the_filter_outputs_across_a_lost_track():
     lost = int(np.flatnonzero((res.status == "waiting") & (np.arange(t.size) > 20))[0])
     assert 30 <= lost < 40 and res.status[lost - 1] == "predicted"
     out = np.isfinite(res.states[:, 0])
-    cut = run_pose_filter(t[:lost], obs[:lost], off, p)
+    cut = run_pose_filter(t[:lost], obs[:lost], off, res.params)   # the same resolved limits
     want = rts_smooth(cut).states
     start = int(np.flatnonzero(res.segment_start[:lost])[-1])
     for sm in (rts_smooth(res).states, fixed_lag_smooth(res, t, 1e6).states):
