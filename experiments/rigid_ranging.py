@@ -192,13 +192,15 @@ def _plots(rec: RangeRecording, label: str, est: dict, errors: dict, out: Path) 
     else:
         ax.plot(rec.reference.x_m, rec.reference.y_m, "k+", ms=14, mew=2, label="reference")
     for m in ("baseline", "robust_bias", "smoother"):
-        ax.plot(est[m][0][:, 0], est[m][0][:, 1], ".", ms=1, label=m)
+        ax.plot(est[m][0][:, 0], est[m][0][:, 1], ".", ms=1.5, label=m)
     ax.plot(rec.anchors[:, 0], rec.anchors[:, 1], "k^", label="anchors")
     ax.set_aspect("equal")
     ax.set_xlabel("x (m)")
     ax.set_ylabel("y (m)")
     ax.set_title(f"{label}: trajectory overlay")
-    ax.legend(fontsize=7, markerscale=6)
+    leg = ax.legend(fontsize=7)
+    for h in leg.legend_handles[1:-1]:      # the estimates' tiny dots, enlarged in the key
+        h.set_markersize(6)
     fig.tight_layout()
     fig.savefig(out / "trajectory.png", dpi=90)
     plt.close(fig)
