@@ -629,6 +629,11 @@ def main(argv: list[str] | None = None) -> int:
                     help="regenerate the committed results/ranging/ from the two shared runs "
                          "(../shared/realdata/uwb_hanyang/{LOS,NLOS}/Trajectory_A/Case_1)")
     args = ap.parse_args(argv)
+    if args.dirs and all((Path(d) / "setup.toml").is_file() for d in args.dirs):
+        # rigid-body runs (a setup.toml, issue 26) are scored by experiments.rigid_ranging
+        from experiments import rigid_ranging
+        return rigid_ranging.main([*args.dirs, *(["--out", args.out] if args.out else []),
+                                   *(["--no-figures"] if args.no_figures else [])])
     if not np.isfinite(args.tag_height) or abs(args.tag_height) > 1e4:
         ap.error(f"--tag-height: must be a finite height in metres, got {args.tag_height}")
     if args.reference:

@@ -493,6 +493,10 @@ def test_cli_end_to_end_on_a_simulated_static_run(tmp_path):
     assert (tmp_path / "out" / "tmp_run" / "errors.png").is_file() or any(
         p.name == "errors.png" for p in (tmp_path / "out").rglob("*.png"))
     assert score.main([str(tmp_path / "nothing"), "--out", str(tmp_path / "o2")]) == 2
+    # the ranging CLI hands a folder with a setup.toml to this scorer
+    from experiments import ranging
+    assert ranging.main([str(run), "--out", str(tmp_path / "o3"), "--no-figures"]) == 0
+    assert (tmp_path / "o3" / "summary.csv").is_file()
 
 
 # ------------------------------------------------------------------- the shared runs
