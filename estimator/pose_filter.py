@@ -195,6 +195,8 @@ NIS_MIN_EPOCHS = 5
 #: Heading sd (rad) of an epoch's rigid fit below which the layout checks the state's heading
 #: (3 deg: centimetre fixes on a 0.8 m frame give ~0.1-1 deg).
 MAX_FIT_YAW_SD = math.radians(3.0)
+#: A speed within this many sd of 0 is a standstill (:func:`_standstill_hold`).
+STANDSTILL_SIGMAS = 2.0
 #: Consecutive contradicting epochs before a re-initialisation from the rigid fit.
 REINIT_EPOCHS = 3
 #: Smallest heading contradiction that re-initialises, rad (5 deg: far above any bias of a
@@ -1060,6 +1062,29 @@ class _Monitor:
         return bad, None
 
 
+def _standstill_hold(x: np.ndarray, P: np.ndarray, starter: FilterStart, k: int) -> bool:
+    """Standing still where the layout cannot give the heading: epoch k has a fix, the
+    speed is within :data:`STANDSTILL_SIGMAS` sd of 0 and epoch k's rigid-fit heading sd above
+    :data:`MAX_FIT_YAW_SD` (or fewer than two fixes). Then neither the motion nor the
+    layout measures the heading, and metre-level errors wandering by centimetres per second
+    would turn it at will (issue 25: 65 deg off after a 150 s stop with consumer errors):
+    the yaw rate is set to 0 (x, P changed in place: a platform at rest does not turn) and
+    the prediction adds no yaw noise. A layout that does give the heading is never held
+    (a rover turning on the spot with centimetre fixes is followed)."""
+    if not starter.present[k].any():
+        return False                # an outage: predicted as usual (its sd grows, lost)
+    if not x[V] <= STANDSTILL_SIGMAS * math.sqrt(max(P[V, V], 0.0)):
+        return False
+    if starter.fit_heading(k)[1] <= MAX_FIT_YAW_SD:
+        return False
+    x[OMEGA] = 0.0
+    var = P[OMEGA, OMEGA]
+    P[OMEGA, :] = 0.0
+    P[:, OMEGA] = 0.0
+    P[OMEGA, OMEGA] = min(var, 1e-12)
+    return True
+
+
 def _prior_nis(y: np.ndarray, Y: np.ndarray, z: np.ndarray, pat: _Pattern
                ) -> tuple[float, int]:
     """NIS ``nu^T S^-1 nu`` of all the epoch's measurements z (k, 2) against the prediction
@@ -1285,7 +1310,9 @@ def run_pose_filter(t: np.ndarray, obs: np.ndarray, offsets: np.ndarray,
             dt = dts[k - 1]
             # continuous noise of constant density: the variances of the rates' changes
             # given per median step, scaled to this step (longer gaps: larger)
-            xp, Pp, FP = _predict(x, P, dt, qa * dt / dt_med, qy * dt_med / dt)
+            hold = _standstill_hold(x, P, starter, k)
+            xp, Pp, FP = _predict(x, P, dt, qa * dt / dt_med,
+                                  0.0 if hold else qy * dt_med / dt)
             if present[k].any() and _prior_lost(Pp, lever, var_min):
                 # the prediction means nothing (e.g. after an hour's gap in t): the track
                 # is lost; this epoch's data start it again (reported as "reset")
