@@ -564,6 +564,9 @@ class FilterConfig:
     NIS (weight 1/200 per update, each NIS clipped at 100) exceeds it (expected 1).
     init_sigma_* : initial standard deviations (m, rad, m/s, rad/s, m) at (re)initialisation.
     max_init_age_s : a joint fit older than this cannot (re)initialise the filter.
+    max_gap_s : after a gap in the ranges longer than this the filter re-initialises from
+    the joint fit (coasting a constant-velocity model for seconds predicts nothing; the
+    shared static runs have gaps of up to 8.8 s).
     """
 
     sigma_range_m: float = 0.05
@@ -579,11 +582,12 @@ class FilterConfig:
     init_sigma_yaw_rate: float = 1.0
     init_sigma_bias_m: float = 0.3
     max_init_age_s: float = 0.5
+    max_gap_s: float = 1.0
 
     def __post_init__(self):
         for f in ("sigma_range_m", "q_accel", "q_yaw_accel", "gate_sigma", "nis_limit",
                   "init_sigma_pos_m", "init_sigma_yaw", "init_sigma_vel",
-                  "init_sigma_yaw_rate", "max_init_age_s"):
+                  "init_sigma_yaw_rate", "max_init_age_s", "max_gap_s"):
             check_real(getattr(self, f), f"FilterConfig.{f}", lo=0.0, lo_open=True, hi=1e6)
         for f in ("q_bias", "init_sigma_bias_m"):
             check_real(getattr(self, f), f"FilterConfig.{f}", lo=0.0, hi=1e6)
@@ -743,7 +747,8 @@ def _run(t, r, bounds, bx, by, dz2, ax, ay, init, cfg):
         lo, hi = bounds[e], bounds[e + 1]
         te = t[lo]
         restart = init[e] is not None and (not live or bad_run >= cfg.reinit_epochs
-                                           or ewma > cfg.nis_limit)
+                                           or ewma > cfg.nis_limit
+                                           or te - t_prev > cfg.max_gap_s)
         if restart:
             x0, x1, x2, x6 = init[e][0], init[e][1], init[e][2], init[e][3]
             x3 = x4 = x5 = 0.0

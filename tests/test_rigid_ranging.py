@@ -279,6 +279,10 @@ def test_filter_recovers_from_a_jump_and_smoother_improves():
     assert res.segment.max() >= 1                      # re-initialised after the jump
     e = np.hypot(*(res.pose[:, :2] - jumped[:, :2]).T)
     assert np.all(e[200:] < 0.1)                       # back on track 1 s after the jump
+    # a 5 s gap in the ranges: re-initialised at the first epoch after it
+    t3, D3 = np.concatenate([t[t < 2.0], t[t >= 2.0] + 5.0]), D
+    res = run_filter(t3, D3)
+    assert res.reinit[np.searchsorted(res.times, 7.0)] and res.segment.max() == 1
     # smoother: lower RMSE than the filter on the un-jumped run
     res = run_filter(t, D)
     sm = rr.smooth(res)
