@@ -461,6 +461,7 @@ def fit_pose(anchors, body, ranges, *, origin_z_m: float = 0.0, dim: int = 2,
 
 
 def _finish(model, sol, ok, nr, A, B, robust, sig, mirror_check, max_iter, tol):
+    """Mirror checks, covariance, statuses and the result object of :func:`fit_pose`."""
     pos, R, b, it, conv, w, s, r, J = sol
     E = pos.shape[0]
     obj = _rho(r, model.mask, robust, s)
@@ -475,9 +476,9 @@ def _finish(model, sol, ok, nr, A, B, robust, sig, mirror_check, max_iter, tol):
         span = np.linalg.matrix_rank(B[:, :2] - B[:, :2].mean(axis=0)) == 2
         if span:
             tie = ok & (status == "ok") & (mobj <= obj + _TIE * s ** 2)
-            worse = ok & (status == "ok") & (mobj < obj - _TIE * s ** 2)
-            status[tie & ~worse] = "mirror_ambiguous"
-            status[worse] = "mirrored"
+            mirror_better = ok & (status == "ok") & (mobj < obj - _TIE * s ** 2)
+            status[tie & ~mirror_better] = "mirror_ambiguous"
+            status[mirror_better] = "mirrored"
     cov, good = _covariance(J, w, sig)
     status[ok & ~good] = "degenerate"
     status[ok & good & ~conv & (status == "ok")] = "maxiter"
@@ -495,7 +496,9 @@ def _finish(model, sol, ok, nr, A, B, robust, sig, mirror_check, max_iter, tol):
 
 def _reflected(model, pos, R, b, r, J, w, s, obj, ok, status, A, B, robust, sig, max_iter,
                tol):
-    """Second start: the pose reflected in the anchors' x-y line; keep the better minimum."""
+    """Second start: the pose reflected in the anchors' x-y line; keep the better minimum.
+    Two minima are distinct when their positions differ by > 10 sigma_m or yaws by > 0.05
+    rad (far beyond the spread of one minimum at sigma_m); a tie is within 9 scale^2."""
     p2, R2 = _reflect_start(pos, R, B, A)
     p2[~ok] = np.nan
     pb, Rb, bb, _, _, wb, _, rb, Jb = _solve_lm(model, p2, R2, b.copy(), robust, sig,
