@@ -39,8 +39,8 @@ PY = Path(sys.executable)
 #: a hang must fail, not stall the suite.
 TIMEOUT_S = 300
 
-#: A small spec for the mapped forms of the long sweeps (one path, one window, one seed, two
-#: techniques): the option under test (solver, backend, --jobs) is what the command shows.
+#: A small spec for the mapped forms of the long sweeps (the short square20 path, one window,
+#: one seed, two techniques): the option under test (solver, backend, --jobs) is what the command shows.
 TINY_SPEC = """\
 name = "tiny"
 seed = 1
@@ -49,7 +49,7 @@ masks = ["full"]
 [defaults]
 config = "rover_gps8"
 noise = "gps_stationary"
-path = "square100"
+path = "square20"
 [[grid]]
 window = [10]
 weighting = "huff"
@@ -71,8 +71,8 @@ MAPPED: dict[str, tuple[str, str]] = {
         "python -m pytest -q -p no:cacheprovider -n 0 tests/test_readme.py -k setup",
         "the suite is what runs this; its check that CI runs this very command stands in"),
     "python -m experiments.sweep --solver elastic": (
-        "python -m experiments.sweep --preset quick --solver elastic --out {tmp}/elastic",
-        "the thesis preset takes ~30 s; the quick preset exercises the same solver"),
+        _TINY + "python -m experiments.sweep my_spec.toml --solver elastic --out {tmp}/elastic",
+        "the thesis preset takes ~30 s: the batched solver on a tiny spec"),
     "python -m experiments.sweep --solver slsqp": (
         _TINY + "python -m experiments.sweep my_spec.toml --solver slsqp --out {tmp}/slsqp",
         "~25 min on the thesis preset: the SciPy per-window fit on a tiny spec"),
@@ -80,7 +80,7 @@ MAPPED: dict[str, tuple[str, str]] = {
         _TINY + "python -m experiments.sweep my_spec.toml --solver slsqp --out {tmp}/slsqp",
         "as --solver slsqp"),
     "python -m experiments.sweep --preset thesis --solver elastic": (
-        "python -m experiments.sweep --preset quick --solver elastic --out {tmp}/elastic",
+        _TINY + "python -m experiments.sweep my_spec.toml --solver elastic --out {tmp}/elastic",
         "as --solver elastic"),
     "python -m experiments.sweep my_spec.toml --jobs 1 --out /tmp/mine": (
         _TINY + "python -m experiments.sweep my_spec.toml --jobs 1 --out {tmp}/mine",
@@ -113,12 +113,22 @@ MAPPED: dict[str, tuple[str, str]] = {
         "../shared/realdata/gpsd/hemi.log ../shared/realdata/gpsd/rx210.log --out {tmp}/real",
         "a.nmea b.nmea c.nmea stand for the user's logs: three shared NMEA logs"),
     "python -m experiments.stationary --real-logs DIR": (
-        "python -m experiments.stationary --real-logs ../shared/realdata/gpsd --duration 600",
-        "DIR stands for a folder of logs: the shared gpsd logs (a 600 s synthetic session: the "
-        "default 4300 s one is run by the command without options)"),
+        "python -m experiments.stationary --real-logs ../shared/realdata/gpsd --duration 600 "
+        "--no-split",
+        "DIR stands for a folder of logs: the shared gpsd logs, beside a 600 s synthetic "
+        "session without the common_fraction table (what --real-logs adds is the logs)"),
     "python -m experiments.identification": (
         "python -m experiments.identification --quick",
         "fewer starts and runs (~10 s instead of ~21 s), same default output folder"),
+    "python -m experiments.sweep --preset quick --out /tmp/quick": (
+        "cp -r results/quick {tmp}/quick && python -m experiments.sweep --preset quick "
+        "--out {tmp}/quick",
+        "the quick run of the README's command above, again: into its own folder, resumed "
+        "from a copy of that run's (the resume path; computing it twice takes ~10 s more)"),
+    "python -m experiments.stationary": (
+        "python -m experiments.stationary --duration 600",
+        "the default 4300 s synthetic session takes ~15 s (70 s on a loaded machine): a "
+        "600 s one, into the same default folder (results/local/stationary)"),
     "python -m experiments.ultrasonic --out /tmp/us --n-mc 20000": (
         "python -m experiments.ultrasonic --out {tmp}/us --n-mc 20000 --quick",
         "the full flight and identification take ~90 s: the smoke run into the custom folder "
@@ -135,19 +145,19 @@ MAPPED: dict[str, tuple[str, str]] = {
     "python -m experiments.render results/thesis --where path=square100 window=100 "
     "technique=none weighting=huff noise_overrides={} seed=0 --out clip.mp4": (
         "python -m experiments.render results/thesis --where path=square100 window=100 "
-        "technique=none weighting=huff 'noise_overrides={{}}' seed=0 --out clip.mp4 --frames 40",
-        "the whole clip is ~500 frames: the same cell and writer, 40 frames"),
+        "technique=none weighting=huff 'noise_overrides={{}}' seed=0 --out clip.mp4 --frames 10",
+        "the whole clip is ~500 frames: the same cell and writer, 10 frames"),
     "python -m experiments.render results/thesis --where path=square100 window=100 "
     "technique=lc+dyn weighting=huff dyn_growth=refill noise_overrides={} seed=0 --out clip.mp4": (
         "python -m experiments.render results/thesis --where path=square100 window=100 "
         "technique=lc+dyn weighting=huff dyn_growth=refill 'noise_overrides={{}}' seed=0 "
-        "--out clip.mp4 --frames 40",
-        "the whole clip is ~500 frames: the same cell and writer, 40 frames"),
+        "--out clip.mp4 --frames 10",
+        "the whole clip is ~500 frames: the same cell and writer, 10 frames"),
     "python -m experiments.render --flight results/ultrasonic --out flight.gif --fps 15 "
     "--size 480x360": (
         "python -m experiments.render --flight results/ultrasonic --out flight.gif --fps 15 "
-        "--size 480x360 --frames 40",
-        "the whole flight is ~300 frames: the same writer and size, 40 frames"),
+        "--size 480x360 --frames 10",
+        "the whole flight is ~300 frames: the same writer and size, 10 frames"),
     "python -m experiments.ranging DIR [DIR ...]": (
         "python -m experiments.ranging ../shared/realdata/uwb_hanyang/LOS/Trajectory_A/Case_1",
         "DIR stands for recordings: the shared LOS case (default output, results/local/ranging)"),
@@ -164,7 +174,6 @@ AS_WRITTEN: set[str] = {
     "python -m experiments.page results/thesis",
     "python -m experiments.paths_figure",
     "python -m experiments.paths_figure --reference",
-    "python -m experiments.stationary",
     "python -m experiments.stationary --session ../shared/realdata/gpsd/quectel-eg25-g.log "
     "--out results/local/quectel",
     "python -c from sim.nmea import read_log, session_from_fixes as s; import numpy ...",
@@ -181,7 +190,6 @@ AS_WRITTEN: set[str] = {
     "--out /tmp/los",
     "python -m experiments.ranging --reference",
     # the --help examples
-    "python -m experiments.sweep --preset quick --out /tmp/quick",
     "python -m experiments.export /tmp/quick --where window=10 technique=lc seed=0",
     "python -m experiments.export results/thesis --where path=square100 window=100 "
     "technique=lc+dyn weighting=huff dyn_growth=refill noise_overrides={} seed=0 --out /tmp/tum",
