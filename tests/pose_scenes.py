@@ -58,3 +58,15 @@ def noisy(truth: Truth, cfg: SensorConfig, noise: str, seed: int) -> np.ndarray:
     """The scene's observations (n, m, 2) with a noise model, the sweep's way."""
     return np.array(observe(truth, cfg, noise, rng=np.random.default_rng(seed),
                             session_s=4000.0))
+
+
+def vehicle_scene(seed: int, noise: str = "rtk", **kw):
+    """The issue-25 car (:func:`sim.vehicle_case.simulate_vehicle_case`, drive seed ``seed``,
+    keywords passed on) with an error model of :data:`sim.vehicle_case.NOISES` (noise seed
+    1000 + seed): (case, t (n,) s, obs (n, 4, 2) m, offsets (4, 2) m from the CG)."""
+    from sim.vehicle_case import simulate_vehicle_case, vehicle_observations
+
+    case = simulate_vehicle_case(np.random.default_rng(seed), **kw)
+    obs = vehicle_observations(case, noise, np.random.default_rng(1000 + seed))
+    off = case.config.body_positions - case.config.cg_body
+    return case, case.truth.t, obs, off

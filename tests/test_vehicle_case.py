@@ -1,0 +1,223 @@
+"""The simulated real vehicle of issue 25 and the pose filter on it: the generator's
+character, the platform limits and travel axis estimated from the data, a standstill start,
+recovery from a gate lock-out, and heading bounds on the RTK and consumer-error cases."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+from pose_scenes import vehicle_scene
+
+import estimator.pose_filter as pf
+from estimator.metrics import heading_error
+from estimator.platform import PlatformLimits, estimate_limits, estimate_travel_axis
+from estimator.pose_filter import PoseFilterParams, estimate_noise, run_pose_filter
+from estimator.pose_smoother import fixed_lag_smooth, rts_smooth
+from sim.vehicle_case import MOUNT_YAW_RAD, simulate_vehicle_case, vehicle_observations
+
+
+@pytest.fixture(scope="module")
+def rtk():
+    """Seed 0 with RTK errors, and the filter's pass with defaults (everything estimated)."""
+    case, t, obs, off = vehicle_scene(0, "rtk")
+    return case, t, obs, off, run_pose_filter(t, obs, off)
+
+
+def _rms_deg(yaw, truth, mask):
+    e = np.degrees(heading_error(yaw, truth))
+    return float(np.sqrt(np.mean(e[mask & np.isfinite(e)] ** 2)))
+
+
+def test_the_case_has_the_recordings_character():
+    """Issue 25's recording: 1 Hz, ~1500 epochs, presence 63-97 % per antenna, all four in
+    ~43 %, three in ~46 %, one or none in ~3 %, a 34 s outage, a 150 s stop, speed median
+    ~6 and max 16 m/s, yaw rate p95 ~18 and max ~31 deg/s, the frame 3.4 deg off the
+    travel. Bounds: the ranges seen over seeds 0-4 (all four 41-47 %, three 39-47 %, median
+    speed 5.3-6.2, yaw-rate p95 17.7-22.7 deg/s) widened by a few points; the acceleration's
+    p99 is 2.3-3.2 m/s^2 here, below the recording's 4.7 (the generator's accelerations are
+    jerk-limited; see the README)."""
+    case = simulate_vehicle_case(np.random.default_rng(0))
+    tr, p = case.truth, case.present
+    k = p.sum(1)
+    assert tr.n == 1515 and np.allclose(np.diff(tr.t), 1.0)
+    assert 0.55 <= p.mean(0).min() and p.mean(0).max() <= 0.99
+    assert 0.35 <= (k == 4).mean() <= 0.52 and 0.35 <= (k == 3).mean() <= 0.52
+    assert 0.015 <= (k <= 1).mean() <= 0.06
+    outage = ~p.any(1)
+    assert outage.sum() >= 34 and (tr.speed < 0.01).sum() >= 150
+    assert 4.5 <= np.median(tr.speed) <= 7.0 and 15.0 <= tr.speed.max() <= 16.5
+    w = np.degrees(np.abs(tr.yaw_rate))
+    assert 15.0 <= np.percentile(w, 95) <= 25.0 and w.max() <= 31.0
+    # the antenna missing for 333 s
+    gap = np.diff(np.flatnonzero(np.diff(np.r_[1, p[:, 3].astype(int), 1]) != 0))
+    assert gap.max() >= 333
+    # the layout's forward axis vs the rear axle's travel: 3.4 deg (noise-free fixes)
+    assert case.mount_yaw_rad == pytest.approx(math.radians(3.4))
+    with pytest.raises(ValueError, match="rate_hz"):
+        simulate_vehicle_case(np.random.default_rng(0), rate_hz=50.0)
+    with pytest.raises(ValueError, match="noise"):
+        vehicle_observations(case, "gps", np.random.default_rng(0))
+
+
+def test_limits_and_travel_axis_are_estimated_from_the_data(rtk):
+    """From the RTK fixes alone: the speed limit covers the 16 m/s top speed (p99 x 1.25:
+    ~20), the acceleration limit is of the drive's p99 (2.5-4.5 m/s^2 measured, the
+    generator's 6.5 m/s^2 reached only in short bursts), the turn rate covers the 30 deg/s
+    the drive reaches (x 1.25 margin, within 30 %); the travel axis is the frame's
+    -3.4 deg to 0.3 deg (measured 0.06-0.13 deg off over seeds 0-1) and the CG 1.3 m
+    ahead of the rear axle to 0.15 m (measured 1.25-1.28 m)."""
+    case, t, obs, off, res = rtk
+    sa, _ = estimate_noise(obs, off)
+    lim = estimate_limits(t, obs, off, sa)
+    assert lim.source == "data"
+    assert 16.0 <= lim.max_speed_mps <= 25.0
+    assert 2.0 <= lim.max_accel_mps2 <= 8.0
+    top = np.abs(case.truth.yaw_rate).max()
+    assert top <= lim.max_turn_rate_radps <= 1.3 * 1.25 * top
+    ax = estimate_travel_axis(t, obs, off, sa)
+    assert ax.known and math.degrees(abs(ax.offset_rad + MOUNT_YAW_RAD)) < 0.3
+    assert abs(ax.lever_m - 1.3) < 0.15
+    # the filter used exactly these (its parameters resolved from the same data)
+    assert res.params.travel_offset_rad == ax.offset_rad
+    assert res.params.max_speed_mps == lim.max_speed_mps
+    # a platform standing still all the time: the floors, never zero or NaN
+    still = np.broadcast_to(obs[:1], obs.shape).copy()
+    lim0 = estimate_limits(t, still, off, sa)
+    assert lim0.max_accel_mps2 == 0.5 and lim0.max_turn_rate_radps == 0.3
+    assert not estimate_travel_axis(t, still, off, sa).known
+
+
+def test_platform_limits_are_validated_and_reach_the_filter():
+    lim = PlatformLimits.from_dict({"max_speed_mps": 16.0, "max_accel_mps2": 4.7,
+                                    "max_turn_rate_radps": 0.55})
+    assert lim.max_yaw_accel_radps2 == 0.55 and lim.max_lateral_accel_mps2 == 4.7
+    p = PoseFilterParams.from_platform(lim, lag_s=5.0)
+    assert (p.max_speed_mps, p.max_accel_mps2, p.lag_s) == (16.0, 4.7, 5.0)
+    assert p.no_slip_point_m is None and not p.resolved
+    assert PoseFilterParams.from_platform(None) == PoseFilterParams()
+    with pytest.raises(ValueError, match=r"platform\.max_speed_mps.*-1"):
+        PlatformLimits.from_dict({"max_speed_mps": -1, "max_accel_mps2": 1,
+                                  "max_turn_rate_radps": 1})
+    with pytest.raises(ValueError, match=r"platform\.max_turn_rate_radps: required"):
+        PlatformLimits.from_dict({"max_speed_mps": 1, "max_accel_mps2": 1})
+    with pytest.raises(ValueError, match=r"platform\.top_speed: unknown key"):
+        PlatformLimits.from_dict({"top_speed": 1})
+    with pytest.raises(ValueError, match="travel_offset_rad"):
+        PoseFilterParams(travel_offset_rad=1.0)
+    with pytest.raises(ValueError, match="max_accel_mps2: None"):
+        _ = PoseFilterParams().sigma_accel_step
+
+
+def test_rtk_car_heading_with_defaults(rtk):
+    """Defaults, nothing given: EKF, fixed-lag and RTS heading on the epochs with two or
+    more antennas. Measured on seed 0: EKF 0.58, fixed-lag 0.47, RTS 0.48 deg RMS (10
+    seeds in the README: <= 0.5 deg target, see there); bounds 0.8 / 0.7 / 0.7 deg (the
+    per-epoch configuration alone gives 0.85 deg: the filter must stay below it), no flip
+    (no error beyond 90 deg), finite on >= 99 % of those epochs (measured 99.8 %). Every
+    row carries its NIS with 2 dof per measurement."""
+    case, t, obs, off, res = rtk
+    two = np.isfinite(obs[..., 0]).sum(1) >= 2
+    rows = {"ekf": res.states, "fixed_lag": fixed_lag_smooth(res, t, res.params.lag_s).states,
+            "rts": rts_smooth(res).states}
+    for name, bound in (("ekf", 0.8), ("fixed_lag", 0.7), ("rts", 0.7)):
+        X = rows[name]
+        assert _rms_deg(X[:, 2], case.truth.yaw, two) < bound, name
+        e = np.degrees(heading_error(X[:, 2], case.truth.yaw))
+        assert not (np.abs(e[np.isfinite(e)]) > 90).any(), name
+        assert np.isfinite(X[two, 2]).mean() >= 0.99, name
+    # smoothers bridge the outage and single-antenna epochs: a row wherever the filter has
+    for X in (rows["fixed_lag"], rows["rts"]):
+        assert np.array_equal(np.isfinite(X[:, 0]), np.isfinite(res.states[:, 0]))
+    data = (np.isfinite(res.states[:, 0]) & np.isfinite(obs[..., 0]).any(1)
+            & ~res.segment_start)                      # a start row has no prediction
+    assert np.isfinite(res.nis[data]).all()
+    nfix = np.isfinite(obs[data, :, 0]).sum(1)
+    assert (res.nis_dof[data] % 2 == 0).all() and (res.nis_dof[data] >= 2 * nfix).all()
+
+
+def _standstill_scene(jump_deg: float = 123.0, n: int = 60, k_jump: int = 30):
+    """A car standing still with four antennas (0.8 m square, 1 cm white noise, 1 Hz) whose
+    layout reads ``jump_deg`` off for the first ``k_jump`` epochs, rotated about antenna 1
+    (so antenna 1 agrees with both headings): the filter starts on the wrong heading and,
+    once the layout shows the true one, the three other antennas fail its gates while
+    antenna 1 keeps passing (the issue's lock-out: "2 of 3 gated for minutes")."""
+    h = 0.4
+    off = np.array([[h, h], [h, -h], [-h, h], [-h, -h]])
+    yaw = 0.3
+    rng = np.random.default_rng(7)
+    t = np.arange(float(n))
+
+    def place(a):
+        c, s = math.cos(a), math.sin(a)
+        return off @ np.array([[c, s], [-s, c]])
+
+    true = place(yaw)
+    wrong = place(yaw + math.radians(jump_deg))
+    wrong += true[0] - wrong[0]                       # pivot on antenna 1
+    obs = np.where(np.arange(n)[:, None, None] < k_jump, wrong[None], true[None])
+    obs = obs + rng.normal(0, 0.01, obs.shape) + np.array([500.0, -300.0])
+    return t, obs, off, yaw, k_jump
+
+
+def test_standstill_start_takes_the_layouts_heading_and_a_lock_out_is_recovered():
+    """At a standstill the start is the layout's heading (no motion needed); when the layout
+    then contradicts the state by 123 deg the filter re-initialises from the epoch's rigid
+    fit within REINIT_EPOCHS (3) epochs, reported "reinit" (the epochs before it
+    "inconsistent", not "ok"), and holds the true heading to 1 deg afterwards. Without the
+    monitor (REINIT_EPOCHS beyond the run) only the lost-track rule helps: max_rejects (5)
+    all-gated epochs, then a restart, so the heading is >= 90 deg off for longer."""
+    t, obs, off, yaw, kj = _standstill_scene()
+    res = run_pose_filter(t, obs, off)
+    init = int(np.flatnonzero(res.status == "init")[0])
+    assert init <= 1
+    assert math.degrees(heading_error(res.states[init, 2], yaw + math.radians(123))) < 1.0
+    re = np.flatnonzero(res.status == "reinit")
+    assert re.size and kj <= re[0] <= kj + pf.REINIT_EPOCHS
+    assert set(res.status[kj:re[0]]) <= {"inconsistent"}
+    after = np.arange(t.size) >= re[0]
+    assert np.degrees(heading_error(res.states[after, 2], np.full(after.sum(), yaw))).max() < 1
+    import unittest.mock as um
+
+    with um.patch.object(pf, "REINIT_EPOCHS", 10 ** 9):
+        locked = run_pose_filter(t, obs, off)
+    err = np.degrees(heading_error(locked.states[:, 2], np.full(t.size, yaw)))
+    assert "reinit" not in set(locked.status)
+    assert (err[kj:kj + 5] > 90).all()                 # measured: back only at kj + 6
+
+
+def test_consumer_errors_replayed_onto_the_car():
+    """Consumer errors (a gps_stationary receiver replayed 'shifted': metre-level, no
+    common part; heading from the motion only, the 0.8 m frame cannot give it): the RTS row
+    on seed 0, measured 4.8 deg RMS with 96.7 % output on the >= 2-antenna epochs
+    (window 1: 86 deg). Bounds 7 deg and 95 % (target 5 deg: met in the mean of 10 seeds,
+    see the README). The 150 s stop holds its heading (standstill hold): within 10 deg
+    RMS there (measured 3.8 deg; 65 deg without the hold)."""
+    case, t, obs, off = vehicle_scene(0, "shifted")
+    res = run_pose_filter(t, obs, off)
+    sm = rts_smooth(res).states
+    two = np.isfinite(obs[..., 0]).sum(1) >= 2
+    assert _rms_deg(sm[:, 2], case.truth.yaw, two) < 7.0
+    assert np.isfinite(sm[two, 2]).mean() >= 0.95
+    stop = case.truth.speed < 0.01
+    stop[:20] = False                                  # the start at rest: no heading yet
+    assert _rms_deg(sm[:, 2], case.truth.yaw, stop) < 10.0
+
+
+@pytest.mark.parametrize(("rate", "vmax", "bound"), [
+    (0.5, 30.0, 4.0),
+    pytest.param(20.0, 0.1, 1.0, marks=pytest.mark.slow)])   # 12000 epochs: ~15 s
+def test_rates_and_speeds_at_the_ends_of_the_range(rate, vmax, bound):
+    """0.5 Hz at up to 30 m/s and 20 Hz creeping at up to 0.1 m/s (600 s drives with the
+    case's stop, outage and dropouts; noise-free fixes at the 1 mm floor): never an
+    exception, finite output on >= 95 % of the >= 2-antenna epochs, heading RMS there below
+    the bound. Measured: 0.5 Hz 2.7 deg (the 30 m/s car turns up to 60 deg and brakes at
+    12 m/s^2 between two samples: bound 4 deg), 20 Hz 0.12 deg (the layout gives the
+    heading: bound 1 deg)."""
+    case, t, obs, off = vehicle_scene(3, "none", rate_hz=rate, duration_s=600.0,
+                                      max_speed_mps=vmax)
+    res = run_pose_filter(t, obs, off)
+    two = np.isfinite(obs[..., 0]).sum(1) >= 2
+    assert np.isfinite(res.states[two, 2]).mean() >= 0.95
+    assert _rms_deg(res.states[:, 2], case.truth.yaw, two) < bound
