@@ -21,9 +21,22 @@ TOML format (see models/configs/)::
     cg_sensors = ["2", "3", "6", "7"]   # optional, default: all sensors
     dead = ["4"]                  # optional, sensors that never report
 
+    [platform]                    # optional: the carrier's limits (SI units), see below
+    max_speed_mps = 2.0
+    max_accel_mps2 = 0.5
+    max_turn_rate_radps = 0.8
+
     [[sensor]]
     name = "1"
     position_m = [0.75, 0.5]      # 2 or 3 numbers, the same count for every sensor
+
+``[platform]``: speed (m/s), longitudinal acceleration (m/s^2) and turn-rate (rad/s)
+limits of the vehicle carrying the layout, required when the block is given, and
+optionally ``max_yaw_accel_radps2``, ``max_lateral_accel_mps2``, ``max_jerk_mps3``
+(:class:`estimator.platform.PlatformLimits`, which validates them). The pose filter takes
+its process noise and gates from them; absent (``config.platform is None``), the filter
+estimates them from the data (issue 25). A recording's own ``[platform]`` block
+(:func:`sim.recording.load_recording`) takes precedence over the configuration's.
 
 Layouts known only by measured pairwise distances: :meth:`SensorConfig.from_distances`
 (tolerance in metres, forward axis and handedness from named antennas or from one observed
@@ -44,6 +57,7 @@ import numpy as np
 
 from estimator._checks import check_int, check_real
 from estimator.model_files import MODELS_DIR, read_model_toml
+from estimator.platform import PlatformLimits
 
 __all__ = [
     "CONFIGS_DIR",
@@ -54,6 +68,7 @@ __all__ = [
     "ConfigError",
     "LayoutWarning",
     "SensorConfig",
+    "platform_from_table",
 ]
 
 CONFIGS_DIR = MODELS_DIR / "configs"
@@ -348,6 +363,24 @@ def _frame_from_observed(cfg: SensorConfig, observed: object, heading: object
     return B, note
 
 
+def platform_from_table(table: object, where: str = "platform") -> PlatformLimits | None:
+    """A TOML ``[platform]`` table as :class:`PlatformLimits` (None when absent); a bad
+    key or value raises ConfigError naming ``where.<key>`` and the value."""
+    if table is None:
+        return None
+    try:
+        return PlatformLimits.from_dict(table, where=where)
+    except ValueError as exc:
+        raise ConfigError(str(exc)) from None
+
+
+def _check_platform(platform: object) -> PlatformLimits | None:
+    if platform is not None and not isinstance(platform, PlatformLimits):
+        raise ConfigError(f"platform: expected an estimator.platform.PlatformLimits or None, "
+                          f"got {type(platform).__name__} {platform!r}")
+    return platform
+
+
 def _as_float_array(a: object, field_name: str) -> np.ndarray:
     """``a`` as a float64 array; TypeError naming the field when it is not numeric."""
     try:
@@ -401,6 +434,9 @@ class SensorConfig:
         Height (>= 0, metres) of a 2-D layout above the ground, used only by the simulator.
     name, description : str
         Free text for reports.
+    platform : :class:`estimator.platform.PlatformLimits`, optional
+        Speed, acceleration and turn-rate limits of the carrier (the TOML ``[platform]``
+        block); None (default): the pose filter estimates them from the data.
     """
 
     names: tuple[str, ...]
@@ -410,6 +446,7 @@ class SensorConfig:
     mount_height_m: float = 0.0
     name: str = "config"
     description: str = ""
+    platform: PlatformLimits | None = None
     _index: dict = field(default_factory=dict, repr=False, compare=False)
 
     def __init__(
@@ -422,6 +459,7 @@ class SensorConfig:
         mount_height_m: float = 0.0,
         name: str = "config",
         description: str = "",
+        platform: PlatformLimits | None = None,
     ) -> None:
         names_t = _as_names(names, "names")
         pos = _as_float_array(body_positions, "body_positions")
@@ -488,6 +526,7 @@ class SensorConfig:
         object.__setattr__(self, "mount_height_m", mh)
         object.__setattr__(self, "name", str(name))
         object.__setattr__(self, "description", str(description))
+        object.__setattr__(self, "platform", _check_platform(platform))
         object.__setattr__(self, "_index", index)
 
     # ------------------------------------------------------------------ basic views
@@ -571,7 +610,7 @@ class SensorConfig:
             return self
         return SensorConfig(self.names, self.body_positions[:, :2], self.cg_members, self.dead,
                             mount_height_m=self.mount_height_m, name=self.name,
-                            description=self.description)
+                            description=self.description, platform=self.platform)
 
     def __repr__(self) -> str:
         return (f"SensorConfig(name={self.name!r}, m={self.m}, d={self.d}, "
@@ -587,6 +626,9 @@ class SensorConfig:
         out["cg_sensors"] = list(self.cg_members)
         if self.dead:
             out["dead"] = list(self.dead)
+        if self.platform is not None:
+            out["platform"] = {k: v for k, v in self.platform.to_dict().items()
+                               if v is not None}
         out["sensor"] = [{"name": n, "position_m": [float(v) for v in p]}
                          for n, p in zip(self.names, self.body_positions)]
         return out
@@ -703,7 +745,8 @@ class SensorConfig:
     @classmethod
     def from_dict(cls, data: dict, *, source: str = "<dict>") -> SensorConfig:
         """Build from the TOML table structure documented in the module docstring."""
-        allowed = {"name", "description", "mount_height_m", "cg_sensors", "dead", "sensor"}
+        allowed = {"name", "description", "mount_height_m", "cg_sensors", "dead", "sensor",
+                   "platform"}
         unknown = sorted(set(data) - allowed)
         if unknown:
             raise ConfigError(f"{source}: unknown key(s) {unknown}; allowed: {sorted(allowed)}")
@@ -740,6 +783,7 @@ class SensorConfig:
         for key in ("name", "description"):
             if key in data and not isinstance(data[key], str):
                 raise ConfigError(f"{source}: {key} must be a string, got {data[key]!r}")
+        platform = platform_from_table(data.get("platform"), f"{source}: platform")
         try:
             return cls(
                 names, positions,
@@ -748,6 +792,7 @@ class SensorConfig:
                 mount_height_m=float(mh),
                 name=data.get("name", Path(source).stem),
                 description=data.get("description", ""),
+                platform=platform,
             )
         except ConfigError as exc:
             raise ConfigError(f"{source}: {exc}") from None

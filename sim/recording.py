@@ -68,7 +68,8 @@ from pathlib import Path
 import numpy as np
 
 from estimator._checks import check_real
-from estimator.configuration import SensorConfig
+from estimator.platform import PlatformLimits
+from estimator.configuration import SensorConfig, platform_from_table
 from estimator.model_files import MODELS_DIR, parse_toml, resolve_model_file
 from sim.gps import REPLAY_MODES, SESSION_REPLAY_KEYS, StationarySession, observe
 from sim.nmea import (
@@ -587,6 +588,9 @@ class Recording:
     replay : None, or {"session": StationarySession, "noise_overrides": dict} (the
         recording as truth: reference antennas + replayed error).
     name : label. meta : JSON-ready details (files, counts, frame, grid).
+    platform : :class:`estimator.platform.PlatformLimits` of the carrier (the recording's
+        ``[platform]`` block, else its configuration's) or None (the filter estimates the
+        limits from the data); :meth:`truth` passes it on in ``meta["platform"]``.
     """
 
     t: np.ndarray
@@ -597,6 +601,7 @@ class Recording:
     replay: dict | None = None
     name: str = "recording"
     meta: dict = field(default_factory=dict)
+    platform: PlatformLimits | None = None
 
     def __post_init__(self) -> None:
         t = np.asarray(self.t, dtype=float)
@@ -631,6 +636,9 @@ class Recording:
             raise RecordingError(f"reference: arrays do not match n = {n}, m = {m}")
         if self.height_m is not None and np.asarray(self.height_m).shape != (n, m):
             raise RecordingError(f"height_m: expected shape ({n}, {m})")
+        if self.platform is not None and not isinstance(self.platform, PlatformLimits):
+            raise RecordingError(f"platform: expected an estimator.platform.PlatformLimits or "
+                                 f"None, got {type(self.platform).__name__} {self.platform!r}")
         object.__setattr__(self, "t", t)
         object.__setattr__(self, "meta", _plain(self.meta))
 
@@ -697,7 +705,9 @@ class Recording:
         truth = Truth(t=self.t, sensor_positions=sp, sensor_names=self.config.names, cg=cg,
                       yaw=ref.yaw, speed=np.hypot(vel[:, 0], vel[:, 1]), yaw_rate=yaw_rate,
                       turning=turning, meta={"recording": self.name, "source": "reference",
-                                             "kind": ref.kind})
+                                             "kind": ref.kind, "platform": None if
+                                             self.platform is None else
+                                             self.platform.to_dict()})
         self.__dict__["_truth_cache"] = truth
         return truth
 
@@ -714,7 +724,8 @@ class Recording:
                   reference_positions: Mapping[str, Sequence[float]] | None = None,
                   rate_hz: float | None = None, max_offset_s: float | None = None,
                   interpolate: bool = False, formats: Mapping[str, str] | None = None,
-                  name: str = "recording") -> Recording:
+                  name: str = "recording", platform: PlatformLimits | None = None
+                  ) -> Recording:
         """A recording from one log per antenna, aligned on UTC (module docstring).
 
         antennas : antenna name -> log file (or :class:`sim.nmea.LogFixes`); the names must
@@ -725,6 +736,7 @@ class Recording:
         rate_hz : grid rate (default from the fixes). max_offset_s : snap tolerance, s
             (default a quarter interval). interpolate : linear interpolation between
             consecutive fixes (named option, counted). formats : name -> log format.
+        platform : the carrier's limits (default: ``config.platform``).
         """
         cfg = _check_config(config)
         logs = _read_logs(antennas, cfg, formats or {}, "antennas")
@@ -739,7 +751,7 @@ class Recording:
         meta = _meta(grid, frame, off, interpolate, info, ref_info)
         heights = hgt if np.isfinite(hgt).any() else None
         return cls(t=grid.t, config=cfg, obs=pos, reference=ref, height_m=heights, name=name,
-                   meta=meta)
+                   meta=meta, platform=_platform(platform, cfg))
 
     @classmethod
     def for_replay(cls, config: SensorConfig, session: StationarySession, *,
@@ -748,7 +760,8 @@ class Recording:
                    reference_positions: Mapping[str, Sequence[float]] | None = None,
                    duration_s: float | None = None, max_offset_s: float | None = None,
                    interpolate: bool = False, formats: Mapping[str, str] | None = None,
-                   name: str = "recording") -> Recording:
+                   name: str = "recording", platform: PlatformLimits | None = None
+                   ) -> Recording:
         """The recording as truth: per-antenna reference positions (RTK logs, or surveyed
         ``reference_positions`` of a stationary platform) + a session's real error replayed
         on top, drawn per seed (:meth:`observations`; ``noise_overrides`` as in
@@ -756,6 +769,7 @@ class Recording:
 
         The grid is the session's sample interval; with reference logs it spans them, with
         surveyed positions it lasts ``duration_s`` (default: the session's length).
+        ``platform``: the carrier's limits (default: ``config.platform``).
         """
         cfg = _check_config(config)
         if not isinstance(session, StationarySession):
@@ -807,7 +821,8 @@ class Recording:
         meta["replay"] = {"session": dict(session.meta, names=list(session.names),
                                           n=session.n), "noise_overrides": nov}
         return cls(t=grid.t, config=cfg, reference=ref, name=name, meta=meta,
-                   replay={"session": session, "noise_overrides": nov})
+                   replay={"session": session, "noise_overrides": nov},
+                   platform=_platform(platform, cfg))
 
 
 def _model_fields() -> set[str]:
@@ -816,6 +831,11 @@ def _model_fields() -> set[str]:
     from sim.gps import GpsNoiseModel
 
     return {f.name for f in dataclasses.fields(GpsNoiseModel)}
+
+
+def _platform(platform: object, cfg: SensorConfig) -> PlatformLimits | None:
+    """The recording's limits: ``platform`` if given, else the configuration's."""
+    return cfg.platform if platform is None else platform
 
 
 def _check_config(config: object) -> SensorConfig:
@@ -960,7 +980,7 @@ def _meta(grid: _Grid, frame: _Frame, off: float, interpolate: bool, info: dict,
 
 # --------------------------------------------------------------------------- TOML
 _TOP_KEYS = {"name", "description", "config", "rate_hz", "max_offset_s", "interpolate",
-             "antenna", "reference", "replay"}
+             "antenna", "reference", "replay", "platform"}
 _REPLAY_KEYS = {"logs", "session", "mode", "receiver", "shift_s", "model", "overrides",
                 "duration_s", "rate_hz"}
 
@@ -1011,6 +1031,10 @@ def _parse(path: Path) -> dict:
         raise RecordingError(f"{src}: interpolate: must be true or false, got "
                              f"{data['interpolate']!r}")
     out["interpolate"] = bool(data.get("interpolate", False))
+    try:
+        out["platform"] = platform_from_table(data.get("platform"), f"{src}: platform")
+    except ValueError as exc:
+        raise RecordingError(str(exc)) from None
     ants = data.get("antenna")
     if ants is not None:
         out["antenna"] = _parse_antennas(ants, base, f"{src}: antenna", need_log=True)
@@ -1222,6 +1246,13 @@ def load_recording(path_or_name: str | Path, *, config: SensorConfig | None = No
         overrides = {common_fraction = 0.5}   # optional model fields
         duration_s = 1200                 # surveyed reference: length of the recording
 
+        [platform]                        # optional: the carrier's limits, SI units
+        max_speed_mps = 16.0              # (estimator.platform.PlatformLimits; beside these
+        max_accel_mps2 = 5.0              # three: max_yaw_accel_radps2,
+        max_turn_rate_radps = 0.6         # max_lateral_accel_mps2, max_jerk_mps3)
+
+    Without ``[platform]`` the configuration's block applies; without either the filter
+    estimates the limits from the data.
     Relative paths resolve against the TOML's folder, then the repository. ``config``
     replaces the file's configuration (same antenna names). Errors name file and field.
     """
@@ -1252,7 +1283,8 @@ def load_recording(path_or_name: str | Path, *, config: SensorConfig | None = No
             rec = Recording.for_replay(
                 cfg, session, noise_overrides=rep["noise_overrides"], reference=reference,
                 reference_positions=positions, duration_s=rep.get("duration_s"),
-                interpolate=spec["interpolate"], formats=formats, name=spec["name"], **kw)
+                interpolate=spec["interpolate"], formats=formats, name=spec["name"],
+                platform=spec["platform"], **kw)
         else:
             antennas = {e["name"]: e["log"] for e in spec["antenna"]}
             formats.update({e["name"]: e["format"] for e in spec["antenna"]})
@@ -1260,10 +1292,13 @@ def load_recording(path_or_name: str | Path, *, config: SensorConfig | None = No
                                       reference_positions=positions,
                                       rate_hz=spec.get("rate_hz"),
                                       interpolate=spec["interpolate"], formats=formats,
-                                      name=spec["name"], **kw)
+                                      name=spec["name"], platform=spec["platform"], **kw)
     except RecordingError as exc:
         raise RecordingError(f"{p}: {exc}") from None
-    rec.meta.update({"source": str(p), "config_file": str(spec["config"])})
+    rec.meta.update({"source": str(p), "config_file": str(spec["config"]),
+                     "platform": None if rec.platform is None else {
+                         **rec.platform.to_dict(),
+                         "from": "recording" if spec["platform"] is not None else "config"}})
     return rec
 
 

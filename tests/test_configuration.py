@@ -565,3 +565,46 @@ def test_sparse_refinement_matches_the_dense_least_squares_optimum():
     iu = np.triu_indices(60, 1)
     cost = 0.5 * float((((np.sqrt((diff**2).sum(-1)) - D) / D.max())[iu] ** 2).sum())
     assert cost == pytest.approx(1.7784249316247922e-05, rel=1e-9)
+
+
+# --------------------------------------------------------------------------- [platform]
+def test_platform_block_is_read_validated_and_round_trips():
+    from estimator.platform import PlatformLimits
+
+    car = SensorConfig.load("car_rtk4")
+    assert isinstance(car.platform, PlatformLimits)
+    assert (car.platform.max_speed_mps, car.platform.max_accel_mps2,
+            car.platform.max_turn_rate_radps) == (40.0, 6.0, 1.0)
+    # the rover's block is the pose filter's limits before issue 25 (0.5 m/s^2, 1 rad/s^2,
+    # 0.8 rad/s, 0.8 m/s^2), so a recording with the rover layout keeps them
+    for name in ("rover_gps4", "rover_gps8"):
+        lim = SensorConfig.load(name).platform.to_dict()
+        assert {k: lim[k] for k in ("max_accel_mps2", "max_yaw_accel_radps2",
+                                    "max_turn_rate_radps", "max_lateral_accel_mps2")} == {
+            "max_accel_mps2": 0.5, "max_yaw_accel_radps2": 1.0, "max_turn_rate_radps": 0.8,
+            "max_lateral_accel_mps2": 0.8}
+    assert SensorConfig.load("home_square4").platform is None      # absent: from the data
+    back = SensorConfig.from_dict(car.to_dict())
+    assert back.platform == car.platform
+    assert car.planar().platform == car.platform
+
+
+@pytest.mark.parametrize("block, match", [
+    ({"max_speed_mps": 10.0, "max_accel_mps2": 2.0}, r"platform\.max_turn_rate_radps: required"),
+    ({"max_speed_mps": -1.0, "max_accel_mps2": 2.0, "max_turn_rate_radps": 1.0},
+     r"platform\.max_speed_mps: must be in .*-1"),
+    ({"max_speed_mps": 10.0, "max_accel_mps2": "fast", "max_turn_rate_radps": 1.0},
+     r"platform\.max_accel_mps2: must be a number, got 'fast'"),
+    ({"max_speed_mps": 10.0, "max_accel_mps2": 2.0, "max_turn_rate_radps": 1.0,
+      "max_yaw_rate_degps": 30}, r"platform\.max_yaw_rate_degps: unknown key"),
+    ("fast", r"platform: must be a table"),
+])
+def test_platform_block_errors_name_the_field(block, match):
+    data = {"name": "x", "sensor": [{"name": "a", "position_m": [0.5, 0.0]},
+                                    {"name": "b", "position_m": [-0.5, 0.0]}],
+            "platform": block}
+    with pytest.raises(ConfigError, match=match) as ei:
+        SensorConfig.from_dict(data, source="cfg.toml")
+    assert str(ei.value).startswith("cfg.toml: platform")       # the file once, then the field
+    with pytest.raises(ConfigError, match="platform: expected"):
+        SensorConfig(["a", "b"], [[0.5, 0.0], [-0.5, 0.0]], platform={"max_speed_mps": 1})

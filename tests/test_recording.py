@@ -683,3 +683,41 @@ def test_recording_meta_is_json_ready(rig, rec):
     json.dumps(rec.meta)
     base = 1.7e9 + np.arange(20.0)
     json.dumps(_two(base, base).meta)
+
+
+# --------------------------------------------------------------------------- [platform]
+def test_recording_platform_block_overrides_the_configurations(rig, tmp_path):
+    import tomllib
+
+    import tomli_w
+
+    data = tomllib.loads(rig.files["toml"].read_text())
+    rec0 = load_recording(rig.files["toml"])
+    # without a block of its own the recording takes its configuration's (rover_gps4)
+    assert rec0.platform == SensorConfig.load("rover_gps4").platform
+    assert rec0.meta["platform"]["from"] == "config"
+    data["platform"] = {"max_speed_mps": 16.0, "max_accel_mps2": 5.0,
+                        "max_turn_rate_radps": 0.6}
+    p = rig.files["toml"].parent / f"plat_{tmp_path.name}.toml"
+    p.write_text(tomli_w.dumps(data))
+    rec = load_recording(p)
+    assert (rec.platform.max_speed_mps, rec.platform.max_turn_rate_radps) == (16.0, 0.6)
+    assert rec.meta["platform"]["from"] == "recording"
+    # the sweep reads the limits from the truth (experiments filter_params_for)
+    from estimator.platform import PlatformLimits
+
+    assert PlatformLimits.from_dict(rec.truth().meta["platform"]) == rec.platform
+    data["platform"] = {"max_speed_mps": 16.0, "max_accel_mps2": 0.0,
+                        "max_turn_rate_radps": 0.6}
+    p.write_text(tomli_w.dumps(data))
+    with pytest.raises(RecordingError, match=r"platform\.max_accel_mps2: must be in .*got 0"):
+        load_recording(p)
+
+
+def test_recording_without_any_platform_leaves_the_limits_to_the_data(rig):
+    cfg = SensorConfig(list(LAYOUT), list(LAYOUT.values()), name="bare")
+    logs = {k: rig.files[f"rtk{k}"] for k in LAYOUT}
+    rec = Recording.from_logs(logs, cfg, reference=logs)
+    assert rec.platform is None and rec.truth().meta["platform"] is None
+    with pytest.raises(RecordingError, match="platform: expected"):
+        Recording(t=rec.t, config=cfg, obs=rec.obs, platform={"max_speed_mps": 1.0})
