@@ -66,6 +66,7 @@ __all__ = [
     "epoch_ranges",
     "filter_fixes",
     "gate_streams",
+    "height_bounds",
     "localize",
     "nominal_interval",
     "tight_filter",
@@ -246,6 +247,15 @@ class RangingConfig:
     lever_arms_m : (T, 3) transmitter positions in the body frame (x forward, y left, z up);
         None = every transmitter at the body origin. The platform is taken as level (yaw only).
     height_m : the body origin's known z (m; None = solve z): known-height (2-D) mode.
+    height_bounds_m : (lo, hi) m, the plausible z interval of the body origin for free-height
+        ``damped_ls`` fixes (declared, e.g. from a recording's metadata); None = from the
+        receivers' heights when ``height_margin_m`` is set (:func:`height_bounds`), else
+        unbounded. A fix whose z falls outside is re-solved at the nearest bound; a fix whose
+        geometric z std exceeds half the interval's width (the geometry cannot resolve z,
+        e.g. receivers nearly coplanar seen from afar) is re-solved at
+        ``fallback_height_m`` (known-height fallback); the PV Kalman z is held inside too.
+    height_margin_m : margin (m) of the bounds from the geometry: the receivers' lowest z
+        minus it to their highest z plus it. fallback_height_m : None = the bounds' middle.
     Fixes:
     method : a :mod:`estimator.trilateration` method name. receivers_used : indices of the
         receivers used by the fixes (None: all; for a three-receiver method the largest
@@ -279,6 +289,9 @@ class RangingConfig:
     tx_separation_m: float | None = None
     lever_arms_m: tuple | None = None
     height_m: float | None = None
+    height_bounds_m: tuple | None = None
+    height_margin_m: float | None = None
+    fallback_height_m: float | None = None
     method: str = "damped_ls"
     receivers_used: tuple | None = None
     side: int = 1
@@ -307,6 +320,7 @@ class RangingConfig:
                 check_real(getattr(self, f), f, lo=0.0, lo_open=f != "noise_margin_m", hi=big)
         if self.height_m is not None:
             check_real(self.height_m, "height_m", lo=-tri.MAX_ABS_M, hi=tri.MAX_ABS_M)
+        self._check_height_bounds()
         check_int(self.relock_after, "relock_after", lo=1, hi=10_000)
         check_int(self.lead_in, "lead_in", lo=1, hi=10_000_000)
         check_int(self.kalman_lead_in, "kalman_lead_in", lo=0, hi=10_000_000)
@@ -332,6 +346,25 @@ class RangingConfig:
             if len(set(idx)) != len(idx) or len(idx) < 3:
                 raise ValueError(f"receivers_used: need >= 3 distinct indices, got {idx}")
             object.__setattr__(self, "receivers_used", idx)
+
+    def _check_height_bounds(self) -> None:
+        """Validate height_bounds_m / height_margin_m / fallback_height_m (ValueError naming
+        the field and the value)."""
+        if self.height_bounds_m is not None:
+            b = check_array(self.height_bounds_m, "height_bounds_m", max_abs=tri.MAX_ABS_M)
+            if b.shape != (2,) or not b[0] < b[1]:
+                raise ValueError("height_bounds_m: expected (lo, hi) m with lo < hi, got "
+                                 f"{self.height_bounds_m!r}")
+            object.__setattr__(self, "height_bounds_m", (float(b[0]), float(b[1])))
+        if self.height_margin_m is not None:
+            check_real(self.height_margin_m, "height_margin_m", lo=0.0, hi=tri.MAX_ABS_M)
+        if self.fallback_height_m is not None:
+            check_real(self.fallback_height_m, "fallback_height_m", lo=-tri.MAX_ABS_M,
+                       hi=tri.MAX_ABS_M)
+        bounded = self.height_bounds_m is not None or self.height_margin_m is not None
+        if bounded and self.method != "damped_ls":
+            raise ValueError("height_bounds_m / height_margin_m: free-height bounds apply to "
+                             f"method 'damped_ls' only, got method {self.method!r}")
 
     # ---- presets (documented physics, never fitted to data) ----
     @classmethod
@@ -361,10 +394,14 @@ class RangingConfig:
         3.0: a jogging person; small ground robots are slower (Clearpath Jackal 2.0 m/s,
         Husky 1.0 m/s). accel_std_mps2 1.0: walking and small-robot accelerations (peaks of
         2-3 m/s^2). Gates: noise margin 3 sigma = 0.3 m; re-lock after 5 samples (longer than
-        the 2-4 sample spike runs of this sensor class). Everything else: the defaults
-        (damped least squares with mirror continuity, per-fix Kalman sigmas, 5-sigma gates).
+        the 2-4 sample spike runs of this sensor class). height_margin_m 2.0: a free-height
+        fix keeps the tag within 2 m of the anchors' height span (anchors on tripods or
+        posts, the tag 0-2 m above the same ground; :func:`height_bounds`). Everything else:
+        the defaults (damped least squares with mirror continuity, per-fix Kalman sigmas,
+        5-sigma gates).
         """
-        base = {"sigma_range_m": 0.1, "max_speed_mps": 3.0, "accel_std_mps2": 1.0}
+        base = {"sigma_range_m": 0.1, "max_speed_mps": 3.0, "accel_std_mps2": 1.0,
+                "height_margin_m": 2.0}
         base.update(changes)
         return cls(**base)
 
@@ -388,6 +425,18 @@ class RangingConfig:
             return self.max_gap_s
         return math.sqrt(8.0 * self.sigma_range_m / self.accel_std_mps2)
 
+    def height_interval(self, receivers: np.ndarray) -> tuple[float, float] | None:
+        """The free-height z interval of the body origin (m): the declared
+        ``height_bounds_m``, else :func:`height_bounds` with ``height_margin_m``, else None
+        (also None in known-height mode)."""
+        if self.height_m is not None:
+            return None
+        if self.height_bounds_m is not None:
+            return self.height_bounds_m
+        if self.height_margin_m is None:
+            return None
+        return height_bounds(receivers, self.height_margin_m)
+
     def levers(self, n_transmitters: int) -> np.ndarray:
         if self.lever_arms_m is None:
             return np.zeros((n_transmitters, 3))
@@ -396,6 +445,17 @@ class RangingConfig:
             raise ValueError(f"lever_arms_m: {lev.shape[0]} lever arms for {n_transmitters} "
                              "transmitters")
         return lev
+
+
+def height_bounds(receivers: np.ndarray, margin_m: float) -> tuple[float, float]:
+    """Plausible z interval (m) of a platform among receivers (k, 3) m: from the lowest
+    receiver's z minus ``margin_m`` to the highest one's plus ``margin_m`` (a platform on the
+    ground the receivers stand on)."""
+    rec = check_array(receivers, "receivers", max_abs=tri.MAX_ABS_M)
+    if rec.ndim != 2 or rec.shape[1] != 3 or rec.shape[0] < 1:
+        raise ValueError(f"receivers: expected shape (k, 3), got {rec.shape}")
+    m = check_real(margin_m, "margin_m", lo=0.0, hi=tri.MAX_ABS_M)
+    return float(rec[:, 2].min() - m), float(rec[:, 2].max() + m)
 
 
 def nominal_interval(streams: RangeStreams) -> float:
@@ -553,7 +613,9 @@ class Fixes:
     axis (0 for a known height, NaN without a fix); ok (n, T) bool, a usable fix (finite, not
     missing, bounded or degenerate, converged); info: one
     :class:`estimator.trilateration.TrilaterationInfo` per transmitter; receivers (k_used,)
-    indices of the receivers used.
+    indices of the receivers used; height_bounds (lo, hi) m, the body origin's free-height
+    interval the fixes were held in (None: unbounded); height_held (n, T) bool, fixes
+    re-solved at a bound or at the fallback height (all False when unbounded).
     """
 
     position: np.ndarray
@@ -561,6 +623,8 @@ class Fixes:
     ok: np.ndarray
     info: tuple
     receivers: tuple
+    height_bounds: tuple | None = None
+    height_held: np.ndarray | None = None
 
 
 def _fix_sigma(rec: np.ndarray, pos: np.ndarray, r: np.ndarray, sigma: float,
@@ -605,6 +669,49 @@ def _continuity(pos: np.ndarray, info) -> np.ndarray:
     return out
 
 
+def _held_heights(rec: np.ndarray, p: np.ndarray, r: np.ndarray, usable: np.ndarray,
+                  sigma: float, lo: float, hi: float, fallback: float) -> np.ndarray:
+    """Known heights (n,) m for the free-height fixes p (n, 3) m that leave [lo, hi] (the
+    nearest bound) or whose z the geometry cannot resolve (geometric z std > (hi - lo) / 2,
+    or J'J singular: ``fallback``); NaN where the free fix stands or is not usable."""
+    sz = _fix_sigma(rec, p, r, sigma, False)[:, 2]
+    z = p[:, 2]
+    out = np.full(z.shape, np.nan)
+    unresolved = usable & ~(sz <= 0.5 * (hi - lo))
+    outside = usable & ~unresolved & ((z < lo) | (z > hi))
+    out[outside] = np.clip(z[outside], lo, hi)
+    out[unresolved] = fallback
+    return out
+
+
+def _merge_info(info, sub, rows: np.ndarray):
+    """``info`` with the rows ``rows`` of every per-row field taken from ``sub``."""
+    fields = {}
+    for name in info.__dataclass_fields__:
+        a = np.array(getattr(info, name), copy=True)
+        a[rows] = getattr(sub, name)
+        fields[name] = a
+    return type(info)(**fields)
+
+
+def _bounded_fix(ru, rj, p, info, good, config, lo, hi, lz):
+    """Hold the free-height damped fixes of one transmitter (lever z ``lz``) in [lo, hi]
+    (body origin): re-solve the rows :func:`_held_heights` names in known-height mode, the
+    free fix as the mirror prior. Returns (positions, info, held (n,) bool)."""
+    mid = 0.5 * (lo + hi) if config.fallback_height_m is None else config.fallback_height_m
+    h = _held_heights(ru, p, rj, good, config.sigma_range_m, lo + lz, hi + lz, mid + lz)
+    rows = np.flatnonzero(np.isfinite(h))
+    if rows.size == 0:
+        return p, info, np.zeros(p.shape[0], dtype=bool)
+    pk, ik = tri.damped_ls(ru, rj[rows], height_m=h[rows], prior=p[rows], side=config.side,
+                           sigma_m=config.sigma_range_m, return_info=True)
+    out = p.copy()
+    out[rows] = pk
+    held = np.zeros(p.shape[0], dtype=bool)
+    held[rows] = True
+    return out, _merge_info(info, ik, rows), held
+
+
 def trilaterate_epochs(ranges: np.ndarray, receivers: np.ndarray,
                        config: RangingConfig) -> Fixes:
     """One fix per epoch and transmitter from epoch ranges (n, T, k) m (Appendix C: CMD per
@@ -629,6 +736,8 @@ def trilaterate_epochs(ranges: np.ndarray, receivers: np.ndarray,
     ok = np.zeros((n, nt), dtype=bool)
     infos = []
     known = config.height_m is not None and config.method == "damped_ls"
+    bounds = config.height_interval(rec)
+    held = np.zeros((n, nt), dtype=bool)
     for j in range(nt):
         rj = rr[:, j, list(idx)]
         if config.method == "damped_ls":
@@ -638,6 +747,11 @@ def trilaterate_epochs(ranges: np.ndarray, receivers: np.ndarray,
             if config.mirror == "continuity":
                 p = _continuity(p, info)
             good = ~(info.missing | info.bounded | info.degenerate) & info.converged
+            if bounds is not None:
+                good &= np.all(np.isfinite(p), axis=1)
+                p, info, held[:, j] = _bounded_fix(ru, rj, p, info, good, config, *bounds,
+                                                   levers[j, 2])
+                good = ~(info.missing | info.bounded | info.degenerate) & info.converged
         else:
             p, info = fn(ru, rj, side=config.side, return_info=True)
             good = ~info.missing & info.converged & ~info.degenerate
@@ -645,8 +759,12 @@ def trilaterate_epochs(ranges: np.ndarray, receivers: np.ndarray,
         pos[:, j] = p
         ok[:, j] = good
         sig[:, j] = _fix_sigma(ru, p, rj, config.sigma_range_m, known)
+        if held[:, j].any():          # z held: the bounds' uniform spread, not the geometry's
+            sig[held[:, j], j] = _fix_sigma(ru, p[held[:, j]], rj[held[:, j]],
+                                            config.sigma_range_m, True)
+            sig[held[:, j], j, 2] = (bounds[1] - bounds[0]) / math.sqrt(12.0)
         infos.append(info)
-    return Fixes(pos, sig, ok, tuple(infos), idx)
+    return Fixes(pos, sig, ok, tuple(infos), idx, bounds, held)
 
 
 # =============================================================================================
@@ -662,7 +780,8 @@ def filter_fixes(t: np.ndarray, fixes: Fixes, config: RangingConfig, *,
     (dropped, as Appendix C) and where an axis has no usable fix at all. ``sigma_process``
     and ``sigma_measurement`` override the config (None: config; the config's None: the
     acceleration std and the per-fix geometric stds). An axis whose fixes all have std 0
-    (a known height) is passed through."""
+    (a known height) is passed through. Fixes with ``height_bounds``: the filtered z is
+    clipped to them (plus each transmitter's lever z)."""
     if not isinstance(fixes, Fixes):
         raise TypeError(f"fixes: expected Fixes, got {type(fixes).__name__}")
     _check_types(None, config)
@@ -698,6 +817,10 @@ def filter_fixes(t: np.ndarray, fixes: Fixes, config: RangingConfig, *,
                 sm = sm_fixed
             out[lead:, j, a] = pv_kalman(tl, za, sp, sm, gate=config.kalman_gate,
                                          reinit_after=config.relock_after)
+    if fixes.height_bounds is not None:      # the filter's z stays where the fixes are held
+        lz = config.levers(nt)[:, 2]
+        lo, hi = fixes.height_bounds
+        out[..., 2] = np.clip(out[..., 2], lo + lz[None, :], hi + lz[None, :])
     return out
 
 

@@ -12,7 +12,9 @@ DIR holds one recording in the format of the Hanyang outdoor UWB dataset
 The run: :func:`estimator.ranging.localize` with :meth:`RangingConfig.uwb_ground_tag` (physical
 defaults, never fitted to a recording), once in known-height mode (the tag rides
 ``--tag-height`` = 1.0 m above the reference point, whose z is ground level, as the authors'
-scoring states) and once solving z freely; every method is scored with the authors' metric
+scoring states) and once solving z freely (the per-epoch fixes and their Kalman filter held in
+the preset's plausible interval, the anchors' heights +/- 2 m, with the interval's middle as
+the known-height fallback where the geometry cannot resolve z); every method is scored with the authors' metric
 (:func:`authors_metric`, a re-implementation of their ``localization_error_analysis.py``,
 checked against their ``RMSD_results.txt`` to 1e-9 m in the tests). Outputs: one folder
 ``OUT/<label>/`` per recording DIR (``<label>``: the last three parts of DIR joined by ``_``
@@ -268,8 +270,9 @@ METHODS = {
     "fix_2d": ("2d", "damped least squares per epoch, known height, after the gates"),
     "kalman_2d": ("2d", "PV Kalman per axis on fix_2d (per-fix sigmas, innovation gate)"),
     "tight_2d": ("2d", "tightly coupled range filter, known height"),
-    "fix_3d": ("3d", "damped least squares per epoch, free z, after the gates"),
-    "kalman_3d": ("3d", "PV Kalman per axis on fix_3d"),
+    "fix_3d": ("3d", "damped least squares per epoch, free z held in the anchors' heights "
+                     "+/- 2 m (known-height fallback where z is unresolved), after the gates"),
+    "kalman_3d": ("3d", "PV Kalman per axis on fix_3d (z held in the same interval)"),
     "tight_3d": ("3d", "tightly coupled range filter, free z"),
 }
 SUMMARY_COLUMNS = ("method", "rmse_2d_m", "rmse_3d_m", "max_error_2d_m", "coverage")
