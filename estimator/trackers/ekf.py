@@ -54,7 +54,8 @@ class FilterOptions(TrackerOptions):
                 cache: TrackCache | None) -> tuple[np.ndarray, np.ndarray, PoseFilterResult,
                                                    np.ndarray]:
         """States (n, 6) [x, y, yaw, v, a, yaw rate], their heading sd (n,) rad, and the
-        forward pass (status, counts, NIS, the parameters it used)."""
+        forward pass (status, counts, NIS, the parameters it used); or (states, status (n,),
+        extra columns dict) for a tracker without a pose-filter pass."""
         raise NotImplementedError
 
     def track(self, t: Any, obs: Any, config: Any, *, cache: TrackCache | None = None
@@ -65,10 +66,18 @@ class FilterOptions(TrackerOptions):
         tt, o, cfg = self._start(t, obs, config)
         k0 = self.window - 1
         offsets = cfg.body_positions - cfg.cg_body
-        X, yaw_sd, res = self._states(tt, o, offsets, cache)
-        r_m = offsets - np.asarray(res.params.no_slip_point_m)   # as the pass resolved it
-        status = res.status
-        extra = {**_filter_counts(res), "yaw_sd": yaw_sd}
+        X, second, res = self._states(tt, o, offsets, cache)
+        if isinstance(res, dict):
+            # (states, status, extra columns): a tracker of the family without a forward
+            # pass of its own (the GTSAM peer); "_no_slip_point_m" in extra: the point it used
+            extra = dict(res)
+            ns = extra.pop("_no_slip_point_m", self.filter_params.no_slip_point_m)
+            status = second
+        else:
+            ns = res.params.no_slip_point_m           # as the pass resolved it
+            status = res.status
+            extra = {**_filter_counts(res), "yaw_sd": second}
+        r_m = offsets - np.asarray(ns if ns is not None else (0.0, 0.0), dtype=float)
         X = X[k0:]
         c, sn = np.cos(X[:, 2]), np.sin(X[:, 2])
         R = np.stack([np.stack([c, -sn], -1), np.stack([sn, c], -1)], -2)  # (N, 2, 2)

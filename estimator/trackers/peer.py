@@ -26,4 +26,4 @@ class GtsamPeerTracker(FilterOptions):
 
     def _states(self, tt, o, offsets, cache):
         res = run_gtsam_peer(tt, o, offsets, self.filter_params)
-        return res.fixed_lag, res.status, {}
+        return res.fixed_lag, res.status, {"_no_slip_point_m": tuple(-res.cg_offset)}
