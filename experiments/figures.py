@@ -135,12 +135,18 @@ class _Epochs:
             ep = self.load(r["key"])
             v = np.abs(ep[column].to_numpy(dtype=float))
             if mask == "no_turns":
-                v = v[~ep["truth_turning"].to_numpy(dtype=bool)]
+                v = v[~_flag(ep["truth_turning"], True)]
             elif mask == "no_turns_window":
-                v = v[ep["no_turns_window"].to_numpy(dtype=bool)]
+                v = v[_flag(ep["no_turns_window"], False)]
             vals.append(v[np.isfinite(v)])
             seeds.append(int(r["seed"]))
         return (np.concatenate(vals) if vals else np.array([])), sorted(set(seeds))
+
+
+def _flag(col: pd.Series, missing: bool) -> np.ndarray:
+    """A per-epoch flag column as bool (n,), ``missing`` where it is unknown (a gappy
+    reference: NaN or NA rows; a NaN would otherwise count as True)."""
+    return col.astype("boolean").fillna(missing).to_numpy(dtype=bool)
 
 
 def load_epochs(out_dir: str | Path, key: str) -> pd.DataFrame:
@@ -365,6 +371,29 @@ def _sensor1(ep: _EpochColumns) -> str:
     return "1" if "1" in names else names[0]
 
 
+def _steepest_stretch(truth: np.ndarray) -> slice | None:
+    """The stretch of ``max(10, n // 7)`` epochs (n > 20) where the truth (n,) changes
+    fastest on average, counting only epochs whose slope is known (a gappy reference: NaN
+    rows); at least half of the stretch must be known. None when no stretch qualifies
+    (too short, or the reference is missing almost everywhere): the figure then has no
+    magnified inset."""
+    k = truth.size
+    if k <= 20:
+        return None
+    span = max(10, k // 7)
+    slope = np.abs(np.gradient(truth)) if k > 1 else np.full(k, np.nan)
+    known = np.isfinite(slope)
+    # the mean over the known epochs: the plain moving mean (as before gaps were handled,
+    # so a complete reference picks the same stretch bit for bit) times span / known count
+    mean = np.convolve(np.where(known, slope, 0.0), np.ones(span) / span, mode="valid")
+    count = np.convolve(known.astype(float), np.ones(span), mode="valid")
+    ok = count >= 0.5 * span
+    if not ok.any():
+        return None
+    i0 = int(np.argmax(np.where(ok, mean * (span / np.maximum(count, 1.0)), -np.inf)))
+    return slice(i0, i0 + span)
+
+
 def _sensor1_lag_figs(E: _Epochs, out: Path, written: list[Path]) -> None:
     for path in sorted(E.index["path"].unique()):
         wt = "none" if not E.find(path=path, technique="none", weighting="none").empty else "huff"
@@ -388,13 +417,8 @@ def _sensor1_lag_figs(E: _Epochs, out: Path, written: list[Path]) -> None:
                 ax.grid(alpha=0.3)
                 ax.set_title(f"window {w}: sensor {s1} {axis} vs time", fontsize=10)
                 # magnified stretch: the steepest 15 % of the run (a straight leg)
-                k = len(t)
-                if k > 20:
-                    span = max(10, k // 7)
-                    slope = np.abs(np.gradient(ep[f"truth_{s1}_{axis}"].to_numpy()))
-                    sm = np.convolve(slope, np.ones(span) / span, mode="valid")
-                    i0 = int(np.nanargmax(sm))
-                    sl = slice(i0, i0 + span)
+                sl = _steepest_stretch(ep[f"truth_{s1}_{axis}"].to_numpy(dtype=float))
+                if sl is not None:
                     ins = ax.inset_axes([0.58, 0.06, 0.4, 0.38])
                     ins.plot(t[sl], ep[f"obs_{s1}_{axis}"].to_numpy()[sl], ".", color="#9467bd",
                              ms=2)
