@@ -88,7 +88,8 @@ class PlatformLimits:
             if v is None and name == "max_jerk_mps3":
                 continue
             if isinstance(v, bool) or not isinstance(v, (int, float, np.floating, np.integer)):
-                raise ValueError(f"{name}: must be a number, got {v!r}")
+                raise ValueError(  # noqa: TRY004 (project contract: bad input is ValueError)
+                    f"{name}: must be a number, got {v!r}")
             if not (LIMIT_RANGE[0] <= float(v) <= LIMIT_RANGE[1]):
                 raise ValueError(f"{name}: must be in [{LIMIT_RANGE[0]:g}, {LIMIT_RANGE[1]:g}] "
                                  f"(SI units), got {v!r}")
@@ -101,7 +102,8 @@ class PlatformLimits:
         """From a TOML ``[platform]`` table: keys :data:`_NAMES` (the first three required);
         an unknown or missing key is a ValueError naming ``where.key``."""
         if not isinstance(data, Mapping):
-            raise ValueError(f"{where}: must be a table, got {type(data).__name__}")
+            raise ValueError(  # noqa: TRY004 (project contract: bad input is ValueError)
+                f"{where}: must be a table, got {type(data).__name__}")
         allowed = {f.name for f in fields(cls)} - {"source"}
         for k in data:
             if k not in allowed:
@@ -127,7 +129,7 @@ def _intervals(t: np.ndarray, origin: np.ndarray, yaw: np.ndarray, ok_yaw: np.nd
     NaN where either heading is imprecise, mean heading (N,))."""
     n = t.size
     dt_med = float(np.median(np.diff(t))) if n > 1 else 1.0
-    lag = max(1, int(round(1.0 / dt_med)))
+    lag = max(1, round(1.0 / dt_med))
     k = np.arange(max(n - lag, 0))
     j = k + lag
     dt = t[j] - t[k]
@@ -175,7 +177,7 @@ def estimate_limits(t: np.ndarray, obs: np.ndarray, offsets: np.ndarray, sigma_a
     lateral acceleration = the longitudinal limit. Returns ``source="data"`` limits."""
     tt = np.asarray(t, dtype=float)
     origin, yaw, ok_yaw = _fits(obs, offsets, sigma_abs)
-    k, j, dt, d, dyaw, _ = _intervals(tt, origin, yaw, ok_yaw)
+    k, _, dt, d, dyaw, _ = _intervals(tt, origin, yaw, ok_yaw)
     speed = np.hypot(d[:, 0], d[:, 1]) / dt if dt.size else np.zeros(0)
     omega = dyaw / dt if dt.size else np.zeros(0)
     sp_full = np.full(tt.size, np.nan)
@@ -258,7 +260,7 @@ def estimate_travel_axis(t: np.ndarray, obs: np.ndarray, offsets: np.ndarray,
         return none
     A = np.c_[ux[use], w[use]]
     b = uy[use]
-    sol, scale = _huber_fit(A, b)
+    sol, _ = _huber_fit(A, b)
     # standard errors by batch means over AXIS_BLOCKS contiguous stretches: GNSS errors are
     # correlated over tens of seconds, so the least-squares se (independent rows) is far too
     # small (car_block, 45 s of 1.5 cm fixes: LS se 0.05 deg, the estimate 0.32 deg off)

@@ -1026,7 +1026,7 @@ class _Monitor:
 
     def __init__(self, starter: FilterStart, dt_med: float, gate_prob: float) -> None:
         self.starter = starter
-        self.window = max(NIS_MIN_EPOCHS, int(round(NIS_WINDOW_S / dt_med)))
+        self.window = max(NIS_MIN_EPOCHS, round(NIS_WINDOW_S / dt_med))
         self.p = gate_prob if gate_prob < 1 else 0.999
         self.thr1 = chi2_ppf(self.p, 1)
         self.clear()

@@ -117,7 +117,7 @@ def test_rtk_car_heading_with_defaults(rtk):
     per-epoch configuration alone gives 0.85 deg: the filter must stay below it), no flip
     (no error beyond 90 deg), finite on >= 99 % of those epochs (measured 99.8 %). Every
     row carries its NIS with 2 dof per measurement."""
-    case, t, obs, off, res = rtk
+    case, t, obs, _, res = rtk
     two = np.isfinite(obs[..., 0]).sum(1) >= 2
     rows = {"ekf": res.states, "fixed_lag": fixed_lag_smooth(res, t, res.params.lag_s).states,
             "rts": rts_smooth(res).states}
