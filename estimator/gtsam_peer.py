@@ -66,7 +66,8 @@ from estimator.pose_filter import (
     estimate_noise,
 )
 
-__all__ = ["HUBER_K", "NHC_SIGMA_MPS", "RELINEARIZE_THRESHOLD", "GtsamPeerResult", "gtsam_available", "run_gtsam_peer"]
+__all__ = ["HUBER_K", "MAX_BRIDGE_S", "NHC_SIGMA_MPS", "RELINEARIZE_THRESHOLD",
+           "GtsamPeerError", "GtsamPeerResult", "gtsam_available", "run_gtsam_peer"]
 
 #: Huber threshold in units of the noise sd (Huber 1964: 95 % efficiency at the normal).
 HUBER_K = 1.345
@@ -79,6 +80,14 @@ NHC_SIGMA_MPS = 0.01
 #: at every update. GTSAM's default 0.1 (with checks every 10 updates) leaves heading
 #: linearisation errors of up to ~6 degrees in place, the size of what is measured here.
 RELINEARIZE_THRESHOLD = 0.01
+
+#: Longest time without any fix that the motion prior bridges, s; a longer outage ends the
+#: segment (its epochs NaN, status "no_data") and the peer restarts from the data as at the
+#: start (:class:`estimator.pose_filter.FilterStart`, as the EKF after a lost track). 5 s:
+#: the car of issue 25 drives up to 80 m in it, turning up to ~150 deg: the constant-twist
+#: guess iSAM2 starts from means nothing beyond that, and an all-antenna outage of 34 s
+#: made GTSAM raise ``Indeterminate linear system`` 8 s into it (1 Hz, 2 s lag).
+MAX_BRIDGE_S = 5.0
 
 
 def gtsam_available() -> bool:
@@ -103,6 +112,21 @@ class GtsamPeerResult:
     status: np.ndarray
     update_s: float
     cg_offset: np.ndarray
+    segments: int = 1
+    notes: tuple[str, ...] = ()
+
+
+class GtsamPeerError(RuntimeError):
+    """The peer failed where it cannot restart; the message is one line (a sweep cell's
+    error column)."""
+
+
+def _one_line(exc: BaseException) -> str:
+    """GTSAM's multi-line message in one line: its first line and the variable named."""
+    lines = [ln.strip() for ln in str(exc).splitlines() if ln.strip()]
+    head = lines[0] if lines else type(exc).__name__
+    sym = next((ln for ln in lines if "Symbol:" in ln), "")
+    return f"{head} {sym}".strip()
 
 
 def _import_gtsam():
@@ -135,7 +159,8 @@ def _displacement_factor(gtsam, noise, kj: int, kk: int, r: np.ndarray, d: np.nd
 
 def run_gtsam_peer(t: np.ndarray, obs: np.ndarray, offsets: np.ndarray,
                    params: PoseFilterParams = PoseFilterParams(),
-                   lag_s: float | None = None, displacements: bool = True) -> GtsamPeerResult:
+                   lag_s: float | None = None, displacements: bool = True,
+                   max_bridge_s: float = MAX_BRIDGE_S) -> GtsamPeerResult:
     """Run the GTSAM fixed-lag smoother over a recording (module docstring).
 
     t (n,) s strictly increasing; obs (n, m, 2) metres, NaN = missing; offsets (m, 2)
@@ -143,108 +168,169 @@ def run_gtsam_peer(t: np.ndarray, obs: np.ndarray, offsets: np.ndarray,
     :class:`PoseFilterParams` as the EKF (limits, noise levels, no-slip point; ``reverse``
     is not modelled: the twist's forward speed is free in sign). lag_s : smoother lag, s
     (default ``params.lag_s``). displacements : add the displacement factors (module
-    docstring). Raises ImportError without gtsam.
+    docstring). max_bridge_s : longest time without a fix bridged by the motion prior, s
+    (:data:`MAX_BRIDGE_S`); a longer outage, or an update GTSAM rejects (an indeterminate
+    system), starts a new segment (``segments``, ``notes``). Raises ImportError without
+    gtsam, :class:`GtsamPeerError` (one line) when GTSAM fails to start a segment.
     """
     gtsam = _import_gtsam()
     tt, obs, off = _check_run_args(t, obs, offsets, params)
     # limits, noise and no-slip point estimated from the data where None (as the EKF)
     params = params.resolve(tt, obs, off)
     lag = check_real(params.lag_s if lag_s is None else lag_s, "lag_s", lo=0.0)
-    n, m = obs.shape[:2]
-    ns = np.asarray(params.no_slip_point_m, dtype=float)
-    r_m = off - ns
-    if params.sigma_abs_m is None or params.sigma_step_m is None:
-        sa, ss = estimate_noise(obs, off)
-    sigma_abs = params.sigma_abs_m if params.sigma_abs_m is not None else sa
-    sigma_step = params.sigma_step_m if params.sigma_step_m is not None else ss
-    dt_med = float(np.median(np.diff(tt))) if n > 1 else 1.0
-    qa = (0.5 * params.max_accel_mps2) ** 2 * dt_med
-    qy = (0.5 * params.max_yaw_accel_radps2) ** 2 * dt_med
-    qc = np.array([qa, NHC_SIGMA_MPS ** 2 / dt_med, qy])
-    def robust(sd: float):
-        return gtsam.noiseModel.Robust.Create(gtsam.noiseModel.mEstimator.Huber.Create(HUBER_K),
-                                              gtsam.noiseModel.Isotropic.Sigma(2, sd))
-
-    huber = robust(sigma_abs)
-    step_noise = robust(sigma_step)
-    nhc = gtsam.noiseModel.Diagonal.Sigmas(np.array([1e6, NHC_SIGMA_MPS, 1e6]))
-    X = lambda k: gtsam.symbol("x", k)  # noqa: E731
-    Vk = lambda k: gtsam.symbol("v", k)  # noqa: E731
-
-    causal = np.full((n, NX), np.nan)
-    fixed = np.full((n, NX), np.nan)
-    status = np.full(n, "", dtype=object)
-    present = np.isfinite(obs[..., 0])
-    starter = FilterStart(tt, obs, r_m, sigma_abs, params)
-    smoother = None
-    pose = twist = None
-    start = -1
-    pending = []           # epochs whose fixed-lag estimate is not final yet
-    spent = 0.0
-
-    def state_of(est, k):
-        p = est.atPose2(X(k))
-        w = est.atVector(Vk(k))
-        return [p.x(), p.y(), p.theta(), w[0], np.nan, w[2]]
-
-    for k in range(n):
-        ik = np.flatnonzero(present[k])
-        if smoother is None:
-            status[k], got = starter.wait(k)
-            if got is None:
-                continue
-            x0, P0 = got
-            start = k
-            params_isam = gtsam.ISAM2Params()
-            params_isam.setRelinearizeThreshold(RELINEARIZE_THRESHOLD)
-            params_isam.relinearizeSkip = 1
-            smoother = gtsam.IncrementalFixedLagSmoother(lag + 1.5 * dt_med, params_isam)
-            pose = gtsam.Pose2(x0[0], x0[1], x0[2])
-            twist = np.array([x0[V], 0.0, x0[OMEGA]])
-            graph = gtsam.NonlinearFactorGraph()
-            values = gtsam.Values()
-            stamps = gtsam.FixedLagSmootherKeyTimestampMap()
-            graph.add(gtsam.PriorFactorPose2(X(k), pose, gtsam.noiseModel.Gaussian.Covariance(
-                P0[:3, :3])))
-            graph.add(gtsam.PriorFactorVector(Vk(k), twist, gtsam.noiseModel.Diagonal.Sigmas(
-                np.sqrt([P0[V, V], NHC_SIGMA_MPS ** 2, P0[OMEGA, OMEGA]]))))
-        else:
-            graph = gtsam.NonlinearFactorGraph()
-            values = gtsam.Values()
-            stamps = gtsam.FixedLagSmootherKeyTimestampMap()
-            dt = tt[k] - tt[k - 1]
-            pose = pose.compose(gtsam.Pose2.Expmap(twist * dt))
-            graph.add(gtsam.WnoaMotionFactorPose2(
-                gtsam.StateData(X(k - 1), Vk(k - 1), tt[k - 1]),
-                gtsam.StateData(X(k), Vk(k), tt[k]), qc))
-        graph.add(gtsam.PriorFactorVector(Vk(k), np.zeros(3), nhc))
-        for i in ik:
-            graph.add(gtsam.KnownLandmarkFactorPose2(X(k), obs[k, i], r_m[i], huber))
-            if displacements and k > start and np.isfinite(obs[k - 1, i, 0]):
-                graph.add(_displacement_factor(gtsam, step_noise, X(k - 1), X(k), r_m[i],
-                                               obs[k, i] - obs[k - 1, i]))
-        values.insert(X(k), pose)
-        values.insert(Vk(k), twist)
-        stamps.insert((X(k), tt[k]))
-        stamps.insert((Vk(k), tt[k]))
-        t0 = time.perf_counter()
-        smoother.update(graph, values, stamps)
-        est = smoother.calculateEstimate()
-        spent += time.perf_counter() - t0
-        causal[k] = state_of(est, k)
-        pose = est.atPose2(X(k))
-        twist = est.atVector(Vk(k))
-        status[k] = "ok" if ik.size else "predicted"
-        pending.append(k)
-        nxt = tt[k + 1] if k + 1 < n else math.inf
-        while pending and nxt > tt[pending[0]] + lag * (1 + 1e-12) + 1e-12:
-            j = pending.pop(0)
-            fixed[j] = state_of(est, j)
-    if pending:
-        est = smoother.calculateEstimate()
-        for j in pending:
-            fixed[j] = state_of(est, j)
+    bridge = check_real(max_bridge_s, "max_bridge_s", lo=0.0, lo_open=True)
+    run = _PeerRun(gtsam, tt, obs, off, params, lag, displacements, bridge)
+    for k in range(tt.size):
+        run.step(k)
+    run.flush()
+    causal, fixed = run.causal, run.fixed
     causal[:, 2] = wrap_angle(causal[:, 2])
     fixed[:, 2] = wrap_angle(fixed[:, 2])
-    return GtsamPeerResult(causal=causal, fixed_lag=fixed, status=status.astype(str),
-                           update_s=spent, cg_offset=-ns)
+    return GtsamPeerResult(causal=causal, fixed_lag=fixed, status=run.status.astype(str),
+                           update_s=run.spent, cg_offset=-run.ns, segments=run.segments,
+                           notes=tuple(run.notes))
+
+
+class _PeerRun:
+    """The peer's loop state: one smoother per segment (module docstring; a segment ends
+    with an outage longer than the bridge or a failed update)."""
+
+    def __init__(self, gtsam, tt, obs, off, params, lag, displacements, bridge):
+        self.g, self.tt, self.obs, self.params = gtsam, tt, obs, params
+        self.lag, self.displacements, self.bridge = lag, displacements, bridge
+        n = tt.size
+        self.ns = np.asarray(params.no_slip_point_m, dtype=float)
+        self.r_m = off - self.ns
+        sigma_abs, sigma_step = params.sigma_abs_m, params.sigma_step_m
+        self.dt_med = float(np.median(np.diff(tt))) if n > 1 else 1.0
+        qa = (0.5 * params.max_accel_mps2) ** 2 * self.dt_med
+        qy = (0.5 * params.max_yaw_accel_radps2) ** 2 * self.dt_med
+        self.qc = np.array([qa, NHC_SIGMA_MPS ** 2 / self.dt_med, qy])
+
+        def robust(sd: float):
+            return gtsam.noiseModel.Robust.Create(
+                gtsam.noiseModel.mEstimator.Huber.Create(HUBER_K),
+                gtsam.noiseModel.Isotropic.Sigma(2, sd))
+
+        self.huber, self.step_noise = robust(sigma_abs), robust(sigma_step)
+        self.nhc = gtsam.noiseModel.Diagonal.Sigmas(np.array([1e6, NHC_SIGMA_MPS, 1e6]))
+        self.causal = np.full((n, NX), np.nan)
+        self.fixed = np.full((n, NX), np.nan)
+        self.status = np.full(n, "", dtype=object)
+        self.present = np.isfinite(obs[..., 0])
+        self.starter = FilterStart(tt, obs, self.r_m, sigma_abs, params)
+        self.smoother = self.est = self.pose = self.twist = None
+        self.start = self.last = self.last_fix = -1
+        self.pending: list[int] = []     # epochs whose fixed-lag estimate is not final yet
+        self.spent = 0.0
+        self.segments = 0
+        self.notes: list[str] = []
+
+    def X(self, k):
+        return self.g.symbol("x", k)
+
+    def V(self, k):
+        return self.g.symbol("v", k)
+
+    def state_of(self, k):
+        p = self.est.atPose2(self.X(k))
+        w = self.est.atVector(self.V(k))
+        return [p.x(), p.y(), p.theta(), w[0], np.nan, w[2]]
+
+    def flush(self) -> None:
+        """Final fixed-lag estimates of the pending epochs (end of a segment or the run)."""
+        if self.est is not None:
+            for j in self.pending:
+                self.fixed[j] = self.state_of(j)
+        self.pending = []
+
+    def end_segment(self, k: int, note: str | None = None) -> None:
+        self.flush()
+        self.smoother = self.est = None
+        self.starter.reset()
+        if note:
+            self.notes.append(f"t = {self.tt[k]:.6g} s (epoch {k}): {note}")
+
+    def step(self, k: int) -> None:
+        g, tt = self.g, self.tt
+        ik = np.flatnonzero(self.present[k])
+        if self.smoother is not None and tt[k] - tt[self.last_fix] > self.bridge:
+            gap = tt[k] - tt[self.last_fix]
+            self.end_segment(k, f"no fix for {gap:.3g} s (> max_bridge_s = "
+                                f"{self.bridge:g} s): new segment from the data")
+        if self.smoother is None:
+            self.status[k], got = self.starter.wait(k)
+            if got is None:
+                return
+            graph, values, stamps = self.begin(k, *got)
+        else:
+            graph, values, stamps = g.NonlinearFactorGraph(), g.Values(), \
+                g.FixedLagSmootherKeyTimestampMap()
+            j = self.last
+            self.pose = self.pose.compose(g.Pose2.Expmap(self.twist * (tt[k] - tt[j])))
+            graph.add(g.WnoaMotionFactorPose2(g.StateData(self.X(j), self.V(j), tt[j]),
+                                              g.StateData(self.X(k), self.V(k), tt[k]),
+                                              self.qc))
+        self.add_measurements(graph, k, ik)
+        values.insert(self.X(k), self.pose)
+        values.insert(self.V(k), self.twist)
+        stamps.insert((self.X(k), tt[k]))
+        stamps.insert((self.V(k), tt[k]))
+        t0 = time.perf_counter()
+        try:
+            self.smoother.update(graph, values, stamps)
+            est = self.smoother.calculateEstimate()
+        except RuntimeError as exc:
+            self.spent += time.perf_counter() - t0
+            if k == self.start:
+                raise GtsamPeerError(f"gtsam_peer: GTSAM failed to start at t = {tt[k]:.6g} s "
+                                     f"(epoch {k}): {_one_line(exc)}") from None
+            self.end_segment(k, f"GTSAM: {_one_line(exc)}; new segment from the data")
+            self.status[k] = "reset"
+            return
+        self.spent += time.perf_counter() - t0
+        self.est = est
+        self.causal[k] = self.state_of(k)
+        self.pose, self.twist = est.atPose2(self.X(k)), est.atVector(self.V(k))
+        self.status[k] = "ok" if ik.size else "predicted"
+        self.last = k
+        if ik.size:
+            self.last_fix = k
+        self.pending.append(k)
+        nxt = tt[k + 1] if k + 1 < tt.size else math.inf
+        while self.pending and nxt > tt[self.pending[0]] + self.lag * (1 + 1e-12) + 1e-12:
+            j = self.pending.pop(0)
+            self.fixed[j] = self.state_of(j)
+
+    def begin(self, k: int, x0: np.ndarray, P0: np.ndarray):
+        """A new segment at epoch k from the start state (x0, P0): the smoother and the
+        priors."""
+        g = self.g
+        params_isam = g.ISAM2Params()
+        params_isam.setRelinearizeThreshold(RELINEARIZE_THRESHOLD)
+        params_isam.relinearizeSkip = 1
+        self.smoother = g.IncrementalFixedLagSmoother(self.lag + 1.5 * self.dt_med, params_isam)
+        self.segments += 1
+        self.start = self.last_fix = k
+        self.pose = g.Pose2(x0[0], x0[1], x0[2])
+        self.twist = np.array([x0[V], 0.0, x0[OMEGA]])
+        graph, values = g.NonlinearFactorGraph(), g.Values()
+        stamps = g.FixedLagSmootherKeyTimestampMap()
+        graph.add(g.PriorFactorPose2(self.X(k), self.pose,
+                                     g.noiseModel.Gaussian.Covariance(P0[:3, :3])))
+        graph.add(g.PriorFactorVector(self.V(k), self.twist, g.noiseModel.Diagonal.Sigmas(
+            np.sqrt([P0[V, V], NHC_SIGMA_MPS ** 2, P0[OMEGA, OMEGA]]))))
+        return graph, values, stamps
+
+    def add_measurements(self, graph, k: int, ik: np.ndarray) -> None:
+        """The NHC prior, the lever-arm fixes and (after the segment's first epoch, from a
+        consecutive epoch in the graph) the displacements of epoch k."""
+        g, obs = self.g, self.obs
+        graph.add(g.PriorFactorVector(self.V(k), np.zeros(3), self.nhc))
+        for i in ik:
+            graph.add(g.KnownLandmarkFactorPose2(self.X(k), obs[k, i], self.r_m[i],
+                                                 self.huber))
+            if (self.displacements and k > self.start and self.last == k - 1
+                    and np.isfinite(obs[k - 1, i, 0])):
+                graph.add(_displacement_factor(g, self.step_noise, self.X(k - 1), self.X(k),
+                                               self.r_m[i], obs[k, i] - obs[k - 1, i]))
