@@ -131,6 +131,8 @@ __all__ = [
     "DYN_GROWTH",
     "FILTER_TECHNIQUES",
     "MASKS",
+    "NO_SOLVER",
+    "NO_WEIGHTS",
     "ORACLE_TECHNIQUES",
     "PRESETS_DIR",
     "SOLVERS",

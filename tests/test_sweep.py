@@ -289,6 +289,8 @@ def _toml(d: dict) -> str:
 
 # --------------------------------------------------------------------------- provenance
 def test_cells_computed_by_other_code_are_recomputed(tmp_path, monkeypatch, capsys):
+    import experiments.runner.run
+    import experiments.runner.store
     import experiments.sweep as sweep
 
     spec = _fake_spec()
@@ -298,7 +300,8 @@ def test_cells_computed_by_other_code_are_recomputed(tmp_path, monkeypatch, caps
     assert rec["code"] == sweep.cell_code_digest()
     # same code: everything resumes; changed sources: nothing old is mixed in
     assert _fake_run(spec, tmp_path, cell_fn=fake_cell).n_resumed == n
-    monkeypatch.setattr(sweep, "cell_code_digest", lambda: "other-code")
+    for module in (experiments.runner.run, experiments.runner.store):   # its users
+        monkeypatch.setattr(module, "cell_code_digest", lambda: "other-code")
     r = _fake_run(spec, tmp_path, cell_fn=fake_cell)
     assert (r.n_computed, r.n_resumed) == (n, 0)
     assert f"{n} of {n} finished cells were computed by other code" in capsys.readouterr().err
@@ -328,11 +331,15 @@ def test_worker_memo_does_not_outlive_a_run_or_ignore_the_session_length():
             ctx.memo[key] = object()
         return CellOutput(rows=[{"mask": "full", "ex_mean": 0.0}])
 
+    from experiments.runner.worker import WORKER
+
     cells = _fake_spec().expand()[:2]
     for run_id in ("a", "a", "b"):
-        sweep._run_batch(cells, None, 0, ("full",), 100.0, [False, False], cell_fn, None, run_id)
+        job = sweep.CellJob(spec_seed=0, masks=("full",), session_s=100.0, run_id=run_id,
+                            cell_fn=cell_fn)
+        sweep.run_batch(cells, None, [False, False], job)
     assert calls == [100.0, 100.0]  # memo reused within run "a", cleared for run "b"
-    sweep._WORKER_MEMO.clear()
+    WORKER.memo.clear()
 
 
 def test_observations_memo_keys_on_the_session_length(truth_cache):
@@ -414,12 +421,12 @@ def test_disk_full_mid_run_is_one_line_and_the_rerun_resumes(tmp_path, monkeypat
 
 
 def test_cli_unwritable_results_is_one_line_exit_3(tmp_path, capsys, monkeypatch):
-    from experiments import sweep
+    import experiments.runner.run
 
     def refuse(path, obj):
         raise PermissionError(13, "Permission denied", str(path))
 
-    monkeypatch.setattr(sweep, "_write_json", refuse)
+    monkeypatch.setattr(experiments.runner.run, "write_json", refuse)
     spec = tmp_path / "s.toml"
     spec.write_text('name = "ro"\n[defaults]\nnoise = "none"\n[[grid]]\npath = "square20"\n'
                     'window = 1\n')
@@ -524,7 +531,9 @@ def test_batches_partition_cells_and_keep_a_noise_keys_filter_cells_together(pre
     the pose-filter cells of a noise key share a task (one forward pass through the memo);
     tasks come largest first."""
     from experiments.spec import load_spec
-    from experiments.sweep import _PASS_COST_CELLS, _batches, _uses_pose_filter
+    from experiments.sweep import PASS_COST_CELLS as _PASS_COST_CELLS
+    from experiments.sweep import batches as _batches
+    from experiments.sweep import uses_pose_filter as _uses_pose_filter
 
     cells = (Spec.from_dict(TINY, source="tiny") if preset == "tiny"
              else load_spec(preset)).expand()
@@ -578,7 +587,7 @@ def test_workers_are_started_early_only_when_cells_are_likely_to_run(tmp_path):
 def test_warm_up_lock_lets_one_worker_at_a_time(tmp_path):
     """While one worker warms up (the lock held), another process cannot take the lock; it
     can once the first is done (the lock file stays usable)."""
-    from experiments.sweep import _exclusive
+    from experiments.runner.worker import _exclusive
 
     lock = tmp_path / "warm.lock"
     probe = ("import fcntl, sys\n"
@@ -606,7 +615,7 @@ def test_warm_up_lock_lets_one_worker_at_a_time(tmp_path):
 
 def test_cli_exit_codes_and_no_leftover_temporary_folders(tmp_path):
     """The command line ends through experiments.cli after stopping its workers
-    (experiments.sweep._stop_workers): the exit code is main()'s, the summary line is printed,
+    (experiments.runner.backends.stop_workers): the exit code is main()'s, the summary line is printed,
     and joblib's shared-memory folders of the run's workers are removed (those named by the
     run's pid: other processes on the machine make and remove their own meanwhile)."""
     spec_file = tmp_path / "tiny.toml"
@@ -631,11 +640,11 @@ def test_cli_exit_codes_and_no_leftover_temporary_folders(tmp_path):
 
 def test_end_of_run_imports_leave_matplotlib_to_the_workers():
     """The main process imports what the outputs phase needs while the workers compute the
-    cells (experiments.sweep._import_for_outputs); that includes experiments.figures for the
+    cells (experiments.runner.run.import_for_outputs); that includes experiments.figures for the
     figure groups' names, and must not include matplotlib (the workers draw)."""
     code = ("import sys\n"
             "import experiments.sweep as s\n"
-            "s._import_for_outputs()\n"
+            "s.import_for_outputs()\n"
             "assert 'pandas' in sys.modules and 'experiments.page' in sys.modules\n"
             "import experiments.figures as f\n"
             "assert f.figure_tasks()\n"
