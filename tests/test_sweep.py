@@ -866,3 +866,18 @@ def test_finished_run_on_a_read_only_folder_reruns(tmp_path):
     ro = _read_only_run(out, cmd)
     err = ro.stderr.strip().splitlines()
     assert ro.returncode == 3 and len(err) == 1 and "Read-only file system" in err[0], ro.stderr
+
+
+def test_cell_digest_covers_only_the_code_that_computes_a_cell():
+    """CELL_SOURCES: estimator/ (subpackages too), sim/, the spec and its registry and the
+    cell module; not the CLI, the store, the workers' scheduling or run (a help-text typo
+    must not recompute every cell)."""
+    from experiments.sweep import CELL_SOURCES
+
+    rel = {p.relative_to(REPO).as_posix() for p in CELL_SOURCES}
+    assert {"experiments/runner/cell.py", "experiments/spec.py", "experiments/techniques.py",
+            "estimator/scoring.py", "estimator/trackers/base.py", "sim/gps.py"} <= rel
+    assert not rel & {"experiments/sweep.py", "experiments/runner/store.py",
+                      "experiments/runner/run.py", "experiments/runner/backends.py",
+                      "experiments/runner/worker.py", "experiments/cli.py"}
+    assert {r.split("/")[0] for r in rel} == {"estimator", "sim", "experiments"}
