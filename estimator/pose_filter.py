@@ -761,15 +761,19 @@ def kalman_update(x: np.ndarray, P: np.ndarray, nu: np.ndarray, H: np.ndarray,
 
 def _kalman_update(x: np.ndarray, P: np.ndarray, nu: np.ndarray, H: np.ndarray,
                    var2: np.ndarray, gate: float, max_deleted: int = 3,
-                   accept: np.ndarray | None = None
+                   accept: np.ndarray | None = None, nis_out: list | None = None
                    ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """:func:`kalman_update` (k >= 1 measurements) with the noise variances per row of the
-    stacked measurement vector, ``var2 = repeat(var, 2)`` (2k,)."""
+    stacked measurement vector, ``var2 = repeat(var, 2)`` (2k,). ``nis_out``: a list that
+    receives the NIS of all k measurements, ``nu^T S^-1 nu``, before any gating."""
     k = nu.shape[0]
     Hf = H.reshape(2 * k, -1)
     PHt = P @ Hf.T
     S = Hf @ PHt
     S.ravel()[::2 * k + 1] += var2       # + R on the diagonal (S is a fresh C array)
+    if nis_out is not None:
+        nf = nu.reshape(-1)
+        nis_out.append(float(nf @ np.linalg.solve(S, nf)))
     if accept is not None:
         acc = np.array(accept, dtype=bool)
     elif gate != math.inf:
@@ -1029,6 +1033,7 @@ class _Monitor:
         self.window = max(NIS_MIN_EPOCHS, round(NIS_WINDOW_S / dt_med))
         self.p = gate_prob if gate_prob < 1 else 0.999
         self.thr1 = chi2_ppf(self.p, 1)
+        self.thr: dict[int, float] = {}      # chi-square quantiles by summed dof
         self.clear()
 
     def clear(self) -> None:
@@ -1046,7 +1051,10 @@ class _Monitor:
             self.nis.pop(0)
         tot = sum(v for v, _ in self.nis)
         df = sum(d for _, d in self.nis)
-        bad = tot > float(_chdtri(df, 1.0 - self.p))
+        thr = self.thr.get(df)
+        if thr is None:
+            thr = self.thr[df] = float(_chdtri(df, 1.0 - self.p))
+        bad = tot > thr
         yaw, sd = self.starter.fit_heading(k)
         if not sd <= MAX_FIT_YAW_SD:
             self.disagree = self.locked = 0
@@ -1085,22 +1093,6 @@ def _standstill_hold(x: np.ndarray, P: np.ndarray, starter: FilterStart, k: int)
     return True
 
 
-def _prior_nis(y: np.ndarray, Y: np.ndarray, z: np.ndarray, pat: _Pattern
-               ) -> tuple[float, int]:
-    """NIS ``nu^T S^-1 nu`` of all the epoch's measurements z (k, 2) against the prediction
-    (stacked state y (12,), covariance Y), ``S = H Y H^T + R``, and its dof 2k; (NaN, 0)
-    when S is singular."""
-    h, H = _fill_measurements(y, pat.ax, pat.ay, pat.dx, pat.dy, pat.H0.copy())
-    nu = (z - h).reshape(-1)
-    Hf = H.reshape(nu.size, -1)
-    S = Hf @ Y @ Hf.T
-    S.ravel()[::nu.size + 1] += pat.var2
-    try:
-        return float(nu @ np.linalg.solve(S, nu)), int(nu.size)
-    except np.linalg.LinAlgError:
-        return math.nan, 0
-
-
 def _rotate(r: np.ndarray, a: float) -> np.ndarray:
     """Body offsets r (m, 2) rotated by a (rad)."""
     c, s = math.cos(a), math.sin(a)
@@ -1133,7 +1125,7 @@ class _Pattern:
         self.H0 = _jacobian_template(self.ik.size, self.js.size)
 
 
-def _iterated_update(y, Y, z, pat, gate, lever, tol):
+def _iterated_update(y, Y, z, pat, gate, lever, tol, nis_out=None):
     """One epoch's update of the stacked state ``y = (x, x_prev)`` (12,), covariance Y,
     with the measurements z of the epoch's :class:`_Pattern` ``pat``: iterated EKF
     (Gauss-Newton on the same cost; Bell and Cathey 1993) with robust acceptance.
@@ -1160,7 +1152,8 @@ def _iterated_update(y, Y, z, pat, gate, lever, tol):
             S[:, 0, 0] += var[out]
             S[:, 1, 1] += var[out]
             acc[out[_quad2(S, nu[out] - Ho @ (y1 - y)) <= gate]] = True
-        y1, Y1, acc = _kalman_update(y, Y, nu, H, pat.var2, gate, accept=acc)
+        y1, Y1, acc = _kalman_update(y, Y, nu, H, pat.var2, gate, accept=acc,
+                                     nis_out=nis_out if yl is y and acc is None else None)
         if not acc.any():
             break
         turn = max(abs(_wrap(y1[YAW] - yl[YAW])), abs(_wrap(y1[NX + YAW] - yl[NX + YAW])))
@@ -1344,12 +1337,14 @@ def run_pose_filter(t: np.ndarray, obs: np.ndarray, offsets: np.ndarray,
         if ik.size:
             zk = obs[k, ik]
             z = np.concatenate((zk, obs[k, js] - obs[k - 1, js])) if js.size else zk
-            nis[k], nis_dof[k] = _prior_nis(y, Y, z, pat)
+            box: list[float] = []           # the prior NIS, from the first pass's S
             try:
-                y1, Y1, acc = _iterated_update(y, Y, z, pat, gate, lever, 0.1 * sigma_abs)
+                y1, Y1, acc = _iterated_update(y, Y, z, pat, gate, lever, 0.1 * sigma_abs, box)
             except np.linalg.LinAlgError:   # numerically singular: nothing to trust
                 y1, Y1, acc = y, Y, np.zeros(ik.size + js.size, dtype=bool)
                 rej_abs = rej_step = params.max_rejects
+            if box:
+                nis[k], nis_dof[k] = box[0], 2 * z.shape[0]
             acc_abs, acc_step = acc[:ik.size], acc[ik.size:]
             n_used[k] = np.count_nonzero(acc_abs)
             n_gated[k] = ik.size - n_used[k]
