@@ -270,8 +270,8 @@ METHODS = {
     "fix_2d": ("2d", "damped least squares per epoch, known height, after the gates"),
     "kalman_2d": ("2d", "PV Kalman per axis on fix_2d (per-fix sigmas, innovation gate)"),
     "tight_2d": ("2d", "tightly coupled range filter, known height"),
-    "fix_3d": ("3d", "damped least squares per epoch, free z held in the anchors' heights "
-                     "+/- 2 m (known-height fallback where z is unresolved), after the gates"),
+    "fix_3d": ("3d", ("damped least squares per epoch, free z held in the anchors' heights "
+                      "+/- 2 m (known-height fallback where z is unresolved), after the gates")),
     "kalman_3d": ("3d", "PV Kalman per axis on fix_3d (z held in the same interval)"),
     "tight_3d": ("3d", "tightly coupled range filter, free z"),
 }

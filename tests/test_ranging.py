@@ -751,7 +751,7 @@ def test_free_height_climbs_without_bounds_and_stays_within_them(seed):
 def test_declared_height_bounds_and_fallback_height():
     """A declared interval wins over the geometry's; unresolved fixes sit at the declared
     fallback height; a fix the geometry resolves inside the bounds is left free."""
-    est, err, res = _climb(0, UWB(height_bounds_m=(-0.5, 2.5), fallback_height_m=0.0))
+    _est, err, res = _climb(0, UWB(height_bounds_m=(-0.5, 2.5), fallback_height_m=0.0))
     assert res.fixes.height_bounds == (-0.5, 2.5)
     z = res.fixes.position[:, 0, 2]
     held = res.fixes.height_held[:, 0] & res.fixes.ok[:, 0]
