@@ -136,12 +136,21 @@ def filter_params_for(truth):
     path's speed, acceleration, turn-rate and lateral-acceleration limits and the
     controller's yaw-acceleration limit, as the simulator drove them) and its no-slip point
     (the driven axle's midpoint, read from the vehicle model by the simulator). Nothing
-    here is fitted to the truth's trajectory."""
+    here is fitted to the truth's trajectory. A recording's reference has no simulator
+    limits: its ``meta["platform"]`` (the [platform] block, PlatformLimits.to_dict) gives
+    them, else the filter estimates limits and no-slip point from the observations
+    (estimator.platform; issue 25)."""
+    from estimator.platform import PlatformLimits
     from estimator.pose_filter import PoseFilterParams
 
-    ns = truth.meta.get("no_slip_point_m", (0.0, 0.0))
-    return PoseFilterParams.from_limits(truth.meta["params"]["controller"],
-                                        no_slip_point_m=(float(ns[0]), float(ns[1])))
+    meta = truth.meta
+    # simulated before issue 14: the rover, its axle under the CG
+    ns = meta.get("no_slip_point_m", (0.0, 0.0) if "params" in meta else None)
+    kw = {"no_slip_point_m": None if ns is None else (float(ns[0]), float(ns[1]))}
+    if "params" not in meta and meta.get("platform") is not None:
+        block = {k: v for k, v in meta["platform"].items() if k != "from" and v is not None}
+        return PoseFilterParams.from_platform(PlatformLimits.from_dict(block), **kw)
+    return PoseFilterParams.from_limits(meta.get("params", {}).get("controller") or {}, **kw)
 
 
 def _observations(cell: Cell, truth, config, ctx: CellContext) -> np.ndarray:
