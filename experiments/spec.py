@@ -98,8 +98,8 @@ import itertools
 import json
 import math
 import re
-from collections.abc import Iterable
-from dataclasses import dataclass, field, replace
+from collections.abc import Callable, Iterable
+from dataclasses import dataclass, field, make_dataclass, replace
 from pathlib import Path
 from typing import Any
 
@@ -161,24 +161,6 @@ WEIGHTINGS = WEIGHT_SCHEMES
 DEFAULT_MASKS = ("full", "no_turns")
 TURNING = TURNING_SOURCES
 DYN_GROWTH = GROWTH_RULES
-
-#: Every axis and its default when neither [defaults] nor a grid block sets it.
-AXES: dict[str, Any] = {
-    "path": None,             # required somewhere
-    "path_overrides": {},
-    "config": "rover_gps8",
-    "noise": "gps_stationary",
-    "noise_overrides": {},
-    "window": None,           # required somewhere
-    "weighting": "none",
-    "technique": "none",
-    "solver": "procrustes",
-    "dyn_window": 1,
-    "turning": "controller",
-    "recording": "-",         # "-" = none: simulated path + noise model
-    "dyn_growth": "jump",
-}
-_DICT_AXES = ("path_overrides", "noise_overrides")
 
 #: Validation limits (checked on load, before anything is allocated or simulated).
 #: A window longer than this many epochs is no sliding window (Path 2 has ~4000 epochs).
@@ -269,33 +251,174 @@ def _check_session_overrides(ov: dict, where: str) -> None:
                         f"got {ov['shift_s']!r}")
 
 
-# --------------------------------------------------------------------------- cells
-@dataclass(frozen=True)
-class Cell:
-    """One point of the grid: a full set of axis values plus a seed.
+# --------------------------------------------------------------------------- axes
+def _canon(d: dict) -> str:
+    return json.dumps(d, sort_keys=True, separators=(",", ":"))
 
-    ``key`` is a stable hash of everything that determines the cell's numbers (axis values,
-    seed, spec seed, simulator seed, and the contents of the files it names).
+
+def _check_table(axis: str, forbidden: tuple[str, ...] = ()) -> Callable:
+    """A table-valued axis (``path_overrides``, ``noise_overrides``): field = value pairs
+    of TOML scalars or lists; ``forbidden`` fields cannot be overridden."""
+    def check(v: object, where: str, base: Path | None, plugins: dict | None) -> dict:
+        if not isinstance(v, dict):
+            raise SpecError(f"{where}: must be a table of field = value, got {v!r}")
+        for k, x in v.items():
+            if not isinstance(x, (int, float, str, bool, list)):
+                raise SpecError(f"{where}.{k}: unsupported value {x!r}")
+        bad = sorted(set(v) & set(forbidden))
+        if bad:
+            raise SpecError(f"{where}: {bad} cannot be overridden (add a path file instead)")
+        return dict(v)
+    return check
+
+
+def _check_epochs_count(v: object, where: str, base: Path | None, plugins: dict | None) -> int:
+    """A number of epochs (``window``, ``dyn_window``): an integer in [1, MAX_WINDOW]."""
+    if not _is_int(v) or not 1 <= v <= MAX_WINDOW:
+        raise SpecError(f"{where}: must be a positive integer, got {v!r} "
+                        f"(at most {MAX_WINDOW} epochs)")
+    return int(v)
+
+
+def _named(check: Callable[[str, str, Path | None, dict | None], None]) -> Callable:
+    """A name-valued axis: a non-empty string, then ``check``."""
+    def named(v: object, where: str, base: Path | None, plugins: dict | None) -> str:
+        if not isinstance(v, str) or not v:
+            raise SpecError(f"{where}: must be a non-empty string, got {v!r}")
+        check(v, where, base, plugins)
+        return v
+    return named
+
+
+def _weighting(v: str, where: str, base: Path | None, plugins: dict | None) -> None:
+    try:
+        Weighting.parse(v)
+    except ValueError as exc:
+        raise SpecError(f"{where}: {str(exc).removeprefix('weighting: ')}") from None
+
+
+def _technique_value(v: str, where: str, base: Path | None, plugins: dict | None) -> None:
+    """A registry technique or one of the spec's plug-ins; an optional dependency present."""
+    try:
+        tech = _technique(v, plugins)
+    except ValueError as exc:
+        raise SpecError(f"{where}: {str(exc).removeprefix('technique: ')}") from None
+    if tech.requires:
+        import importlib.util
+
+        module, extra = tech.requires
+        if importlib.util.find_spec(module) is None:
+            raise SpecError(f"{where}: technique {v!r} needs the optional dependency "
+                            f"{module}: pip install -e '.[{extra}]'")
+
+
+def _choice(what: str, allowed: tuple[str, ...]) -> Callable:
+    """A value of a vocabulary (``allowed``), e.g. the solvers."""
+    def check(v: str, where: str, base: Path | None, plugins: dict | None) -> None:
+        if v not in allowed:
+            raise SpecError(f"{where}: unknown {what} {v!r}; allowed: {list(allowed)}")
+    return check
+
+
+def _model_file(kind: str) -> Callable:
+    """A model file of ``models/<kind>/`` or a path (the one path rule, :func:`_resolve`)."""
+    def check(v: str, where: str, base: Path | None, plugins: dict | None) -> None:
+        _resolve(kind, v, base, where)
+    return check
+
+
+def _noise_value(v: str, where: str, base: Path | None, plugins: dict | None) -> None:
+    """"none", ``session:<file>`` or a noise model (name or file)."""
+    if v.startswith("session:"):
+        _session_file(v, base, where)
+    elif v != "none":
+        _resolve("noise", v, base, where)
+
+
+def _recording_value(v: str, where: str, base: Path | None, plugins: dict | None) -> None:
+    if v != "-":
+        _resolve_recording(v, base, where)
+
+
+def _uses_solver(t: Technique) -> bool:
+    return t.uses_solver
+
+
+def _uses_weights(t: Technique) -> bool:
+    return t.uses_weights
+
+
+def _dynamic(t: Technique) -> bool:
+    return t.dynamic
+
+
+@dataclass(frozen=True)
+class Axis:
+    """One spec axis, declared once: the Cell's field, the validation of its values and the
+    grid's expansion derive from :data:`AXIS_SCHEMA`.
+
+    name : the key in ``[defaults]`` and grid blocks, the Cell field, the cells.parquet
+    column. kind : ``int``, ``str`` or ``dict`` (a table; canonical JSON in the Cell).
+    default : its value where neither ``[defaults]`` nor a block sets it (None: required,
+    checked by :meth:`Spec.from_dict`). check : ``(value, where, base, plugins) ->
+    canonical value``, a :class:`SpecError` naming ``where`` otherwise. applies : for an
+    axis that applies per technique, whether it applies to a technique entry (None:
+    always). unset : the Cell's value where it does not apply. keyed_unset : whether the
+    cell key includes the axis when it is ``unset`` (``recording``: no, so the keys of
+    simulated cells are those from before the axis existed).
     """
 
-    path: str
-    config: str
-    noise: str
-    window: int
-    weighting: str
-    technique: str
-    solver: str
-    seed: int
-    dyn_window: int = 0            # 0 = not applicable (technique without dynamic window)
-    turning: str = "-"
-    dyn_growth: str = "-"          # "-" = not applicable
-    path_overrides: str = "{}"     # canonical JSON (hashable)
-    noise_overrides: str = "{}"
-    recording: str = "-"           # "-" = a simulated path; else a recording (spec docstring)
-    key: str = field(default="", compare=False)
-    files: tuple[tuple[str, str], ...] = field(default=(), compare=False, repr=False)
-    #: the plug-in entry of a plug-in technique (experiments.techniques.plugin_entries)
-    plugin: Technique | None = field(default=None, compare=False, repr=False)
+    name: str
+    kind: type
+    default: Any
+    check: Callable[[Any, str, Path | None, dict | None], Any]
+    applies: Callable[[Technique], bool] | None = None
+    unset: Any = None
+    keyed_unset: bool = True
+
+    def cell_value(self, v: Any) -> Any:
+        """The Cell's (hashable) value of a checked value ``v``."""
+        return _canon(v) if self.kind is dict else self.kind(v)
+
+
+#: Every axis, in the order of the cell's columns (cells.parquet, Cell.params).
+AXIS_SCHEMA: tuple[Axis, ...] = (
+    Axis("path", str, None, _named(_model_file("paths"))),
+    Axis("config", str, "rover_gps8", _named(_model_file("configs"))),
+    Axis("noise", str, "gps_stationary", _named(_noise_value)),
+    Axis("noise_overrides", dict, {}, _check_table("noise_overrides"), unset={}),
+    Axis("path_overrides", dict, {}, _check_table("path_overrides", ("name", "waypoints")),
+         unset={}),
+    Axis("window", int, None, _check_epochs_count),
+    Axis("weighting", str, "none", _named(_weighting), _uses_weights, "-"),
+    Axis("technique", str, "none", _named(_technique_value)),
+    Axis("solver", str, "procrustes", _named(_choice("solver", SOLVERS)), _uses_solver, "-"),
+    Axis("dyn_window", int, 1, _check_epochs_count, _dynamic, 0),
+    Axis("turning", str, "controller", _named(_choice("turning source", TURNING)), _dynamic,
+         "-"),
+    Axis("recording", str, "-", _named(_recording_value), unset="-", keyed_unset=False),
+    Axis("dyn_growth", str, "jump", _named(_choice("growth rule", DYN_GROWTH)), _dynamic, "-"),
+)
+_BY_AXIS = {a.name: a for a in AXIS_SCHEMA}
+#: Every axis and its default when neither [defaults] nor a grid block sets it.
+AXES: dict[str, Any] = {a.name: a.default for a in AXIS_SCHEMA}
+#: The nesting of the grid's product (outermost first): the schema's order with
+#: path_overrides beside path, so cells come in the order they always did.
+_PRODUCT_ORDER = ("path", "path_overrides",
+                  *(a.name for a in AXIS_SCHEMA if a.name not in ("path", "path_overrides")))
+_DICT_AXES = tuple(a.name for a in AXIS_SCHEMA if a.kind is dict)
+
+
+# --------------------------------------------------------------------------- cells
+class _CellMethods:
+    """One point of the grid: a full set of axis values plus a seed.
+
+    The axis fields come from :data:`AXIS_SCHEMA` (a value that does not apply to the
+    cell's technique is the axis's ``unset``, e.g. "-" or 0; tables are canonical JSON).
+    ``key`` is a stable hash of everything that determines the cell's numbers (axis values,
+    seed, spec seed, simulator seed, the contents of the files it names, and a plug-in's
+    options and source).
+    """
 
     @property
     def entry(self) -> Technique:
@@ -304,11 +427,7 @@ class Cell:
 
     def params(self) -> dict[str, Any]:
         """Axis values and seed as a flat dict (the cell's columns in cells.parquet)."""
-        return {"path": self.path, "config": self.config, "noise": self.noise,
-                "noise_overrides": self.noise_overrides, "path_overrides": self.path_overrides,
-                "window": self.window, "weighting": self.weighting, "technique": self.technique,
-                "solver": self.solver, "dyn_window": self.dyn_window, "turning": self.turning,
-                "recording": self.recording, "dyn_growth": self.dyn_growth, "seed": self.seed}
+        return {**{a.name: getattr(self, a.name) for a in AXIS_SCHEMA}, "seed": self.seed}
 
     def file(self, kind: str) -> str | None:
         """Resolved file for ``kind`` in {"path", "config", "noise", "recording"} (None when
@@ -328,8 +447,20 @@ class Cell:
         return (*self.truth_key, self.file("noise"), self.noise, self.noise_overrides, self.seed)
 
 
-def _canon(d: dict) -> str:
-    return json.dumps(d, sort_keys=True, separators=(",", ":"))
+
+#: The Cell type: the axis fields of :data:`AXIS_SCHEMA`, the seed, and the cell's identity
+#: (``key``), files and plug-in entry (not compared).
+Cell = make_dataclass(
+    "Cell",
+    [*((a.name, a.kind if a.kind is not dict else str,
+        field(default=a.cell_value(a.unset) if a.unset is not None else None))
+       for a in AXIS_SCHEMA),
+     ("seed", int, field(default=0)),
+     ("key", str, field(default="", compare=False)),
+     ("files", tuple, field(default=(), compare=False, repr=False)),
+     ("plugin", Technique | None, field(default=None, compare=False, repr=False))],
+    bases=(_CellMethods,), frozen=True)
+Cell.__module__, Cell.__doc__ = __name__, _CellMethods.__doc__   # pickled by this name
 
 
 def _cell_labels(v: dict, files: dict, seen: dict, where: str) -> dict[str, str]:
@@ -498,10 +629,9 @@ class Spec:
         labels: dict[tuple[str, str], str] = {}
         for gi, block in enumerate(self.grid):
             axes = {k: block.get(k, [self.defaults[k]] if k in self.defaults else [AXES[k]])
-                    for k in AXES}
-            names = list(axes)
-            for combo in itertools.product(*(axes[k] for k in names)):
-                v = dict(zip(names, combo))
+                    for k in _PRODUCT_ORDER}
+            for combo in itertools.product(*axes.values()):
+                v = dict(zip(axes, combo))
                 if v["recording"] != "-":
                     for key in ("path", "noise", "path_overrides"):
                         if key in block:
@@ -512,13 +642,10 @@ class Spec:
                                          f"{self.source}: grid[{gi}]")
                 tech = v["technique"]
                 entry = _technique(tech, self.plugins)
-                if not entry.uses_solver:
-                    v["solver"] = "-"
-                if not entry.uses_weights:
-                    v["weighting"] = "-"
-                if not entry.dynamic:
-                    v["dyn_window"], v["turning"], v["dyn_growth"] = 0, "-", "-"
-                elif v["dyn_window"] > v["window"]:
+                for a in AXIS_SCHEMA:           # axes that do not apply: their unset value
+                    if a.applies is not None and not a.applies(entry):
+                        v[a.name] = a.unset
+                if entry.dynamic and v["dyn_window"] > v["window"]:
                     raise SpecError(f"{self.source}: grid[{gi}].dyn_window: {v['dyn_window']} "
                                     f"exceeds window {v['window']} (the small window of the "
                                     "dynamic technique must be <= the window)")
@@ -528,20 +655,14 @@ class Spec:
                     files["tracker"] = self.plugin_files[tech]
                 self._check_overrides(v, files, checked, f"{self.source}: grid[{gi}]")
                 lab = _cell_labels(v, files, labels, f"{self.source}: grid[{gi}]")
+                values = {a.name: a.cell_value({**v, **lab}[a.name]) for a in AXIS_SCHEMA}
                 for seed in self.seeds:
-                    cell = Cell(path=lab["path"], config=lab["config"], noise=lab["noise"],
-                                window=int(v["window"]), weighting=v["weighting"],
-                                technique=v["technique"], solver=v["solver"], seed=int(seed),
-                                dyn_window=int(v["dyn_window"]), turning=v["turning"],
-                                dyn_growth=v["dyn_growth"],
-                                path_overrides=_canon(v["path_overrides"]),
-                                noise_overrides=_canon(v["noise_overrides"]),
-                                recording=v["recording"],
-                                files=tuple(sorted((k, p) for k, (p, _) in files.items())),
-                                plugin=plugin)
+                    cell = Cell(**values, seed=int(seed), plugin=plugin,
+                                files=tuple(sorted((k, p) for k, (p, _) in files.items())))
                     params = cell.params()
-                    if params["recording"] == "-":
-                        del params["recording"]     # keys of simulated cells as before
+                    for a in AXIS_SCHEMA:           # (recording: keys as before the axis)
+                        if not a.keyed_unset and params[a.name] == a.cell_value(a.unset):
+                            del params[a.name]
                     ident = {"v": 1, "spec_seed": self.seed, "sim_seed": self.sim_seed,
                              "session_s": self.session_s,
                              **params,
@@ -742,11 +863,6 @@ def _as_list(v: object, where: str) -> list:
     raise SpecError(f"{where}: must be a string or a list of strings, got {v!r}")
 
 
-#: Axes whose value is one of a vocabulary: axis -> (what it is, allowed values).
-_CHOICES = {"solver": ("solver", SOLVERS), "turning": ("turning source", TURNING),
-            "dyn_growth": ("growth rule", DYN_GROWTH)}
-
-
 def axis_help() -> str:
     """The values of the spec axes that take a name, for the sweep's ``--help``: every
     technique (from the registry) and the estimators' vocabularies."""
@@ -761,62 +877,13 @@ def axis_help() -> str:
 
 def _check_axis(axis: str, v: object, where: str, base: Path, *, scalar: bool,
                 plugins: dict | None = None) -> Any:
-    """Validate one value of an axis (``plugins``: the spec's plug-in entries, which the
-    ``technique`` axis may name); returns the canonical value."""
-    if axis not in AXES:
+    """Validate one value of an axis by its declaration (:data:`AXIS_SCHEMA`; ``plugins``:
+    the spec's plug-in entries, which the ``technique`` axis may name); returns the
+    canonical value."""
+    if axis not in _BY_AXIS:
         raise SpecError(f"{where.rsplit('.', 1)[0]}: unknown key {axis!r}; allowed axes: "
                         f"{sorted(AXES)} (plus 'name' in a grid block)")
-    if axis in _DICT_AXES:
-        if not isinstance(v, dict):
-            raise SpecError(f"{where}: must be a table of field = value, got {v!r}")
-        for k, x in v.items():
-            if not isinstance(x, (int, float, str, bool, list)):
-                raise SpecError(f"{where}.{k}: unsupported value {x!r}")
-        if axis == "path_overrides":
-            bad = sorted(set(v) & {"name", "waypoints"})
-            if bad:
-                raise SpecError(f"{where}: {bad} cannot be overridden (add a path file instead)")
-        return dict(v)
-    if axis in ("window", "dyn_window"):
-        if not _is_int(v) or not 1 <= v <= MAX_WINDOW:
-            raise SpecError(f"{where}: must be a positive integer, got {v!r} "
-                            f"(at most {MAX_WINDOW} epochs)")
-        return int(v)
-    if not isinstance(v, str) or not v:
-        raise SpecError(f"{where}: must be a non-empty string, got {v!r}")
-    if axis == "weighting":
-        try:
-            Weighting.parse(v)
-        except ValueError as exc:
-            raise SpecError(f"{where}: {str(exc).removeprefix('weighting: ')}") from None
-    elif axis == "technique":
-        try:
-            tech = _technique(v, plugins)
-        except ValueError as exc:
-            raise SpecError(f"{where}: {str(exc).removeprefix('technique: ')}") from None
-        if tech.requires:
-            import importlib.util
-
-            module, extra = tech.requires
-            if importlib.util.find_spec(module) is None:
-                raise SpecError(f"{where}: technique {v!r} needs the optional dependency "
-                                f"{module}: pip install -e '.[{extra}]'")
-    elif axis in _CHOICES:
-        what, allowed = _CHOICES[axis]
-        if v not in allowed:
-            raise SpecError(f"{where}: unknown {what} {v!r}; allowed: {list(allowed)}")
-    elif axis == "recording":
-        if v != "-":
-            _resolve_recording(v, base, where)
-    elif axis == "path":
-        _resolve("paths", v, base, where)
-    elif axis == "config":
-        _resolve("configs", v, base, where)
-    elif axis == "noise" and v.startswith("session:"):
-        _session_file(v, base, where)
-    elif axis == "noise" and v != "none":
-        _resolve("noise", v, base, where)
-    return v
+    return _BY_AXIS[axis].check(v, where, base, plugins)
 
 
 def _check_epochs(e: object, where: str, base: Path, plugins: dict | None = None) -> dict:

@@ -334,3 +334,77 @@ def test_a_replay_model_in_noise_overrides_is_a_name_not_a_file(tmp_path):
                     '{replay = "common_plus_model", model = "../../../../../etc/hostname"}\n')
     with pytest.raises(SpecError, match=r"noise_overrides.model: must be a noise-model name"):
         load_spec(spec)
+
+
+# ---------------------------------------------------------------- one schema per axis (issue 24)
+def test_the_axis_schema_drives_the_cell_type_defaults_and_columns():
+    """Each axis is declared once (experiments.spec.AXIS_SCHEMA): the Cell's fields, AXES
+    (defaults), the validation's unknown-key list and the cells.parquet columns follow."""
+    import dataclasses
+
+    from experiments.spec import AXES, AXIS_SCHEMA, Cell
+
+    names = [a.name for a in AXIS_SCHEMA]
+    assert [f.name for f in dataclasses.fields(Cell)] == [*names, "seed", "key", "files",
+                                                          "plugin"]
+    assert list(AXES) == names and AXES["config"] == "rover_gps8" and AXES["path"] is None
+    cell = _spec().expand()[0]
+    assert list(cell.params()) == [*names, "seed"]
+    with pytest.raises(SpecError, match=r"unknown key 'windw'; allowed axes: \['config', "):
+        _grid(windw=3)
+
+
+def test_axes_that_do_not_apply_take_their_unset_value_from_the_schema():
+    from experiments.spec import AXIS_SCHEMA
+    from experiments.techniques import technique
+
+    per_tech = [a for a in AXIS_SCHEMA if a.applies is not None]
+    assert {a.name for a in per_tech} == {"weighting", "solver", "dyn_window", "turning",
+                                          "dyn_growth"}
+    cells = _grid(technique=["none", "ekf", "dyn"], weighting="huff").expand()
+    for c in cells:
+        for a in per_tech:
+            applies = a.applies(technique(c.technique))
+            assert (getattr(c, a.name) == a.unset) != applies, (c.technique, a.name)
+
+
+def _documented_key(spec, cell) -> str:
+    """The cell key as defined before the schema (issue 24 keeps it byte-identical): sha256
+    of the canonical JSON of the spec seeds, the session length, the 13 axis values and the
+    seed (``recording`` only when set), the files' digests, and a plug-in's options."""
+    import hashlib
+    import json
+
+    params = {"path": cell.path, "config": cell.config, "noise": cell.noise,
+              "noise_overrides": cell.noise_overrides, "path_overrides": cell.path_overrides,
+              "window": cell.window, "weighting": cell.weighting, "technique": cell.technique,
+              "solver": cell.solver, "dyn_window": cell.dyn_window, "turning": cell.turning,
+              "recording": cell.recording, "dyn_growth": cell.dyn_growth, "seed": cell.seed}
+    if params["recording"] == "-":
+        del params["recording"]
+    files = {}
+    for kind, path in cell.files:
+        data = Path(path).read_bytes() if kind != "recording" else None
+        files[kind] = hashlib.sha256(data).hexdigest()[:16] if data is not None else None
+    if cell.recording != "-":
+        from sim.recording import recording_digest
+
+        files["recording"] = recording_digest(cell.file("recording"))
+    ident = {"v": 1, "spec_seed": spec.seed, "sim_seed": spec.sim_seed,
+             "session_s": spec.session_s, **params, "files": dict(sorted(files.items()))}
+    if cell.plugin is not None:
+        ident["plugin"] = {"tracker": cell.plugin.tracker,
+                           "options": json.loads(cell.plugin.options)}
+    text = json.dumps(ident, sort_keys=True, separators=(",", ":"))
+    return hashlib.sha256(text.encode()).hexdigest()[:20]
+
+
+@pytest.mark.parametrize("preset", ["thesis", "example_recording"])
+def test_cell_keys_are_those_of_the_documented_identity(preset):
+    """Every key of the preset recomputed by the formula the keys always had (so cached
+    cells of earlier runs are found: a key that moved recomputes every cell)."""
+    spec = load_spec(preset)
+    cells = spec.expand()
+    assert len(cells) == len({c.key for c in cells})
+    for c in cells:
+        assert c.key == _documented_key(spec, c), c
