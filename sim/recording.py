@@ -101,8 +101,9 @@ __all__ = [
 RECORDINGS_DIR = MODELS_DIR / "recordings"
 REPO = MODELS_DIR.parent
 
-#: Log formats understood by :func:`read_antenna_log`.
-FORMATS = ("auto", "nmea", "tumbleweed", "text")
+#: Log formats of a recording: :func:`read_antenna_log`'s, and "csv" (column-mapped by the
+#: recording's ``[csv]`` table, :mod:`sim.csv_logs`).
+FORMATS = ("auto", "nmea", "tumbleweed", "text", "csv")
 
 #: Longest grid accepted, days: longer means a bogus date in some log (issue 11: a 1980
 #: default date before the first fix laid a 40-year grid).
@@ -314,6 +315,9 @@ def read_antenna_log(path: str | Path, name: str | None = None, format: str = "a
     if not path.is_file():
         raise RecordingError(f"log: no such file {str(path)!r}")
     fmt = _sniff(path) if format == "auto" else format
+    if fmt == "csv":
+        raise RecordingError(f"{path}: format 'csv' needs a column mapping (a recording's "
+                             f"[csv] table; sim.csv_logs.read_csv_log)")
     if fmt == "nmea":
         return read_nmea(path, name)
     if fmt == "tumbleweed":
@@ -521,8 +525,9 @@ def _align(logs: Sequence[LogFixes], grid: _Grid, frame: _Frame, max_offset_s: f
 class Reference:
     """The reference of a recording (the truth it is scored against).
 
-    kind : "antennas" (per-antenna positions; pose from a rigid fit of the layout to them)
-        or "cg" (a track of the CG only; heading unknown).
+    kind : "antennas" (per-antenna positions; pose from a rigid fit of the layout to them),
+        "cg" (a track of the CG only; heading unknown) or "pose" (CG and heading, e.g. a
+        ROS pose / odometry topic, :mod:`sim.ros_bags`).
     cg : (n, 2) metres, NaN where unknown. yaw : (n,) rad (CCW from +x, (-pi, pi]), NaN
         where unknown (always for kind "cg").
     positions : (n, m, 2) metres for kind "antennas" (NaN where an antenna has none).
@@ -566,6 +571,15 @@ class Reference:
                             f"{cfg.name!r} better (median RMS {mmed:.3g} m vs {med:.3g} m): "
                             f"the layout is mirrored")
         return cls(kind="antennas", cg=bf.cg, yaw=bf.yaw, positions=P, residual_m=res, meta=m)
+
+    @classmethod
+    def from_pose(cls, cg: np.ndarray, yaw: np.ndarray, meta: dict | None = None) -> Reference:
+        """A CG track (n, 2) metres with its heading (n,) rad (NaN where unknown)."""
+        c, y = np.asarray(cg, dtype=float), np.asarray(yaw, dtype=float)
+        if c.ndim != 2 or c.shape[1] != 2 or y.shape != (c.shape[0],):
+            raise RecordingError(f"reference pose: expected cg (n, 2) and yaw (n,), got "
+                                 f"{c.shape} and {y.shape}")
+        return cls(kind="pose", cg=c, yaw=np.angle(np.exp(1j * y)), meta=dict(meta or {}))
 
     @classmethod
     def from_cg(cls, cg: np.ndarray, meta: dict | None = None) -> Reference:
@@ -730,7 +744,8 @@ class Recording:
 
         antennas : antenna name -> log file (or :class:`sim.nmea.LogFixes`); the names must
             be ``config.names`` (an antenna without a log would be invented: error).
-        reference : a CG track log, or antenna name -> reference log (RTK), or None.
+        reference : a CG track log, or antenna name -> reference log (RTK), or a pose track
+            (:class:`sim.ros_bags.PoseFixes`: CG and heading), or None.
         reference_positions : antenna name -> (latitude, longitude) of a surveyed
             stationary platform (constant over the recording); not with ``reference``.
         rate_hz : grid rate (default from the fixes). max_offset_s : snap tolerance, s
@@ -918,6 +933,11 @@ def _reference_logs(reference: object, cfg: SensorConfig, formats: Mapping[str, 
                     ) -> tuple[list[LogFixes] | None, str | None]:
     if reference is None:
         return None, None
+    from sim.ros_bags import PoseFixes
+
+    if isinstance(reference, PoseFixes):
+        return [_read_one(reference.track, "cg", "auto", "reference"),
+                _read_one(reference.ahead, "ahead", "auto", "reference")], "pose"
     if isinstance(reference, Mapping):
         return _read_logs(reference, cfg, {k: formats.get(f"reference.{k}", "auto")
                                            for k in cfg.names}, "reference", subset=True), \
@@ -967,6 +987,12 @@ def _make_reference(ref_logs: list[LogFixes] | None, kind: str | None,
     meta = {"source": "logs", "logs": {k: v["path"] for k, v in info.items()}}
     if kind == "cg":
         return Reference.from_cg(pos[:, 0], meta), {"kind": "cg", "logs": info}
+    if kind == "pose":
+        # the heading: from the CG to the point 1 m ahead, both in the recording's frame
+        d = pos[:, 1] - pos[:, 0]
+        meta.update({k: v for k, v in ref_logs[0].meta.items() if k not in ("path",)})
+        return Reference.from_pose(pos[:, 0], np.arctan2(d[:, 1], d[:, 0]), meta), \
+            {"kind": "pose", "logs": {"cg": info["cg"]}}
     return Reference.from_antennas(_scatter(pos, ref_logs, cfg), cfg, meta), \
         {"kind": "antennas", "logs": info}
 
@@ -980,7 +1006,9 @@ def _meta(grid: _Grid, frame: _Frame, off: float, interpolate: bool, info: dict,
 
 # --------------------------------------------------------------------------- TOML
 _TOP_KEYS = {"name", "description", "config", "rate_hz", "max_offset_s", "interpolate",
-             "antenna", "reference", "replay", "platform"}
+             "antenna", "reference", "replay", "platform", "csv", "bag"}
+_REFERENCE_KEYS = {"log", "format", "antenna", "topic", "frame", "origin", "epsg",
+                   "offset_m", "id"}
 _REPLAY_KEYS = {"logs", "session", "mode", "receiver", "shift_s", "model", "overrides",
                 "duration_s", "rate_hz"}
 
@@ -1035,6 +1063,8 @@ def _parse(path: Path) -> dict:
         out["platform"] = platform_from_table(data.get("platform"), f"{src}: platform")
     except ValueError as exc:
         raise RecordingError(str(exc)) from None
+    out["csv"] = _parse_csv(data.get("csv"), src)
+    out["bag"] = _parse_bag(data.get("bag"), base, src)
     ants = data.get("antenna")
     if ants is not None:
         out["antenna"] = _parse_antennas(ants, base, f"{src}: antenna", need_log=True)
@@ -1042,14 +1072,20 @@ def _parse(path: Path) -> dict:
     if ref is not None:
         if not isinstance(ref, dict):
             raise RecordingError(f"{src}: reference: must be a table")
-        bad = sorted(set(ref) - {"log", "format", "antenna"})
-        if bad or ("log" in ref) == ("antenna" in ref):
-            raise RecordingError(f"{src}: reference: give either log = <CG track> or "
-                                 f"[[reference.antenna]] tables (unknown keys {bad})")
-        if "log" in ref:
+        bad = sorted(set(ref) - _REFERENCE_KEYS)
+        given = [k for k in ("log", "antenna", "topic") if k in ref]
+        if bad or len(given) != 1:
+            raise RecordingError(f"{src}: reference: give one of log = <CG track>, "
+                                 f"[[reference.antenna]] tables or topic = <pose topic> "
+                                 f"(unknown keys {bad})")
+        if "topic" in ref:
+            out["reference"] = _parse_pose_reference(ref, f"{src}: reference")
+        elif "log" in ref:
             out["reference"] = {"log": _resolve_file(ref["log"], base, f"{src}: reference.log"),
                                 "format": _fmt(ref.get("format", "auto"),
                                                f"{src}: reference.format")}
+            if "id" in ref:
+                out["reference"]["id"] = str(ref["id"])
         else:
             out["reference"] = {"antenna": _parse_antennas(
                 ref["antenna"], base, f"{src}: reference.antenna", need_log=False)}
@@ -1065,7 +1101,90 @@ def _parse(path: Path) -> dict:
     elif "antenna" not in out:
         raise RecordingError(f"{src}: antenna: at least one [[antenna]] log is required "
                              f"(or a [replay] table)")
+    _check_sources(out, src)
     return out
+
+
+def _parse_csv(table: object, src: str):
+    """The ``[csv]`` column mapping (:class:`sim.csv_logs.CsvMapping`) or None."""
+    if table is None:
+        return None
+    from sim.csv_logs import CsvMapping
+
+    return CsvMapping.from_dict(table, f"{src}: csv")
+
+
+def _parse_bag(table: object, base: Path, src: str) -> dict | None:
+    """``[bag]``: ``path`` = a ROS 1 .bag file, a ROS 2 bag folder or its metadata.yaml."""
+    if table is None:
+        return None
+    if not isinstance(table, dict):
+        raise RecordingError(f"{src}: bag: must be a table with path = <bag>")
+    bad = sorted(set(table) - {"path"})
+    if bad or "path" not in table:
+        raise RecordingError(f"{src}: bag: needs path = <ROS 1 .bag file or ROS 2 bag folder> "
+                             f"(unknown keys {bad})")
+    v = table["path"]
+    if isinstance(v, str) and (base / v).is_dir():
+        v = str(Path(v) / "metadata.yaml")       # a ROS 2 bag folder: its metadata names it
+    return {"path": _resolve_file(v, base, f"{src}: bag.path")}
+
+
+def _parse_pose_reference(ref: dict, where: str) -> dict:
+    """``[reference] topic = ...`` (a ROS pose / odometry topic) and its frame."""
+    out = {"topic": _topic(ref["topic"], f"{where}.topic"), "frame": ref.get("frame")}
+    if out["frame"] not in ("enu", "epsg"):
+        raise RecordingError(f"{where}.frame: must be 'enu' (with origin = [lat, lon]) or "
+                             f"'epsg' (with epsg = <code>), got {out['frame']!r}")
+    try:
+        if out["frame"] == "enu":
+            o = ref.get("origin")
+            if not isinstance(o, list) or len(o) != 2:
+                raise RecordingError(f"{where}.origin: required with frame = 'enu': "
+                                     f"[latitude, longitude] degrees, got {o!r}")
+            out["origin"] = (check_real(o[0], f"{where}.origin[0] (latitude)", lo=-90, hi=90),
+                             check_real(o[1], f"{where}.origin[1] (longitude)", lo=-180,
+                                        hi=180))
+        else:
+            e = ref.get("epsg")
+            if not isinstance(e, int) or isinstance(e, bool) or e <= 0:
+                raise RecordingError(f"{where}.epsg: required with frame = 'epsg': a "
+                                     f"projected CRS code (e.g. 32632), got {e!r}")
+            out["epsg"] = e
+        off = ref.get("offset_m", [0.0, 0.0])
+        if not isinstance(off, list) or len(off) != 2:
+            raise RecordingError(f"{where}.offset_m: must be [x, y] metres, got {off!r}")
+        out["offset_m"] = tuple(check_real(v, f"{where}.offset_m[{i}]", lo=-1e4, hi=1e4)
+                                for i, v in enumerate(off))
+    except (TypeError, ValueError) as exc:
+        raise RecordingError(str(exc)) from None
+    return out
+
+
+def _topic(v: object, where: str) -> str:
+    if not isinstance(v, str) or not v.startswith("/"):
+        raise RecordingError(f"{where}: must be a ROS topic name ('/...'), got {v!r}")
+    return v
+
+
+def _check_sources(out: dict, src: str) -> None:
+    """Every csv log has the [csv] mapping, every topic the [bag], every id a column."""
+    entries = [("antenna", e) for e in out.get("antenna", [])]
+    entries += [("reference.antenna", e) for e in out.get("reference", {}).get("antenna", [])]
+    if "log" in out.get("reference", {}):
+        entries.append(("reference", {**out["reference"], "name": "cg"}))
+    for where, e in entries:
+        if e.get("format") == "csv" and out["csv"] is None:
+            raise RecordingError(f"{src}: {where} {e['name']!r}: format 'csv' needs the [csv] "
+                                 f"column mapping")
+        if "id" in e and (e.get("format") != "csv" or out["csv"].antenna is None):
+            raise RecordingError(f"{src}: {where} {e['name']!r}: id: only for a csv log with "
+                                 f"an antenna column (csv.antenna)")
+        if "topic" in e and out["bag"] is None:
+            raise RecordingError(f"{src}: {where} {e['name']!r}: topic needs the [bag] table "
+                                 f"(path = <bag>)")
+    if "topic" in out.get("reference", {}) and out["bag"] is None:
+        raise RecordingError(f"{src}: reference.topic: needs the [bag] table (path = <bag>)")
 
 
 def _fmt(v: object, where: str) -> str:
@@ -1082,20 +1201,31 @@ def _parse_antennas(items: object, base: Path, where: str, need_log: bool) -> li
         w = f"{where}[{k}]"
         if not isinstance(it, dict):
             raise RecordingError(f"{w}: must be a table")
-        allowed = {"name", "log", "format"} | (set() if need_log else {"latitude", "longitude"})
+        allowed = {"name", "log", "format", "id", "topic"} | (
+            set() if need_log else {"latitude", "longitude"})
         bad = sorted(set(it) - allowed)
         if bad:
             raise RecordingError(f"{w}: unknown key(s) {bad}; allowed: {sorted(allowed)}")
         if not isinstance(it.get("name"), (str, int)) or isinstance(it.get("name"), bool):
             raise RecordingError(f"{w}.name: required, a sensor name")
         e: dict = {"name": str(it["name"])}
-        if "log" in it:
-            if "latitude" in it or "longitude" in it:
-                raise RecordingError(f"{w}: give a log or latitude/longitude, not both")
+        if sum(k in it for k in ("log", "topic", "latitude")) > 1:
+            raise RecordingError(f"{w}: give one of log, topic or latitude/longitude")
+        if "id" in it:
+            if not isinstance(it["id"], (str, int)) or isinstance(it["id"], bool):
+                raise RecordingError(f"{w}.id: must be the antenna's value in the csv antenna "
+                                     f"column, got {it['id']!r}")
+            e["id"] = str(it["id"])
+        if "topic" in it:
+            if "format" in it:
+                raise RecordingError(f"{w}.format: not with a topic (a bag's NavSatFix)")
+            e["topic"] = _topic(it["topic"], f"{w}.topic")
+        elif "log" in it:
             e["log"] = _resolve_file(it["log"], base, f"{w}.log")
             e["format"] = _fmt(it.get("format", "auto"), f"{w}.format")
         elif need_log:
-            raise RecordingError(f"{w}.log: required")
+            raise RecordingError(f"{w}.log: required (or topic = <NavSatFix topic> with "
+                                 f"[bag])")
         else:
             try:
                 e["latlon"] = (check_real(it.get("latitude"), f"{w}.latitude", lo=-90, hi=90),
@@ -1107,7 +1237,7 @@ def _parse_antennas(items: object, base: Path, where: str, need_log: bool) -> li
     names = [e["name"] for e in out]
     if len(set(names)) != len(names):
         raise RecordingError(f"{where}: duplicate antenna names {names}")
-    kinds = {"log" in e for e in out}
+    kinds = {"latlon" in e for e in out}
     if len(kinds) > 1:
         raise RecordingError(f"{where}: mix of logs and surveyed positions; use one kind")
     return out
@@ -1175,8 +1305,13 @@ def recording_files(path_or_name: str | Path) -> list[Path]:
     p = _resolve_recording(path_or_name)
     spec = _parse(p)
     files = [p, Path(spec["config"])]
+    if spec["bag"] is not None:
+        from sim.ros_bags import bag_files
+
+        files.extend(bag_files(spec["bag"]["path"]))
     for e in spec.get("antenna", []):
-        files.append(e["log"])
+        if "log" in e:
+            files.append(e["log"])
     ref = spec.get("reference", {})
     if "log" in ref:
         files.append(ref["log"])
@@ -1263,19 +1398,8 @@ def load_recording(path_or_name: str | Path, *, config: SensorConfig | None = No
         raise RecordingError(f"config: antenna names {list(config.names)} differ from the "
                              f"recording's configuration")
     kw = {k: spec[k] for k in ("max_offset_s",) if k in spec}
-    ref = spec.get("reference", {})
-    reference = positions = None
-    formats: dict[str, str] = {}
-    if "log" in ref:
-        reference = ref["log"]
-        formats["reference"] = ref["format"]
-    elif ref.get("antenna"):
-        if "log" in ref["antenna"][0]:
-            reference = {e["name"]: e["log"] for e in ref["antenna"]}
-            formats.update({f"reference.{e['name']}": e["format"] for e in ref["antenna"]})
-        else:
-            positions = {e["name"]: e["latlon"] for e in ref["antenna"]}
     try:
+        reference, positions, formats = _reference_sources(spec)
         if "replay" in spec:
             rep = spec["replay"]
             session = (StationarySession.load(rep["session"]) if "session" in rep
@@ -1286,8 +1410,8 @@ def load_recording(path_or_name: str | Path, *, config: SensorConfig | None = No
                 interpolate=spec["interpolate"], formats=formats, name=spec["name"],
                 platform=spec["platform"], **kw)
         else:
-            antennas = {e["name"]: e["log"] for e in spec["antenna"]}
-            formats.update({e["name"]: e["format"] for e in spec["antenna"]})
+            antennas = {e["name"]: _log_source(e, spec) for e in spec["antenna"]}
+            formats.update({e["name"]: e["format"] for e in spec["antenna"] if "format" in e})
             rec = Recording.from_logs(antennas, cfg, reference=reference,
                                       reference_positions=positions,
                                       rate_hz=spec.get("rate_hz"),
@@ -1300,6 +1424,44 @@ def load_recording(path_or_name: str | Path, *, config: SensorConfig | None = No
                          **rec.platform.to_dict(),
                          "from": "recording" if spec["platform"] is not None else "config"}})
     return rec
+
+
+def _log_source(e: dict, spec: dict) -> Path | LogFixes:
+    """What an antenna entry of a recording TOML names: its log file, or (a csv log, a bag
+    topic) the fixes read with the recording's [csv] mapping or from its [bag]."""
+    if "topic" in e:
+        from sim.ros_bags import read_navsatfix
+
+        return read_navsatfix(spec["bag"]["path"], e["topic"], e["name"])
+    if e.get("format") == "csv":
+        from sim.csv_logs import read_csv_log
+
+        mp = spec["csv"]
+        return read_csv_log(e["log"], mp, name=e["name"],
+                            antenna=e.get("id", e["name"]) if mp.antenna else None)
+    return e["log"]
+
+
+def _reference_sources(spec: dict) -> tuple[object, dict | None, dict[str, str]]:
+    """(reference for Recording.from_logs / for_replay, surveyed positions, formats)."""
+    ref = spec.get("reference", {})
+    formats: dict[str, str] = {}
+    if "topic" in ref:
+        from sim.ros_bags import read_pose_reference
+
+        return read_pose_reference(spec["bag"]["path"], ref["topic"], frame=ref["frame"],
+                                   origin=ref.get("origin"), epsg=ref.get("epsg"),
+                                   offset_m=ref["offset_m"]), None, formats
+    if "log" in ref:
+        formats["reference"] = ref["format"]
+        return _log_source({**ref, "name": "cg"}, spec), None, formats
+    if not ref.get("antenna"):
+        return None, None, formats
+    if "latlon" in ref["antenna"][0]:
+        return None, {e["name"]: e["latlon"] for e in ref["antenna"]}, formats
+    formats.update({f"reference.{e['name']}": e["format"] for e in ref["antenna"]
+                    if "format" in e})
+    return {e["name"]: _log_source(e, spec) for e in ref["antenna"]}, None, formats
 
 
 def _session_from_logs(paths: Sequence[Path], rate_hz: float | None) -> StationarySession:
