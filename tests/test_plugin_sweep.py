@@ -210,3 +210,25 @@ def test_plugin_cell_keys_follow_its_source_and_options(tmp_path, monkeypatch):
     mod.write_text(mod.read_text() + "\n# edited\n")
     k1 = keys()
     assert k1["m"] != k0["m"] and k1["none"] == k0["none"]
+
+
+def test_plugin_boxes_in_fig_beyond_have_the_spec_colours(plugin_run, monkeypatch):
+    """fig_beyond.png draws the plug-ins beside the built-in trackers, each in its colour
+    (the spec's, else the palette's) and with its label."""
+    from experiments import figures
+    from experiments.techniques import PLUGIN_PALETTE
+
+    drawn = []
+    real = figures._boxes
+
+    def spy(ax, groups, *a, **kw):
+        drawn.extend((label, color) for label, _v, color in groups)
+        return real(ax, groups, *a, **kw)
+
+    monkeypatch.setattr(figures, "_boxes", spy)
+    written, _ = figures.draw_task(plugin_run.out_dir, "beyond")
+    assert [p.name for p in written] == ["fig_beyond.png"]
+    colors = dict(drawn)
+    assert colors["w=5\nMean, antennas swapped"] == "#123456"
+    assert colors["w=5\nMeanTracker"] in PLUGIN_PALETTE
+    assert colors["w=5\nEKF"] == figures.TECH_COLORS["ekf"]
