@@ -35,6 +35,10 @@ field, e.g. ``grid[1].window[2]: must be a positive integer, got 0``)::
     seeds = [0]                     # seed values (or "all")
     where = { path = ["square100"] }   # optional filter on axis values
 
+    [techniques."mypkg.mod:MyTracker"]  # optional: a plug-in tracker's options, label, colour
+    options = { rear = 0, front = 4 }    # (README, Plug-in trackers; an alias table names
+    label = "My tracker"                 #  its class with tracker = "pkg.mod:Name")
+
 Axes (scalar or list; the dict-valued ones take a table or a list of tables):
 
 - ``path``: name in ``models/paths/`` or a ``.toml`` file (relative to the spec file).
@@ -75,6 +79,11 @@ Axes (scalar or list; the dict-valued ones take a table or a list of tables):
   turning), "no_turns_window" (estimates whose whole window is free of turning epochs).
 - Oracle techniques (:data:`ORACLE_TECHNIQUES`) use the simulator's truth and are reported
   as diagnostics, never as estimator results.
+- Plug-in techniques: a ``technique`` value that is an import path ``"pkg.module:Class"``,
+  the name of a ``[techniques."<name>"]`` table, or an entry point of the group
+  ``configpose.trackers`` runs that tracker (:func:`_load_plugins` builds it once at load,
+  so every import, class and option error names the field). Only ``window`` and the
+  observation axes apply to it; its cells' keys include its options and its class's source.
 
 Names resolve to files at load time, and each cell's identity includes a hash of the files'
 contents, so editing a configuration invalidates exactly the cells that used it. Every file
