@@ -59,11 +59,10 @@ from estimator.orientation import wrap_angle
 from estimator.pose_filter import (
     NX,
     OMEGA,
-    V,
     FilterStart,
     PoseFilterParams,
+    V,
     _check_run_args,
-    estimate_noise,
 )
 
 __all__ = ["HUBER_K", "MAX_BRIDGE_S", "NHC_SIGMA_MPS", "RELINEARIZE_THRESHOLD",

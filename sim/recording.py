@@ -68,9 +68,9 @@ from pathlib import Path
 import numpy as np
 
 from estimator._checks import check_real
-from estimator.platform import PlatformLimits
 from estimator.configuration import SensorConfig, platform_from_table
 from estimator.model_files import MODELS_DIR, parse_toml, resolve_model_file
+from estimator.platform import PlatformLimits
 from sim.gps import REPLAY_MODES, SESSION_REPLAY_KEYS, StationarySession, observe
 from sim.nmea import (
     MAX_RATE_HZ,

@@ -31,7 +31,7 @@ Errors (:class:`sim.recording.RecordingError`) name the bag and the topic: no su
 from __future__ import annotations
 
 import math
-from collections.abc import Mapping, Sequence
+from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
 

@@ -59,7 +59,7 @@ def _write_bag(rig, path: Path, version: int, pose_type: str, frame: str = "enu"
     to_ll = Transformer.from_crs(f"EPSG:{EPSG}", "EPSG:4326", always_xy=True)
 
     def header(t: float, frame_id: str):
-        st = T["builtin_interfaces/msg/Time"](sec=int(t), nanosec=int(round((t % 1) * 1e9)))
+        st = T["builtin_interfaces/msg/Time"](sec=int(t), nanosec=round((t % 1) * 1e9))
         kw = {"seq": 0} if version == 1 else {}
         return T["std_msgs/msg/Header"](stamp=st, frame_id=frame_id, **kw)
 
@@ -86,7 +86,7 @@ def _write_bag(rig, path: Path, version: int, pose_type: str, frame: str = "enu"
                                latitude=float(la) if ok else math.nan,
                                longitude=float(lo) if ok else math.nan, altitude=520.0,
                                position_covariance=np.zeros(9), position_covariance_type=0)
-                writer.write(conn, int(round(tu * 1e9)), ser(msg, fix_t))
+                writer.write(conn, round(tu * 1e9), ser(msg, fix_t))
         x, y, yaw = _enu_pose(rig, frame)
         conn = writer.add_connection("/odom", pose_type, typestore=ts)
         P = T["geometry_msgs/msg/Pose"]
@@ -106,7 +106,7 @@ def _write_bag(rig, path: Path, version: int, pose_type: str, frame: str = "enu"
                                                                      covariance=np.zeros(36)))
             else:
                 msg = T[pose_type](header=header(tu, "map"), pose=pose)
-            writer.write(conn, int(round(tu * 1e9)), ser(msg, pose_type))
+            writer.write(conn, round(tu * 1e9), ser(msg, pose_type))
 
 
 def _toml(folder: Path, bag: str, frame: str = "enu") -> Path:
