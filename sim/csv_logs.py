@@ -54,6 +54,7 @@ from pathlib import Path
 import numpy as np
 
 from sim.nmea import LogFixes
+from sim.recording_errors import RecordingError
 
 __all__ = ["CSV_KEYS", "DEFAULT_MISSING", "CsvMapping", "read_csv_log"]
 
@@ -70,8 +71,6 @@ _OFFSET = re.compile(r"([+-])(\d{2}):?(\d{2})")
 
 
 def _error(msg: str) -> Exception:
-    from sim.recording import RecordingError
-
     return RecordingError(msg)
 
 

@@ -80,6 +80,7 @@ from sim.nmea import (
     read_tumbleweed_csv,
     utm_epsg,
 )
+from sim.recording_errors import RecordingError
 from sim.truth import Truth
 
 __all__ = [
@@ -120,10 +121,6 @@ GPS_EPOCH_UTC = 315964800.0
 #: detector of :mod:`estimator.turns` with the thresholds of
 #: ``estimator.tracking.DETECTOR_DEFAULTS`` (0.05 / 0.025 rad/s over 8 s).
 REFERENCE_TURN_RATE_ON, REFERENCE_TURN_RATE_OFF, REFERENCE_TURN_SPAN_S = 0.05, 0.025, 8.0
-
-
-class RecordingError(ValueError):
-    """A recording (its logs or its TOML file) is invalid; the message names file and field."""
 
 
 # --------------------------------------------------------------------------- readers

@@ -38,6 +38,7 @@ from pathlib import Path
 import numpy as np
 
 from sim.nmea import LogFixes
+from sim.recording_errors import RecordingError
 
 __all__ = ["NAVSATFIX", "POSE_TYPES", "PoseFixes", "bag_files", "bag_topics",
            "read_navsatfix", "read_pose_reference"]
@@ -60,8 +61,6 @@ class PoseFixes:
 
 
 def _error(msg: str) -> Exception:
-    from sim.recording import RecordingError
-
     return RecordingError(msg)
 
 
