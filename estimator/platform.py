@@ -25,6 +25,8 @@ from dataclasses import dataclass, fields
 
 import numpy as np
 
+from estimator.epoch_fit import epoch_rigid_fits
+
 __all__ = ["FALLBACK_TURN_RATE_RADPS", "FLOORS", "PlatformLimits", "TravelAxis",
            "estimate_limits", "estimate_travel_axis"]
 
@@ -153,9 +155,8 @@ def _fits(obs: np.ndarray, offsets: np.ndarray, sigma_abs: float):
     """Per-epoch rigid fits (origin (n, 2) = the offsets' origin, yaw (n,)) and which yaws
     are precise (heading sd sigma_abs / sqrt(sum |r_i - rbar|^2) of the present antennas <=
     :data:`MAX_FIT_YAW_SD`)."""
-    from estimator.pose_filter import _rigid_fits
 
-    origin, yaw, cnt, _ = _rigid_fits(obs, offsets)
+    origin, yaw, cnt, _ = epoch_rigid_fits(obs, offsets)
     present = np.isfinite(obs[..., 0])
     with np.errstate(invalid="ignore", divide="ignore"):
         rbar = (present.astype(float) @ offsets) / present.sum(1)[:, None]

@@ -155,7 +155,9 @@ from scipy.linalg.lapack import dgetri as _dgetri
 from scipy.special import chdtri as _chdtri
 
 from estimator._checks import check_array, check_increasing_times, check_int, check_real
+from estimator.epoch_fit import epoch_rigid_fits
 from estimator.memo import TrackCache, content_digest, freeze, memo_get
+from estimator.platform import PlatformLimits, estimate_limits, estimate_travel_axis
 
 __all__ = [
     "INIT_MAX_YAW_SD",
@@ -351,7 +353,6 @@ class PoseFilterParams:
         Given fields are kept. Returns self when nothing is None."""
         if self.resolved:
             return self
-        from estimator.platform import estimate_limits, estimate_travel_axis
 
         t, obs, off = np.asarray(t, dtype=float), np.asarray(obs, dtype=float), offsets
         kw: dict = {}
@@ -377,7 +378,6 @@ class PoseFilterParams:
     def from_platform(cls, limits: object, **overrides: object) -> PoseFilterParams:
         """Parameters from a :class:`estimator.platform.PlatformLimits` (a ``[platform]``
         block) or None (= estimated from the data); ``overrides`` set any field."""
-        from estimator.platform import PlatformLimits
 
         if limits is None:
             return cls(**overrides)
@@ -807,37 +807,6 @@ def _kalman_update(x: np.ndarray, P: np.ndarray, nu: np.ndarray, H: np.ndarray,
 
 
 # ----------------------------------------------------------------------------- noise levels
-def _rigid_fits(obs: np.ndarray, offsets: np.ndarray
-                ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-    """Closed-form 2-D rigid fit of the offsets to every epoch's fixes (Kabsch in 2-D).
-
-    Returns origin (n, 2) (the world position of offset (0, 0)), yaw (n,), number of fixes
-    (n,) and residuals (n, m, 2) (NaN where absent); epochs with < 2 fixes are NaN.
-    """
-    present = np.isfinite(obs[..., 0])
-    cnt = present.sum(axis=1)
-    w = present.astype(float)
-    z = np.where(present[..., None], obs, 0.0)
-    with np.errstate(invalid="ignore", divide="ignore"):
-        zc = (z * w[..., None]).sum(1) / cnt[:, None]
-        rc = (offsets[None] * w[..., None]).sum(1) / cnt[:, None]
-    dz = (z - zc[:, None]) * w[..., None]
-    dr = (offsets[None] - rc[:, None]) * w[..., None]
-    yaw = np.arctan2((dr[..., 0] * dz[..., 1] - dr[..., 1] * dz[..., 0]).sum(1),
-                     (dr * dz).sum(-1).sum(1))
-    c, s = np.cos(yaw), np.sin(yaw)
-    origin = zc - np.c_[c * rc[:, 0] - s * rc[:, 1], s * rc[:, 0] + c * rc[:, 1]]
-    fit = origin[:, None] + np.stack([c[:, None] * offsets[None, :, 0]
-                                      - s[:, None] * offsets[None, :, 1],
-                                      s[:, None] * offsets[None, :, 0]
-                                      + c[:, None] * offsets[None, :, 1]], -1)
-    bad = cnt < 2
-    origin[bad] = np.nan
-    yaw[bad] = np.nan
-    res = np.where(present[..., None] & ~bad[:, None, None], obs - fit, np.nan)
-    return origin, yaw, cnt, res
-
-
 def _studentize(offsets: np.ndarray, present: np.ndarray, yaw: np.ndarray) -> np.ndarray:
     """1 / sqrt(1 - h) per residual component (n, m, 2) of the rigid fits (linearised):
     the fit's hat matrix for antenna i has the translation part 1/k and the rotation part
@@ -878,7 +847,7 @@ def estimate_noise(obs: np.ndarray, offsets: np.ndarray) -> tuple[float, float]:
     the bad obs / offsets :func:`run_pose_filter` refuses (naming the argument).
     """
     obs, off = _check_obs_offsets(obs, offsets)
-    _, yaw, cnt, res = _rigid_fits(obs, off)
+    _, yaw, cnt, res = epoch_rigid_fits(obs, off)
     good = cnt >= 3
     if not good.any():
         raise ValueError("obs: no epoch has 3 or more antenna fixes, the noise levels cannot "
@@ -910,7 +879,7 @@ class FilterStart:
     def __init__(self, t: np.ndarray, obs: np.ndarray, r: np.ndarray, sigma_abs: float,
                  params: PoseFilterParams) -> None:
         self.t = t
-        self.origin, self.yaw, self.cnt, _ = _rigid_fits(obs, r)   # origin = no-slip point
+        self.origin, self.yaw, self.cnt, _ = epoch_rigid_fits(obs, r)   # origin = no-slip point
         self.present = np.isfinite(obs[..., 0])
         self.r2 = (r ** 2).sum(1)
         self.sigma_abs = sigma_abs
