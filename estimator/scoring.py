@@ -35,12 +35,22 @@ from estimator.orientation import wrap_angle
 if TYPE_CHECKING:
     import pandas as pd
 
-__all__ = ["SERIES_COLUMNS", "coverage_rows", "score_track"]
+__all__ = ["CONSISTENCY_COLUMNS", "SERIES_COLUMNS", "consistency", "coverage_rows",
+           "score_track"]
 
 #: Column prefixes of the error series in cells.parquet (estimator.metrics.TrackErrors).
 SERIES_COLUMNS = {"ex": "x", "ey": "y", "eu": "euclid", "eh": "heading"}
+#: Consistency columns (issue 25): heading NEES from the row's ``yaw_sd`` against the truth
+#: and the forward pass's NIS (``nis``, ``nis_dof``): the mean per dof (1 when consistent)
+#: and the share of rows inside the central 95 % chi-square band (0.95 when consistent);
+#: the share of rows whose status is not "ok" and of those flagged "inconsistent". NaN for
+#: a track without the columns (window fits have no covariance, the GTSAM peer and the
+#: fixed-lag smoother none of their own: :mod:`estimator.trackers.ekf`).
+CONSISTENCY_COLUMNS = ("nees_mean", "nees_in_band", "nis_per_dof", "nis_in_band",
+                       "status_not_ok", "status_inconsistent")
 #: Columns of a row beside the series statistics.
-_EXTRA = ("along_mean", "along_median", "jitter_rms", "obs_ex_mean", "obs_ey_mean")
+_EXTRA = ("along_mean", "along_median", "jitter_rms", "obs_ex_mean", "obs_ey_mean",
+          *CONSISTENCY_COLUMNS)
 
 
 def score_track(df: pd.DataFrame, truth: Any, obs: np.ndarray, config: Any,
@@ -70,6 +80,8 @@ def score_track(df: pd.DataFrame, truth: Any, obs: np.ndarray, config: Any,
                                                       window=win).items()}
     obs_e = _obs_errors(obs, truth, idx)
     rows = [_mask_row(mname, mk_all[mname], err, obs_e) for mname in masks]
+    for row in rows:
+        row.update(consistency(df, err.heading, mk_all[row["mask"]]))
     if not epochs:
         return rows, None
     return rows, _epoch_table(df, truth, obs, err, mk_all["no_turns_window"])
@@ -137,4 +149,35 @@ def coverage_rows(df: pd.DataFrame) -> list[dict]:
     for sname in SERIES_COLUMNS:
         row.update({f"{sname}_{k}": nan for k in (*STATISTICS, "outliers")})
     row.update(dict.fromkeys(_EXTRA, nan))
+    row.update(consistency(df, None, np.ones(len(df), dtype=bool)))
     return [row]
+
+
+def consistency(df: pd.DataFrame, heading_err: np.ndarray | None,
+                mk: np.ndarray) -> dict[str, float]:
+    """The :data:`CONSISTENCY_COLUMNS` of a track's rows ``mk`` (k,) bool.
+
+    heading_err (n rows,) rad : the Eq. 4.2 heading error of every row (wrapped; None: no
+    reference, NEES NaN).
+    NEES per row ``(heading_err / yaw_sd)^2`` (chi-square, 1 dof;
+    :func:`estimator.pose_filter.nees`), NIS from ``nis`` / ``nis_dof``; both summarised by
+    :func:`estimator.pose_filter.nis_summary` (rows without a value are left out; none: NaN).
+    """
+    from estimator.pose_filter import nees, nis_summary
+
+    nan = float("nan")
+    out = dict.fromkeys(CONSISTENCY_COLUMNS, nan)
+    if "yaw_sd" in df and heading_err is not None:
+        sd = df["yaw_sd"].to_numpy(dtype=float)[mk]
+        e = np.asarray(heading_err, dtype=float)[mk]
+        s = nis_summary(nees(e[:, None], (sd ** 2)[:, None, None]), np.ones(e.size))
+        out["nees_mean"], out["nees_in_band"] = s["mean_nis_per_dof"], s["share_in_band"]
+    if "nis" in df and "nis_dof" in df:
+        s = nis_summary(df["nis"].to_numpy(dtype=float)[mk],
+                        df["nis_dof"].to_numpy(dtype=float)[mk])
+        out["nis_per_dof"], out["nis_in_band"] = s["mean_nis_per_dof"], s["share_in_band"]
+    if "solver_status" in df and mk.any():
+        st = df["solver_status"].to_numpy(dtype=object)[mk]
+        out["status_not_ok"] = float(np.mean(st != "ok"))
+        out["status_inconsistent"] = float(np.mean(st == "inconsistent"))
+    return out

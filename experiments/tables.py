@@ -33,6 +33,7 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
+from estimator.scoring import CONSISTENCY_COLUMNS
 from experiments.markdown import markdown_table, md_row, md_separator
 from experiments.techniques import (
     FILTER_TECHNIQUES,
@@ -507,7 +508,10 @@ def heading_table(cells: pd.DataFrame, plugins: dict | None = None) -> pd.DataFr
     heading p95 (degrees), the mean Euclidean CG error (m), the time per epoch of the
     estimator (``(t_track_s + t_reused_s) / n_epochs``, microseconds: its stand-alone
     cost, a forward pass shared with another row counted in full), and ``flip_seeds``: the
-    number of seeds with a heading error above 90 degrees at some epoch. The filter family ignores the
+    number of seeds with a heading error above 90 degrees at some epoch; the consistency
+    columns (:data:`estimator.scoring.CONSISTENCY_COLUMNS`: heading NEES and NIS, mean per
+    dof and share inside the 95 % chi-square band; shares of rows not "ok" and
+    "inconsistent"), NaN where the technique has none. The filter family ignores the
     window (it only sets the first row), so only its smallest window is listed; window fits
     and the motion-compensated window are listed at every window, with Huff weights where
     present (else none). Plug-ins (``plugins``, as in :func:`thesis_table`) follow, at
@@ -543,8 +547,12 @@ def heading_table(cells: pd.DataFrame, plugins: dict | None = None) -> pd.DataFr
                 row = {"path": path, "estimator": label_of[tech], "technique": tech,
                        "window": int(w), "weighting": wt, "n_seeds": int(g["seed"].nunique()),
                        "flip_seeds": int((g["eh_max"] > np.pi / 2).sum())}
-                for col in ("eh_rmse_deg", "eh_p95_deg", "eu_mean", "us_per_epoch"):
-                    m, lo, hi, _ = seed_ci(g[col])
+                for col in ("eh_rmse_deg", "eh_p95_deg", "eu_mean", "us_per_epoch",
+                            *CONSISTENCY_COLUMNS):
+                    # NaN where the technique has none (a sweep from before issue 25 too)
+                    vals = g[col] if col in g else np.full(len(g), np.nan)
+                    m, lo, hi, _ = seed_ci(vals, lower=0.0 if col in CONSISTENCY_COLUMNS
+                                           else None)        # NEES, NIS, shares >= 0
                     row[col], row[f"{col}_lo"], row[f"{col}_hi"] = m, lo, hi
                 rows.append(row)
     return pd.DataFrame(rows)
@@ -707,13 +715,24 @@ def _variant_tables(cells: pd.DataFrame, out: Path, vlabel: str, plugins: dict |
                 "Euclidean CG error in metres; 95 % intervals over seeds. \"flips\": seeds "
                 "with a heading error above 90 degrees at some epoch. Each estimator's time "
                 f"per epoch in this run (microseconds, with intervals) is in the untracked "
-                f"`heading_timings{tag}.local.csv`."), ""]
+                f"`heading_timings{tag}.local.csv`. Consistency (issue 25; n/a where the "
+                "estimator has none): \"NEES\" is the mean heading NEES "
+                "(error / own heading sd)^2 and \"NIS/dof\" the forward pass's mean "
+                "normalised innovation squared per degree of freedom, both 1 for a "
+                "consistent estimate; \"in band\" is the share of epochs inside the central "
+                "95 % chi-square band (0.95 when consistent); \"not ok\" and "
+                "\"inconsistent\" the shares of epochs with such a status."), ""]
         md += [_md(ht, [("Path", lambda r: PATH_LABELS.get(r["path"], r["path"])),
                         ("Estimator", "estimator"), ("Window", "window"),
                         ("Weights", "weighting"), ("Heading RMS (deg)", _ci("eh_rmse_deg", 2)),
                         ("Heading p95 (deg)", _ci("eh_p95_deg", 2)),
                         ("CG error (m)", _ci("eu_mean", 3)),
-                        ("Flips", lambda r: f"{r['flip_seeds']}/{r['n_seeds']}")]), ""]
+                        ("Flips", lambda r: f"{r['flip_seeds']}/{r['n_seeds']}"),
+                        ("NEES", _ci("nees_mean", 2)), ("NEES in band", _ci("nees_in_band", 2)),
+                        ("NIS/dof", _ci("nis_per_dof", 2)),
+                        ("NIS in band", _ci("nis_in_band", 2)),
+                        ("not ok", _ci("status_not_ok", 2)),
+                        ("inconsistent", _ci("status_inconsistent", 2))]), ""]
     return md
 
 
@@ -826,7 +845,8 @@ def write_tables(cells: pd.DataFrame, out_dir: str | Path, spec=None) -> Path:
             "weighting", "technique", "window", "dyn_window", "turning", "dyn_growth", "mask"]
     by = aggregate(cells, [a for a in axes if a in cells.columns],
                    ["ex_mean", "ex_median", "ex_std", "ey_mean", "ey_median", "ey_std",
-                    "eu_mean", "eu_rmse", "eh_median", "eh_rmse", "along_mean", "jitter_rms"])
+                    "eu_mean", "eu_rmse", "eh_median", "eh_rmse", "along_mean", "jitter_rms",
+                    *CONSISTENCY_COLUMNS])
     by["oracle"] = by["technique"].isin(ORACLE_TECHNIQUES)   # truth-fed: not a result
     atomic_write(out / "by_cell.csv", lambda p: by.to_csv(p, index=False))
     # wall times depend on the machine and its load: kept out of the tracked tables, in a
