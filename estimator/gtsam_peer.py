@@ -156,8 +156,11 @@ def _displacement_factor(gtsam, noise, kj: int, kk: int, r: np.ndarray, d: np.nd
     return gtsam.CustomFactor(noise, [kj, kk], error)
 
 
+_DEFAULT_PARAMS = PoseFilterParams()  # frozen: one shared default is safe
+
+
 def run_gtsam_peer(t: np.ndarray, obs: np.ndarray, offsets: np.ndarray,
-                   params: PoseFilterParams = PoseFilterParams(),
+                   params: PoseFilterParams = _DEFAULT_PARAMS,
                    lag_s: float | None = None, displacements: bool = True,
                    max_bridge_s: float = MAX_BRIDGE_S) -> GtsamPeerResult:
     """Run the GTSAM fixed-lag smoother over a recording (module docstring).

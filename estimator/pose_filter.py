@@ -146,6 +146,7 @@ either finite or NaN, never inf.
 from __future__ import annotations
 
 import math
+from contextlib import suppress
 from dataclasses import dataclass, field, replace
 from statistics import NormalDist
 
@@ -1437,10 +1438,8 @@ def nees(err: np.ndarray, cov: np.ndarray) -> np.ndarray:
             out[ok] = (e[ok] * sol).sum(1)
         except np.linalg.LinAlgError:
             for i in np.flatnonzero(ok):
-                try:
+                with suppress(np.linalg.LinAlgError):
                     out[i] = float(e[i] @ np.linalg.solve(C[i], e[i]))
-                except np.linalg.LinAlgError:
-                    pass
     return out
 
 

@@ -38,6 +38,7 @@ lag correction of :mod:`estimator.lag` with a smoothed heading).
 from __future__ import annotations
 
 import math
+from contextlib import suppress
 from dataclasses import dataclass
 
 import numpy as np
@@ -97,10 +98,8 @@ def _solve(P: np.ndarray, B: np.ndarray) -> np.ndarray:
     except np.linalg.LinAlgError:
         out = np.full(B.shape, np.nan)
         for i in range(P.shape[0]):
-            try:
+            with suppress(np.linalg.LinAlgError):
                 out[i] = np.linalg.solve(P[i], B[i])
-            except np.linalg.LinAlgError:
-                pass
         return out
 
 

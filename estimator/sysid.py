@@ -493,7 +493,7 @@ def _covariance(J: np.ndarray, r: np.ndarray) -> tuple[np.ndarray, np.ndarray, f
     scale = np.linalg.norm(J, axis=0)
     scale[scale == 0] = 1.0
     _, S, Vt = np.linalg.svd(J / scale, full_matrices=False)
-    ok = S > _SVD_RTOL * S[0]
+    ok = _SVD_RTOL * S[0] < S
     cov = s2 * ((Vt[ok].T / S[ok] ** 2) @ Vt[ok]) / np.outer(scale, scale)
     var = np.diag(cov).copy()
     if not np.all(ok):

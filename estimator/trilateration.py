@@ -705,7 +705,7 @@ def _linear_start(G, rho2, w, side):
     b = 0.5 * (rho2a[:, None] - np.where(use, rho2, 0.0)
                + np.sum(G * G, axis=1)[None, :] - np.sum(Ga * Ga, axis=1)[:, None]) * use
     U, S, Vt = np.linalg.svd(A, full_matrices=False)
-    sig = S > _COPLANAR_REL * S[:, :1]
+    sig = _COPLANAR_REL * S[:, :1] < S
     inv = np.where(sig, 1.0 / np.where(sig, S, 1.0), 0.0)
     x = np.einsum("mji,mj,mkj,mk->mi", Vt, inv, U, b)          # V diag(1/S) U' b
     rank = sig.sum(axis=1)

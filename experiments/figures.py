@@ -27,7 +27,6 @@ Box plots pool the per-epoch errors of the seeds whose per-epoch files the spec 
 
 from __future__ import annotations
 
-import argparse
 import json
 import sys
 from collections.abc import Callable

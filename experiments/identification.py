@@ -213,7 +213,8 @@ def identify(data: Responses, *, seed: int = 0, noise_m: float = 0.01, n_mc: int
         t, u, y = (np.asarray(a, dtype=float) for a in data[(axis, "impulse")])
 
         def fit(yy: np.ndarray, g: np.random.Generator) -> TransferFit:
-            return fit_transfer_function(t, u, yy, form, n_starts=n_starts, rng=g,
+            # called only within this iteration, so the loop variables are the current ones
+            return fit_transfer_function(t, u, yy, form, n_starts=n_starts, rng=g,  # noqa: B023
                                          rel_tol=REL_TOL)
 
         clean = fit(y, _rng(seed, ai, 0))

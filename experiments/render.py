@@ -438,8 +438,8 @@ def rover_frames(ep: pd.DataFrame, config: str, opts: ClipOptions) -> Iterator[n
             err = math.hypot(ex[k] - tx[k], ey[k] - ty[k])
             eh = math.degrees(math.remainder(eyaw[k] - tyaw[k], 2 * math.pi))
             yield sc.frame(decorate, [
-                f"t = {tq:7.1f} s   red ghost: estimate (epoch {t[k]:.0f} s), yellow: true "
-                "antennas, purple: observed",
+                (f"t = {tq:7.1f} s   red ghost: estimate (epoch {t[k]:.0f} s), yellow: true "
+                 "antennas, purple: observed"),
                 (f"CG error {err:.2f} m, heading error {eh:+.1f} deg" if math.isfinite(err)
                  and math.isfinite(eh) else "no estimate yet")])
     finally:
@@ -506,9 +506,9 @@ def flight_frames(series: pd.DataFrame, receivers: tuple[list[str], np.ndarray],
                     s.sphere(rear, 0.05, (0.9, 0.1, 0.1, 0.8))
                     s.connector(rear, est_f[k], 0.015, (0.9, 0.1, 0.1, 0.6))
 
-            yield sc.frame(decorate, [f"t = {tq:6.2f} s   blue: gated ranges, orange: raw "
-                                      "where it differs", "red: Kalman estimate of both "
-                                      "transmitters"])
+            yield sc.frame(decorate, [(f"t = {tq:6.2f} s   blue: gated ranges, orange: raw "
+                                       "where it differs"),
+                                      "red: Kalman estimate of both transmitters"])
     finally:
         sc.close()
 
@@ -592,7 +592,8 @@ def _size(text: str) -> tuple[int, int]:
     try:
         w, h = (int(v) for v in text.lower().split("x"))
     except ValueError:
-        raise argparse.ArgumentTypeError(f"expected WIDTHxHEIGHT such as 640x480, got {text!r}")
+        raise argparse.ArgumentTypeError(
+            f"expected WIDTHxHEIGHT such as 640x480, got {text!r}") from None
     return w, h
 
 

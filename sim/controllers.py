@@ -214,7 +214,7 @@ def pure_pursuit_step(state: PurePursuitState, x: float, y: float, yaw: float,
     # w_max = min(max_turn_rate, a_lat / max(v, 1e-9)), omega_target = max(-w_max,
     # min(w_max, v kappa)), the comparisons of min/max spelled out (as in rate_limit)
     v_pos = state.v_cmd
-    if 1e-9 > v_pos:  # noqa: PLR1730 (builtins are slower here)
+    if v_pos < 1e-9:  # noqa: PLR1730 (builtins are slower here)
         v_pos = 1e-9
     w_max = p.max_turn_rate_radps
     w_lat = p.max_lateral_accel_mps2 / v_pos

@@ -919,7 +919,8 @@ def observe(truth: Truth, config: SensorConfig,
         obs.setflags(write=False)
         return obs
     if not isinstance(rng, np.random.Generator):
-        raise ValueError(f"rng: noisy observations need a numpy.random.Generator, got {rng!r}")
+        # ValueError, not TypeError: the project's one error type for bad arguments
+        raise ValueError(f"rng: noisy observations need a numpy.random.Generator, got {rng!r}")  # noqa: TRY004
     if isinstance(noise, StationarySession):
         session = noise.after_power_failure()
         opts = dict(noise_overrides or {})

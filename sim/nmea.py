@@ -232,7 +232,7 @@ class LogFixes:
 
 
 def _zero_skips() -> dict:
-    return {k: 0 for k in SKIP_CLASSES}
+    return dict.fromkeys(SKIP_CLASSES, 0)
 
 
 # --------------------------------------------------------------------------- fields

@@ -100,7 +100,7 @@ class Truth:
         return atomic_write(path, write)
 
     @classmethod
-    def load(cls, path: str | Path) -> "Truth":
+    def load(cls, path: str | Path) -> Truth:
         """Read a file written by :meth:`save`."""
         with np.load(Path(path), allow_pickle=False) as z:
             kw = {k: z[k] for k in _ARRAYS}

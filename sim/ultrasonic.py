@@ -226,7 +226,7 @@ def simulate_ranges(t: np.ndarray, tx_positions: np.ndarray, receivers: np.ndarr
         noise = np.zeros((n, c))
     elif model.max_error_m > 0:
         b = model.max_error_m / model.sigma_m
-        from scipy import stats   # here, not at import: scipy.stats costs ~0.5 s
+        from scipy import stats  # here, not at import: scipy.stats costs ~0.5 s
 
         noise = stats.truncnorm.rvs(-b, b, scale=model.sigma_m, size=(n, c), random_state=rng)
     else:

@@ -24,7 +24,7 @@ SCRIPTS = tomllib.loads((REPO / "pyproject.toml").read_text())["project"]["scrip
 
 def test_every_cli_has_a_console_script():
     assert sorted(console.CLIS) == CLI_MODULES
-    assert SCRIPTS == {console.script_name(m): f"experiments.console:{m}" for m in CLI_MODULES}
+    assert {console.script_name(m): f"experiments.console:{m}" for m in CLI_MODULES} == SCRIPTS
 
 
 def _installed() -> dict[str, importlib.metadata.EntryPoint]:

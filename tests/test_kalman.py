@@ -21,7 +21,9 @@ def _filterpy_reference(t, z, sp, sm):
     kf = KalmanFilter(dim_x=2, dim_z=1)
     kf.x = np.array([[np.mean(z[:N_INIT])], [0.0]])
     dt_avg = np.mean(np.diff(t))
-    q = lambda dt: sp**2 * np.array([[dt**4 / 4, dt**3 / 2], [dt**3 / 2, dt**2]])
+    def q(dt):
+        return sp**2 * np.array([[dt**4 / 4, dt**3 / 2], [dt**3 / 2, dt**2]])
+
     kf.P = q(dt_avg)
     kf.H = np.array([[1.0, 0.0]])
     kf.R = np.array([[sm**2]])
@@ -117,7 +119,9 @@ def test_per_sample_sigma_equals_filterpy_with_per_step_R():
     ours = pv_kalman(t, z, 0.5, sm)
     kf = KalmanFilter(dim_x=2, dim_z=1)
     kf.x = np.array([[np.mean(z[:N_INIT])], [0.0]])
-    q = lambda dt: 0.25 * np.array([[dt**4 / 4, dt**3 / 2], [dt**3 / 2, dt**2]])
+    def q(dt):
+        return 0.25 * np.array([[dt**4 / 4, dt**3 / 2], [dt**3 / 2, dt**2]])
+
     kf.P = q(np.mean(np.diff(t)))
     kf.H = np.array([[1.0, 0.0]])
     ref = [kf.x[0, 0]]

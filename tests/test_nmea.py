@@ -167,8 +167,8 @@ def test_gridding_missing_epochs_and_alignment():
 
 def test_tumbleweed_csv_stale_time(tmp_path):
     # TIME repeats the previous second in some rows while CLOCK advances (as in the hazer logs)
-    rows = ["HOSTNAME, OBSERVATION, CLOCK, TIME, LATITUDE, LONGITUDE, HORIZONTAL, MSL, WGS84, "
-            "VERTICAL, SPEED, COURSE"]
+    rows = [("HOSTNAME, OBSERVATION, CLOCK, TIME, LATITUDE, LONGITUDE, HORIZONTAL, MSL, WGS84, "
+             "VERTICAL, SPEED, COURSE")]
     times = [100, 101, 101, 103, 104]
     t0 = 1589900000                      # 2020-05-19, as the hazer runs (1970 is implausible)
     for k, tt in enumerate(times):

@@ -443,7 +443,7 @@ def test_page_draws_the_layout_hull_in_chromium(tmp_path, browser_page):
     st = _state(pg, "gps[0]")
     assert st["truth"] is not None
     hull = layout_outline(EDGE_ORIGIN)
-    for which, (x, y, yaw) in (("estOutlinePx", st["est"]), ("truthOutlinePx", st["truth"])):
+    for which, (_x, _y, yaw) in (("estOutlinePx", st["est"]), ("truthOutlinePx", st["truth"])):
         poly = np.asarray(st[which], float)
         assert poly.shape == (len(hull), 2) and is_simple_polygon(poly), (which, poly)
         # the same corners as the layout's hull at that pose (screen y points down: flip)

@@ -493,7 +493,7 @@ def test_pitch_chain_poles_match_closed_form(mode, a, h, iyy, k, ka):
         assert np.min(np.abs(got - r)) < 1e-3 * max(1.0, abs(r))
     if mode == "rate" and h > 1e-4:
         # DC gain: the rate loop's torque balances the drag moment (exact)
-        assert ch.K == pytest.approx(k * iyy / (a * m * h), rel=1e-9)
+        assert pytest.approx(k * iyy / (a * m * h), rel=1e-9) == ch.K
     if mode == "rate" and h < -1e-4:
         # rotor plane below the CG: the drag moment destabilises, no second-order factor
         assert np.max(ch.poles.real) > 0 and np.isnan(ch.Tw)
@@ -504,7 +504,7 @@ def test_pitch_chain_limits_and_bad_input():
           "k_rate": 20.0, "k_att": 8.0, "motor_lag_s": 0.03, "delay_s": 0.33}
     # no drag moment in rate mode: the tilt integrates, a second integrator, no DC gain
     ch = pitch_chain("rate", **{**kw, "rotor_height_m": 0.0})
-    assert ch.K == math.inf and np.isnan(ch.Tw)
+    assert math.inf == ch.K and np.isnan(ch.Tw)
     # largest allowed rate gain, shortest motor lag: the slow pair tends to
     # s^2 + (c/m - w^2/k) s + w^2, w^2 = g c h / (I k) (docstring); measured 3e-6 / 6e-6
     big = pitch_chain("rate", **{**kw, "k_rate": 1e4, "motor_lag_s": 1e-6})

@@ -19,6 +19,7 @@ git does not ignore, unless asked for.
 
 from __future__ import annotations
 
+import contextlib
 import json
 import os
 import re
@@ -372,10 +373,8 @@ def _named_paths(repo: Path, stmt: str) -> list[str]:
         if "/" not in w and not re.search(r"\.\w+$", w):
             continue
         p = (repo / w).resolve() if not os.path.isabs(w) else Path(w)
-        try:
+        with contextlib.suppress(ValueError):
             out.append(p.relative_to(repo.resolve()).as_posix())
-        except ValueError:
-            pass
     return out
 
 

@@ -205,8 +205,8 @@ def test_epochs_selection():
     ({"session_s": 1e15}, "session_s: must be a number of seconds in"),
     ({"seeds": 1_000_000_000}, r"seeds: count must be in \[1, 10000\]"),
     ({"seeds": list(range(10_001))}, "seeds: must be a count"),
-    ({"grid": [{"path": "square20", "window": [1_000_000_000]}]}, r"window\[0\]: must be a "
-                                                                   "positive integer"),
+    ({"grid": [{"path": "square20", "window": [1_000_000_000]}]},
+     r"window\[0\]: must be a positive integer"),
 ])
 def test_physical_ranges_are_checked_on_load(changes, field):
     with pytest.raises(SpecError, match=field):

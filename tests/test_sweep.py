@@ -479,7 +479,7 @@ def test_rerun_leaves_the_manifest_byte_identical(tmp_path):
     assert (tmp_path / "manifest.json").read_bytes() == first
     man = json.loads(first)
     assert not any(k in man for k in ("started_utc", "timings_s", "cpu_count"))
-    assert not str(REPO) in first.decode()
+    assert str(REPO) not in first.decode()
 
 
 def test_spec_without_epochs_says_which_figures_it_cannot_draw(tmp_path, capsys, truth_cache):

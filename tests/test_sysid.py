@@ -182,7 +182,7 @@ def test_interval_coverage(form, p):
     t = np.arange(0.0, 5.0 + 1e-9, DT)
     u = pulse(t)
     y0 = simulate(t, u, form, p)
-    covered = {k: 0 for k in FORMS[form]}
+    covered = dict.fromkeys(FORMS[form], 0)
     for seed in range(20):
         rng = np.random.default_rng(100 + seed)
         fit = fit_transfer_function(t, u, y0 + 0.01 * rng.standard_normal(t.size), form,

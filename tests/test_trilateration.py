@@ -161,7 +161,9 @@ def test_nonlinear_ls_reports_iterations_and_reduces_residual():
     R = np.linalg.norm(P[:, None] - rec[None], axis=2) + rng.normal(0, 0.005, (200, 6))
     lin = T.linear_ls(rec, R)
     nl, info = T.nonlinear_ls(rec, R, return_info=True)
-    cost = lambda X: np.sum((np.linalg.norm(X[:, None] - rec[None], axis=2) - R) ** 2, axis=1)
+    def cost(X):
+        return np.sum((np.linalg.norm(X[:, None] - rec[None], axis=2) - R) ** 2, axis=1)
+
     assert np.all(cost(nl) <= cost(lin) + 1e-15)
     assert info.iterations.dtype.kind == "i" and info.iterations.max() <= T.NLS_MAX_ITER
     _, info1 = T.nonlinear_ls(rec, R, max_iter=1, return_info=True)

@@ -42,7 +42,7 @@ def test_the_case_has_the_recordings_character():
     tr, p = case.truth, case.present
     k = p.sum(1)
     assert tr.n == 1515 and np.allclose(np.diff(tr.t), 1.0)
-    assert 0.55 <= p.mean(0).min() and p.mean(0).max() <= 0.99
+    assert p.mean(0).min() >= 0.55 and p.mean(0).max() <= 0.99
     assert 0.35 <= (k == 4).mean() <= 0.52 and 0.35 <= (k == 3).mean() <= 0.52
     assert 0.015 <= (k <= 1).mean() <= 0.06
     outage = ~p.any(1)

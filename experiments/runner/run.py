@@ -416,9 +416,9 @@ class _Run:
         with suppress(OSError):
             write_json(self.out_dir / "manifest.json", manifest)
         n_kept = len(self.store.done() & set(self.by_key))
-        exc.args = (f"{n_kept} of {len(self.cells)} cells are finished in {self.out_dir}, "
-                    "marked interrupted in its manifest.json; rerun the same command to "
-                    "resume",)
+        exc.args = ((f"{n_kept} of {len(self.cells)} cells are finished in {self.out_dir}, "
+                     "marked interrupted in its manifest.json; rerun the same command to "
+                     "resume"),)
 
 
 def import_for_outputs() -> None:
