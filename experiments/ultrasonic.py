@@ -55,6 +55,7 @@ from estimator.ranging import (
     localize,
 )
 from estimator.rigid_ranging import fit_pose
+from experiments import ultrasonic_figures as ufig
 from experiments.markdown import markdown_table
 from experiments.provenance import git_describe
 from sim.ultrasonic import UltrasonicNoiseModel, load_receivers, simulate_ranges, true_ranges
@@ -129,7 +130,8 @@ def run_monte_carlo(spec: StudySpec, rng: np.random.Generator) -> dict:
     P = np.empty((n, 3))
     P[:, :2] = rng.uniform(-spec.extent_m, spec.extent_m, size=(n, 2))
     P[:, 2] = spec.z_plane_m
-    R = true_ranges(P[:, None, :], rec)[:, 0, :] + rng.normal(0.0, spec.mc_sigma_m, (n, 6))
+    noise = rng.normal(0.0, spec.mc_sigma_m, (n, 6))
+    R = true_ranges(P[:, None, :], rec)[:, 0, :] + noise
     est, infos, secs = {}, {}, {}
     for m in MC_METHODS:
         kw = {}
@@ -188,7 +190,8 @@ def run_monte_carlo(spec: StudySpec, rng: np.random.Generator) -> dict:
         "cfp_vs_cmd_max_diff_m": float(np.max(np.abs(est["closed_form"] - est["cayley_menger"]))),
         "receivers_m": rec.tolist(), "names": list(names),
     }
-    return {"table": table, "pixels": pd.concat(pix, ignore_index=True), "extra": extra}
+    return {"table": table, "pixels": pd.concat(pix, ignore_index=True), "extra": extra,
+            "range_errors": ufig.range_error_counts(noise, list(names))}
 
 
 # =============================================================================================
@@ -289,8 +292,9 @@ def run_flight(spec: StudySpec, rng: np.random.Generator) -> dict:
         series[f"front_true_{ax}"] = tx[:, 0, a]
         series[f"mid_true_{ax}"] = mid_true[:, a]
     for j in range(rec.shape[0]):
-        series[f"range_true_front_{names[j]}"] = true_ranges(tx, rec)[:, 0, j]
-        series[f"range_raw_front_{names[j]}"] = raw[:, 0, j]
+        for k, side in enumerate(("front", "rear")):     # T20, T21
+            series[f"range_true_{side}_{names[j]}"] = true_ranges(tx, rec)[:, k, j]
+            series[f"range_raw_{side}_{names[j]}"] = raw[:, k, j]
     gate_configs = (("robust", spec.max_speed_mps), ("thesis", spec.max_speed_mps),
                     ("robust", spec.alt_max_speed_mps))
     for mode, vmax in gate_configs:
@@ -516,6 +520,7 @@ def run(out_dir: str | Path = DEFAULT_OUT, spec: StudySpec | None = None, *,
     timings["monte_carlo_s"] = time.perf_counter() - t0
     mc["table"].drop(columns=["time_s"]).to_csv(out / "mc_table.csv", index=False)
     mc["pixels"].to_csv(out / "mc_pixels.csv", index=False)
+    mc["range_errors"].to_csv(out / "mc_range_errors.csv", index=False)
 
     t0 = time.perf_counter()
     fl = run_flight(spec, rng_flight)
@@ -533,6 +538,7 @@ def run(out_dir: str | Path = DEFAULT_OUT, spec: StudySpec | None = None, *,
         t0 = time.perf_counter()
         plot_monte_carlo(pd.read_csv(out / "mc_pixels.csv"), out)
         plot_flight(pd.read_csv(out / "flight_series.csv"), out, mc["extra"]["names"])
+        ufig.plot_all(out, mc["extra"]["names"], np.asarray(mc["extra"]["receivers_m"]), MC_SHORT)
         timings["figures_s"] = time.perf_counter() - t0
 
     info = {"spec": asdict(spec), "code_version": git_describe(),
@@ -580,7 +586,10 @@ def _write_markdown(out, spec, mc, fl, ident, ident_status) -> None:
         "Chapter 4). See the discussion below."),
         "",
         ("Figures: `mc_mse_maps.png`, `mc_mse_x_maps.png`, `mc_mse_z_maps.png`, "
-        "`mc_mean_err_z_maps.png`."),
+        "`mc_mean_err_z_maps.png`; Appendix B's own figures: `appB_bias_quiver.png` (x+y MSE "
+        "contour with the per-pixel mean x/y error as arrows), `appB_mse_normalized.png` (total "
+        "MSE / smallest per method), `appB_range_error_hist.png` (simulated range errors per "
+        "receiver, counts in `mc_range_errors.csv`)."),
         "",
         (f"## 2. Flight pipeline on the simulated quadcopter ({spec.path}, "
         f"{ex['n_samples']} samples over {ex['duration_s']:.1f} s, intervals "
@@ -599,7 +608,9 @@ def _write_markdown(out, spec, mc, fl, ident, ident_status) -> None:
         markdown_table(flt),
         "",
         ("Figures: `flight_ranges.png` (Fig. 3.8), `flight_position.png` (Figs. 3.9-3.12), "
-        "`flight_xy.png`, `flight_heading.png`."),
+        "`flight_xy.png`, `flight_heading.png`, `fig3_07_range_change_T20.png` / `_T21.png` "
+        "(Fig. 3.7: change in consecutive raw ranges, Filter 1's 1000 mm cut-off), "
+        "`fig3_2_2_tx_difference.png` (raw T20 - T21 range per receiver, Filter 2's 500 mm)."),
         "",
         "## 3. Transfer-function identification (Section 3.3)",
         "",
