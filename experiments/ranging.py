@@ -14,17 +14,17 @@ defaults, never fitted to a recording), once in known-height mode (the tag rides
 ``--tag-height`` = 1.0 m above the reference point, whose z is ground level, as the authors'
 scoring states) and once solving z freely (the per-epoch fixes and their Kalman filter held in
 the preset's plausible interval, the anchors' heights +/- 2 m, with the interval's middle as
-the known-height fallback where the geometry cannot resolve z); every method is scored with the authors' metric
-(:func:`authors_metric`, a re-implementation of their ``localization_error_analysis.py``,
-checked against their ``RMSD_results.txt`` to 1e-9 m in the tests). Outputs: one folder
-``OUT/<label>/`` per recording DIR (``<label>``: the last three parts of DIR joined by ``_``
-when DIR is a ``Case_*`` folder, e.g. ``LOS_Trajectory_A_Case_1``, else DIR's name) with
-``summary.csv`` (one row per method: ``method, rmse_2d_m, rmse_3d_m, max_error_2d_m,
-coverage``), ``summary.md``, ``stages.csv`` (fixes before/after the gates), ``gates.csv`` (spikes and
-the gates, judged against the reference), ``estimates.csv.gz`` (every method at the epochs),
-figures
-(trajectories against the reference, error over time, ranges before and after gating), and
-``run_info.json`` (settings and code version); and, for all recordings together,
+the known-height fallback where the geometry cannot resolve z); every method is scored with
+the authors' metric (:func:`estimator.range_scoring.authors_metric`, re-exported here, a
+re-implementation of their ``localization_error_analysis.py``, checked against their
+``RMSD_results.txt`` to 1e-9 m in the tests). Outputs: one folder ``OUT/<label>/`` per
+recording DIR (``<label>``: the last three parts of DIR joined by ``_`` when DIR is a
+``Case_*`` folder, e.g. ``LOS_Trajectory_A_Case_1``, else DIR's name) with ``summary.csv``
+(one row per method: ``method, rmse_2d_m, rmse_3d_m, max_error_2d_m, coverage``),
+``summary.md``, ``stages.csv`` (fixes before/after the gates), ``gates.csv`` (spikes and the
+gates, judged against the reference), ``estimates.csv.gz`` (every method at the epochs),
+figures (trajectories against the reference, error over time, ranges before and after
+gating), and ``run_info.json`` (settings and code version); and, for all recordings together,
 ``OUT/summary.md`` and the untracked wall times ``OUT/timings.json``.
 
 ``run(directory, out)`` is the callable entry point; ``main`` only parses arguments.
@@ -43,7 +43,13 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from estimator.metrics import summarize
+from estimator import range_scoring
+from estimator.range_scoring import (  # re-exported: the authors' metric lives in the core
+    TAG_HEIGHT_M,
+    authors_metric,
+    epoch_coverage,
+    scoring_window,
+)
 from estimator.ranging import RangeStreams, RangingConfig, RangingResult, localize
 from experiments.markdown import markdown_table
 from experiments.provenance import git_describe
@@ -63,8 +69,6 @@ __all__ = [
 _ANCHOR_RE = re.compile(r"^A(\d+)\.csv$")
 _ANCHOR_COLS = ("field.stamp", "field.x", "field.y", "field.z", "field.distanceFromTag")
 _POSE_COLS = ("timestamp", "x", "y", "z")
-#: the tag rides this far above the reference point (authors' scoring: reference z + 1)
-TAG_HEIGHT_M = 1.0
 
 
 # =============================================================================================
@@ -195,73 +199,6 @@ def load_recording(directory: str | Path) -> RangeRecording:
 
 
 # =============================================================================================
-# the authors' metric
-# =============================================================================================
-
-
-def scoring_window(ref_t: np.ndarray, ref_xyz: np.ndarray, trajectory: str = "A"
-                   ) -> tuple[float, float]:
-    """The authors' scoring window (s): Trajectory A from the first reference sample with
-    x > 49.3 and y > -5 to the first later one with x <= 12 and y > 3.4; Trajectory B from
-    x < 8.6 and y < -7 to the first later x > 8.6 and y < -7 (their
-    ``find_start_and_end_times``). Raises ValueError if the reference never enters it."""
-    x, y = ref_xyz[:, 0], ref_xyz[:, 1]
-    if trajectory == "A":
-        start_ok, end_ok = (x > 49.3) & (y > -5), (x <= 12) & (y > 3.4)
-    elif trajectory == "B":
-        start_ok, end_ok = (x < 8.6) & (y < -7), (x > 8.6) & (y < -7)
-    else:
-        raise ValueError(f"trajectory: must be 'A' or 'B', got {trajectory!r}")
-    if not start_ok.any():
-        raise ValueError(f"reference: never enters the Trajectory {trajectory} scoring window")
-    i = int(np.argmax(start_ok))
-    later = np.flatnonzero(end_ok[i:])
-    if later.size == 0:
-        raise ValueError(f"reference: never leaves the Trajectory {trajectory} scoring window")
-    return float(ref_t[i]), float(ref_t[i + later[0]])
-
-
-def authors_metric(ref_t: np.ndarray, ref_xyz: np.ndarray, est_t: np.ndarray,
-                   est_xyz: np.ndarray, *, trajectory: str = "A",
-                   tag_height_m: float = TAG_HEIGHT_M) -> dict:
-    """The dataset authors' scores (their ``localization_error_analysis.py``, re-implemented).
-
-    Estimates with times in the scoring window (inclusive) are compared with the reference
-    (rows in the window with |z| < 0.5) interpolated linearly at their times (the last
-    reference sample at or before, the first after; the nearest one at the ends); the 2-D
-    error uses x, y, the 3-D error also z against reference z + ``tag_height_m``. Estimates
-    with a NaN coordinate are not scored (the authors' estimates have none).
-    Returns rmse_2d_m, rmse_3d_m, max_error_2d_m, n (scored estimates), window (s, s), and
-    the per-estimate t, err_2d, err_3d arrays.
-    """
-    t0, t1 = scoring_window(ref_t, ref_xyz, trajectory)
-    inwin = (ref_t >= t0) & (ref_t <= t1)
-    keep = inwin & (np.abs(ref_xyz[:, 2]) < 0.5)
-    rt, rp = ref_t[keep], ref_xyz[keep]
-    et = np.asarray(est_t, dtype=float)
-    ep = np.asarray(est_xyz, dtype=float)
-    sel = (et >= t0) & (et <= t1) & np.all(np.isfinite(ep), axis=1)
-    et, ep = et[sel], ep[sel]
-    after = np.searchsorted(rt, et, side="right")            # first reference > t
-    before = after - 1
-    b = np.clip(before, 0, rt.size - 1)
-    a = np.clip(after, 0, rt.size - 1)
-    span = rt[a] - rt[b]
-    w = np.where((before >= 0) & (after < rt.size) & (span > 0),
-                 (et - rt[b]) / np.where(span > 0, span, 1.0), 0.0)
-    w = np.where(before < 0, 1.0, w)                          # before the first: the first
-    ref = rp[b] + w[:, None] * (rp[a] - rp[b])
-    ref = np.where((before < 0)[:, None], rp[a], ref)
-    e2 = np.hypot(ref[:, 0] - ep[:, 0], ref[:, 1] - ep[:, 1])
-    e3 = np.sqrt(e2 ** 2 + (ref[:, 2] + tag_height_m - ep[:, 2]) ** 2)
-    s2, s3 = summarize(e2), summarize(e3)      # NaN statistics when nothing is scored
-    return {
-        "rmse_2d_m": s2["rmse"], "rmse_3d_m": s3["rmse"], "max_error_2d_m": s2["max"],
-        "n": int(e2.size), "window": (t0, t1), "t": et, "err_2d": e2, "err_3d": e3,
-    }
-
-
-# =============================================================================================
 # scoring every method
 # =============================================================================================
 
@@ -293,45 +230,26 @@ def score(rec: RangeRecording, t: np.ndarray, est: np.ndarray, *, trajectory: st
     ``tolerance_s`` of the epoch (0: an estimate at exactly that epoch)."""
     m = authors_metric(rec.reference_t, rec.reference, t, est, trajectory=trajectory,
                        tag_height_m=tag_height_m)
-    g = np.asarray(t if grid is None else grid, dtype=float)
-    t0, t1 = m["window"]
-    g = g[(g >= t0) & (g <= t1)]
-    have = np.asarray(t, dtype=float)[np.all(np.isfinite(est), axis=1)]
-    if g.size and have.size:
-        j = np.clip(np.searchsorted(have, g), 1, have.size) if have.size > 1 else np.zeros(
-            g.size, dtype=int)
-        near = np.minimum(np.abs(have[np.clip(j, 0, have.size - 1)] - g),
-                          np.abs(have[np.clip(j - 1, 0, have.size - 1)] - g))
-        m["coverage"] = float(np.mean(near <= tolerance_s))
-    else:
-        m["coverage"] = 0.0 if g.size else float("nan")
+    m["coverage"] = epoch_coverage(t, est, t if grid is None else grid, m["window"],
+                                   tolerance_s)
     return m
 
 
 def reference_ranges(rec: RangeRecording, lag_s: float, tag_height_m: float = TAG_HEIGHT_M
                      ) -> np.ndarray:
-    """Ranges the reference implies for every sample, (N,) m: the tag (reference + tag
-    height) interpolated at the sample time minus ``lag_s``; NaN outside the reference."""
+    """Ranges the reference implies for every sample of ``rec``, (N,) m
+    (:func:`estimator.range_scoring.reference_ranges`)."""
     s = rec.streams
-    tq = s.t - lag_s
-    pts = np.stack([np.interp(tq, rec.reference_t, rec.reference[:, a]) for a in range(3)], 1)
-    pts[:, 2] += tag_height_m
-    r = np.linalg.norm(pts - rec.anchor_positions[s.receiver], axis=1)
-    return np.where((tq >= rec.reference_t[0]) & (tq <= rec.reference_t[-1]), r, np.nan)
+    return range_scoring.reference_ranges(s.t, rec.anchor_positions[s.receiver],
+                                          rec.reference_t, rec.reference, lag_s, tag_height_m)
 
 
 def range_lag(rec: RangeRecording, tag_height_m: float = TAG_HEIGHT_M) -> float:
-    """Diagnostic only (no estimator uses it): the delay of the ranges behind the reference,
-    the lag in [0, 0.6] s (5 ms steps) minimising the median absolute deviation of the range
-    residuals."""
-    best, lag_best = np.inf, 0.0
-    for lag in np.arange(0.0, 0.6001, 0.005):
-        e = rec.streams.r - reference_ranges(rec, lag, tag_height_m)
-        e = e[np.isfinite(e)]
-        mad = np.median(np.abs(e - np.median(e)))
-        if mad < best:
-            best, lag_best = mad, float(lag)
-    return lag_best
+    """Diagnostic only: the delay (s) of the ranges of ``rec`` behind its reference
+    (:func:`estimator.range_scoring.range_lag`)."""
+    s = rec.streams
+    return range_scoring.range_lag(s.r, s.t, rec.anchor_positions[s.receiver],
+                                   rec.reference_t, rec.reference, tag_height_m)
 
 
 def evaluate(rec: RangeRecording, *, trajectory: str = "A", tag_height_m: float = TAG_HEIGHT_M,

@@ -36,10 +36,9 @@ from pathlib import Path
 
 import numpy as np
 import pandas as pd
-from scipy.optimize import minimize_scalar
 
+from estimator import range_scoring
 from estimator import rigid_ranging as rr
-from estimator.orientation import wrap_angle
 from experiments.markdown import markdown_table
 from sim.range_recording import (
     RangeRecording,
@@ -57,8 +56,6 @@ SIGMA_M = 0.05
 METHODS = ("baseline", "robust", "robust_bias", "filter", "smoother")
 COLUMNS = ("run", "method", "rmse_2d_m", "yaw_rmse_deg", "max_error_2d_m", "mean_error_2d_m",
            "clock_offset_s", "coverage", "flagged", "epochs")
-#: clock-offset search: grid half-width and step (s)
-OFFSET_SPAN_S, OFFSET_STEP_S = 1.0, 0.005
 REPO = Path(__file__).resolve().parents[1]
 DEFAULT_OUT = REPO / "results" / "local" / "rigid_ranging"
 
@@ -103,57 +100,16 @@ def _at_rows(times: np.ndarray, res: rr.TrackResult) -> np.ndarray:
     return pose
 
 
-def _errors(pose: np.ndarray, ref: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    e = np.hypot(pose[:, 0] - ref[:, 0], pose[:, 1] - ref[:, 1])
-    return e, np.degrees(np.abs(wrap_angle(pose[:, 2] - ref[:, 2])))
-
-
-def _row(e, ey, inside, offset):
-    ok = np.isfinite(e) & inside
-    if not ok.any():
-        return {"rmse_2d_m": np.nan, "yaw_rmse_deg": np.nan, "max_error_2d_m": np.nan,
-                "mean_error_2d_m": np.nan, "clock_offset_s": offset, "coverage": 0.0}
-    return {"rmse_2d_m": float(np.sqrt(np.mean(e[ok] ** 2))),
-            "yaw_rmse_deg": float(np.sqrt(np.mean(ey[ok] ** 2))),
-            "max_error_2d_m": float(np.max(e[ok])), "mean_error_2d_m": float(np.mean(e[ok])),
-            "clock_offset_s": offset, "coverage": float(ok.sum() / max(inside.sum(), 1))}
-
-
 def score_static(pose: np.ndarray, ref: StaticReference) -> tuple[dict, np.ndarray]:
-    """Scores against a fixed pose; returns the summary fields and the 2-D error (n,)."""
-    r = np.broadcast_to([ref.x_m, ref.y_m, ref.yaw], pose.shape)
-    e, ey = _errors(pose, r)
-    return _row(e, ey, np.ones(e.size, dtype=bool), np.nan), e
-
-
-def _reference_at(ref: TrajectoryReference, t: np.ndarray):
-    yaw = np.unwrap(ref.yaw)
-    r = np.column_stack([np.interp(t, ref.times, ref.xyz[:, 0]),
-                         np.interp(t, ref.times, ref.xyz[:, 1]), np.interp(t, ref.times, yaw)])
-    return r, (t >= ref.times[0]) & (t <= ref.times[-1])
+    """Scores against a fixed pose (:func:`estimator.range_scoring.score_static`)."""
+    return range_scoring.score_static(pose, np.array([ref.x_m, ref.y_m, ref.yaw]))
 
 
 def score_trajectory(times: np.ndarray, pose: np.ndarray, ref: TrajectoryReference
                      ) -> tuple[dict, np.ndarray]:
-    """Scores after the clock offset that minimises the 2-D RMSE (module docstring)."""
-    def rmse(off):
-        r, inside = _reference_at(ref, times + off)
-        e, _ = _errors(pose, r)
-        ok = inside & np.isfinite(e)
-        return float(np.sqrt(np.mean(e[ok] ** 2))) if ok.sum() > 0.5 * ok.size else np.inf
-
-    grid = np.arange(-OFFSET_SPAN_S, OFFSET_SPAN_S + OFFSET_STEP_S / 2, OFFSET_STEP_S)
-    costs = np.array([rmse(o) for o in grid])
-    if not np.isfinite(costs).any():
-        raise ValueError("reference: overlaps fewer than half of the ranges' rows at every "
-                         f"clock offset within +-{OFFSET_SPAN_S} s")
-    g = grid[int(np.argmin(costs))]
-    best = minimize_scalar(rmse, bounds=(g - OFFSET_STEP_S, g + OFFSET_STEP_S),
-                           method="bounded", options={"xatol": 1e-5})
-    off = float(best.x) if best.fun <= costs.min() else float(g)
-    r, inside = _reference_at(ref, times + off)
-    e, ey = _errors(pose, r)
-    return _row(e, ey, inside, off), e
+    """Scores after the clock offset that minimises the 2-D RMSE
+    (:func:`estimator.range_scoring.score_trajectory`)."""
+    return range_scoring.score_trajectory(times, pose, ref.times, ref.xyz, ref.yaw)
 
 
 def score(rec: RangeRecording, pose: np.ndarray) -> tuple[dict, np.ndarray]:
