@@ -163,7 +163,8 @@ STATIONARY_CLAIMS: list[Claim] = [
           "The ACF of the AR(1) residuals mostly exceeds the bounds: significant residual "
           f"autocorrelation (judged: median over series of the share of lags 1-{NLAGS} "
           f"outside > {MOSTLY:.0%}).",
-          lambda cells: [Comparison(S, ">", MOSTLY, "resid_median", "median share, AR(1) residuals")]),
+          lambda cells: [Comparison(S, ">", MOSTLY, "resid_median",
+                                    "median share, AR(1) residuals")]),
     Claim("S4.3c", "4.3",
           "Similar results for the distances between sensors: their ACF and their AR(1) "
           "residuals' ACF exceed the bounds (same judgement on every pairwise distance).",
@@ -234,7 +235,8 @@ def _specific(cid: str, cells: pd.DataFrame, real: pd.DataFrame | None) -> str:
                "or residuals of a model other than Eq. 2.2, would show more")
         if real is not None and len(real):
             txt += (f"; on the {len(real)} real log axes of ../shared/realdata the AR(1) residual "
-                    f"share is {real.resid_share.median():.0%} median, {real.resid_share.max():.0%} "
+                    f"share is {real.resid_share.median():.0%} median, "
+                    f"{real.resid_share.max():.0%} "
                     f"max (logs of {int(real.n.min())}-{int(real.n.max())} fixes, lags 1-n/2)")
         return txt
     if cid == "S4.3c":
@@ -257,9 +259,9 @@ def _specific(cid: str, cells: pd.DataFrame, real: pd.DataFrame | None) -> str:
                 "error " + ", ".join(
                     f"{k} {v:.1f} deg" for k, v in d.items()))
     if cid.startswith(("S4.7", "S4.8")):
-        return ("10 samples at 1 Hz are far shorter than the errors' correlation times (120-600 s), "
-                "so a window of 10 averages almost one error value; the thesis's reading (less effect "
-                "of missing data) is measured by the 30 % missing variant")
+        return ("10 samples at 1 Hz are far shorter than the errors' correlation times "
+                "(120-600 s), so a window of 10 averages almost one error value; the thesis's "
+                "reading (less effect of missing data) is measured by the 30 % missing variant")
     return _specific_rest(cid, cells)
 
 
