@@ -41,7 +41,8 @@ PY = Path(sys.executable)
 TIMEOUT_S = 300
 
 #: A small spec for the mapped forms of the long sweeps (the short square20 path, one window,
-#: one seed, two techniques): the option under test (solver, backend, --jobs) is what the command shows.
+#: one seed, two techniques): the option under test (solver, backend, --jobs) is what the
+#: command shows.
 TINY_SPEC = """\
 name = "tiny"
 seed = 1
@@ -156,6 +157,13 @@ MAPPED: dict[str, tuple[str, str]] = {
         ("python -m experiments.render --flight results/ultrasonic --out flight.gif --fps 15 "
         "--size 480x360 --frames 10"),
         "the whole flight is ~300 frames: the same writer and size, 10 frames"),
+    ("python -m experiments.rigid_ranging ../shared/realdata/uwb_rigid/static_0820/* "
+     "../shared/realdata/uwb_rigid/dynamic/fast --out results/local/rigid_ranging"): (
+        ("python -m experiments.rigid_ranging "
+         "../shared/realdata/uwb_rigid/static_0820/pos1_yaw000 --no-figures "
+         "--out results/local/rigid_ranging"),
+        ("every static run and the dynamic one take over 5 min here: one static run (~16 s), "
+         "same output folder")),
     "python -m experiments.ranging DIR [DIR ...]": (
         "python -m experiments.ranging ../shared/realdata/uwb_hanyang/LOS/Trajectory_A/Case_1",
         "DIR stands for recordings: the shared LOS case (default output, results/local/ranging)"),
@@ -189,8 +197,6 @@ AS_WRITTEN: set[str] = {
     "python -m experiments.ranging --reference",
     "python -m experiments.identification --out /tmp/ident",
     "python -m experiments.identification --reference",
-    ("python -m experiments.rigid_ranging ../shared/realdata/uwb_rigid/static_0820/* "
-    "../shared/realdata/uwb_rigid/dynamic/fast --out results/local/rigid_ranging"),
     ("python -m experiments.ranging ../shared/realdata/uwb_rigid/dynamic/fast "
     "--out results/local/rigid_ranging_fast"),
     # the --help examples
@@ -386,11 +392,12 @@ def _leaked(repo: Path, before: set[str], after: set[str], allowed: list[str]) -
             if not any(ln[3:] == a or ln[3:].startswith(a + "/") for a in ok)]
 
 
-#: Commands that read or write the thesis or quick results folders (or the shared spec file
-#: my_spec.toml) run in one lane, in order; the others (the side studies) in a second lane, in a clone of their
-#: own, at the same time (two lanes: the 2-core machine).
+#: Commands that read or write the thesis or quick results folders (or the shared spec
+#: file my_spec.toml) run in one lane, in order; the others (the side studies) in a second
+#: lane, in a clone of their own, at the same time (two lanes: the 2-core machine).
 _SWEEP_LANE = re.compile(r"results/(thesis|quick)|/tmp/quick|my_spec|evo_ape"
-                         r"|^(pip install -e \. && )?python -m experiments\.sweep( --preset quick)?$")
+                         r"|^(pip install -e \. && )?python -m experiments\.sweep"
+                         r"( --preset quick)?$")
 
 
 def _in_sweep_lane(keys: list[str]) -> set[str]:
