@@ -41,14 +41,16 @@ the same matrices (to 1e-12).
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import numpy as np
+from scipy import linalg
 
 from estimator._checks import check_array, check_increasing_times, check_int, check_real
 
 __all__ = ["MAX_DT_S", "N_INIT", "SIGMA_MEASUREMENT_M", "SIGMA_PROCESS_MPS2", "KalmanInfo",
-           "PVKalman", "process_noise", "pv_kalman"]
+           "PVKalman", "kalman_steady_state", "process_noise", "pv_kalman"]
 
 #: measurements averaged for the initial position (Appendix C: ``mean(Distance_Vector(1:10))``)
 N_INIT = 10
@@ -253,3 +255,26 @@ def pv_kalman(t: np.ndarray, z: np.ndarray, sigma_process: float = SIGMA_PROCESS
     if return_info:
         return out, KalmanInfo(gated, reinit)
     return out
+
+
+def kalman_steady_state(sigma_process: float, sigma_measurement: float,
+                        dt: float) -> dict[str, float]:
+    """Steady state of the Appendix C PV Kalman (this module's filter) at a constant step
+    ``dt`` (s), against which the identification chain's filter lag is checked: the gain
+    ``K`` (2,) from the discrete Riccati equation and the filter's poles (those of
+    ``(I - K C) A``) as the continuous ``w`` (rad/s) and ``zeta``; the closed form is
+    ``w = sqrt(sigma_process / sigma_measurement)``, zeta = 1/sqrt(2)."""
+    for name, v in (("sigma_process", sigma_process),
+                    ("sigma_measurement", sigma_measurement), ("dt", dt)):
+        check_real(v, name, lo=0.0, lo_open=True)
+    A = np.array([[1.0, dt], [0.0, 1.0]])
+    C = np.array([[1.0, 0.0]])
+    Q = sigma_process ** 2 * np.array([[dt ** 4 / 4, dt ** 3 / 2], [dt ** 3 / 2, dt ** 2]])
+    R = np.array([[sigma_measurement ** 2]])
+    P = linalg.solve_discrete_are(A.T, C.T, Q, R)          # predicted covariance
+    K = (P @ C.T / (C @ P @ C.T + R)).ravel()
+    z = np.linalg.eigvals((np.eye(2) - np.outer(K, [1.0, 0.0])) @ A).astype(complex)
+    s = np.log(z[0]) / dt
+    return {"K_pos": float(K[0]), "K_vel": float(K[1]), "w_rad_s": float(abs(s)),
+            "zeta": float(-s.real / abs(s)), "settle_s": float(-1.0 / s.real),
+            "w_closed_form": math.sqrt(sigma_process / sigma_measurement)}

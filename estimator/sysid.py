@@ -69,6 +69,7 @@ from __future__ import annotations
 
 import math
 import time
+from collections.abc import Mapping
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -78,10 +79,12 @@ from estimator._checks import check_array, check_increasing_times, check_int, ch
 
 __all__ = [
     "FORMS",
+    "AxisIdentification",
     "TransferFit",
     "equivalent_lag",
     "fit_percent",
     "fit_transfer_function",
+    "identify_axes",
     "is_identifiable",
     "simulate",
     "step_response",
@@ -750,3 +753,72 @@ def equivalent_lag(fit: TransferFit) -> tuple[float, tuple[float, float]]:
     g = np.array([grad.get(k, 0.0) for k in fit.estimated])
     hw = fit.t_quantile * float(np.sqrt(max(g @ fit.covariance @ g, 0.0)))
     return float(lag), (float(lag - hw), float(lag + hw))
+
+
+@dataclass(frozen=True, eq=False)
+class AxisIdentification:
+    """Everything :func:`identify_axes` computed for one axis.
+
+    ``t, u, y``: the impulse experiment; ``clean`` / ``noisy`` / ``mc``: fits to it without
+    noise, with one noise realisation ``y_noisy`` (sigma ``sigma``) and with ``n_mc``
+    further ones; ``step``: the validation step ``(t, u, y)`` and ``step_pred`` the clean
+    model's prediction of it, ``step_pct`` its fit percent (NaN without a step run).
+    """
+
+    axis: str
+    form: str
+    t: np.ndarray
+    u: np.ndarray
+    y: np.ndarray
+    clean: TransferFit
+    noisy: TransferFit | None
+    y_noisy: np.ndarray | None
+    mc: tuple[TransferFit, ...]
+    sigma: float
+    step: tuple[np.ndarray, np.ndarray, np.ndarray] | None
+    step_pred: np.ndarray | None
+    step_pct: float
+
+
+def _rng(seed: int, axis_index: int, run: int) -> np.random.Generator:
+    return np.random.default_rng(np.random.SeedSequence([seed, axis_index, run]))
+
+
+def identify_axes(data: Mapping[tuple[str, str], tuple], forms: Mapping[str, str],
+                  sigmas: Mapping[str, float], *, seed: int = 0, n_mc: int = 20,
+                  n_starts: int = 8, rel_tol: float = 0.25) -> dict[str, AxisIdentification]:
+    """Fit each axis of ``forms`` ({axis: form}) to its impulse experiment
+    ``data[(axis, "impulse")] = (t, u, y)`` (arrays (n,), SI), clean and, when
+    ``sigmas[axis]`` > 0 (unit of y), with one added white-noise realisation and ``n_mc``
+    further ones; an optional ``data[(axis, "step")]`` validates the clean model.
+    Randomness: ``SeedSequence([seed, axis index, run])``, run 0 = the clean fit's starts,
+    1 = the noisy realisation, 2.. = Monte Carlo."""
+    out: dict[str, AxisIdentification] = {}
+    for ai, (axis, form) in enumerate(forms.items()):
+        t, u, y = (np.asarray(a, dtype=float) for a in data[(axis, "impulse")])
+
+        def fit(yy: np.ndarray, g: np.random.Generator, t=t, u=u, form=form) -> TransferFit:
+            return fit_transfer_function(t, u, yy, form, n_starts=n_starts, rng=g,
+                                         rel_tol=rel_tol)
+
+        clean = fit(y, _rng(seed, ai, 0))
+        sigma = sigmas[axis]
+        noisy, y_noisy, mc = None, None, []
+        if sigma > 0:
+            g = _rng(seed, ai, 1)
+            y_noisy = y + sigma * g.standard_normal(y.size)
+            noisy = fit(y_noisy, g)
+            for run in range(n_mc):
+                g = _rng(seed, ai, 2 + run)
+                mc.append(fit(y + sigma * g.standard_normal(y.size), g))
+        step = step_pred = None
+        step_pct = float("nan")
+        if (axis, "step") in data:
+            step = tuple(np.asarray(a, dtype=float) for a in data[(axis, "step")])
+            step_pred = simulate(step[0], step[1], form, clean.params) + clean.offset
+            step_pct = fit_percent(step[2], step_pred)
+        out[axis] = AxisIdentification(axis=axis, form=form, t=t, u=u, y=y, clean=clean,
+                                       noisy=noisy, y_noisy=y_noisy, mc=tuple(mc),
+                                       sigma=sigma, step=step, step_pred=step_pred,
+                                       step_pct=step_pct)
+    return out

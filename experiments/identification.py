@@ -70,7 +70,6 @@ import math
 import tempfile
 import time
 from collections.abc import Callable, Mapping
-from dataclasses import dataclass
 from itertools import product
 from pathlib import Path
 
@@ -78,12 +77,13 @@ import numpy as np
 import pandas as pd
 
 from estimator._checks import check_int, check_real
-from estimator.sysid import (
+from estimator.sysid import (  # AxisIdentification: re-exported
     FORMS,
+    AxisIdentification,
     TransferFit,
     equivalent_lag,
-    fit_percent,
     fit_transfer_function,
+    identify_axes,
     is_identifiable,
     simulate,
     step_response,
@@ -174,70 +174,14 @@ def _noise_sigma(axis: str, noise_m: float) -> float:
 
 
 # ----------------------------------------------------------------------------- compute
-@dataclass(frozen=True, eq=False)
-class AxisIdentification:
-    """Everything :func:`identify` computed for one axis (no files).
-
-    ``t, u, y``: the impulse experiment; ``clean`` / ``noisy`` / ``mc``: fits to it without
-    noise, with one noise realisation ``y_noisy`` (sigma ``sigma``) and with ``n_mc``
-    further ones; ``step``: the validation step ``(t, u, y)`` and ``step_pred`` the clean
-    model's prediction of it, ``step_pct`` its fit percent (NaN without a step run).
-    """
-
-    axis: str
-    form: str
-    t: np.ndarray
-    u: np.ndarray
-    y: np.ndarray
-    clean: TransferFit
-    noisy: TransferFit | None
-    y_noisy: np.ndarray | None
-    mc: tuple[TransferFit, ...]
-    sigma: float
-    step: tuple[np.ndarray, np.ndarray, np.ndarray] | None
-    step_pred: np.ndarray | None
-    step_pct: float
-
-
-def _rng(seed: int, axis_index: int, run: int) -> np.random.Generator:
-    return np.random.default_rng(np.random.SeedSequence([seed, axis_index, run]))
-
-
 def identify(data: Responses, *, seed: int = 0, noise_m: float = 0.01, n_mc: int = 20,
              n_starts: int = 8) -> dict[str, AxisIdentification]:
-    """Fit the three axes' impulse responses (pure compute; arguments as checked by
-    :func:`run_identification`). Randomness: ``SeedSequence([seed, axis index, run])``,
-    run 0 = the clean fit's starts, 1 = the noisy realisation, 2.. = Monte Carlo."""
-    out: dict[str, AxisIdentification] = {}
-    for ai, (axis, form) in enumerate(AXIS_FORMS.items()):
-        t, u, y = (np.asarray(a, dtype=float) for a in data[(axis, "impulse")])
-
-        def fit(yy: np.ndarray, g: np.random.Generator) -> TransferFit:
-            # called only within this iteration, so the loop variables are the current ones
-            return fit_transfer_function(t, u, yy, form, n_starts=n_starts, rng=g,  # noqa: B023
-                                         rel_tol=REL_TOL)
-
-        clean = fit(y, _rng(seed, ai, 0))
-        sigma = _noise_sigma(axis, noise_m)
-        noisy, y_noisy, mc = None, None, []
-        if noise_m > 0:
-            g = _rng(seed, ai, 1)
-            y_noisy = y + sigma * g.standard_normal(y.size)
-            noisy = fit(y_noisy, g)
-            for run in range(n_mc):
-                g = _rng(seed, ai, 2 + run)
-                mc.append(fit(y + sigma * g.standard_normal(y.size), g))
-        step = step_pred = None
-        step_pct = float("nan")
-        if (axis, "step") in data:
-            step = tuple(np.asarray(a, dtype=float) for a in data[(axis, "step")])
-            step_pred = simulate(step[0], step[1], form, clean.params) + clean.offset
-            step_pct = fit_percent(step[2], step_pred)
-        out[axis] = AxisIdentification(axis=axis, form=form, t=t, u=u, y=y, clean=clean,
-                                       noisy=noisy, y_noisy=y_noisy, mc=tuple(mc),
-                                       sigma=sigma, step=step, step_pred=step_pred,
-                                       step_pct=step_pct)
-    return out
+    """Fit the three axes' impulse responses (:func:`estimator.sysid.identify_axes` with
+    AXIS_FORMS, the per-axis noise sigma of ``noise_m`` and REL_TOL; arguments as checked by
+    :func:`run_identification`)."""
+    sigmas = {axis: _noise_sigma(axis, noise_m) for axis in AXIS_FORMS}
+    return identify_axes(data, AXIS_FORMS, sigmas, seed=seed, n_mc=n_mc, n_starts=n_starts,
+                         rel_tol=REL_TOL)
 
 
 # ----------------------------------------------------------------------------- tabulate
@@ -829,7 +773,8 @@ def _chain_section(table: pd.DataFrame, chain: Mapping[str, ChainFits], meta: di
     L += ["", (f"Reading: *matched* = within {100 * MATCH_REL:.0f} % of the thesis's value; "
                "a parameter the truth-fed fit misses is *explained* by the chain when the "
                "noise-free chain-fed value matches or closes at least half of the gap, "
-               "*partly* when it closes some of it, *not* otherwise. The shift depends on the plant it is added to, so \"thesis minus shift\" is "
+               "*partly* when it closes some of it, *not* otherwise. The shift depends on the "
+               "plant it is added to, so \"thesis minus shift\" is "
                "only a first-order estimate of what the thesis's plant would give without "
                "the chain."), ""]
     return L

@@ -18,12 +18,12 @@ pitch -> T20's filtered x (the simulated pitch moves along x; the thesis's along
 -> the filtered heading (unwrapped, rad). The hover level (median over the second before the
 pulse) is subtracted; the fits estimate an offset anyway.
 
-:func:`kalman_steady_state` gives the closed form against which the chain's filter lag is
-checked: the steady-state PV Kalman for per-sample measurements has the poles of
-``s^2 + 2 zeta w s + w^2`` with ``w = sqrt(sigma_process / sigma_measurement)`` and
-zeta = 1/sqrt(2) (independent of the sample interval to first order), and it tracks a ramp
-with zero steady-state lag (the model is exact for constant velocity); an acceleration a
-leaves an error of order a / w^2.
+:func:`estimator.kalman.kalman_steady_state` (re-exported here) gives the closed form
+against which the chain's filter lag is checked: the steady-state PV Kalman for per-sample
+measurements has the poles of ``s^2 + 2 zeta w s + w^2`` with
+``w = sqrt(sigma_process / sigma_measurement)`` and zeta = 1/sqrt(2) (independent of the
+sample interval to first order), and it tracks a ramp with zero steady-state lag (the model
+is exact for constant velocity); an acceleration a leaves an error of order a / w^2.
 """
 
 from __future__ import annotations
@@ -33,9 +33,9 @@ from collections.abc import Mapping
 from dataclasses import dataclass
 
 import numpy as np
-from scipy import linalg
 
 from estimator._checks import check_real
+from estimator.kalman import kalman_steady_state  # re-exported: the closed form lives there
 from estimator.orientation import unwrap_angle
 from estimator.ranging import RangeStreams, RangingConfig, localize
 from estimator.sysid import TransferFit, fit_transfer_function
@@ -149,28 +149,6 @@ def chain_response(flight, axis: str, model: UltrasonicNoiseModel, rng: np.rando
     y = np.interp(tg, res.epochs[ok], sig[ok])
     y -= np.median(y[tg < flight.pre_s - 1e-9])
     return tg - tg[0], u, y
-
-
-def kalman_steady_state(sigma_process: float, sigma_measurement: float,
-                        dt: float) -> dict[str, float]:
-    """Steady state of the Appendix C PV Kalman (:mod:`estimator.kalman`) at a constant
-    step ``dt`` (s): the gain ``K`` (2,) from the discrete Riccati equation and the filter's
-    poles (those of ``(I - K C) A``) as the continuous ``w`` (rad/s) and ``zeta``; the
-    closed form is ``w = sqrt(sigma_process / sigma_measurement)``, zeta = 1/sqrt(2)."""
-    for name, v in (("sigma_process", sigma_process),
-                    ("sigma_measurement", sigma_measurement), ("dt", dt)):
-        check_real(v, name, lo=0.0, lo_open=True)
-    A = np.array([[1.0, dt], [0.0, 1.0]])
-    C = np.array([[1.0, 0.0]])
-    Q = sigma_process ** 2 * np.array([[dt ** 4 / 4, dt ** 3 / 2], [dt ** 3 / 2, dt ** 2]])
-    R = np.array([[sigma_measurement ** 2]])
-    P = linalg.solve_discrete_are(A.T, C.T, Q, R)          # predicted covariance
-    K = (P @ C.T / (C @ P @ C.T + R)).ravel()
-    z = np.linalg.eigvals((np.eye(2) - np.outer(K, [1.0, 0.0])) @ A).astype(complex)
-    s = np.log(z[0]) / dt
-    return {"K_pos": float(K[0]), "K_vel": float(K[1]), "w_rad_s": float(abs(s)),
-            "zeta": float(-s.real / abs(s)), "settle_s": float(-1.0 / s.real),
-            "w_closed_form": math.sqrt(sigma_process / sigma_measurement)}
 
 
 @dataclass(frozen=True, eq=False)
