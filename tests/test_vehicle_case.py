@@ -5,6 +5,7 @@ recovery from a gate lock-out, and heading bounds on the RTK and consumer-error 
 from __future__ import annotations
 
 import math
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -16,6 +17,8 @@ from estimator.platform import PlatformLimits, estimate_limits, estimate_travel_
 from estimator.pose_filter import PoseFilterParams, estimate_noise, run_pose_filter
 from estimator.pose_smoother import fixed_lag_smooth, rts_smooth
 from sim.vehicle_case import MOUNT_YAW_RAD, simulate_vehicle_case, vehicle_observations
+
+REPO = Path(__file__).resolve().parents[1]
 
 
 @pytest.fixture(scope="module")
@@ -221,3 +224,91 @@ def test_rates_and_speeds_at_the_ends_of_the_range(rate, vmax, bound):
     two = np.isfinite(obs[..., 0]).sum(1) >= 2
     assert np.isfinite(res.states[two, 2]).mean() >= 0.95
     assert _rms_deg(res.states[:, 2], case.truth.yaw, two) < bound
+
+
+# --------------------------------------------------------------------------- the car preset
+def test_shipped_car_recordings_are_the_generators_output(tmp_path):
+    """models/recordings/car_case*: tests/synth_vehicle_recording.py's output with its
+    defaults (logs and TOMLs byte for byte; the session's arrays exactly, its .npz holds
+    zip time stamps)."""
+    from synth_vehicle_recording import write_car_recordings
+
+    from sim.gps import StationarySession
+
+    shipped = REPO / "models" / "recordings"
+    w = write_car_recordings(tmp_path)
+    for key, p in w.files.items():
+        rel = p.relative_to(tmp_path)
+        if key == "session":
+            a, b = StationarySession.load(p), StationarySession.load(shipped / rel)
+            assert np.array_equal(a.t, b.t) and np.array_equal(a.obs, b.obs, equal_nan=True)
+            assert a.names == b.names and a.meta == b.meta
+        else:
+            assert (shipped / rel).read_bytes() == p.read_bytes(), rel
+
+
+def test_car_recording_reads_back_the_case():
+    """The RTK recording gives the written fixes (1e-9 deg: 0.1 mm; bound 0.3 mm), NaN
+    where the case's antenna is absent; its reference pose is the case's truth on the
+    epochs with two or more antennas (the rigid fit of exact positions written to 0.1 mm
+    on a 0.8 m frame: ~2e-4 rad; bound 1e-3 rad, 1 mm) and NaN elsewhere. The replay
+    recording's observations inherit the case's dropouts."""
+    from synth_vehicle_recording import DRIVE_SEED, NOISE_SEED
+
+    from sim.recording import load_recording
+
+    case = simulate_vehicle_case(np.random.default_rng(DRIVE_SEED))
+    rtk = vehicle_observations(case, "rtk", np.random.default_rng(NOISE_SEED))
+    rec = load_recording("car_case_rtk")
+    assert rec.n == case.truth.n and rec.config.name == "car_rtk4"
+    d = rec.obs - rtk
+    assert np.array_equal(np.isnan(rec.obs[..., 0]), ~case.present)
+    shift = np.nanmedian(d.reshape(-1, 2), axis=0)        # the recording's own origin
+    assert np.nanmax(np.abs(d - shift)) < 3e-4
+    tr, two = rec.truth(), case.present.sum(1) >= 2
+    assert np.array_equal(np.isfinite(tr.yaw), two)
+    assert np.max(heading_error(tr.yaw[two], case.truth.yaw[two])) < 1e-3
+    cg_err = tr.cg[two, :2] - shift - case.truth.cg[two, :2]
+    assert np.max(np.abs(cg_err)) < 1e-3
+    rep = load_recording("car_case_replay")
+    obs = rep.observations(np.random.default_rng(0))
+    assert np.isnan(obs[~case.present]).all()
+
+
+def test_car_preset_loads_and_expands():
+    from experiments.runner.run import RESULTS_DIR, default_out
+    from experiments.spec import available_presets, load_spec
+
+    assert "car" in available_presets()
+    spec = load_spec("car")
+    cells = spec.expand()
+    assert len(cells) == 3 * 5 * 10
+    assert {c.noise for c in cells} == {"recording", "replay:shifted",
+                                        "replay:common_plus_model"}
+    assert {c.technique for c in cells} == {"none", "ekf", "ekf_fixed_lag", "ekf_smoother",
+                                            "gtsam"}
+    assert {c.window for c in cells} == {1}
+    assert default_out(spec.name) == RESULTS_DIR / "local" / "car"     # git-ignored
+
+
+def test_car_preset_tiny_run(tmp_path):
+    """One seed of the RTK grid, window 1 and the causal filter, through the sweep: the
+    filter row carries NEES and NIS, the window fit NaN there; heading bounds: measured
+    1.0 deg (window 1) and 0.9 deg (EKF) RMS, bounds 2 deg."""
+    import pandas as pd
+
+    from experiments.runner.run import run
+    from experiments.spec import Spec, load_spec
+
+    raw = load_spec("car").to_dict()
+    raw.update(seeds=1, grid=[{**raw["grid"][0], "technique": ["none", "ekf"]}])
+    for k in ("epochs", "source"):
+        raw.pop(k, None)
+    res = run(Spec.from_dict(raw), out=tmp_path, jobs=1, progress=False, figures=False)
+    assert res.n_failed == 0
+    cells = pd.read_parquet(tmp_path / "cells.parquet").set_index("technique")
+    assert np.degrees(cells["eh_rmse"]).max() < 2.0
+    assert np.isfinite(cells.loc["ekf", ["nees_mean", "nis_per_dof", "status_not_ok"]]).all()
+    assert np.isnan(cells.loc["none", ["nees_mean", "nis_per_dof"]].astype(float)).all()
+    ht = pd.read_csv(tmp_path / "heading.csv")
+    assert {"nees_mean", "nis_in_band", "status_inconsistent"} <= set(ht.columns)
