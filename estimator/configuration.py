@@ -83,9 +83,9 @@ MAX_BODY_M = 1e6
 #: distances carry centimetre errors: distances between RTK-fixed positions (the u-blox
 #: ZED-F9P reports 0.0141 m horizontal accuracy in ../shared/realdata/hazer/tumbleweed, and
 #: its repeat fixes of one surveyed corner differ by 5-10 mm, HOME/20200526/notes.txt) have
-#: a standard deviation of about 1-1.5 cm. With 1.0 / 1.5 / 2.0 cm independent errors on every distance of
-#: rover_gps8, the least-squares embedding residual exceeded 0.05 m in 0 / 0 / 11 of 500
-#: draws (largest accepted 0.029 / 0.044 / 0.049 m); rover_gps4 (fewer redundant distances)
+#: a standard deviation of about 1-1.5 cm. With 1.0 / 1.5 / 2.0 cm independent errors on every
+#: distance of rover_gps8, the least-squares embedding residual exceeded 0.05 m in 0 / 0 / 11
+#: of 500 draws (largest accepted 0.029 / 0.044 / 0.049 m); rover_gps4 (fewer redundant distances)
 #: never did. A wrong entry (swapped pair, a typo, a centimetre / inch mix-up) is usually
 #: decimetres: one rover_gps8 distance 0.1 m off is rejected. Pass ``tol_m`` for other
 #: instruments (e.g. 0.005 for a total station).
@@ -470,12 +470,14 @@ class SensorConfig:
             raise ConfigError(
                 f"body_positions: {pos.shape[0]} rows for {len(names_t)} names")
         if len(names_t) < 2:
-            raise ConfigError(f"names: a configuration needs at least 2 sensors, got {len(names_t)}")
+            raise ConfigError("names: a configuration needs at least 2 sensors, got "
+                              f"{len(names_t)}")
         if pos.shape[1] not in (2, 3):
             raise ConfigError(f"body_positions: dimension d must be 2 or 3, got {pos.shape[1]}")
         if not np.all(np.isfinite(pos)):
             bad = int(np.argwhere(~np.isfinite(pos))[0, 0])
-            raise ConfigError(f"body_positions: sensor {names_t[bad]!r} has a non-finite coordinate")
+            raise ConfigError(f"body_positions: sensor {names_t[bad]!r} has a non-finite "
+                              "coordinate")
         if np.abs(pos).max() > MAX_BODY_M:
             bad = int(np.argmax(np.abs(pos).max(axis=1)))
             raise ConfigError(
@@ -502,12 +504,14 @@ class SensorConfig:
             for it in items:
                 if isinstance(it, (int, np.integer)) and not isinstance(it, bool):
                     if not 0 <= int(it) < len(names_t):
-                        raise ConfigError(f"{field_name}: index {it} out of range 0..{len(names_t)-1}")
+                        raise ConfigError(f"{field_name}: index {it} out of range "
+                                          f"0..{len(names_t)-1}")
                     out.append(names_t[int(it)])
                 elif str(it) in index:
                     out.append(str(it))
                 else:
-                    raise ConfigError(f"{field_name}: unknown sensor {it!r}; known: {list(names_t)}")
+                    raise ConfigError(f"{field_name}: unknown sensor {it!r}; known: "
+                                      f"{list(names_t)}")
             if len(set(out)) != len(out):
                 raise ConfigError(f"{field_name}: duplicate entries {out!r}")
             return tuple(out)
@@ -517,7 +521,8 @@ class SensorConfig:
         if not cg_t:
             raise ConfigError("cg_members: must name at least one sensor")
         if len(dead_t) > len(names_t) - 2:
-            raise ConfigError(f"dead: at most m - 2 = {len(names_t) - 2} sensors may be dead, got {len(dead_t)}")
+            raise ConfigError(f"dead: at most m - 2 = {len(names_t) - 2} sensors may be dead, got "
+                              f"{len(dead_t)}")
         pos.setflags(write=False)
         object.__setattr__(self, "names", names_t)
         object.__setattr__(self, "body_positions", pos)
@@ -752,7 +757,8 @@ class SensorConfig:
             raise ConfigError(f"{source}: unknown key(s) {unknown}; allowed: {sorted(allowed)}")
         sensors = data.get("sensor")
         if not isinstance(sensors, list) or not sensors:
-            raise ConfigError(f"{source}: 'sensor' must be a non-empty array of tables ([[sensor]])")
+            raise ConfigError(f"{source}: 'sensor' must be a non-empty array of tables "
+                              "([[sensor]])")
         names, positions = [], []
         for k, s in enumerate(sensors):
             where = f"{source}: sensor[{k}]"
@@ -760,7 +766,8 @@ class SensorConfig:
                 raise ConfigError(f"{where}: must be a table with 'name' and 'position_m'")
             extra = sorted(set(s) - {"name", "position_m"})
             if extra:
-                raise ConfigError(f"{where}: unknown key(s) {extra}; allowed: ['name', 'position_m']")
+                raise ConfigError(f"{where}: unknown key(s) {extra}; allowed: ['name', "
+                                  "'position_m']")
             if "name" not in s:
                 raise ConfigError(f"{where}.name: missing")
             if not isinstance(s["name"], (str, int)) or isinstance(s["name"], bool):
@@ -771,15 +778,19 @@ class SensorConfig:
                 raise ConfigError(f"{where}.position_m: must be 2 or 3 numbers (metres), got {p!r}")
             if positions and len(p) != len(positions[0]):
                 raise ConfigError(
-                    f"{where}.position_m: has {len(p)} coordinates, sensor[0] has {len(positions[0])}")
+                    f"{where}.position_m: has {len(p)} coordinates, sensor[0] has "
+                    f"{len(positions[0])}")
             names.append(str(s["name"]))
             positions.append([float(v) for v in p])
         for key in ("cg_sensors", "dead"):
             if key in data and not isinstance(data[key], list):
-                raise ConfigError(f"{source}: {key} must be a list of sensor names, got {data[key]!r}")
+                raise ConfigError(f"{source}: {key} must be a list of sensor names, got "
+                                  f"{data[key]!r}")
         mh = data.get("mount_height_m", 0.0)
-        if not isinstance(mh, (int, float)) or isinstance(mh, bool) or not math.isfinite(mh) or mh < 0:
-            raise ConfigError(f"{source}: mount_height_m must be a number >= 0 (metres), got {mh!r}")
+        if (not isinstance(mh, (int, float)) or isinstance(mh, bool) or not math.isfinite(mh)
+                or mh < 0):
+            raise ConfigError(f"{source}: mount_height_m must be a number >= 0 (metres), got "
+                              f"{mh!r}")
         for key in ("name", "description"):
             if key in data and not isinstance(data[key], str):
                 raise ConfigError(f"{source}: {key} must be a string, got {data[key]!r}")

@@ -118,9 +118,10 @@ def check_layout(t: object, obs: object, config: SensorConfig, *, window: int = 
     """Mirror and forward-axis checks of ``config`` against observations (module docstring).
 
     t : (n,) s, strictly increasing. obs : (n, m, 2) metres (x east, y north), NaN =
-    missing, |value| <= :data:`MAX_COORD_M`. config : m sensors (a 3-D layout is projected). window : epochs per window
-    (1..n). span_s : course span, s (> 0). min_speed_mps : speed (>= 0) below which no
-    course is taken. min_moving : moving windows (>= 1) needed for the forward verdict.
+    missing, |value| <= :data:`MAX_COORD_M`. config : m sensors (a 3-D layout is projected).
+    window : epochs per window (1..n). span_s : course span, s (> 0). min_speed_mps : speed
+    (>= 0) below which no course is taken. min_moving : moving windows (>= 1) needed for the
+    forward verdict.
     """
     if not isinstance(config, SensorConfig):
         raise TypeError(f"config: expected a SensorConfig, got {type(config).__name__}")

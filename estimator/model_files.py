@@ -89,7 +89,8 @@ def _inside_roots(p: Path, base: Path, what: str, error: type[Exception]) -> Pat
     """A path named inside a file in ``base``: the first existing candidate (``base / p``,
     then ``PROJECT_DIR / p``) that lies inside ``base`` or :data:`ALLOWED_ROOTS`."""
     roots = (base, *ALLOWED_ROOTS)
-    cands = [p.resolve()] if p.is_absolute() else [(base / p).resolve(), (PROJECT_DIR / p).resolve()]
+    cands = ([p.resolve()] if p.is_absolute()
+             else [(base / p).resolve(), (PROJECT_DIR / p).resolve()])
     outside = []
     for c in cands:
         if c.is_file():

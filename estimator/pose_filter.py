@@ -105,23 +105,22 @@ Forward speed that cannot flip silently
 ---------------------------------------
 With ``reverse=False`` (a platform that does not reverse: the default) the speed is
 non-negative: at every epoch (after an update, and on rows predicted through an outage,
-where ``v + a dt`` of a braking platform passes 0) a negative speed is projected to 0. A heading that is off
-by pi shows as sustained backward travel: when the distance the no-slip point travelled
-backwards (its displacement from the previous pose along the heading, both re-estimated with
-the epoch's data) over consecutive intervals exceeds the start's motion threshold
-(:data:`INIT_MOTION_SIGMAS` sd of a displacement between two fits), the layout's own
+where ``v + a dt`` of a braking platform passes 0) a negative speed is projected to 0. A
+heading that is off by pi shows as sustained backward travel: when the distance the no-slip
+point travelled backwards (its displacement from the previous pose along the heading, both
+re-estimated with the epoch's data) over consecutive intervals exceeds the start's motion
+threshold (:data:`INIT_MOTION_SIGMAS` sd of a displacement between two fits), the layout's own
 size (its largest antenna distance) and the travel of one sample at the acceleration limit
-(``a_max dt^2``: the filter's own overshoot when the platform stops; with centimetre fixes
-the statistical threshold alone is a few centimetres, which such a transient exceeds), the
-state is turned around, ``yaw += pi, v = -v, a = -a`` (the same motion, the covariance mapped by
-``diag(1, 1, 1, -1, -1, 1)``), and the epoch's status is ``"flip_corrected"``: reported,
-never silent. (A single significant negative speed is not enough: a car standing still
-with centimetre fixes shows -1 cm/s at 3 sd now and then.) With ``reverse=True`` the speed
-is signed
+(``a_max dt^2``: the filter's own overshoot when the platform stops; with centimetre fixes the
+statistical threshold alone is a few centimetres, which such a transient exceeds), the state is
+turned around, ``yaw += pi, v = -v, a = -a`` (the same motion, the covariance mapped by
+``diag(1, 1, 1, -1, -1, 1)``), and the epoch's status is ``"flip_corrected"``: reported, never
+silent. (A single significant negative speed is not enough: a car standing still with
+centimetre fixes shows -1 cm/s at 3 sd now and then.) With ``reverse=True`` the speed is signed
 (negative = reversing) and the direction is decided by the configuration: a running
 log-likelihood ratio of the antennas' fixes under the heading and under the heading + pi
-(exponential forgetting over ``flip_memory_s``) flips the state when the reversed pose is
-more likely by ``chi2_1(gate_prob)``; also reported as ``"flip_corrected"``.
+(exponential forgetting over ``flip_memory_s``) flips the state when the reversed pose is more
+likely by ``chi2_1(gate_prob)``; also reported as ``"flip_corrected"``.
 
 Initialisation waits for data, resets are reported
 --------------------------------------------------
@@ -1456,9 +1455,10 @@ def memo_pose_filter(t: np.ndarray, obs: np.ndarray, offsets: np.ndarray,
                      cache: TrackCache | None = None) -> PoseFilterResult:
     """:func:`run_pose_filter` through ``cache.filter_pass``
     (:class:`estimator.memo.TrackCache`; None: computed): the same numbers, computed once
-    per (t, obs, offsets, params) and cache. A sweep runs the EKF at several windows (it only drops the first s-1 rows), its
-    smoothers and the smoothed heading of the lag correction on the same observations; one
-    pass serves them all. The result may be shared, so its arrays are read-only."""
+    per (t, obs, offsets, params) and cache. A sweep runs the EKF at several windows (it only
+    drops the first s-1 rows), its smoothers and the smoothed heading of the lag correction on
+    the same observations; one pass serves them all. The result may be shared, so its arrays
+    are read-only."""
     def compute() -> PoseFilterResult:
         res = run_pose_filter(t, obs, offsets, params)
         for v in vars(res).values():

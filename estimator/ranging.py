@@ -380,8 +380,9 @@ class RangingConfig:
         base = {"sigma_range_m": 0.005, "max_speed_mps": 10.0, "accel_std_mps2": 1.0,
                     "noise_margin_m": 0.05, "max_change_m": 2.0, "sample_interval_s": 0.1,
                     "tx_separation_m": 0.5,
-                    "lever_arms_m": ((0.25, 0.0, 0.0), (-0.25, 0.0, 0.0)), "method": "cayley_menger",
-                    "mirror": "side", "kalman_sigma_process": 0.003, "kalman_sigma_measurement": 0.002,
+                    "lever_arms_m": ((0.25, 0.0, 0.0), (-0.25, 0.0, 0.0)),
+                    "method": "cayley_menger", "mirror": "side", "kalman_sigma_process": 0.003,
+                    "kalman_sigma_measurement": 0.002,
                     "kalman_gate": None, "kalman_lead_in": 40}
         base.update(changes)
         return cls(**base)

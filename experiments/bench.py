@@ -24,7 +24,8 @@ batched paths over all windows at once: "batched" = ``window_means`` of the stac
 (N, s, m, 2) + ``procrustes_batch``; "sliding" = ``sliding_window_means`` (cumulative sums,
 cost independent of s) + ``procrustes_batch``; "batched elastic" = ``window_moments`` of the
 stacked windows + ``elastic_batch`` (the eps-elastic fit of Eq. 3.9, the problem slsqp and ccp
-solve) on all windows at once. Speed-up = slsqp time / time. Timings are single-threaded (OPENBLAS_NUM_THREADS=1).
+solve) on all windows at once. Speed-up = slsqp time / time. Timings are single-threaded
+(OPENBLAS_NUM_THREADS=1).
 
 Section ``fit_window``: one ``fit_window`` call (procrustes, the default) on a 10-epoch,
 8-antenna ``rover_gps8`` window as above, unweighted and with weights per sample and sensor
@@ -35,11 +36,11 @@ wall and CPU time per call over many windows, beside the batched route's time pe
 
 Section ``sim``: wall time of each MuJoCo simulation with the cache disabled, and simulated
 seconds per wall second. Section ``ranging``: the tightly coupled range filter per range update
-and batch trilateration per epoch (see :func:`bench_ranging`). Section ``track``: ``estimator.tracking.track`` over a 1000-epoch
-recording per method. Section ``sweep``: wall time and phases of the main job,
-``python -m experiments.sweep``, in fresh processes: the thesis preset from an empty cache,
-the same run resumed, the quick preset from an empty cache (:func:`bench_sweep`).
-"""
+and batch trilateration per epoch (see :func:`bench_ranging`). Section ``track``:
+``estimator.tracking.track`` over a 1000-epoch recording per method. Section ``sweep``: wall
+time and phases of the main job, ``python -m experiments.sweep``, in fresh processes: the
+thesis preset from an empty cache, the same run resumed, the quick preset from an empty cache
+(:func:`bench_sweep`)."""
 
 from __future__ import annotations
 

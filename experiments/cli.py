@@ -33,7 +33,8 @@ from contextlib import contextmanager
 from typing import NoReturn
 
 __all__ = ["ArgumentParser", "Terminated", "call", "finite_float", "jobs_arg",
-           "nonnegative_float", "positive_float", "positive_int", "run", "seed_arg", "sigterm_as_interrupt"]
+           "nonnegative_float", "positive_float", "positive_int", "run", "seed_arg",
+           "sigterm_as_interrupt"]
 
 EXIT_USAGE = 2
 EXIT_BUG = 1

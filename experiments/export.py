@@ -44,7 +44,8 @@ def write_tum(path: str | Path, t: np.ndarray, xy: np.ndarray, yaw: np.ndarray,
     yaw = np.asarray(yaw, dtype=float)
     n = t.shape[0]
     if xy.shape != (n, 2) or yaw.shape != (n,):
-        raise ValueError(f"xy/yaw: expected shapes ({n}, 2) and ({n},), got {xy.shape}, {yaw.shape}")
+        raise ValueError(f"xy/yaw: expected shapes ({n}, 2) and ({n},), got {xy.shape}, "
+                         f"{yaw.shape}")
     zz = np.broadcast_to(np.asarray(z, dtype=float), (n,))
     ok = np.isfinite(t) & np.isfinite(xy).all(axis=1) & np.isfinite(yaw) & np.isfinite(zz)
     arr = np.column_stack([t, xy, zz, np.zeros(n), np.zeros(n), np.sin(yaw / 2),

@@ -287,7 +287,8 @@ def _orientation_figs(E: _Epochs, out: Path, written: list[Path]) -> None:
         groups.append((f"w={w}", np.degrees(v), "C0"))
     _boxes(ax, groups, "|heading error| (deg)")
     ax.set_title(f"{PATH_LABELS.get(path, path)}: orientation error per window (Fig 4.119), "
-                 f"{WEIGHT_LABELS.get(wt, wt)} weights, {_seeds_txt(sorted(set(seeds)))}", fontsize=10)
+                 f"{WEIGHT_LABELS.get(wt, wt)} weights, {_seeds_txt(sorted(set(seeds)))}",
+                 fontsize=10)
     _save(fig, out / "fig_4_119_orientation_box.png", written)
 
 
@@ -360,7 +361,8 @@ def _overlay_figs(E: _Epochs, out: Path, written: list[Path]) -> None:
             ax.grid(alpha=0.3)
             ax.legend(loc="center", frameon=True, fontsize=9)   # the square's empty middle
             ax.set_title(f"{PATH_LABELS.get(path, path)}: truth, observations and estimates, "
-                         f"window {w}, {WEIGHT_LABELS.get(wt, wt)} weights, seed {int(r['seed'])} (Figs 4.34-4.49)",
+                         f"window {w}, {WEIGHT_LABELS.get(wt, wt)} weights, seed {int(r['seed'])} "
+                         "(Figs 4.34-4.49)",
                          fontsize=10)
             _save(fig, out / f"fig_overlay_{path}_w{w}.png", written)
 

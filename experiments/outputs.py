@@ -223,7 +223,8 @@ def write_outputs(table: pd.DataFrame, out_dir: str | Path, *, spec: Any = None,
     def unchanged(name: str, inputs: str, extra_ok: bool = True) -> bool:
         rec = units.get(name)
         return bool(rec and extra_ok and rec.get("inputs") == inputs
-                    and rec.get("files") is not None and all(_stat(out / f) == s for f, s in rec["files"].items()))
+                    and rec.get("files") is not None
+                    and all(_stat(out / f) == s for f, s in rec["files"].items()))
 
     # what needs writing
     todo: list[tuple] = []

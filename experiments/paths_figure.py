@@ -1,7 +1,7 @@
 """Figure of the simulated truth paths: the GPS rover on Path 1 and the quadcopter square.
 
     python -m experiments.paths_figure              # -> results/local/figures/paths.png (ignored)
-    python -m experiments.paths_figure --reference  # regenerates the committed results/figures/paths.png
+    python -m experiments.paths_figure --reference  # -> the committed results/figures/paths.png
     python -m experiments.paths_figure --out /tmp/paths.png
 
 Left: the rover (sim.rover) driving Path 1 of the GPS dissertation (Section 4.9), its
@@ -52,7 +52,8 @@ def draw_panel(ax: Axes, truth: Truth, path: Path, title: str, *,
     """
     def draw(a: Axes, label: bool) -> None:
         V = path.polyline[:, :2]
-        a.plot(V[:, 0], V[:, 1], "--", color="0.55", lw=1, label="waypoint polyline" if label else None)
+        a.plot(V[:, 0], V[:, 1], "--", color="0.55", lw=1,
+               label="waypoint polyline" if label else None)
         for k, c in enumerate(path.corners[:, :2]):
             a.add_patch(Circle(c, path.target_radius_m, fill=False, ls=":", color="tab:blue", lw=1,
                                label="target area" if (label and k == 0) else None))

@@ -106,8 +106,10 @@ _EPILOG = """examples:
   python -m experiments.sweep                      # the default preset (thesis), all cores
   python -m experiments.sweep --preset quick       # one path, 2 seeds, a few seconds
   python -m experiments.sweep my_spec.toml --out /tmp/run --jobs 2
-  python -m experiments.sweep --preset thesis --solver slsqp   # faithful solver -> results/local/thesis-slsqp/
-  python -m experiments.sweep --preset thesis --solver elastic # the same fit, batched -> results/thesis-elastic/
+  python -m experiments.sweep --preset thesis --solver slsqp   # faithful solver, slow
+                                          # -> results/local/thesis-slsqp/
+  python -m experiments.sweep --preset thesis --solver elastic # the same fit, batched
+                                          # -> results/thesis-elastic/
   python -m experiments.sweep --preset thesis --backend dask --scheduler tcp://10.0.0.5:8786
   python -m experiments.figures results/thesis     # re-plot from saved files, no simulation
 
@@ -142,7 +144,8 @@ def build_parser() -> argparse.ArgumentParser:
         formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("spec", nargs="?", help="spec TOML file (default: --preset thesis)")
     p.add_argument("--preset", metavar="NAME",
-                   help=f"run a shipped preset from experiments/presets/ (default {DEFAULT_PRESET!r}); "
+                   help="run a shipped preset from experiments/presets/ (default "
+                        f"{DEFAULT_PRESET!r}); "
                         "e.g. --preset quick")
     p.add_argument("--out", metavar="DIR",
                    help="results folder (default results/<spec name>/ for "
@@ -195,7 +198,8 @@ def main(argv: list[str] | None = None) -> int:
         return 2
     # joblib warns on an interrupt that it cancelled the workers' tasks: the CLI reports the
     # interrupt in one line (experiments.cli)
-    warnings.filterwarnings("ignore", message=r"\d+ tasks (which were still|have been successfully)",
+    warnings.filterwarnings("ignore", message=r"\d+ tasks (which were still|have been "
+                                              r"successfully)",
                             category=UserWarning)
     jobs = args.jobs or (os.cpu_count() or 1)
     started = (prestart(jobs) if args.backend == "loky" and jobs > 1 and _likely_work(args)

@@ -6,8 +6,8 @@ it"). The key is a JSON-able dict of *everything* that determines the arrays: th
 text, the sensor configuration, the path, the controller parameters, the seed, the mujoco and
 numpy versions, a digest of the simulators' source files (:data:`SIMULATOR_SOURCES`, so
 editing the simulator invalidates its cached truths without anyone remembering to) and a
-manual salt (:data:`CODE_SALT`, for changes outside those files). Its SHA-256 over canonical JSON names the file
-``<cache_dir>/<hash>.npz``.
+manual salt (:data:`CODE_SALT`, for changes outside those files). Its SHA-256 over canonical
+JSON names the file ``<cache_dir>/<hash>.npz``.
 
 Concurrency: parallel sweep workers may compute the same key at once. Each writer saves to a
 unique temporary file in the cache directory and ``os.replace``-s it onto the final name

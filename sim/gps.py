@@ -115,7 +115,8 @@ class StationarySession:
             raise ValueError("t: contains non-finite times")
         if t.shape[0] > 1 and not np.all(np.diff(t) > 0):
             k = int(np.argmin(np.diff(t)))
-            raise ValueError(f"t: must be strictly increasing; t[{k}]={t[k]!r}, t[{k+1}]={t[k+1]!r}")
+            raise ValueError(f"t: must be strictly increasing; t[{k}]={t[k]!r}, "
+                             f"t[{k+1}]={t[k+1]!r}")
         obs = np.asarray(self.obs, dtype=float)
         if obs.ndim != 3 or obs.shape[0] != t.shape[0] or obs.shape[2] != 2:
             raise ValueError(f"obs: expected shape ({t.shape[0]}, m, 2), got {obs.shape}")
@@ -130,7 +131,8 @@ class StationarySession:
         if tp is not None:
             tp = np.asarray(tp, dtype=float)
             if tp.shape != (obs.shape[1], 2):
-                raise ValueError(f"truth_positions: expected shape ({obs.shape[1]}, 2), got {tp.shape}")
+                raise ValueError(f"truth_positions: expected shape ({obs.shape[1]}, 2), got "
+                                 f"{tp.shape}")
         half = np.isnan(obs).any(axis=2) & ~np.isnan(obs).all(axis=2)
         if half.any():
             k, j = np.argwhere(half)[0]
@@ -261,7 +263,8 @@ def _centre(obs: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     rel = obs - ref[None]
     count = present.sum(axis=0)                              # (m,)
     with np.errstate(invalid="ignore", divide="ignore"):
-        mrel = np.where(alive[:, None], np.nansum(rel, axis=0) / np.maximum(count, 1)[:, None], np.nan)
+        mrel = np.where(alive[:, None], np.nansum(rel, axis=0) / np.maximum(count, 1)[:, None],
+                        np.nan)
     dev = rel - mrel[None]
     return dev, ref + mrel
 
@@ -331,7 +334,8 @@ class GpsNoiseModel:
                     or not math.isfinite(float(v)):
                 raise GpsModelError(f"{f.name}: must be a finite number, got {v!r}")
             object.__setattr__(self, f.name, float(v))
-        nonneg = ("sigma_m", "receiver_sigma_spread", "white_sigma_m", "bias_sigma_m", "step_rate_per_h",
+        nonneg = ("sigma_m", "receiver_sigma_spread", "white_sigma_m", "bias_sigma_m",
+                  "step_rate_per_h",
                   "step_sigma_m", "step_ramp_s", "outlier_rate", "outlier_scale_m",
                   "missing_fraction", "power_failure_start_s", "power_failure_duration_s")
         for k in nonneg:
@@ -345,7 +349,8 @@ class GpsNoiseModel:
         if not 0.0 <= self.outlier_rate <= 1.0:
             raise GpsModelError(f"outlier_rate: must be in [0, 1], got {self.outlier_rate!r}")
         if not 0.0 <= self.missing_fraction < 1.0:
-            raise GpsModelError(f"missing_fraction: must be in [0, 1), got {self.missing_fraction!r}")
+            raise GpsModelError("missing_fraction: must be in [0, 1), got "
+                                f"{self.missing_fraction!r}")
         if isinstance(self.gm_order, bool) or self.gm_order not in (1, 2):
             raise GpsModelError(f"gm_order: must be 1 or 2, got {self.gm_order!r}")
         object.__setattr__(self, "gm_order", int(self.gm_order))
@@ -368,7 +373,8 @@ class GpsNoiseModel:
         allowed = {f.name for f in dataclasses.fields(self)}
         unknown = sorted(set(kw) - allowed)
         if unknown:
-            raise GpsModelError(f"with_overrides: unknown field(s) {unknown}; allowed: {sorted(allowed)}")
+            raise GpsModelError(f"with_overrides: unknown field(s) {unknown}; allowed: "
+                                f"{sorted(allowed)}")
         return dataclasses.replace(self, **kw)  # type: ignore[arg-type]
 
     def to_dict(self) -> dict:
@@ -386,8 +392,10 @@ class GpsNoiseModel:
             raise GpsModelError(f"{source}: unknown key(s) {unknown}; allowed: {sorted(allowed)}")
         kw = dict(data)
         if "dead" in kw:
-            if not isinstance(kw["dead"], list) or not all(isinstance(x, (str, int)) for x in kw["dead"]):
-                raise GpsModelError(f"{source}: dead must be a list of receiver names, got {kw['dead']!r}")
+            if (not isinstance(kw["dead"], list)
+                    or not all(isinstance(x, (str, int)) for x in kw["dead"])):
+                raise GpsModelError(f"{source}: dead must be a list of receiver names, got "
+                                    f"{kw['dead']!r}")
             kw["dead"] = tuple(str(x) for x in kw["dead"])
         for key in ("name", "description"):
             if key in kw and not isinstance(kw[key], str):
@@ -484,7 +492,8 @@ def markov_dropouts(n: int, m: int, missing_fraction: float, mean_burst: float,
     p = q * f / (1.0 - f)                # P(present -> missing) per sample
     if p >= 1.0:
         raise ValueError(f"missing_fraction={f!r} with mean_burst={mean_burst!r} samples needs "
-                         f"P(present->missing)={p:.3g} > 1; shorten the bursts or lower the fraction")
+                         f"P(present->missing)={p:.3g} > 1; shorten the bursts or lower the "
+                         "fraction")
     # enough runs to cover n samples with margin (each pair of runs averages 1/p + 1/q)
     pairs = int(n / (1.0 / p + 1.0 / q) * 1.5) + 20
     for j in range(m):
@@ -548,7 +557,8 @@ def receiver_errors(model: GpsNoiseModel, m: int, n: int, dt_s: float,
     indep = gauss_markov(n, (m, 2), model.sigma_receiver_m * scale[:, None], model.receiver_tau_s,
                          dt_s, rng, order=model.gm_order)
     white = rng.normal(0.0, model.white_sigma_m, size=(n, m, 2)) if model.white_sigma_m > 0 else 0.0
-    bias = rng.normal(0.0, model.bias_sigma_m, size=(m, 2)) if model.bias_sigma_m > 0 else np.zeros((m, 2))
+    bias = (rng.normal(0.0, model.bias_sigma_m, size=(m, 2)) if model.bias_sigma_m > 0
+            else np.zeros((m, 2)))
     plateau, steps = _plateaus(n, m, dt_s, model.step_rate_per_h, model.step_sigma_m,
                                model.step_ramp_s, rng)
     out = np.zeros((n, m, 2))
@@ -571,7 +581,8 @@ MAX_SESSION_VALUES = 3.2e7
 
 def synthesize_session(model: GpsNoiseModel, config: SensorConfig, duration_s: float,
                        rng: np.random.Generator, rate_hz: float = 1.0, *,
-                       position: Sequence[float] = (0.0, 0.0), yaw: float = 0.0) -> StationarySession:
+                       position: Sequence[float] = (0.0, 0.0), yaw: float = 0.0
+                       ) -> StationarySession:
     """Draw a stationary session for ``config`` at a fixed pose.
 
     The true antenna positions are the configuration's body positions (xy) rotated by
@@ -609,7 +620,8 @@ def synthesize_session(model: GpsNoiseModel, config: SensorConfig, duration_s: f
     t = np.arange(n) * dt
     pf = None
     if model.power_failure_duration_s > 0:
-        lo, hi = model.power_failure_start_s, model.power_failure_start_s + model.power_failure_duration_s
+        lo = model.power_failure_start_s
+        hi = model.power_failure_start_s + model.power_failure_duration_s
         missing |= ((t >= lo) & (t < hi))[:, None]
         pf = [lo, hi]
     dead = set(model.dead) | set(config.dead)
@@ -624,7 +636,8 @@ def synthesize_session(model: GpsNoiseModel, config: SensorConfig, duration_s: f
         "frame": "local metric frame, x east / y north, metres (synthetic)",
         "model": model.to_dict(),
         "config": config.name,
-        "pose": {"position_m": [float(v) for v in np.asarray(position, dtype=float)[:2]], "yaw_rad": float(yaw)},
+        "pose": {"position_m": [float(v) for v in np.asarray(position, dtype=float)[:2]],
+                 "yaw_rad": float(yaw)},
         "rate_hz": float(rate_hz),
         "duration_s": float(duration_s),
         "power_failure_s": pf,
@@ -697,11 +710,13 @@ def replay(truth: Truth, session: StationarySession, *, rng: np.random.Generator
         missing_names = [nm for nm in truth.sensor_names if nm not in session.names]
         if missing_names:
             raise ValueError(f"session: has no receiver named {missing_names!r} "
-                             f"(session names {list(session.names)}, truth names {list(truth.sensor_names)})")
+                             f"(session names {list(session.names)}, truth names "
+                             f"{list(truth.sensor_names)})")
         idx = np.array([session.names.index(nm) for nm in truth.sensor_names], dtype=np.int64)
     else:
         if session.m < m:
-            raise ValueError(f"session: {session.m} receivers for {m} truth sensors (matching by order)")
+            raise ValueError(f"session: {session.m} receivers for {m} truth sensors (matching by "
+                             "order)")
         idx = np.arange(m, dtype=np.int64)
     if check_rate:
         _check_rate(truth, session)
@@ -713,7 +728,8 @@ def replay(truth: Truth, session: StationarySession, *, rng: np.random.Generator
             start = int(rng.integers(0, ns))
         else:
             start = 0
-    if isinstance(start, bool) or not isinstance(start, (int, np.integer)) or not 0 <= int(start) < ns:
+    if (isinstance(start, bool) or not isinstance(start, (int, np.integer))
+            or not 0 <= int(start) < ns):
         raise ValueError(f"start: must be an integer sample index in 0..{ns - 1}, got {start!r}")
     start = int(start)
     if mode == "error":

@@ -339,7 +339,8 @@ def resolve_times(times: Times, fix: np.ndarray, host: np.ndarray | None = None,
                 continue
             for k in (1, -1, 2, -2, 3, -3):
                 s = k * WEEK_ROLLOVER_S
-                if lo_e[e] + s <= hi_e[main] + max_span_s and hi_e[e] + s >= lo_e[main] - max_span_s:
+                if (lo_e[e] + s <= hi_e[main] + max_span_s
+                        and hi_e[e] + s >= lo_e[main] - max_span_s):
                     # the bug only goes back in time: move the earlier of the two forward
                     grp = live[lab == (e if k > 0 else main)]
                     t[grp] += abs(s)

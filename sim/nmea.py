@@ -148,7 +148,8 @@ __all__ = [
 ]
 
 SKIP_CLASSES = (
-    "long_lines", "comment_lines", "host_prefixes", "timestamp_lines", "binary_segments", "truncated",
+    "long_lines", "comment_lines", "host_prefixes", "timestamp_lines", "binary_segments",
+    "truncated",
     "bad_checksum", "parse_error", "bad_fields", "no_fix", "empty_position", "no_date",
     "implausible_date", "time_jump", "week_rollover", "duplicate_epochs", "time_reversals",
     "reversed_segments", "no_host_time", "reacquisition", "off_grid", "other_sentences",
@@ -791,7 +792,8 @@ def _anchor(t_valid: np.ndarray, t_first: float, dt: float) -> float:
     """Grid origin: the first grid point at or before ``t_first`` whose phase (time modulo
     dt) is the circular mean phase of the valid fixes, so fixes land on grid points."""
     ang = 2.0 * np.pi * np.mod(t_valid, dt) / dt
-    phase = float(np.mod(np.arctan2(np.sin(ang).mean(), np.cos(ang).mean()), 2 * np.pi)) * dt / (2 * np.pi)
+    phase = (float(np.mod(np.arctan2(np.sin(ang).mean(), np.cos(ang).mean()), 2 * np.pi))
+             * dt / (2 * np.pi))
     return math.floor((t_first - phase) / dt + 0.25) * dt + phase
 
 
@@ -869,7 +871,8 @@ def session_from_fixes(
         dts = np.concatenate([np.diff(lg.t_utc[u]) for lg, u in zip(logs, use)])
         dts = dts[dts > 1e-6]
         if dts.size == 0:
-            raise ValueError("logs: fewer than two valid fixes; cannot infer the sample rate (pass rate_hz)")
+            raise ValueError("logs: fewer than two valid fixes; cannot infer the sample rate "
+                             "(pass rate_hz)")
         dt = float(np.median(dts))
         if 1.0 / dt > max_rate_hz:
             raise ValueError(f"logs {names!r}: median interval between fixes {dt:.3g} s "
@@ -948,7 +951,8 @@ def session_from_fixes(
         lat[gi, j] = lg.lat[sel]
         lon[gi, j] = lg.lon[sel]
     obs = np.full((n, m, 2), np.nan)
-    frame: dict = {"axes": "x = UTM easting - origin, y = UTM northing - origin (grid north), metres",
+    frame: dict = {"axes": "x = UTM easting - origin, y = UTM northing - origin (grid north), "
+                           "metres",
                    "origin_mode": origin}
     valid = np.isfinite(lat)
     if origin == "common":
@@ -971,7 +975,8 @@ def session_from_fixes(
             receivers[j].update({"epsg": epsg, "origin_easting_m": e0, "origin_northing_m": n0})
     t = np.arange(n) * dt
     meta = {
-        "source": "tumbleweed_csv" if all(r.get("format") == "tumbleweed_csv" for r in receivers) else "nmea",
+        "source": ("tumbleweed_csv"
+                   if all(r.get("format") == "tumbleweed_csv" for r in receivers) else "nmea"),
         "alignment": alignment,
         "t0_utc": offs[0] if alignment == "utc" else None,
         "rate_hz": 1.0 / dt,

@@ -133,10 +133,12 @@ class Path:
         wp = np.array(self.waypoints, dtype=float)
         if wp.ndim != 2 or wp.shape[0] < 2 or wp.shape[1] not in (2, 3):
             raise PathError(
-                f"{src}: waypoints must be >= 2 points of [x, y] or [x, y, z], got shape {wp.shape}")
+                f"{src}: waypoints must be >= 2 points of [x, y] or [x, y, z], got shape "
+                f"{wp.shape}")
         if not np.all(np.isfinite(wp)):
             bad = int(np.argwhere(~np.isfinite(wp))[0, 0])
-            raise PathError(f"{src}: waypoints[{bad}] has a non-finite coordinate: {wp[bad].tolist()}")
+            raise PathError(f"{src}: waypoints[{bad}] has a non-finite coordinate: "
+                            f"{wp[bad].tolist()}")
         if not isinstance(self.closed, (bool, np.bool_)):
             raise PathError(f"{src}: closed must be true or false, got {self.closed!r}")
         closed = bool(self.closed)
@@ -163,13 +165,15 @@ class Path:
                             f"(models/<vehicle>.xml), got {self.vehicle!r}")
         if self.altitude_m is not None:
             if not _is_number(self.altitude_m) or not math.isfinite(self.altitude_m):
-                raise PathError(f"{src}: altitude_m must be a finite number, got {self.altitude_m!r}")
+                raise PathError(f"{src}: altitude_m must be a finite number, got "
+                                f"{self.altitude_m!r}")
             object.__setattr__(self, "altitude_m", float(self.altitude_m))
         verts = np.vstack([wp, wp[:1]]) if closed else wp
         seg = np.linalg.norm(np.diff(verts, axis=0), axis=1)
         if seg.min() <= 1e-9:
             i = int(np.argmin(seg))
-            raise PathError(f"{src}: waypoints[{i}] and the next point coincide: {verts[i].tolist()}")
+            raise PathError(f"{src}: waypoints[{i}] and the next point coincide: "
+                            f"{verts[i].tolist()}")
         if self.target_radius_m >= 0.5 * seg.min():
             raise PathError(
                 f"{src}: target_radius_m = {self.target_radius_m} must be less than half the "
@@ -247,14 +251,17 @@ class Path:
             raise PathError(f"{source}: missing required key(s) {missing}")
         wps = data["waypoints"]
         if not isinstance(wps, list):
-            raise PathError(f"{source}: waypoints must be a list of [x, y] or [x, y, z], got {wps!r}")
+            raise PathError(f"{source}: waypoints must be a list of [x, y] or [x, y, z], got "
+                            f"{wps!r}")
         for i, p in enumerate(wps):
             if (not isinstance(p, list) or len(p) not in (2, 3)
                     or not all(_is_number(v) for v in p)):
-                raise PathError(f"{source}: waypoints[{i}] must be 2 or 3 numbers (metres), got {p!r}")
+                raise PathError(f"{source}: waypoints[{i}] must be 2 or 3 numbers (metres), got "
+                                f"{p!r}")
             if len(p) != len(wps[0]):
                 raise PathError(
-                    f"{source}: waypoints[{i}] has {len(p)} coordinates, waypoints[0] has {len(wps[0])}")
+                    f"{source}: waypoints[{i}] has {len(p)} coordinates, waypoints[0] has "
+                    f"{len(wps[0])}")
         if not isinstance(data["closed"], bool):
             raise PathError(f"{source}: closed must be true or false, got {data['closed']!r}")
         kw = {k: data[k] for k in data if k != "waypoints"}
@@ -301,7 +308,8 @@ def project_to_polyline(points: np.ndarray, vertices: np.ndarray
     P = np.asarray(points, dtype=float)
     V = np.asarray(vertices, dtype=float)
     if P.ndim != 2 or V.ndim != 2 or P.shape[1] != V.shape[1] or V.shape[0] < 2:
-        raise ValueError(f"points/vertices: expected (n, d) and (k>=2, d), got {P.shape}, {V.shape}")
+        raise ValueError(f"points/vertices: expected (n, d) and (k>=2, d), got {P.shape}, "
+                         f"{V.shape}")
     A, B = V[:-1], V[1:]
     AB = B - A                                               # (s, d)
     L2 = (AB**2).sum(-1)                                     # (s,)

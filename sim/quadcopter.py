@@ -25,7 +25,8 @@ Reference: the path's polyline with every corner replaced by a circular arc tang
 legs at ``target_radius_m`` from the corner (the target areas of 000 Section 4.9, the same
 route semantics as the rover), flown at ``cruise_speed_mps`` with smooth (cosine, bounded
 jerk) speed ramps of peak acceleration ``max_accel_mps2`` (default 0.5 m/s^2) from hover at
-the start to hover at the end. The ``turning`` flag is the controller's own: True while the reference is on a corner arc.
+the start to hover at the end. The ``turning`` flag is the controller's own: True while the
+reference is on a corner arc.
 
 Truth sampling: uneven intervals drawn uniformly (in whole physics steps) from
 ``sample_interval_s = (min, max)`` with the passed Generator; default max = 1 /
@@ -66,16 +67,16 @@ channel). What each identified constant comes from in this simulator:
   moment ``-h drag_xy v``; the P rate loop lets it, and the speed feeds back into the tilt.
   Linearised (:func:`pitch_chain`), the slow pair is to first order
   ``s^2 + (drag_xy / m) s + g drag_xy h / (I k_rate)``: underdamped, with
-  ``2 zeta / Tw ~ drag_xy / m`` (the drag is its only damping). Measured noise-free fit: Tw 1.21 s, zeta 0.21, Td 0.378 s
-  (chain: 1.21 s, 0.20, 0.380 s). Rate mode is chosen because the thesis's fitted model
-  keeps accelerating for the whole 4 s after its 0.5 s impulse: a stick that sets the tilt
-  cannot do that (the tilt returns with the stick), a stick that sets the rate leaves the
-  tilt in place. The thesis's Tw = 5.44 s with zeta = 0.40 is *not* reproduced: it needs
-  ``drag_xy / m ~ 2 zeta / Tw = 0.15 1/s`` and h = 4.7 mm, outside the F450 ranges of
-  :data:`F450_RANGES` (which give Tw 0.59-2.9 s, zeta 0.09-0.44); with those values the
-  simulator reproduces the thesis's numbers (``experiments.identification``,
-  :func:`~experiments.identification.pitch_evidence`, which also shows that the thesis's
-  own 5 s window does not determine Tw and zeta).
+  ``2 zeta / Tw ~ drag_xy / m`` (the drag is its only damping). Measured noise-free fit:
+  Tw 1.21 s, zeta 0.21, Td 0.378 s (chain: 1.21 s, 0.20, 0.380 s). Rate mode is chosen because
+  the thesis's fitted model keeps accelerating for the whole 4 s after its 0.5 s impulse: a
+  stick that sets the tilt cannot do that (the tilt returns with the stick), a stick that sets
+  the rate leaves the tilt in place. The thesis's Tw = 5.44 s with zeta = 0.40 is *not*
+  reproduced: it needs ``drag_xy / m ~ 2 zeta / Tw = 0.15 1/s`` and h = 4.7 mm, outside the
+  F450 ranges of :data:`F450_RANGES` (which give Tw 0.59-2.9 s, zeta 0.09-0.44); with those
+  values the simulator reproduces the thesis's numbers (``experiments.identification``,
+  :func:`~experiments.identification.pitch_evidence`, which also shows that the thesis's own 5
+  s window does not determine Tw and zeta).
 - pitch, ``pitch_mode="angle"``: the stick sets the tilt angle (attitude loop closed):
   only real poles (drag, the drag moment against the attitude loop, attitude and rate
   loops), so a ``second_order`` fit finds zeta > 1 (measured noise-free: zeta 3.3,
@@ -457,9 +458,12 @@ def _speed_profile(t: np.ndarray, L: float, v: float, a: float) -> tuple[np.ndar
     td = T - t
     up, down = t < ta, t > ta + tc
     s = np.where(up, 0.5 * v * (t - np.sin(w * t) / w),
-                 np.where(down, L - 0.5 * v * (td - np.sin(w * td) / w), 0.5 * v * ta + v * (t - ta)))
-    sd = np.where(up, 0.5 * v * (1 - np.cos(w * t)), np.where(down, 0.5 * v * (1 - np.cos(w * td)), v))
-    sdd = np.where(up, 0.5 * v * w * np.sin(w * t), np.where(down, -0.5 * v * w * np.sin(w * td), 0.0))
+                 np.where(down, L - 0.5 * v * (td - np.sin(w * td) / w),
+                          0.5 * v * ta + v * (t - ta)))
+    sd = np.where(up, 0.5 * v * (1 - np.cos(w * t)),
+                  np.where(down, 0.5 * v * (1 - np.cos(w * td)), v))
+    sdd = np.where(up, 0.5 * v * w * np.sin(w * t),
+                   np.where(down, -0.5 * v * w * np.sin(w * td), 0.0))
     return s, sd, sdd, T
 
 

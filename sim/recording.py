@@ -18,11 +18,11 @@ dissertation's experiment, 000_8f82f8df647bf685.txt, Section 4.1, with real rece
 
 Frame: latitude/longitude (WGS 84) projected with pyproj to the UTM zone of the mean fix
 (:func:`sim.nmea.utm_epsg`; the longitudes' circular mean, :func:`sim.nmea.mean_longitude`,
-so a recording astride the antimeridian gets the zone of 180 degrees); x = easting - origin, y = northing - origin, metres (grid
-north: it differs from true north by the meridian convergence, < 3 degrees within a zone at
-mid latitudes, the same for the observations and the reference). The origin is the mean of
-the antenna fixes (of the reference when there are no antenna logs), recorded in
-``meta["frame"]`` with the EPSG code.
+so a recording astride the antimeridian gets the zone of 180 degrees); x = easting - origin,
+y = northing - origin, metres (grid north: it differs from true north by the meridian
+convergence, < 3 degrees within a zone at mid latitudes, the same for the observations and the
+reference). The origin is the mean of the antenna fixes (of the reference when there are no
+antenna logs), recorded in ``meta["frame"]`` with the EPSG code.
 
 Alignment on UTC (nothing lost, nothing invented): the grid interval is ``1 / rate_hz``
 (default: the median interval between consecutive valid fixes of the antenna logs), its

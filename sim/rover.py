@@ -38,8 +38,8 @@ updates ``mj_step(model, data, nstep)`` advances the physics. Sample times come 
 integer step counter (``t = step * timestep``; sample k at step ``round(k / (rate *
 timestep))``), and positions are logged after ``mj_kinematics`` (site positions read after
 ``mj_step`` are one step old). The turning flag of sample k is True if any command issued in
-``[t_{k-1}, t_k)`` had ``|omega_cmd| > turning_curvature_per_m * cruise_speed_mps`` (the controller's own
-"control information", Section 3.4.2.1).
+``[t_{k-1}, t_k)`` had ``|omega_cmd| > turning_curvature_per_m * cruise_speed_mps`` (the
+controller's own "control information", Section 3.4.2.1).
 
 Speed (measured on this shared 2-core machine, loaded by other jobs, default settings):
 Path 1 (square100 at 0.2 m/s, 1984 s simulated) in 3.0-5.8 s wall, Path 2 (square200,

@@ -114,7 +114,8 @@ def _write(tmp_path, text):
 @pytest.mark.parametrize(
     "text, match",
     [
-        ("colour = 'red'\n[[sensor]]\nname='a'\nposition_m=[0,0]\n", r"unknown key\(s\) \['colour'\]"),
+        ("colour = 'red'\n[[sensor]]\nname='a'\nposition_m=[0,0]\n",
+         r"unknown key\(s\) \['colour'\]"),
         ("name = 'x'\n", "'sensor' must be a non-empty array"),
         ("[[sensor]]\nname='a'\nposition_m=[0]\n[[sensor]]\nname='b'\nposition_m=[1,0]\n",
          r"sensor\[0\].position_m"),
@@ -506,7 +507,8 @@ def test_layout_check_extremes(window, fill, span):
     assert out.to_dict()["warnings"] == list(out.warnings)
 
 
-# --------------------------------------------------------------------------- issue 23 from_distances
+# --------------------------------------------------------------------------- issue 23
+# from_distances
 def _noisy_layout(m: int, seed: int = 0, sigma: float = 0.001) -> tuple[list[str], np.ndarray]:
     rng = np.random.default_rng(seed)
     X = rng.uniform(0.0, 5.0, (m, 2))

@@ -27,8 +27,9 @@ HYP = settings(deadline=None, suppress_health_check=[HealthCheck.too_slow], max_
 
 
 # ----------------------------------------------------------------------------- helpers
-def window_set(rng: np.random.Generator, cfg: SensorConfig, n: int, *, s_choices=(1, 2, 5, 10, 40, 100),
-               noise_choices=(0.05, 0.5, 2.0), missing=(0.0, 0.3), per_axis=0.5):
+def window_set(rng: np.random.Generator, cfg: SensorConfig, n: int, *,
+               s_choices=(1, 2, 5, 10, 40, 100), noise_choices=(0.05, 0.5, 2.0),
+               missing=(0.0, 0.3), per_axis=0.5):
     """n random noisy windows of ``cfg`` at UTM-sized coordinates: each with its own size,
     noise level, missing fraction and weights (per axis with probability ``per_axis``)."""
     out = []

@@ -25,8 +25,8 @@ from sim.truth import Truth
 CFG = SensorConfig.load("rover_gps8")
 
 # A model with every component switched off; tests switch on one component at a time.
-QUIET = GpsNoiseModel(sigma_m=0.0, common_fraction=0.0, receiver_sigma_spread=0.0, white_sigma_m=0.0,
-                      gm_order=1,
+QUIET = GpsNoiseModel(sigma_m=0.0, common_fraction=0.0, receiver_sigma_spread=0.0,
+                      white_sigma_m=0.0, gm_order=1,
                       bias_sigma_m=0.0, step_rate_per_h=0.0, step_sigma_m=0.0,
                       outlier_rate=0.0, missing_fraction=0.0, power_failure_duration_s=0.0)
 
@@ -109,7 +109,8 @@ def _bartlett_var_r(rho: np.ndarray, h: int, n: int) -> float:
 
     k = np.arange(-K, K + 1)
     rh = rho[h]
-    terms = at(k + h) ** 2 + at(k - h) * at(k + h) + 2 * rh**2 * at(k) ** 2 - 4 * rh * at(k) * at(k + h)
+    terms = (at(k + h) ** 2 + at(k - h) * at(k + h) + 2 * rh**2 * at(k) ** 2
+             - 4 * rh * at(k) * at(k + h))
     return float(terms.sum() / n)
 
 
@@ -394,7 +395,8 @@ def test_observe_is_the_sweeps_composition_and_noise_free_is_truth():
         observe(truth, cfg, model)
 
 
-# --------------------------------------------------------------------------- one receiver, m antennas
+# --------------------------------------------------------------------------- one receiver, m
+# antennas
 def _one_receiver(n: int, seed: int = 0, tau_s: float = 10.0, sigma: float = 1.0,
                   missing: tuple[int, int] | None = None) -> StationarySession:
     """One receiver: an AR(1) error of std ``sigma`` and correlation time ``tau_s`` at a
@@ -540,7 +542,8 @@ def test_observe_passes_replay_modes_and_validates_them():
 
 @settings(max_examples=40, deadline=None)
 @given(mode=st.sampled_from(["identical", "shifted", "common_plus_model"]),
-       shift=st.one_of(st.none(), st.sampled_from([math.nan, math.inf, -1.0, 0.0, 1e300, 1.0, 5.0])),
+       shift=st.one_of(st.none(),
+                       st.sampled_from([math.nan, math.inf, -1.0, 0.0, 1e300, 1.0, 5.0])),
        start=st.one_of(st.none(), st.integers(-5, 500)),
        receiver=st.sampled_from([None, "rx", "other"]))
 def test_replay_one_extremes_raise_or_return_finite(mode, shift, start, receiver):

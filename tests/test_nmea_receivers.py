@@ -200,8 +200,9 @@ def _host(t: datetime, zone: str = "") -> str:
 
 
 def test_host_prefixes_are_recognised_and_counted():
-    lines = [ln for k in range(30) for ln in epoch(T0 + timedelta(seconds=k),
-                                                   prefix=_host(T0 + timedelta(seconds=k, milliseconds=300)))]
+    lines = [ln for k in range(30)
+             for ln in epoch(T0 + timedelta(seconds=k),
+                             prefix=_host(T0 + timedelta(seconds=k, milliseconds=300)))]
     fx = parse_nmea(lines)
     assert fx.skipped["host_prefixes"] == 60
     assert fx.skipped["binary_segments"] == 0 and fx.skipped["truncated"] == 0

@@ -21,7 +21,8 @@ def test_wheel_ships_models_and_presets_and_loads_them(tmp_path):
     (whl,) = wheel_dir.glob("configpose-*.whl")
     names = set(zipfile.ZipFile(whl).namelist())
     for f in ("configpose_models/rover.xml", "configpose_models/configs/rover_gps8.toml",
-              "configpose_models/paths/square100.toml", "configpose_models/noise/gps_stationary.toml",
+              "configpose_models/paths/square100.toml",
+              "configpose_models/noise/gps_stationary.toml",
               "experiments/presets/thesis.toml", "configpose_models/recordings/synthetic_rig.toml",
               "configpose_models/recordings/synthetic_rig/ant1.nmea",
               "experiments/page_assets/page.js"):

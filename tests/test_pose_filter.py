@@ -5,10 +5,10 @@ the prediction against ODE integration, its Jacobian against finite differences,
 noise against the textbook discrete models written out here. Measurements: fixes and
 displacements (over the cloned previous state) against finite differences. Update: against
 FilterPy's ExtendedKalmanFilter on the singular stacked covariance; the loop (cloning,
-iterated update) against FilterPy's update step by step. Behaviour: the start waits for data (outage, late receiver), the speed cannot
-flip silently (a forward platform under correlated GPS error; a platform that reverses;
-a car standing still), the car-like case, noise levels from the configuration, validation.
-"""
+iterated update) against FilterPy's update step by step. Behaviour: the start waits for data
+(outage, late receiver), the speed cannot flip silently (a forward platform under correlated
+GPS error; a platform that reverses; a car standing still), the car-like case, noise levels
+from the configuration, validation."""
 
 import math
 import re

@@ -372,7 +372,8 @@ def test_text_reader_errors_name_the_file(tmp_path, text, match):
     assert "bad.txt" in str(info.value)
 
 
-@settings(max_examples=60, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture])
+@settings(max_examples=60, deadline=None,
+          suppress_health_check=[HealthCheck.function_scoped_fixture])
 @given(st.lists(st.text(alphabet=st.characters(codec="utf-8", exclude_categories=("Cs",)),
                         max_size=40), max_size=8),
        st.sampled_from([",", ";", " ", "\t"]))
@@ -454,11 +455,12 @@ def test_recording_toml_errors_name_the_field(rig, tmp_path, change, match):
         load_recording(p)
 
 
-_TVAL = st.one_of(st.booleans(), st.integers(-5, 5), st.floats(allow_nan=False), st.text(max_size=4),
-                  st.lists(st.integers(0, 3), max_size=2))
+_TVAL = st.one_of(st.booleans(), st.integers(-5, 5), st.floats(allow_nan=False),
+                  st.text(max_size=4), st.lists(st.integers(0, 3), max_size=2))
 
 
-@settings(max_examples=80, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture])
+@settings(max_examples=80, deadline=None,
+          suppress_health_check=[HealthCheck.function_scoped_fixture])
 @given(top=st.dictionaries(st.sampled_from(["name", "config", "rate_hz", "max_offset_s",
                                             "interpolate", "bogus"]), _TVAL, max_size=4),
        ants=st.lists(st.dictionaries(st.sampled_from(["name", "log", "format", "latitude"]),
@@ -599,7 +601,8 @@ def test_reacquisition_transients_are_left_out_and_counted():
     assert np.isnan(rec.obs[10, 1]).all() and np.isfinite(rec.obs[10, 0]).all()
 
 
-# --------------------------------------------------------------------------- path rule (issue 23/24)
+# --------------------------------------------------------------------------- path rule (issue
+# 23/24)
 @pytest.mark.parametrize("key, value", [
     ("config", "/etc/hostname"),
     ("config", "../../../../../../../../../etc/hostname"),
@@ -641,7 +644,8 @@ def test_shipped_recordings_resolve_under_the_rule():
             assert "no such file" in str(exc), exc      # realdata absent: not a rule error
 
 
-# --------------------------------------------------------------------------- issue 23 grid / frame / meta
+# --------------------------------------------------------------------------- issue 23 grid / frame
+# / meta
 @pytest.mark.parametrize("rate", [1e308, float("inf"), float("nan"), 0.0, -1.0, 1e3, 1e-9])
 def test_rate_hz_is_validated(rate):
     # 1e308 overflowed the grid arithmetic (OverflowError); now a RecordingError naming it

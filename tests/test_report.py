@@ -125,7 +125,8 @@ def test_huff_claims_on_synthetic_tables(huff, none, random, c7, c8):
                                                    [_claim("C7"), _claim("C8")])}
     assert res["C7"].verdict == c7
     assert res["C8"].verdict == c8
-    assert len(res["C7"].outcomes) == 2 * 4 * 2 * 2 * 2     # paths x windows x others x axes x stats
+    # paths x windows x others x axes x stats
+    assert len(res["C7"].outcomes) == 2 * 4 * 2 * 2 * 2
 
 
 def test_thesis_own_tables_are_checked_by_the_same_rule():

@@ -160,7 +160,8 @@ def test_timestep_is_a_model_parameter_and_enters_the_key(tmp_path):
     b = simulate_rover("square20", CONFIG, cache_dir=tmp_path, timestep_s=0.0025,
                        control_rate_hz=20.0)
     assert a.meta["params"]["timestep_s"] == 0.0025
-    assert a.meta["params"]["control_rate_hz"] == 50.0 and b.meta["params"]["control_rate_hz"] == 20.0
+    assert a.meta["params"]["control_rate_hz"] == 50.0
+    assert b.meta["params"]["control_rate_hz"] == 20.0
     assert a.meta["hash"] != b.meta["hash"] and len(list(tmp_path.glob("*.npz"))) == 2
     assert a.meta["hash"] != simulate_rover("square20", CONFIG, cache_dir=False).meta["hash"]
 

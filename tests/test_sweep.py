@@ -259,7 +259,8 @@ def test_figures_redraw_and_tum_export_from_saved_files(real_run, tmp_path):
     assert a.shape[1] == 8 and b.shape == a.shape
     # unit quaternions about +z; the truth's yaw is recovered from qz, qw
     np.testing.assert_allclose(np.linalg.norm(a[:, 4:], axis=1), 1.0, atol=1e-6)
-    ep = pd.read_parquet(next((out / "epochs").glob(f"{export.find_cell(out, where={'window': 5, 'technique': 'lc', 'seed': 0})['key']}.parquet")))
+    key = export.find_cell(out, where={"window": 5, "technique": "lc", "seed": 0})["key"]
+    ep = pd.read_parquet(next((out / "epochs").glob(f"{key}.parquet")))
     np.testing.assert_allclose(2 * np.arctan2(b[:, 6], b[:, 7]),
                                np.angle(np.exp(1j * ep["truth_yaw"])), atol=1e-5)
     with pytest.raises(ValueError, match="exactly one"):
@@ -615,9 +616,10 @@ def test_warm_up_lock_lets_one_worker_at_a_time(tmp_path):
 
 def test_cli_exit_codes_and_no_leftover_temporary_folders(tmp_path):
     """The command line ends through experiments.cli after stopping its workers
-    (experiments.runner.backends.stop_workers): the exit code is main()'s, the summary line is printed,
-    and joblib's shared-memory folders of the run's workers are removed (those named by the
-    run's pid: other processes on the machine make and remove their own meanwhile)."""
+    (experiments.runner.backends.stop_workers): the exit code is main()'s, the summary line
+    is printed, and joblib's shared-memory folders of the run's workers are removed (those
+    named by the run's pid: other processes on the machine make and remove their own
+    meanwhile)."""
     spec_file = tmp_path / "tiny.toml"
     spec_file.write_text(_toml({**TINY, "grid": [TINY["grid"][0]], "seeds": 1}))
     shm = Path("/dev/shm")
