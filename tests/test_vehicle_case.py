@@ -293,8 +293,10 @@ def test_car_preset_loads_and_expands():
 
 def test_car_preset_tiny_run(tmp_path):
     """One seed of the RTK grid, window 1 and the causal filter, through the sweep: the
-    filter row carries NEES and NIS, the window fit NaN there; heading bounds: measured
-    1.0 deg (window 1) and 0.9 deg (EKF) RMS, bounds 2 deg."""
+    filter row carries NEES and NIS, the window fit NaN there, and the filter ran with the
+    recording's [platform] limits (its heading RMS is the direct run's with them, not the
+    one with limits estimated from the data); heading bounds 2 deg RMS (window 1 measured
+    1.2 deg)."""
     import pandas as pd
 
     from experiments.runner.run import run
@@ -312,3 +314,14 @@ def test_car_preset_tiny_run(tmp_path):
     assert np.isnan(cells.loc["none", ["nees_mean", "nis_per_dof"]].astype(float)).all()
     ht = pd.read_csv(tmp_path / "heading.csv")
     assert {"nees_mean", "nis_in_band", "status_inconsistent"} <= set(ht.columns)
+    # the recording's [platform] block (car_rtk4's) reaches the filter of a recording cell
+    from sim.recording import load_recording
+
+    rec = load_recording("car_case_rtk")
+    tr, off = rec.truth(), rec.config.planar().body_positions - rec.config.planar().cg_body
+    two = np.isfinite(tr.yaw)
+    for fp, same in ((PoseFilterParams.from_platform(rec.platform), True),
+                     (PoseFilterParams(), False)):
+        e = heading_error(run_pose_filter(rec.t, rec.obs, off, fp).states[two, 2], tr.yaw[two])
+        rms = float(np.sqrt(np.nanmean(e ** 2)))
+        assert bool(rms == pytest.approx(cells.loc["ekf", "eh_rmse"], rel=1e-9)) is same

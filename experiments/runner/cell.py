@@ -312,11 +312,19 @@ def evaluate_recording_cell(cell: Cell, rec, ctx: CellContext) -> CellOutput:
     obs = _observations(cell, rec, config, ctx)
     truth = rec.truth() if rec.reference is not None else None
     t1 = time.perf_counter()
+    fp = None
+    if technique_of(cell).uses_filter:
+        # the recording's [platform] block (else its configuration's; None: limits from the
+        # data), as filter_params_for reads it from a reference's meta (issue 25)
+        from estimator.pose_filter import PoseFilterParams
+
+        fp = PoseFilterParams.from_platform(rec.platform)
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", LayoutWarning)     # recorded in the rows instead
         df = _track_cell(cell, rec.t, obs, config,
                          None if truth is None else truth.turning.astype(bool), ctx,
-                         true_yaw=None if truth is None else np.asarray(truth.yaw, dtype=float))
+                         true_yaw=None if truth is None else np.asarray(truth.yaw, dtype=float),
+                         filter_params=fp)
     t2 = time.perf_counter()
     if truth is not None:
         with warnings.catch_warnings():
