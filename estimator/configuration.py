@@ -164,7 +164,8 @@ def _check_triangles(names: tuple[str, ...], Dm: np.ndarray, tol: float) -> None
     a time (O(m^2) memory). Three measured distances, each within tol of the truth, can
     exceed it by up to 3 tol (three collinear antennas); the embedding residual check then
     judges the whole matrix."""
-    worst, at = -np.inf, (0, 0, 0)
+    worst = -np.inf
+    at: tuple = (0, 0, 0)  # (i, j, k) of the worst excess
     for k in range(Dm.shape[0]):
         excess = Dm - Dm[:, k, None] - Dm[None, k, :]
         flat = int(np.argmax(excess))
@@ -261,7 +262,8 @@ def _frame_from_names(cfg: SensorConfig, forward: object, left: object, tol_m: f
             raise ConfigError(f"forward: a (rear, front) pair needs 2 names, got {forward!r}")
         a = _name_index(cfg, forward[0], "forward[0]")
         b = _name_index(cfg, forward[1], "forward[1]")
-        vec, what, axis_names = X[b] - X[a], f"{cfg.names[a]!r} -> {cfg.names[b]!r}", (a, b)
+        axis_names: tuple[int, ...] = (a, b)
+        vec, what = X[b] - X[a], f"{cfg.names[a]!r} -> {cfg.names[b]!r}"
     else:
         b = _name_index(cfg, forward, "forward")
         vec, what, axis_names = X[b] - cg, f"CG -> {cfg.names[b]!r}", (b,)
@@ -545,7 +547,7 @@ class SensorConfig:
         """Spatial dimension of the layout (2 or 3)."""
         return int(self.body_positions.shape[1])
 
-    def index(self, name: str | int) -> int:
+    def index(self, name: str | int | np.integer) -> int:
         """Index of a sensor by name (or pass-through of a valid index)."""
         if isinstance(name, (int, np.integer)) and not isinstance(name, bool):
             if 0 <= int(name) < self.m:
@@ -759,7 +761,8 @@ class SensorConfig:
         if not isinstance(sensors, list) or not sensors:
             raise ConfigError(f"{source}: 'sensor' must be a non-empty array of tables "
                               "([[sensor]])")
-        names, positions = [], []
+        names: list[str] = []
+        positions: list[list[float]] = []
         for k, s in enumerate(sensors):
             where = f"{source}: sensor[{k}]"
             if not isinstance(s, dict):

@@ -43,8 +43,10 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from typing import cast
 
 import numpy as np
+from numpy.typing import ArrayLike
 from scipy import linalg
 
 from estimator._checks import check_array, check_increasing_times, check_int, check_real
@@ -101,7 +103,7 @@ class PVKalman:
     gate of :func:`pv_kalman`; ``last_gated`` tells whether the last update was gated out.
     """
 
-    def __init__(self, x0: np.ndarray, P0: np.ndarray, sigma_process: float = SIGMA_PROCESS_MPS2,
+    def __init__(self, x0: ArrayLike, P0: ArrayLike, sigma_process: float = SIGMA_PROCESS_MPS2,
                  sigma_measurement: float = SIGMA_MEASUREMENT_M) -> None:
         self.sigma_process, self.sigma_measurement = _check_sigmas(sigma_process,
                                                                    sigma_measurement)
@@ -229,7 +231,7 @@ def pv_kalman(t: np.ndarray, z: np.ndarray, sigma_process: float = SIGMA_PROCESS
                              f"sigma_measurement[{k}] = {sm[k]!r}")
         s0 = float(np.nanmedian(sm)) if np.isfinite(sm).any() else 1.0
     else:
-        s0 = sigma_measurement
+        s0 = cast(float, sigma_measurement)  # 0-d here; from_thesis checks it
     g = None if gate is None else check_real(gate, "gate", lo=0.0, lo_open=True, hi=_SIGMA_HI)
     reinit_after = check_int(reinit_after, "reinit_after", lo=1, hi=2**31 - 1)
     kf = PVKalman.from_thesis(tt, zz, sigma_process, s0)

@@ -13,6 +13,8 @@ See :func:`yaw_from_bearing` / :func:`bearing_from_yaw`.
 
 from __future__ import annotations
 
+from typing import overload
+
 import numpy as np
 
 __all__ = [
@@ -32,6 +34,10 @@ _TWO_PI = 2.0 * np.pi
 _COS_EXCESS_TOL = 1e-9
 
 
+@overload
+def wrap_angle(a: float) -> float: ...
+@overload
+def wrap_angle(a: np.ndarray) -> np.ndarray: ...
 def wrap_angle(a: np.ndarray | float) -> np.ndarray | float:
     """Wrap angles (radians) to (-pi, pi]. Any shape; a Python float in gives a float out.
 

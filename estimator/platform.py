@@ -100,7 +100,7 @@ class PlatformLimits:
             raise ValueError(f"source: must be 'given' or 'data', got {self.source!r}")
 
     @classmethod
-    def from_dict(cls, data: Mapping, where: str = "platform") -> PlatformLimits:
+    def from_dict(cls, data: object, where: str = "platform") -> PlatformLimits:
         """From a TOML ``[platform]`` table: keys :data:`_NAMES` (the first three required);
         an unknown or missing key is a ValueError naming ``where.key``."""
         if not isinstance(data, Mapping):

@@ -654,10 +654,10 @@ def fit_transfer_function(
                    key=lambda i: (names + ("offset",)).index(est_names[i]))
     cov_out = cov[np.ix_(order, order)]
     est_names = [est_names[i] for i in order]
-    at_bound = tuple(sorted(at_bound, key=names.index))
+    bound = tuple(sorted(at_bound, key=names.index))
     if best.status <= 0:
         status = "not_converged"
-    elif at_bound:
+    elif bound:
         status = "at_bound"
     else:
         status = "ok"
@@ -666,7 +666,7 @@ def fit_transfer_function(
         identifiable=identifiable, status=status, offset=float(offset), stderr=stderr,
         correlation=correlation, covariance=cov_out, estimated=tuple(est_names),
         t_quantile=tq, correlated=tuple(correlated),
-        fixed=tuple(k for k in names if k in prob.fixed), at_bound=at_bound,
+        fixed=tuple(k for k in names if k in prob.fixed), at_bound=bound,
         confidence=float(confidence), dt=dt, residual_std=float(np.sqrt(s2)), y_hat=yhat,
         n_starts=int(n_starts), nfev=int(nfev), elapsed_s=time.perf_counter() - t0,
         message=str(best.message),
@@ -814,7 +814,8 @@ def identify_axes(data: Mapping[tuple[str, str], tuple], forms: Mapping[str, str
         step = step_pred = None
         step_pct = float("nan")
         if (axis, "step") in data:
-            step = tuple(np.asarray(a, dtype=float) for a in data[(axis, "step")])
+            ts, us, ys = (np.asarray(a, dtype=float) for a in data[(axis, "step")])
+            step = (ts, us, ys)
             step_pred = simulate(step[0], step[1], form, clean.params) + clean.offset
             step_pct = fit_percent(step[2], step_pred)
         out[axis] = AxisIdentification(axis=axis, form=form, t=t, u=u, y=y, clean=clean,

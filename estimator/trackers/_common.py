@@ -69,9 +69,9 @@ def heading_pair(config: SensorConfig) -> tuple[int, int, float]:
             if best is None or key > best[0]:
                 best = (key, int(a), int(b))
     if best is None:  # all alive sensors share body x: use the longest pair
-        a, b = alive[0], alive[-1]
-        best = (None, int(a), int(b))
-    _, i, j = best
+        i, j = int(alive[0]), int(alive[-1])
+    else:
+        _, i, j = best
     d = B[j] - B[i]
     return i, j, float(np.arctan2(d[1], d[0]))
 
