@@ -51,6 +51,7 @@ from __future__ import annotations
 import math
 import time
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 
@@ -221,7 +222,11 @@ class _PeerRun:
         self.status = np.full(n, "", dtype=object)
         self.present = np.isfinite(obs[..., 0])
         self.starter = FilterStart(tt, obs, self.r_m, sigma_abs, params)
-        self.smoother = self.est = self.pose = self.twist = None
+        # GTSAM objects (untyped); None outside a segment
+        self.smoother: Any = None
+        self.est: Any = None
+        self.pose: Any = None
+        self.twist: Any = None
         self.start = self.last = self.last_fix = -1
         self.pending: list[int] = []     # epochs whose fixed-lag estimate is not final yet
         self.spent = 0.0

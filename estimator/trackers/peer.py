@@ -25,5 +25,6 @@ class GtsamPeerTracker(FilterOptions):
     name: ClassVar[str] = "gtsam"
 
     def _states(self, tt, o, offsets, cache):
+        assert self.filter_params is not None  # FilterOptions.__post_init__ sets it
         res = run_gtsam_peer(tt, o, offsets, self.filter_params)
         return res.fixed_lag, res.status, {"_no_slip_point_m": tuple(-res.cg_offset)}
