@@ -69,7 +69,7 @@ from __future__ import annotations
 
 import math
 import time
-from collections.abc import Mapping
+from collections.abc import Iterable, Mapping
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -81,6 +81,7 @@ __all__ = [
     "FORMS",
     "AxisIdentification",
     "TransferFit",
+    "check_responses",
     "equivalent_lag",
     "fit_percent",
     "fit_transfer_function",
@@ -778,6 +779,25 @@ class AxisIdentification:
     step: tuple[np.ndarray, np.ndarray, np.ndarray] | None
     step_pred: np.ndarray | None
     step_pct: float
+
+
+def check_responses(data: Mapping, axes: Iterable[str]) -> dict:
+    """``data`` ({(axis, kind): (t, u, y)}) as a dict, checked: each triple 1-D of one length,
+    every ``(axis, "impulse")`` of ``axes`` present; ValueError naming the key otherwise."""
+    data = dict(data)
+    for key, triple in data.items():
+        try:
+            t, u, y = (np.asarray(a, dtype=float) for a in triple)
+        except (TypeError, ValueError):
+            raise ValueError(f"responses[{key!r}]: expected a (t, u, y) triple of arrays") \
+                from None
+        if not (t.ndim == 1 and t.shape == u.shape == y.shape):
+            raise ValueError(f"responses[{key!r}]: t, u, y must be 1-D of one length, got "
+                             f"shapes {t.shape}, {u.shape}, {y.shape}")
+    for axis in axes:
+        if (axis, "impulse") not in data:
+            raise ValueError(f"responses: missing ({axis!r}, 'impulse')")
+    return data
 
 
 def _rng(seed: int, axis_index: int, run: int) -> np.random.Generator:

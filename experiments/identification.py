@@ -81,6 +81,7 @@ from estimator.sysid import (  # AxisIdentification: re-exported
     FORMS,
     AxisIdentification,
     TransferFit,
+    check_responses,
     equivalent_lag,
     fit_transfer_function,
     identify_axes,
@@ -452,24 +453,6 @@ def pitch_evidence(*, seed: int = 0, noise_m: float = 0.01, n_runs: int = 10,
 
 
 # ------------------------------------------------------------------------------- write
-def _check_responses(data: Mapping) -> dict:
-    """Every (axis, "impulse") present; each (t, u, y) triple 1-D of one length."""
-    data = dict(data)
-    for key, triple in data.items():
-        try:
-            t, u, y = (np.asarray(a, dtype=float) for a in triple)
-        except (TypeError, ValueError):
-            raise ValueError(f"responses[{key!r}]: expected a (t, u, y) triple of arrays") \
-                from None
-        if not (t.ndim == 1 and t.shape == u.shape == y.shape):
-            raise ValueError(f"responses[{key!r}]: t, u, y must be 1-D of one length, got "
-                             f"shapes {t.shape}, {u.shape}, {y.shape}")
-    for axis in AXIS_FORMS:
-        if (axis, "impulse") not in data:
-            raise ValueError(f"responses: missing ({axis!r}, 'impulse')")
-    return data
-
-
 def run_identification(
     out_dir: str | Path,
     *,
@@ -530,10 +513,10 @@ def run_identification(
     if responses is None:
         from sim.quadcopter import simulator_constants
 
-        data = _check_responses(simulator_responses(quick=quick))
+        data = check_responses(simulator_responses(quick=quick), AXIS_FORMS)
         constants = simulator_constants()
     else:
-        data = _check_responses(responses() if callable(responses) else responses)
+        data = check_responses(responses() if callable(responses) else responses, AXIS_FORMS)
     sim_time = time.perf_counter() - t_start
 
     results = identify(data, seed=seed, noise_m=noise_m, n_mc=n_mc, n_starts=n_starts)
