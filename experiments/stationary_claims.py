@@ -8,7 +8,7 @@ supports / contradicts / inconclusive per comparison and reproduced / not reprod
 mixed per claim. Section 4.9 describes the moving set-up and makes no stationary claim.
 
 Conditions of the table: ``session`` (series and layout statistics of the whole session),
-each weighting scheme of :func:`experiments.stationary.weighting_estimates` (``none``,
+each weighting scheme of :func:`experiments.stationary_analysis.weighting_estimates` (``none``,
 ``huber``, ...) and ``window:<scheme>`` (sliding windows). Every claim not reproduced gets a
 ``Cause:`` line from :func:`cause_lines`: the same claim re-evaluated on model variants
 (:data:`VARIANTS`) and, for the residual claim, on the real receiver logs, i.e. measurements
@@ -26,6 +26,7 @@ import pandas as pd
 from estimator.configuration import SensorConfig
 from estimator.noise_stats import acf, ar1_fit
 from experiments.claims import RULE, Claim, ClaimResult, Comparison, evaluate_claims
+from experiments.stationary_analysis import weighting_estimates, window_spreads
 from sim.gps import GpsNoiseModel, StationarySession, synthesize_session
 
 __all__ = ["STATIONARY_CLAIMS", "VARIANTS", "cause_lines", "claims_markdown", "evaluate",
@@ -102,7 +103,6 @@ def _layout_rows(session: StationarySession, config: SensorConfig, positions: np
 def session_rows(session: StationarySession, config: SensorConfig, seed: int,
                  rng: np.random.Generator) -> list[dict]:
     """The per-seed rows of one session (conditions: module docstring)."""
-    from experiments.stationary import weighting_estimates, window_spreads
 
     est = weighting_estimates(session, config, rng)
     none = next(e for e in est if e.scheme == "none")

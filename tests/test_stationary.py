@@ -17,10 +17,8 @@ import pytest
 from estimator.configuration import SensorConfig
 from estimator.weights import huff_weights
 from estimator.window import procrustes_batch, window_means
-from experiments.stationary import (
-    REFERENCE_OUT,
-    main,
-    real_log_tables,
+from experiments.stationary import REFERENCE_OUT, main, real_log_tables
+from experiments.stationary_analysis import (
     weighting_estimates,
     window_estimates,
     window_spreads,
