@@ -120,7 +120,8 @@ def split_sensitivity(model: GpsNoiseModel, config: SensorConfig, duration_s: fl
     rows = []
     for f in fractions:
         m = model.with_overrides(common_fraction=f)
-        s = synthesize_session(m, config, duration_s, np.random.default_rng(seed)).after_power_failure()
+        s = synthesize_session(m, config, duration_s,
+                               np.random.default_rng(seed)).after_power_failure()
         tab, _ = window_spreads(s, config, sizes=windows, schemes=("none",))
         for _, r in tab.iterrows():
             rows.append({"common_fraction": f, "sigma_receiver_m": m.sigma_receiver_m,
@@ -193,7 +194,8 @@ def pair_table(session: StationarySession, config: SensorConfig | None) -> pd.Da
                      "configured_m": float(D[a, b]) if D is not None else math.nan,
                      "mean_m": float(np.nanmean(d)), "std_m": float(np.nanstd(d)),
                      "min_m": float(np.nanmin(d)), "max_m": float(np.nanmax(d)),
-                     "mean_abs_dev_m": float(np.nanmean(np.abs(d - D[a, b]))) if D is not None else math.nan})
+                     "mean_abs_dev_m": (float(np.nanmean(np.abs(d - D[a, b])))
+                                        if D is not None else math.nan)})
     return pd.DataFrame(rows)
 
 
@@ -235,26 +237,29 @@ def _write_summary(out: Path, session: StationarySession, config: SensorConfig |
                    win_tab: pd.DataFrame | None) -> dict:
     meta = session.meta
     lines = [f"# Stationary analysis ({meta.get('source', 'session')})", ""]
+    span_s = session.t[-1] - session.t[0] + (session.t[1] - session.t[0] if session.n > 1 else 0)
     lines.append(f"Session: {session.n} samples "
-                 f"({session.t[-1] - session.t[0] + (session.t[1] - session.t[0] if session.n > 1 else 0):.0f} s), "
+                 f"({span_s:.0f} s), "
                  f"{session.m} receivers {list(session.names)}, dead {list(session.dead)}, "
                  f"missing {1 - session.present.mean():.1%} of all samples, "
                  f"alignment {meta.get('alignment')!r}.")
     if meta.get("model"):
         mdl = meta["model"]
-        lines.append(f"Noise model `{mdl.get('name')}`: sigma_m {mdl['sigma_m']} m, common_fraction "
-                     f"{mdl['common_fraction']}, taus {mdl['common_tau_s']} / {mdl['receiver_tau_s']} s, "
+        lines.append(f"Noise model `{mdl.get('name')}`: sigma_m {mdl['sigma_m']} m, "
+                     f"common_fraction {mdl['common_fraction']}, "
+                     f"taus {mdl['common_tau_s']} / {mdl['receiver_tau_s']} s, "
                      f"seed {meta.get('seed')}. Data before the power failure "
                      f"({meta.get('power_failure_s')}) discarded, as in Section 4.1.")
     if meta.get("skipped"):
         nz = {k: v for k, v in meta["skipped"].items() if v}
         lines.append(f"Import skips: {nz}.")
     lines += ["", "## Per sensor (Figs 4.2, 4.3, 4.7-4.15)", "",
-              "std: per-axis standard deviation; npp_r: normal-probability-plot correlation (1 = "
-              "normal); tau_s: correlation time implied by the AR(1) phi (Eq. 2.2); acf_outside / "
-              f"resid_acf_outside: share of lags 1-{min(50, session.n - 1)} whose ACF exceeds "
-              "+-1.96/sqrt(n) for the "
-              "coordinates / the AR(1) residuals (the dissertation found both mostly outside).", ""]
+              ("std: per-axis standard deviation; npp_r: normal-probability-plot correlation (1 = "
+               "normal); tau_s: correlation time implied by the AR(1) phi (Eq. 2.2); acf_outside / "
+               f"resid_acf_outside: share of lags 1-{min(50, session.n - 1)} whose ACF exceeds "
+               "+-1.96/sqrt(n) for the "
+               "coordinates / the AR(1) residuals (the dissertation found both mostly outside)."),
+              ""]
     cols = [c for c in ["sensor", "axis", "missing", "std_m", "npp_r", "excess_kurtosis", "ar1_phi",
                         "tau_s", "acf_outside", "resid_acf_outside"] if c in s_tab.columns]
     per_axis = s_tab.dropna(subset=["axis"]) if "axis" in s_tab else s_tab
@@ -269,21 +274,22 @@ def _write_summary(out: Path, session: StationarySession, config: SensorConfig |
         lines.append(_md(p_tab))
     if w_est is not None:
         lines += ["", "## Whole-recording estimate per weighting scheme (Figs 4.17-4.24)", "",
-                  "Eq. 3.7 by SLSQP (eps = 0.01 m); `means` is the per-sensor mean without the "
-                  "configuration. Scores against the true antenna positions: RMS position error "
-                  "over alive sensors, CG error (Eq. 3.8 members), heading error.", ""]
+                  ("Eq. 3.7 by SLSQP (eps = 0.01 m); `means` is the per-sensor mean without the "
+                   "configuration. Scores against the true antenna positions: RMS position error "
+                   "over alive sensors, CG error (Eq. 3.8 members), heading error."), ""]
         lines.append(_md(pd.DataFrame([{"scheme": e.scheme, "status": e.status,
                                         "pos_rmse_m": e.pos_rmse_m, "cg_err_m": e.cg_err_m,
                                         "yaw_err_deg": e.yaw_err_deg} for e in w_est])))
     if win_tab is not None:
         lines += ["", "## Sliding windows (Figs 4.25-4.33)", "",
-                  "Closed-form procrustes per window. spread_m: RMS distance of the window "
-                  "estimates from their own mean (the cluster size the dissertation compared); "
-                  "rmse_m / cg_rmse_m / yaw_rmse_deg: against the truth.", ""]
+                  ("Closed-form procrustes per window. spread_m: RMS distance of the window "
+                   "estimates from their own mean (the cluster size the dissertation compared); "
+                   "rmse_m / cg_rmse_m / yaw_rmse_deg: against the truth."), ""]
         lines.append(_md(win_tab))
     reading = _reading(session, s_tab, w_est, win_tab)
     if reading:
-        lines += ["", "## Reading (computed from the tables above)", ""] + [f"- {r}" for r in reading]
+        lines += (["", "## Reading (computed from the tables above)", ""]
+                  + [f"- {r}" for r in reading])
     lines += ["", "## Figures", ""]
     for p in sorted(out.glob("*.png")):
         lines.append(f"- [{p.name}]({p.name})")
@@ -308,9 +314,12 @@ def _reading(session: StationarySession, s_tab: pd.DataFrame, w_est: list[Scored
         t = s_tab.dropna(subset=["axis"])
         if len(t):
             out.append(f"Per-axis std {t.std_m.min():.2f}-{t.std_m.max():.2f} m; NPP r "
-                       f"{t.npp_r.min():.3f}-{t.npp_r.max():.3f} (1 = normal); ACF beyond the bounds "
-                       f"at {t.acf_outside.min():.0%}-{t.acf_outside.max():.0%} of lags 1-{min(50, session.n - 1)}, AR(1) "
-                       f"residual ACF at {t.resid_acf_outside.min():.0%}-{t.resid_acf_outside.max():.0%} "
+                       f"{t.npp_r.min():.3f}-{t.npp_r.max():.3f} (1 = normal); "
+                       f"ACF beyond the bounds "
+                       f"at {t.acf_outside.min():.0%}-{t.acf_outside.max():.0%} "
+                       f"of lags 1-{min(50, session.n - 1)}, AR(1) "
+                       f"residual ACF at "
+                       f"{t.resid_acf_outside.min():.0%}-{t.resid_acf_outside.max():.0%} "
                        f"(Section 4.3 reports both mostly beyond).")
             for r in _outlier_driven(t).itertuples():
                 out.append(f"Sensor {r.sensor} {r.axis}: {_driven_text(r)}.")
@@ -323,9 +332,12 @@ def _reading(session: StationarySession, s_tab: pd.DataFrame, w_est: list[Scored
         best = min(fits, key=lambda e: e.pos_rmse_m)
         none = next(e for e in fits if e.scheme == "none")
         means = next(e for e in w_est if e.scheme == "means")
-        out.append(f"Whole recording: the configuration fit (none) has {none.pos_rmse_m:.2f} m RMS "
-                   f"position error vs {means.pos_rmse_m:.2f} m for the per-sensor means; best scheme "
-                   f"{best.scheme!r} at {best.pos_rmse_m:.2f} m; CG error of the fit {none.cg_err_m:.2f} m "
+        out.append(f"Whole recording: the configuration fit (none) has "
+                   f"{none.pos_rmse_m:.2f} m RMS "
+                   f"position error vs {means.pos_rmse_m:.2f} m for the per-sensor means; "
+                   f"best scheme "
+                   f"{best.scheme!r} at {best.pos_rmse_m:.2f} m; "
+                   f"CG error of the fit {none.cg_err_m:.2f} m "
                    f"(the common-mode error averaged over the session cannot be removed).")
     if win_tab is not None and len(win_tab):
         for sch in win_tab.scheme.unique():
@@ -587,7 +599,8 @@ def main(argv: list[str] | None = None) -> int:
                     help=f"output folder (default {_rel(DEFAULT_OUT)}, ignored by git; "
                          f"{_rel(REFERENCE_OUT)} only through --reference)")
     ap.add_argument("--keep-before-power-failure", action="store_true",
-                    help="analyse the whole recording (default: discard up to the power failure's end)")
+                    help="analyse the whole recording "
+                         "(default: discard up to the power failure's end)")
     ap.add_argument("--no-split", action="store_true",
                     help="skip the common_fraction sensitivity table (synthetic sessions only)")
     ap.add_argument("--no-claims", action="store_true",
@@ -636,7 +649,8 @@ def main(argv: list[str] | None = None) -> int:
     match = tuple(session.names) == tuple(config.names)
     if not match:
         print(f"receivers {list(session.names)} do not match configuration {config.name!r} "
-              f"{list(config.names)}: configuration sections (distances, fits) skipped", file=sys.stderr)
+              f"{list(config.names)}: configuration sections (distances, fits) skipped",
+              file=sys.stderr)
     print("statistics, fits and figures", flush=True)
     analyse(session, config if match else None, out, rng)
     if not args.session and not args.no_split:

@@ -95,7 +95,8 @@ def weighting_estimates(session: StationarySession, config: SensorConfig,
         if name.startswith("huber_1") and not {"1", "5", "8"} <= set(session.names):
             continue
         fit = fit_stationary(o, config, weights=w, eps=eps, solver=solver)
-        out.append(Scored(name, fit.positions, fit.status, *_score(fit.positions, truth, config, alive)))
+        out.append(Scored(name, fit.positions, fit.status,
+                          *_score(fit.positions, truth, config, alive)))
     return out
 
 
@@ -155,7 +156,8 @@ def window_spreads(session: StationarySession, config: SensorConfig,
                 cg = config.cg_from_positions(pos[ok])
                 row["cg_rmse_m"] = summarize(cg_errors(cg, np.broadcast_to(cg_true, cg.shape))
                                              ["euclid"])["rmse"]
-                yaw = procrustes_batch(pos[ok], np.tile(alive.astype(float), (ok.sum(), 1)), config).yaw
+                yaw = procrustes_batch(pos[ok], np.tile(alive.astype(float), (ok.sum(), 1)),
+                                       config).yaw
                 row["yaw_rmse_deg"] = float(np.degrees(summarize(
                     heading_error(yaw, np.full(yaw.shape, yaw_true)))["rmse"]))
             rows.append(row)

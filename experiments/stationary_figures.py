@@ -66,7 +66,8 @@ def plot_all(out: Path, session: StationarySession, config: SensorConfig | None,
              weighting=None, windows=None) -> None:
     """Every figure of the report into ``out``: Figs 4.2-4.15 for any session; 4.4-4.6,
     4.17-4.24 and 4.25-4.33 when the configuration matches (``weighting``: the Scored list
-    of experiments.stationary_analysis.weighting_estimates; ``windows``: {(scheme, s): positions})."""
+    of experiments.stationary_analysis.weighting_estimates; ``windows``:
+    {(scheme, s): positions})."""
     with plt.rc_context(_STYLE):
         _plot_all(out, session, config, nlags=nlags, weighting=weighting, windows=windows)
 

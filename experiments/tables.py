@@ -261,7 +261,8 @@ def model_name(cells: pd.DataFrame, axis: str, value) -> str:
 
 
 def _vlabel(axis: str, value, cells: pd.DataFrame | None = None) -> str:
-    """'config=rover_gps4'; overrides as their fields ('cruise_speed_mps=0.5', '{}' = as shipped)."""
+    """'config=rover_gps4'; overrides as their fields ('cruise_speed_mps=0.5',
+    '{}' = as shipped)."""
     if cells is not None and axis in ("config", "noise"):
         return f"{axis}={model_name(cells, axis, value)}"
     if axis.endswith("_overrides"):

@@ -661,7 +661,8 @@ def _discussion(spec: StudySpec, mct: pd.DataFrame, flt: pd.DataFrame) -> list[s
         ("**Not in the thesis.** Mirroring the linear start to the platform side before "
         "Gauss-Newton (`nonlinear_ls(..., reflect_start=True)`) removes every mirror solution "
         f"and makes the six-receiver NLS the best estimator: total "
-        f"{nlr['mse_total_mm2']:.4g} mm^2, {100 * (1 - nlr['mse_total_mm2'] / cmd['mse_total_mm2']):.0f} % "
+        f"{nlr['mse_total_mm2']:.4g} mm^2, "
+        f"{100 * (1 - nlr['mse_total_mm2'] / cmd['mse_total_mm2']):.0f} % "
         "below CMD. The thesis's conclusion holds for its NLS implementation, not for "
         "least squares as such."),
         "",

@@ -92,10 +92,12 @@ def test_cli_end_to_end(tmp_path):
     assert main(["--synthetic", "--duration", "400", "--seed", "1", "--out", str(out),
                  "--config", "rover_gps4", "--no-split", "--real-logs", str(folder)]) == 0
     summary = json.loads((out / "summary.json").read_text())
-    assert summary["n"] == 400 - 300             # everything up to the power failure's end (300 s) discarded
+    # everything up to the power failure's end (300 s) discarded
+    assert summary["n"] == 400 - 300
     assert {r["scheme"] for r in summary["weighting"]} >= {"none", "huber", "huff", "random"}
     assert "code_version" not in summary         # provenance lives in run_info.json
-    for name in ("fig4_02_xy_vs_time.png", "fig4_03_scatter.png", "fig4_04_06_pairwise_distances.png",
+    for name in ("fig4_02_xy_vs_time.png", "fig4_03_scatter.png",
+                 "fig4_04_06_pairwise_distances.png",
                  "fig4_07_npp_x.png", "fig4_17_23_weighting.png", "fig4_24_weighting_summary.png",
                  "fig4_25_33_windows.png"):
         assert (out / name).stat().st_size > 1000
