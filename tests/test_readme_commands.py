@@ -7,6 +7,11 @@ Where they run: a scratch git clone of the checkout with the working tree's stat
 (its uncommitted edits and new files), ``../shared`` beside it (the README's real-data
 paths), the truth cache copied (no re-simulation). Nothing in the checkout changes.
 ``/tmp/`` in a command becomes a scratch folder (the same command, its output redirected).
+Running them takes 5-10 minutes on the 2-core machine, so the two tests that run them are
+marked slow: the README's test command leaves them out, and ``.ci/run`` runs them before it
+(``python -m pytest -q -m slow tests/test_readme_commands.py``). The declaration check and
+the presets' output folders run in the default suite.
+
 The commands run once, in documented order (README first: later commands read what earlier
 ones wrote, e.g. the thesis run), from one module fixture.
 
@@ -503,6 +508,7 @@ def test_statement_splitting():
     assert _normalize("a --x \\\n    --y   # c") == "a --x --y"
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("key", DOCUMENTED)
 def test_documented_command_runs(key, runs):
     """Exit code 0 (the quick form where MAPPED says so)."""
@@ -513,6 +519,7 @@ def test_documented_command_runs(key, runs):
     assert r["code"] == 0, f"{r['cmd']}\nexit {r['code']} after {r['s']:.1f} s:\n{r['tail']}"
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("key", DOCUMENTED)
 def test_documented_command_leaves_git_status_alone(key, runs):
     """No tracked file changed, no untracked file git does not ignore, outside what the
