@@ -915,19 +915,27 @@ class FilterStart:
         yaw0, ysd = self.fit_heading(k)
         v0, vsd = float(x[V]), max(abs(float(x[V])), p.max_accel_mps2)
         if k > 0 and self.cnt[k - 1] >= 2:
-            dt = self.t[k] - self.t[k - 1]
-            d = self.origin[k] - self.origin[k - 1]
-            v0 = (d[0] * math.cos(yaw0) + d[1] * math.sin(yaw0)) / dt
-            vsd = math.hypot(p.max_accel_mps2 * dt, sa * math.sqrt(
-                1.0 / self.cnt[k] + 1.0 / self.cnt[k - 1]) / dt)
-            if not p.reverse:
-                v0 = max(v0, 0.0)
+            v0, vsd = self._fit_speed(k, yaw0)
         pvar = sa * sa / self.cnt[k]
         xn = np.array([self.origin[k, 0], self.origin[k, 1], _wrap(yaw0), v0, 0.0,
                        float(x[OMEGA])])
         P = np.diag([pvar, pvar, ysd ** 2, vsd ** 2, p.max_accel_mps2 ** 2,
                      (0.5 * p.max_turn_rate_radps) ** 2])
         return xn, P
+
+    def _fit_speed(self, k: int, yaw0: float) -> tuple[float, float]:
+        """Speed along ``yaw0`` (m/s) from the rigid fits of epochs k-1 and k (both with >= 2
+        fixes) and its sd: the acceleration limit over the step and the fits' noise; not
+        negative unless the platform may reverse."""
+        p, sa = self.params, self.sigma_abs
+        dt = self.t[k] - self.t[k - 1]
+        d = self.origin[k] - self.origin[k - 1]
+        v0 = (d[0] * math.cos(yaw0) + d[1] * math.sin(yaw0)) / dt
+        vsd = math.hypot(p.max_accel_mps2 * dt, sa * math.sqrt(
+            1.0 / self.cnt[k] + 1.0 / self.cnt[k - 1]) / dt)
+        if not p.reverse:
+            v0 = max(v0, 0.0)
+        return v0, vsd
 
     def wait(self, k: int) -> tuple[str, tuple[np.ndarray, np.ndarray] | None]:
         """One waiting epoch: ("no_data", None) without any fix, else ("waiting", None) or
@@ -951,13 +959,7 @@ class FilterStart:
             if k == 0 or self.cnt[k - 1] < 2:
                 return None
             yaw0, ysd = float(self.yaw[k]), yaw_sd
-            dt = self.t[k] - self.t[k - 1]
-            d = self.origin[k] - self.origin[k - 1]
-            v0 = (d[0] * math.cos(yaw0) + d[1] * math.sin(yaw0)) / dt
-            vsd = math.hypot(p.max_accel_mps2 * dt, sa * math.sqrt(
-                1.0 / self.cnt[k] + 1.0 / self.cnt[k - 1]) / dt)
-            if not p.reverse:
-                v0 = max(v0, 0.0)
+            v0, vsd = self._fit_speed(k, yaw0)
         elif self.anchor < 0:
             self.anchor = k
             return None
