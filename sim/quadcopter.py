@@ -597,14 +597,7 @@ def _check_interval(sample_interval_s, path: Path) -> tuple[float, float]:
     if sample_interval_s is None:
         hi = 1.0 / path.sample_rate_hz
         return (hi / 5.0, hi)
-    try:
-        lo, hi = (float(x) for x in sample_interval_s)
-    except (TypeError, ValueError):
-        raise ValueError(f"sample_interval_s: expected (min, max) seconds, got "
-                         f"{sample_interval_s!r}") from None
-    if not (math.isfinite(lo) and math.isfinite(hi) and 0 < lo <= hi):
-        raise ValueError(f"sample_interval_s: need 0 < min <= max, got {sample_interval_s!r}")
-    return (lo, hi)
+    return _check_pair(sample_interval_s)
 
 
 def simulate_quadcopter(path: Path | str = "quad_square6", *, seed: int = 0,
@@ -1011,6 +1004,7 @@ def impulse_flight(axis: str, rng: np.random.Generator, *, duration_s: float = 1
 
 
 def _check_pair(sample_interval_s) -> tuple[float, float]:
+    """``sample_interval_s`` as (min, max) seconds, 0 < min <= max, finite."""
     try:
         lo, hi = (float(x) for x in sample_interval_s)
     except (TypeError, ValueError):
