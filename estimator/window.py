@@ -109,6 +109,7 @@ __all__ = [
     "SOLVERS",
     "STATUSES",
     "BatchFit",
+    "CcpProblems",
     "WindowFit",
     "check_window_means",
     "fit_stationary",
@@ -590,7 +591,7 @@ def _fast_result(p_c: np.ndarray, centre: np.ndarray, g: Any, obj: float, mirror
 # ----------------------------------------------------------------------------- public fit
 def fit_window(obs: Any, config: SensorConfig, weights: Any | None = None, eps: float = 0.01,
                solver: str = "procrustes", x0: Any | None = None, *, maxiter: int = 100,
-               ) -> WindowFit:
+               ccp_problems: CcpProblems | None = None) -> WindowFit:
     """Fit the known configuration to one window of observations (Eq. 3.9; Eq. 3.7 when the
     window is the whole stationary recording; Eq. 3.12-3.14 with weights).
 
@@ -599,7 +600,9 @@ def fit_window(obs: Any, config: SensorConfig, weights: Any | None = None, eps: 
     solver : "procrustes" | "slsqp" | "ccp" | "elastic" (module docstring). x0 : (m, d) start
     for slsqp/ccp/elastic (default: the procrustes fit; elastic uses it only when it is
     strictly inside every band) and the positions returned when the window has insufficient
-    data. maxiter : iteration limit of slsqp / ccp / elastic.
+    data. maxiter : iteration limit of slsqp / ccp / elastic. ccp_problems : the ccp
+    solver's built problems (:class:`CcpProblems`) to reuse across calls (default: built for
+    this call).
     Raises ValueError naming the field for malformed input; solver trouble is in ``status``.
     """
     if not isinstance(config, SensorConfig):
@@ -667,7 +670,7 @@ def fit_window(obs: Any, config: SensorConfig, weights: Any | None = None, eps: 
         if solver == "slsqp":
             p_sol, iters = _solve_slsqp(yc, Wa, config, e, start, maxiter)
         else:
-            p_sol, iters = _solve_ccp(yc, Wa, config, e, start, maxiter)
+            p_sol, iters = _solve_ccp(yc, Wa, config, e, start, maxiter, ccp_problems)
     except (ValueError, ArithmeticError, np.linalg.LinAlgError, RuntimeError):
         p_sol, iters = None, 0
     if p_sol is not None and not full.all():
@@ -783,8 +786,6 @@ def _solve_slsqp(yc: np.ndarray, Wa: np.ndarray, config: SensorConfig, eps: floa
 
 
 # ----------------------------------------------------------------------------- ccp
-#: (m, d) -> (problem, z, sqrt_w, sqrt_w_y, U, ub, lb); built once, reused (DPP)
-_CCP_CACHE: dict[tuple[int, int], tuple] = {}
 
 #: Clarabel tolerances: tighter than the defaults (1e-8) so accepted iterates satisfy the
 #: distance bounds to FEAS_TOL (1e-9 m) on metre-sized platforms
@@ -799,34 +800,51 @@ CCP_MARGIN = 1e-8
 CCP_RTOL = 1e-6
 
 
-def _ccp_problem(m: int, d: int) -> tuple:
-    key = (m, d)
-    if key not in _CCP_CACHE:
-        import cvxpy as cp
+class CcpProblems:
+    """The ccp solver's cvxpy problems, one per ``(m, d)``, built on first use and reused
+    (DPP: only the Parameters change between windows). Building one costs far more than a
+    window's solve, so a caller fitting many windows passes one instance to every
+    :func:`fit_window` call (``ccp_problems=``; the trackers do); without it each call
+    builds its own. An explicit object, not a module-level cache: the caller owns it."""
 
-        I, J = _pairs(m)
-        P = I.size
-        E = np.zeros((P, m))
-        E[np.arange(P), I] = 1.0
-        E[np.arange(P), J] = -1.0
-        z = cp.Variable((m, d))
-        sqrt_w = cp.Parameter((m, d), nonneg=True)
-        sqrt_w_y = cp.Parameter((m, d))
-        U = cp.Parameter((P, d))
-        ub = cp.Parameter(P, nonneg=True)
-        lb = cp.Parameter(P)
-        D = E @ z
-        objective = cp.sum_squares(cp.multiply(sqrt_w, z) - sqrt_w_y)
-        constraints = [cp.norm(D, 2, axis=1) <= ub,              # convex upper bound (SOC)
-                       cp.sum(cp.multiply(U, D), axis=1) >= lb]  # linearized lower bound
-        prob = cp.Problem(cp.Minimize(objective), constraints)
-        assert prob.is_dcp(dpp=True)
-        _CCP_CACHE[key] = (prob, z, sqrt_w, sqrt_w_y, U, ub, lb)
-    return _CCP_CACHE[key]
+    def __init__(self) -> None:
+        self._problems: dict[tuple[int, int], tuple] = {}
+
+    def get(self, m: int, d: int) -> tuple:
+        """(problem, z, sqrt_w, sqrt_w_y, U, ub, lb) for m sensors in d dimensions."""
+        key = (m, d)
+        if key not in self._problems:
+            self._problems[key] = _ccp_problem(m, d)
+        return self._problems[key]
+
+
+def _ccp_problem(m: int, d: int) -> tuple:
+    """The ccp subproblem of Eq. 3.9 for m sensors in d dimensions, with Parameters."""
+    import cvxpy as cp
+
+    I, J = _pairs(m)
+    P = I.size
+    E = np.zeros((P, m))
+    E[np.arange(P), I] = 1.0
+    E[np.arange(P), J] = -1.0
+    z = cp.Variable((m, d))
+    sqrt_w = cp.Parameter((m, d), nonneg=True)
+    sqrt_w_y = cp.Parameter((m, d))
+    U = cp.Parameter((P, d))
+    ub = cp.Parameter(P, nonneg=True)
+    lb = cp.Parameter(P)
+    D = E @ z
+    objective = cp.sum_squares(cp.multiply(sqrt_w, z) - sqrt_w_y)
+    constraints = [cp.norm(D, 2, axis=1) <= ub,              # convex upper bound (SOC)
+                   cp.sum(cp.multiply(U, D), axis=1) >= lb]  # linearized lower bound
+    prob = cp.Problem(cp.Minimize(objective), constraints)
+    assert prob.is_dcp(dpp=True)
+    return (prob, z, sqrt_w, sqrt_w_y, U, ub, lb)
 
 
 def _solve_ccp(yc: np.ndarray, Wa: np.ndarray, config: SensorConfig, eps: float,
-               start: np.ndarray, maxiter: int) -> tuple[np.ndarray, int]:
+               start: np.ndarray, maxiter: int, problems: CcpProblems | None = None
+               ) -> tuple[np.ndarray, int]:
     """Convex-concave procedure for Eq. 3.9 (normalized by the total weight).
 
     Each iteration solves, with u_ij the unit direction of p_i - p_j at the current iterate,
@@ -838,7 +856,7 @@ def _solve_ccp(yc: np.ndarray, Wa: np.ndarray, config: SensorConfig, eps: float,
     import cvxpy as cp
 
     m, d = config.m, config.d
-    prob, z, sqrt_w, sqrt_w_y, U, ub, lb = _ccp_problem(m, d)
+    prob, z, sqrt_w, sqrt_w_y, U, ub, lb = (problems or CcpProblems()).get(m, d)
     g = _geometry(config)
     I, J, a = g.I, g.J, g.a
     Wn, target = _solver_weights(yc, Wa, start)

@@ -25,7 +25,13 @@ from estimator.memo import TrackCache, content_digest, freeze, memo_get
 from estimator.track_options import GROWTH_RULES, DynamicWindow
 from estimator.trackers._common import Rows, TrackerOptions, check_inputs
 from estimator.weights import Weighting
-from estimator.window import fit_window, procrustes_batch, window_means, window_moments
+from estimator.window import (
+    CcpProblems,
+    fit_window,
+    procrustes_batch,
+    window_means,
+    window_moments,
+)
 
 #: Windows stacked per weight/solver call: keeps memory ~ this many samples x m x 2 floats.
 CHUNK_SAMPLES = 200_000
@@ -289,6 +295,7 @@ def fit_windows(obs, cfg, ends, w, *, weighting, rng, huff_threshold, huber_c, s
         return pos, yaw, status, prev
     a = 0
     huff = sample_huff(obs, cfg, weighting, huff_threshold, cache)
+    ccp_problems = CcpProblems() if solver == "ccp" else None   # built once for these rows
     for ch in chunks(ends, w, m):
         sl = slice(a, a + ch.size)
         if solver == "procrustes" and weighting == "random":
@@ -309,7 +316,8 @@ def fit_windows(obs, cfg, ends, w, *, weighting, rng, huff_threshold, huber_c, s
         else:
             for r in range(ch.size):
                 fit = fit_window(st[r], cfg, None if wts is None else wts[r], eps=eps,
-                                 solver=solver, x0=prev if warm_start else None, **fit_kw)
+                                 solver=solver, x0=prev if warm_start else None,
+                                 ccp_problems=ccp_problems, **fit_kw)
                 pos[a + r], yaw[a + r], status[a + r] = fit.positions, fit.yaw, fit.status
                 if fit.status != "insufficient_data":
                     prev = fit.positions
