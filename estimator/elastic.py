@@ -136,26 +136,16 @@ class ElasticFit:
 
 
 # ----------------------------------------------------------------------------- linear algebra
-_MAPS: dict[tuple[int, int], tuple[np.ndarray, np.ndarray, np.ndarray]] = {}
-
-
-def _pair_maps(m: int, I: np.ndarray, J: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """S (P, m): v = S z (pair differences); S^T accumulates pair terms per sensor;
-    Mf (m*m, P): the pair Laplacians, so sum_k B_k Lap_k = Mf @ B."""
-    key = (m, I.size)
-    if key not in _MAPS:
-        P = I.size
-        k = np.arange(P)
-        S = np.zeros((P, m))
-        S[k, I] = 1.0
-        S[k, J] = -1.0
-        M = np.zeros((m, m, P))
-        M[I, I, k] = 1.0
-        M[J, J, k] = 1.0
-        M[I, J, k] = -1.0
-        M[J, I, k] = -1.0
-        _MAPS[key] = (S, np.ascontiguousarray(S.T), M.reshape(m * m, P))
-    return _MAPS[key]
+def _pair_difference(m: int, I: np.ndarray, J: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """S (P, m): v = S z (pair differences), +1 at (k, I[k]) and -1 at (k, J[k]); and S^T
+    (contiguous), which accumulates pair terms per sensor. O(P m), built per call (no
+    module-level cache: it is a few hundred numbers)."""
+    P = I.size
+    k = np.arange(P)
+    S = np.zeros((P, m))
+    S[k, I] = 1.0
+    S[k, J] = -1.0
+    return S, np.ascontiguousarray(S.T)
 
 
 try:  # the gufunc behind np.linalg.cholesky: NaN factors for the matrices that are not PD
@@ -252,7 +242,7 @@ def _barrier_solve(Y: np.ndarray, Wn: np.ndarray, Z0: np.ndarray, a: np.ndarray,
     n = d * m
     I, J = np.triu_indices(m, 1)
     P = I.size
-    S, ST, _ = _pair_maps(m, I, J)
+    S, ST = _pair_difference(m, I, J)
     absST = np.abs(ST)
     hi2, lo2 = ((a + eps) ** 2)[:, None], ((a - eps) ** 2)[:, None]
     a_max = float(a.max())
