@@ -282,11 +282,11 @@ def test_car_preset_loads_and_expands():
     assert "car" in available_presets()
     spec = load_spec("car")
     cells = spec.expand()
-    assert len(cells) == 3 * 5 * 10
+    assert len(cells) == 3 * 4 * 10
     assert {c.noise for c in cells} == {"recording", "replay:shifted",
                                         "replay:common_plus_model"}
-    assert {c.technique for c in cells} == {"none", "ekf", "ekf_fixed_lag", "ekf_smoother",
-                                            "gtsam"}
+    # no optional extra needed (the GTSAM peer is added by hand where gtsam is installed)
+    assert {c.technique for c in cells} == {"none", "ekf", "ekf_fixed_lag", "ekf_smoother"}
     assert {c.window for c in cells} == {1}
     assert default_out(spec.name) == RESULTS_DIR / "local" / "car"     # git-ignored
 
