@@ -56,6 +56,22 @@ def write_tum(path: str | Path, t: np.ndarray, xy: np.ndarray, yaw: np.ndarray,
     return path, int(n - ok.sum())
 
 
+def recorded_cell(results: Path, key: str):
+    """(spec, cell) of ``key`` as the results folder's manifest recorded the spec: the
+    cell's resolved files (``cell.file("config")`` ...), also for models named by path,
+    whose label is their ``name``. ValueError when the cell is not in that spec."""
+    from experiments.spec import REPO, Spec
+
+    man = json.loads((results / "manifest.json").read_text())
+    base = Path(man.get("spec_base_dir", "."))
+    spec = Spec.from_dict(man["spec_raw"], source=man["spec"]["source"],
+                          base_dir=base if base.is_absolute() else REPO / base)
+    match = [c for c in spec.expand() if c.key == key]
+    if not match:
+        raise ValueError(f"cell {key}: not in the recorded spec (files changed since?)")
+    return spec, match[0]
+
+
 def _epochs(results: Path, cell: pd.Series) -> pd.DataFrame:
     path = results / "epochs" / f"{cell['key']}.parquet"
     if path.exists():
@@ -63,17 +79,9 @@ def _epochs(results: Path, cell: pd.Series) -> pd.DataFrame:
     # recompute this one cell from the recorded spec (the truth comes from the cache)
     from collections import OrderedDict
 
-    from experiments.spec import REPO, Spec
     from experiments.sweep import CellContext, CellStore, evaluate_cell, simulate_truth
 
-    man = json.loads((results / "manifest.json").read_text())
-    base = Path(man.get("spec_base_dir", "."))
-    spec = Spec.from_dict(man["spec_raw"], source=man["spec"]["source"],
-                          base_dir=base if base.is_absolute() else REPO / base)
-    match = [c for c in spec.expand() if c.key == cell["key"]]
-    if not match:
-        raise ValueError(f"cell {cell['key']}: not in the recorded spec (files changed since?)")
-    c = match[0]
+    spec, c = recorded_cell(results, str(cell["key"]))
     truth = simulate_truth(c.file("path"), c.path_overrides, c.file("config"), spec.sim_seed)
     ctx = CellContext(spec_seed=spec.seed, masks=spec.masks, session_s=spec.session_s,
                       want_epochs=True, memo=OrderedDict())

@@ -564,7 +564,20 @@ def render_cell(results: str | Path, out: str | Path, *, key: str | None = None,
     ep = _epochs(results, cell)
     t = ep["t"].to_numpy(float)
     n = len(opts.times(t[0], t[-1]))
-    return write_clip(rover_frames(ep, str(cell["config"]), opts), out, opts.fps, n, progress)
+    return write_clip(rover_frames(ep, _config_file(results, cell), opts), out, opts.fps, n,
+                      progress)
+
+
+def _config_file(results: Path, cell: pd.Series) -> str:
+    """The cell's configuration as the sweep resolved it (a model named by path is labelled
+    by its ``name``, which ``SensorConfig.load`` alone would not find); the label where the
+    folder has no manifest."""
+    from experiments.export import recorded_cell
+
+    if not (results / "manifest.json").exists():
+        return str(cell["config"])
+    f = recorded_cell(results, str(cell["key"]))[1].file("config")
+    return str(cell["config"]) if f is None else str(f)
 
 
 def render_flight(ultrasonic: str | Path, out: str | Path, *, opts: ClipOptions = ClipOptions(),

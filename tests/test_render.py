@@ -247,3 +247,31 @@ def test_ghost_shows_when_the_estimate_is_within_centimetres(top_frames):
     red = _red(top_frames["close"])
     assert _coverage(red, "close", 5.01, 3.0, ROOF_Z, 0.8 * HULL_HALF[1], 0.8 * HULL_HALF[0]) \
         > 0.8
+
+
+def test_render_finds_a_configuration_named_by_path(tmp_path):
+    """A configuration named by file path is labelled by its ``name`` (not a file models/
+    has), so the clip takes the file the sweep resolved from the run's manifest."""
+    from estimator.configuration import SensorConfig
+    from experiments.render import _config_file
+    from experiments.selection import find_cell
+    from experiments.sweep import run
+
+    src = Path(__file__).resolve().parents[1] / "models" / "configs" / "rover_gps4.toml"
+    text = src.read_text().replace('name = "rover_gps4"', 'name = "my_roof"')
+    assert 'name = "my_roof"' in text
+    (tmp_path / "roof.toml").write_text(text)
+    (tmp_path / "spec.toml").write_text(
+        'name = "roof"\nseeds = 1\nmasks = ["full"]\n[defaults]\npath = "square20"\n'
+        'config = "roof.toml"\nnoise = "none"\n[[grid]]\nwindow = [1]\n'
+        'technique = ["none"]\n[epochs]\nseeds = [0]\n')
+    out = tmp_path / "out"
+    run(tmp_path / "spec.toml", out=out, jobs=1, figures=False, progress=False,
+        cache_dir=tmp_path / "cache")
+    cell = find_cell(out, None, {"window": "1"})
+    assert cell["config"] == "my_roof"
+    with pytest.raises(ValueError):
+        SensorConfig.load(str(cell["config"]))
+    f = _config_file(out, cell)
+    assert Path(f).resolve() == (tmp_path / "roof.toml").resolve()
+    assert SensorConfig.load(f).name == "my_roof"
