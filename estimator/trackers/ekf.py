@@ -8,6 +8,7 @@ the smoothers :mod:`estimator.pose_smoother`; described in :mod:`estimator.track
 
 from __future__ import annotations
 
+import abc
 from dataclasses import dataclass
 from typing import Any, ClassVar
 
@@ -24,7 +25,7 @@ __all__ = ["FilterOptions", "FixedLagSmootherTracker", "PoseFilterTracker",
 
 
 @dataclass(frozen=True, kw_only=True, eq=False)
-class FilterOptions(TrackerOptions):
+class FilterOptions(TrackerOptions, abc.ABC):
     """Options of the pose-filter family: filter_params, a
     :class:`estimator.pose_filter.PoseFilterParams` (platform limits, noise levels, no-slip
     point, reverse mode, smoother lag; None: the rover's defaults). ``window`` s only drops
@@ -50,13 +51,14 @@ class FilterOptions(TrackerOptions):
                             f"{type(fp).__name__}")
         object.__setattr__(self, "filter_params", fp or PoseFilterParams())
 
+    @abc.abstractmethod
     def _states(self, tt: np.ndarray, o: np.ndarray, offsets: np.ndarray,
                 cache: TrackCache | None) -> tuple[np.ndarray, np.ndarray, PoseFilterResult,
                                                    np.ndarray]:
         """States (n, 6) [x, y, yaw, v, a, yaw rate], their heading sd (n,) rad, and the
         forward pass (status, counts, NIS, the parameters it used); or (states, status (n,),
-        extra columns dict) for a tracker without a pose-filter pass."""
-        raise NotImplementedError
+        extra columns dict) for a tracker without a pose-filter pass. Each tracker of the
+        family defines it (an abstract method: the base is not a tracker)."""
 
     def track(self, t: Any, obs: Any, config: Any, *, cache: TrackCache | None = None
               ) -> pd.DataFrame:
