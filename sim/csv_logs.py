@@ -53,7 +53,7 @@ from pathlib import Path
 
 import numpy as np
 
-from sim.nmea import LogFixes
+from sim.nmea import LogFixes, plausible_fix
 from sim.recording_errors import RecordingError
 
 __all__ = ["CSV_KEYS", "DEFAULT_MISSING", "CsvMapping", "read_csv_log"]
@@ -372,8 +372,7 @@ def _read_rows(path: Path, mp: CsvMapping, antenna: str | None):
             except (ValueError, OverflowError):
                 bad(lineno)
                 continue
-            if not (math.isfinite(la) and math.isfinite(lo) and abs(la) <= 90.0
-                    and abs(lo) <= 180.0) or (la == 0.0 and lo == 0.0) or math.isinf(h):
+            if not plausible_fix(la, lo, h):
                 bad(lineno)
                 continue
             if not GPS_EPOCH_UTC <= tv <= now:

@@ -140,6 +140,7 @@ __all__ = [
     "log_format",
     "mean_longitude",
     "parse_nmea",
+    "plausible_fix",
     "read_log",
     "read_nmea",
     "read_tumbleweed_csv",
@@ -231,6 +232,15 @@ class LogFixes:
         """(k,) bool, epochs with a usable position."""
         return np.isfinite(self.lat) & np.isfinite(self.lon)
 
+
+
+def plausible_fix(lat_deg: float, lon_deg: float, alt_m: float) -> bool:
+    """A fix a log may hold: finite latitude and longitude in range (degrees), not the
+    (0, 0) "null island" receivers report without a fix, and a height (m) that is not
+    infinite (NaN means absent)."""
+    return (math.isfinite(lat_deg) and math.isfinite(lon_deg) and abs(lat_deg) <= 90.0
+            and abs(lon_deg) <= 180.0 and not (lat_deg == 0.0 and lon_deg == 0.0)
+            and not math.isinf(alt_m))
 
 def _zero_skips() -> dict:
     return dict.fromkeys(SKIP_CLASSES, 0)

@@ -76,6 +76,7 @@ from sim.nmea import (
     MAX_RATE_HZ,
     LogFixes,
     mean_longitude,
+    plausible_fix,
     read_nmea,
     read_tumbleweed_csv,
     utm_epsg,
@@ -247,8 +248,7 @@ def read_text_log(path: str | Path, name: str | None = None) -> LogFixes:
             except (ValueError, OverflowError):
                 bad(lineno)
                 continue
-            if not (math.isfinite(la) and math.isfinite(lo) and abs(la) <= 90.0
-                    and abs(lo) <= 180.0) or (la == 0.0 and lo == 0.0) or math.isinf(hv):
+            if not plausible_fix(la, lo, hv):
                 bad(lineno)
                 continue
             if not GPS_EPOCH_UTC <= tv <= now:
