@@ -11,9 +11,12 @@ Pure numpy, every draw from the caller's Generator. The trajectory is a kinemati
 (the rear axle's midpoint moves along the car's heading: no slip), driven by random speed
 and turn commands with acceleration, jerk, curvature and lateral-acceleration limits,
 integrated at ``SUBSTEP_S`` and sampled at ``rate_hz``. :func:`vehicle_observations` puts
-the project's error models on the antennas: ``"rtk"`` (models/noise/gps_rtk.toml, cm level)
-or a consumer session (models/noise/gps_stationary.toml, synthesized) replayed from one
-receiver by :func:`sim.gps.replay_one` in mode ``"shifted"`` or ``"common_plus_model"``.
+the project's error models on the antennas: ``"rtk"`` (network RTK on one vehicle,
+models/noise/gps_rtk_network.toml: cm level common to all antennas, ~1.8 mm per antenna, the
+recording's stated 0.11 deg window-1 heading), ``"rtk_independent"`` (models/noise/gps_rtk.toml:
+1.5 cm per receiver, independent) or a consumer session (models/noise/gps_stationary.toml,
+synthesized) replayed from one receiver by :func:`sim.gps.replay_one` in mode ``"shifted"``
+or ``"common_plus_model"``.
 """
 
 from __future__ import annotations
@@ -34,7 +37,7 @@ from sim.gps import (
 )
 from sim.truth import Truth
 
-__all__ = ["NOISES", "VehicleCase", "simulate_vehicle_case", "vehicle_observations"]
+__all__ = ["NOISES", "RTK_MODELS", "VehicleCase", "simulate_vehicle_case", "vehicle_observations"]
 
 #: Integration step of the kinematic car, s.
 SUBSTEP_S = 0.02
@@ -50,7 +53,9 @@ ABSENT = (0.03, 0.10, 0.16, 0.2)
 #: Mean dropout burst, s.
 BURST_S = 6.0
 #: Error models of :func:`vehicle_observations`.
-NOISES = ("none", "rtk", "shifted", "common_plus_model")
+NOISES = ("none", "rtk", "rtk_independent", "shifted", "common_plus_model")
+#: Noise model files of the RTK error models of :data:`NOISES`.
+RTK_MODELS = {"rtk": "gps_rtk_network", "rtk_independent": "gps_rtk"}
 
 
 @dataclass(frozen=True, eq=False)
@@ -221,7 +226,8 @@ def simulate_vehicle_case(rng: np.random.Generator, *, rate_hz: float = 1.0,
 def vehicle_observations(case: VehicleCase, noise: str, rng: np.random.Generator
                          ) -> np.ndarray:
     """Antenna fixes (n, 4, 2) m of ``case`` with an error model of :data:`NOISES`, NaN
-    where the case's antenna is absent. "rtk": gps_rtk per antenna (cm). "shifted" /
+    where the case's antenna is absent. "rtk": gps_rtk_network (cm common to the antennas,
+    ~1.8 mm per antenna); "rtk_independent": gps_rtk per antenna (1.5 cm). "shifted" /
     "common_plus_model": one receiver of a synthesized gps_stationary session (4 n s long)
     replayed by :func:`sim.gps.replay_one` (the latter adds gps_stationary's per-receiver
     part; its own dropouts add to the case's)."""
@@ -230,9 +236,10 @@ def vehicle_observations(case: VehicleCase, noise: str, rng: np.random.Generator
     tr, n = case.truth, case.truth.n
     if noise == "none":
         obs = tr.sensor_positions[..., :2].copy()
-    elif noise == "rtk":
+    elif noise in RTK_MODELS:
         dt = float(np.median(np.diff(tr.t)))
-        err, _ = receiver_errors(GpsNoiseModel.load("gps_rtk"), case.config.m, n, dt, rng)
+        model = GpsNoiseModel.load(RTK_MODELS[noise])
+        err, _ = receiver_errors(model, case.config.m, n, dt, rng)
         obs = tr.sensor_positions[..., :2] + err
     else:
         rate = float(tr.meta["rate_hz"])
