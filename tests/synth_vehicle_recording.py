@@ -6,7 +6,7 @@ dropouts, one antenna missing for 333 s, a 34 s outage, a 150 s stop) becomes th
 recordings that share one reference:
 
 - ``car_case_rtk``: the four antennas' RTK fixes (``vehicle_observations(case, "rtk")``,
-  models/noise/gps_rtk.toml) as one whitespace text log per antenna (unix s, lat, lon,
+  models/noise/gps_rtk_network.toml) as one whitespace text log per antenna (unix s, lat, lon,
   height), only where the case's antenna reports;
 - ``car_case_replay`` and ``car_case_replay_cpm``: ``[replay]`` recordings: the reference
   plus one receiver of a synthesized ``gps_stationary`` session
@@ -123,8 +123,8 @@ def write_car_recordings(out_dir: str | Path = "models/recordings") -> CarRecord
         body += ["[[antenna]]", f'name = "{nm}"', f'log = "{(rel / f"ant{nm}.txt").as_posix()}"',
                  'format = "text"', ""]
     files["toml_rtk"] = out / "car_case_rtk.toml"
-    files["toml_rtk"].write_text(_toml("car_case_rtk", what + " Observations: gps_rtk fixes.",
-                                       body, rel))
+    files["toml_rtk"].write_text(_toml(
+        "car_case_rtk", what + " Observations: gps_rtk_network fixes.", body, rel))
     for name, mode, extra in (("car_case_replay", "shifted", []),
                               ("car_case_replay_cpm", "common_plus_model",
                                ['model = "gps_stationary"'])):
