@@ -42,6 +42,7 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
+from estimator import range_kernels
 from estimator import trilateration as tri
 from estimator._checks import check_array, check_int, check_real
 from estimator.configuration import SensorConfig
@@ -610,8 +611,8 @@ class TrackResult:
     (order :data:`STATE`, yaw unwrapped); cov_pred / cov_post (T, 7, 7); segment (T,) int
     (a new segment starts at every (re)initialisation; -1 before the first); reinit (T,)
     bool; n_accepted / n_gated (T,); nis (K,) normalised innovation squared of every update
-    (NaN before initialisation), accepted (K,) bool; seconds : wall time of the loop;
-    updates : number of range updates processed.
+    (NaN before initialisation), accepted (K,) bool; seconds : wall time of the whole
+    :func:`track` call (checks, loop, outputs); updates : number of range updates processed.
     """
 
     times: np.ndarray
@@ -664,7 +665,8 @@ def _check_stream(t, tag, anc, r, N, M):
 
 
 def track(anchors, body, t, tag, anchor, r, init_times, init_pose, *, origin_z_m=0.0,
-          init_bias=None, config: FilterConfig | None = None) -> TrackResult:
+          init_bias=None, config: FilterConfig | None = None,
+          reference: bool = False) -> TrackResult:
     """Tightly coupled EKF on (x, y, yaw, vx, vy, yaw rate, common bias): each range is one
     scalar update at its time (thesis Appendix C's constant-velocity model, extended to the
     rigid pose and the range model of :func:`fit_pose`).
@@ -674,10 +676,13 @@ def track(anchors, body, t, tag, anchor, r, init_times, init_pose, *, origin_z_m
     init_pose (L, 3) x, y, yaw, init_bias (L,) m or None: joint fits (NaN = none) that
     initialise the filter and re-initialise it when the innovations stay inconsistent
     (:class:`FilterConfig`). Gated ranges are not used; the gate cannot lock the filter
-    out because of the re-initialisation. Returns :class:`TrackResult`.
+    out because of the re-initialisation. Returns :class:`TrackResult`. The loop runs in
+    the compiled kernel :func:`estimator.range_kernels.rigid_ekf`; ``reference=True`` runs
+    the scalar-Python reference instead (the same outputs to rounding; for tests and timing).
     """
     import time as _time
 
+    start = _time.perf_counter()
     cfg = FilterConfig() if config is None else config
     A, B, _, _ = _check_geometry(anchors, body, np.zeros((np.shape(body)[0],
                                                           np.shape(anchors)[0])))
@@ -695,32 +700,50 @@ def track(anchors, body, t, tag, anchor, r, init_times, init_pose, *, origin_z_m
     k = np.searchsorted(it, times, side="right") - 1
     valid = (k >= 0) & (times - it[np.maximum(k, 0)] <= cfg.max_init_age_s)
     valid &= np.all(np.isfinite(ip[np.maximum(k, 0)]), axis=1)
-    init = [tuple(ip[j]) + (float(np.nan_to_num(ib[j])),) if ok else None
-            for j, ok in zip(k, valid)]
+    kk = np.maximum(k, 0)
+    init = np.where(valid[:, None], np.column_stack([ip[kk], np.nan_to_num(ib[kk])]), 0.0)
     dz = (z0 + B[:, 2])[:, None] - A[None, :, 2]
-    args = (B[tag, 0].tolist(), B[tag, 1].tolist(), (dz[tag, anc] ** 2).tolist(),
-            A[anc, 0].tolist(), A[anc, 1].tolist())
-    start = _time.perf_counter()
-    out = _run(t.tolist(), r.tolist(), first.tolist() + [t.size], *args, init, cfg)
-    seconds = _time.perf_counter() - start
+    out = _loop(t, r, np.append(first, t.size), B[tag, 0], B[tag, 1], dz[tag, anc] ** 2,
+                A[anc, 0], A[anc, 1], init, valid, cfg, reference)
     xs_pred, ps_pred, xs_post, ps_post, seg, rei, nacc, ngat, nis, acc = out
-    return TrackResult(times=times, state_pred=np.array(xs_pred).reshape(-1, 7),
-                       cov_pred=_unpack(ps_pred), state_post=np.array(xs_post).reshape(-1, 7),
-                       cov_post=_unpack(ps_post), segment=np.array(seg), reinit=np.array(rei),
-                       n_accepted=np.array(nacc), n_gated=np.array(ngat), nis=np.array(nis),
-                       accepted=np.array(acc, dtype=bool), seconds=seconds, updates=t.size)
+    res = TrackResult(times=times, state_pred=np.asarray(xs_pred, float).reshape(-1, 7),
+                      cov_pred=_unpack(ps_pred),
+                      state_post=np.asarray(xs_post, float).reshape(-1, 7),
+                      cov_post=_unpack(ps_post), segment=np.asarray(seg, dtype=int),
+                      reinit=np.asarray(rei, dtype=bool), n_accepted=np.asarray(nacc, int),
+                      n_gated=np.asarray(ngat, int), nis=np.asarray(nis, float),
+                      accepted=np.asarray(acc, dtype=bool), seconds=0.0, updates=t.size)
+    return replace(res, seconds=_time.perf_counter() - start)
+
+
+def _loop(t, r, bounds, bx, by, dz2, ax, ay, init, has, cfg, reference):
+    """The filter loop: the compiled kernel (:func:`estimator.range_kernels.rigid_ekf`) or,
+    with ``reference``, the scalar-Python reference :func:`_run_reference` (same outputs).
+    init (T, 4) x, y, yaw, bias of the joint fit usable at each epoch where has (T,)."""
+    if reference:
+        lst = [tuple(v) if ok else None for v, ok in zip(init.tolist(), has.tolist())]
+        return _run_reference(t.tolist(), r.tolist(), bounds.tolist(), bx.tolist(),
+                              by.tolist(), dz2.tolist(), ax.tolist(), ay.tolist(), lst, cfg)
+    v0 = np.array([cfg.init_sigma_pos_m, cfg.init_sigma_pos_m, cfg.init_sigma_yaw,
+                   cfg.init_sigma_vel, cfg.init_sigma_vel, cfg.init_sigma_yaw_rate,
+                   cfg.init_sigma_bias_m]) ** 2
+    return range_kernels.rigid_ekf(t, r, bounds.astype(np.int64), bx, by, dz2, ax, ay, init,
+                                   has, v0, cfg.sigma_range_m ** 2, cfg.gate_sigma ** 2,
+                                   cfg.q_accel, cfg.q_yaw_accel, cfg.q_bias,
+                                   cfg.reinit_epochs, cfg.nis_limit, cfg.max_gap_s)
 
 
 def _unpack(rows):
+    """(T, 28) upper-triangle rows (list or array) -> (T, 7, 7) symmetric matrices."""
     P = np.zeros((len(rows), 7, 7))
-    if rows:
-        U = np.array(rows)
+    if len(rows):
+        U = np.asarray(rows, float)
         P[:, _IU, _JU] = U
         P[:, _JU, _IU] = U
     return P
 
 
-def _run(t, r, bounds, bx, by, dz2, ax, ay, init, cfg):
+def _run_reference(t, r, bounds, bx, by, dz2, ax, ay, init, cfg):
     """The filter loop in scalar Python: the 28 covariance entries (upper triangle, p{i}{j},
     state order :data:`STATE`) are local variables, the predict and update steps are written
     out (F sparse, H = [hx, hy, hyaw, 0, 0, 0, 1]), so one range update does no allocation.
@@ -884,10 +907,22 @@ def _f_matrix(dt):
     return F
 
 
-def smooth(res: TrackResult) -> TrackResult:
+def smooth(res: TrackResult, *, reference: bool = False) -> TrackResult:
     """Rauch-Tung-Striebel smoother over :func:`track`'s epochs, per segment (a
     re-initialisation breaks the chain). Returns a TrackResult whose ``state_post`` /
-    ``cov_post`` are the smoothed ones (the other fields as in ``res``)."""
+    ``cov_post`` are the smoothed ones (the other fields as in ``res``). Runs the compiled
+    :func:`estimator.range_kernels.rigid_rts`; ``reference=True`` the numpy reference."""
+    if reference:
+        xs, Ps = _smooth_reference(res)
+    else:
+        xs, Ps = range_kernels.rigid_rts(res.times, res.segment.astype(np.int64),
+                                         res.state_pred, res.cov_pred, res.state_post,
+                                         res.cov_post)
+    return replace(res, state_post=xs, cov_post=Ps)
+
+
+def _smooth_reference(res: TrackResult) -> tuple[np.ndarray, np.ndarray]:
+    """The numpy RTS pass of :func:`smooth`: smoothed states (T, 7), covariances (T, 7, 7)."""
     xs, Ps = res.state_post.copy(), res.cov_post.copy()
     T = res.times.size
     for k in range(T - 2, -1, -1):
@@ -901,7 +936,7 @@ def smooth(res: TrackResult) -> TrackResult:
             C = res.cov_post[k] @ F.T @ np.linalg.pinv(Pp, hermitian=True)
         xs[k] = res.state_post[k] + C @ (xs[k + 1] - res.state_pred[k + 1])
         Ps[k] = res.cov_post[k] + C @ (Ps[k + 1] - Pp) @ C.T
-    return replace(res, state_post=xs, cov_post=Ps)
+    return xs, Ps
 
 
 def nees(res: TrackResult, truth_times, truth_pose) -> np.ndarray:

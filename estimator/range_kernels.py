@@ -1,0 +1,234 @@
+"""Compiled per-update kernels of the range filters (issues 26 and 27).
+
+Each kernel is the scalar loop of a filter in :mod:`estimator.rigid_ranging` or
+:mod:`estimator.ranging`, compiled by numba (``@njit(cache=True)``: compiled on the first
+call of a process that finds no cache, then loaded from ``__pycache__``). The plain
+numpy/Python implementations stay in those modules as the references the tests compare
+against (``tests/test_range_kernels.py``; tolerance 1e-9 relative: the kernels do the same
+floating-point operations in the same order, so the results agree to rounding, measured
+<= 1e-12). With ``NUMBA_DISABLE_JIT=1`` the kernels run as plain Python with the same results.
+
+Arrays in, arrays out; no checks here (the callers validate). SI units.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+from numba import njit
+
+__all__ = ["rigid_ekf", "rigid_rts"]
+
+
+@njit(cache=True)
+def rigid_ekf(t, r, bounds, bx, by, dz2, ax, ay, init, has_init, v0, R, gate2, qa, qw, qb,
+              reinit_epochs, nis_limit, max_gap_s):
+    """The loop of :func:`estimator.rigid_ranging.track` (reference:
+    ``rigid_ranging._run_reference``), 7 states (x, y, yaw, vx, vy, yaw rate, bias).
+
+    t, r, bx, by, dz2, ax, ay (K,): update times s, ranges m, tag body x, y m, squared height
+    difference m^2, anchor x, y m; bounds (T + 1,) int: the updates of epoch e are
+    bounds[e]:bounds[e + 1]; init (T, 4) x, y, yaw, bias and has_init (T,) bool: the joint fit
+    that may (re)initialise epoch e; v0 (7,) initial variances. Returns x_pred, p_pred,
+    x_post, p_post ((T, 7) states, (T, 28) upper-triangle covariances, row-major), segment,
+    reinit, n_accepted, n_gated (T,), nis (K,), accepted (K,).
+    """
+    T = bounds.size - 1
+    K = t.size
+    xs_pred = np.zeros((T, 7))
+    ps_pred = np.zeros((T, 28))
+    xs_post = np.zeros((T, 7))
+    ps_post = np.zeros((T, 28))
+    seg = np.full(T, -1, dtype=np.int64)
+    rei = np.zeros(T, dtype=np.bool_)
+    nacc = np.zeros(T, dtype=np.int64)
+    ngat = np.zeros(T, dtype=np.int64)
+    nis_out = np.full(K, np.nan)
+    acc_out = np.zeros(K, dtype=np.bool_)
+    x = np.zeros(7)
+    P = np.zeros(28)              # upper triangle, row-major: index of (i, j), i <= j
+    live = False
+    segment = -1
+    bad_run = 0
+    ewma = 1.0
+    t_prev = 0.0
+    for e in range(T):
+        lo, hi = bounds[e], bounds[e + 1]
+        te = t[lo]
+        restart = has_init[e] and (not live or bad_run >= reinit_epochs or ewma > nis_limit
+                                   or te - t_prev > max_gap_s)
+        if restart:
+            x[0], x[1], x[2], x[6] = init[e, 0], init[e, 1], init[e, 2], init[e, 3]
+            x[3] = x[4] = x[5] = 0.0
+            P[:] = 0.0
+            P[0], P[7], P[13], P[18], P[22], P[25], P[27] = v0[0], v0[1], v0[2], v0[3], \
+                v0[4], v0[5], v0[6]
+            live, segment, bad_run, ewma = True, segment + 1, 0, 1.0
+        elif live:
+            _rigid_predict(x, P, te - t_prev, qa, qw, qb)
+        t_prev = te
+        xs_pred[e] = x
+        ps_pred[e] = P
+        na = ng = 0
+        if live:
+            for u in range(lo, hi):
+                if _rigid_update(x, P, bx[u], by[u], dz2[u], ax[u], ay[u], r[u], R, gate2,
+                                 nis_out, u):
+                    na += 1
+                    acc_out[u] = True
+                else:
+                    ng += 1
+                ewma += (min(100.0, nis_out[u]) - ewma) * 0.005
+            bad_run = bad_run + 1 if (ng >= 2 and ng > na) else 0
+        xs_post[e] = x
+        ps_post[e] = P
+        seg[e] = segment if live else -1
+        rei[e] = restart
+        nacc[e] = na
+        ngat[e] = ng
+    return xs_pred, ps_pred, xs_post, ps_post, seg, rei, nacc, ngat, nis_out, acc_out
+
+
+@njit(cache=True)
+def _rigid_predict(x, P, dt, qa, qw, qb):
+    """x <- F x, P <- F P F' + Q over dt (F = I + dt [0 I; 0 0] on the pose/rate blocks),
+    in place on the 28 upper-triangle entries (the rate-rate/rate-bias ones unchanged)."""
+    dt2 = dt * dt
+    qa1, qa2, qa3 = qa * dt, qa * dt2 / 2, qa * dt2 * dt / 3
+    qw1, qw2, qw3 = qw * dt, qw * dt2 / 2, qw * dt2 * dt / 3
+    x[0] += x[3] * dt
+    x[1] += x[4] * dt
+    x[2] += x[5] * dt
+    (p00, p01, p02, p03, p04, p05, p06, p11, p12, p13, p14, p15, p16, p22, p23, p24, p25, p26,
+        p33, p34, p35, p36, p44, p45, p46, p55, p56, p66) = (
+        P[0], P[1], P[2], P[3], P[4], P[5], P[6], P[7], P[8], P[9], P[10], P[11], P[12], P[13],
+        P[14], P[15], P[16], P[17], P[18], P[19], P[20], P[21], P[22], P[23], P[24], P[25],
+        P[26], P[27])
+    P[0] = p00 + dt * (p03 + p03) + dt2 * p33 + qa3
+    P[1] = p01 + dt * (p13 + p04) + dt2 * p34
+    P[2] = p02 + dt * (p23 + p05) + dt2 * p35
+    P[3] = p03 + dt * p33 + qa2
+    P[4] = p04 + dt * p34
+    P[5] = p05 + dt * p35
+    P[6] = p06 + dt * p36
+    P[7] = p11 + dt * (p14 + p14) + dt2 * p44 + qa3
+    P[8] = p12 + dt * (p24 + p15) + dt2 * p45
+    P[9] = p13 + dt * p34
+    P[10] = p14 + dt * p44 + qa2
+    P[11] = p15 + dt * p45
+    P[12] = p16 + dt * p46
+    P[13] = p22 + dt * (p25 + p25) + dt2 * p55 + qw3
+    P[14] = p23 + dt * p35
+    P[15] = p24 + dt * p45
+    P[16] = p25 + dt * p55 + qw2
+    P[17] = p26 + dt * p56
+    P[18] = p33 + qa1
+    P[22] = p44 + qa1
+    P[25] = p55 + qw1
+    P[27] = p66 + qb * dt
+
+
+#: row start of the upper-triangle storage of a 7x7 matrix: entry (i, j >= i) at _ROW[i] + j - i
+_ROW = (0, 7, 13, 18, 22, 25, 27)
+
+
+@njit(cache=True)
+def _rigid_update(x, P, bxu, byu, dzu, axu, ayu, ru, R, gate2, nis_out, u):
+    """One range update of the rigid filter (H = [hx, hy, hyaw, 0, 0, 0, 1]); writes the NIS
+    to nis_out[u]; False (no change) when the gate rejects it."""
+    c, s = math.cos(x[2]), math.sin(x[2])
+    rx = c * bxu - s * byu
+    ry = s * bxu + c * byu
+    ex = x[0] + rx - axu
+    ey = x[1] + ry - ayu
+    rho = math.sqrt(ex * ex + ey * ey + dzu)
+    hx, hy = ex / rho, ey / rho
+    ht = (ey * rx - ex * ry) / rho
+    nu = ru - rho - x[6]
+    h = np.empty(7)
+    for i in range(7):          # h = P H': column i of P (symmetric) against H
+        h[i] = (_sym(P, i, 0) * hx + _sym(P, i, 1) * hy + _sym(P, i, 2) * ht
+                + _sym(P, i, 6))
+    S = hx * h[0] + hy * h[1] + ht * h[2] + h[6] + R
+    nis = nu * nu / S
+    nis_out[u] = nis
+    if nis > gate2:
+        return False
+    si = 1.0 / S
+    for i in range(7):
+        ki = h[i] * si
+        x[i] += ki * nu
+        base = _ROW[i] - i
+        for j in range(i, 7):
+            P[base + j] -= ki * h[j]
+    return True
+
+
+@njit(cache=True, inline="always")
+def _sym(P, i, j):
+    """Entry (i, j) of the symmetric 7x7 matrix stored as its upper triangle P (28,)."""
+    if i <= j:
+        return P[_ROW[i] + j - i]
+    return P[_ROW[j] + i - j]
+
+
+@njit(cache=True)
+def rigid_rts(times, segment, x_pred, P_pred, x_post, P_post):
+    """RTS smoother over :func:`rigid_ekf`'s epochs (reference: ``rigid_ranging
+    ._smooth_reference``): full (T, 7) states and (T, 7, 7) covariances in, smoothed ones
+    out; a change of segment (or segment -1) breaks the chain. The gain C = P_k F' Pp^-1 is
+    solved by LU of Pp; a singular prediction (bias state off) uses the pseudo-inverse, as
+    the reference."""
+    T = times.size
+    xs = x_post.copy()
+    Ps = P_post.copy()
+    F = np.eye(7)
+    for k in range(T - 2, -1, -1):
+        if segment[k] < 0 or segment[k + 1] != segment[k]:
+            continue
+        dt = times[k + 1] - times[k]
+        F[0, 3] = F[1, 4] = F[2, 5] = dt
+        Pp = P_pred[k + 1]
+        FP = F @ P_post[k]
+        ok, X = _lu_solve(Pp, FP)
+        C = X.T.copy() if ok else (P_post[k] @ F.T) @ np.linalg.pinv(Pp)
+        xs[k] = x_post[k] + C @ (xs[k + 1] - x_pred[k + 1])
+        Ps[k] = P_post[k] + C @ (Ps[k + 1] - Pp) @ C.T
+    return xs, Ps
+
+
+@njit(cache=True)
+def _lu_solve(A, B):
+    """(ok, A^-1 B) for A (n, n) by LU with partial pivoting (as numpy's solve); ok False
+    when a pivot is zero or not finite (singular A)."""
+    n = A.shape[0]
+    M = A.copy()
+    X = B.copy()
+    for c in range(n):
+        p = c
+        for i in range(c + 1, n):
+            if abs(M[i, c]) > abs(M[p, c]):
+                p = i
+        piv = M[p, c]
+        if piv == 0.0 or not math.isfinite(piv):
+            return False, X
+        if p != c:
+            for j in range(n):
+                M[c, j], M[p, j] = M[p, j], M[c, j]
+            for j in range(X.shape[1]):
+                X[c, j], X[p, j] = X[p, j], X[c, j]
+        for i in range(c + 1, n):
+            f = M[i, c] / piv
+            if f != 0.0:
+                for j in range(c, n):
+                    M[i, j] -= f * M[c, j]
+                for j in range(X.shape[1]):
+                    X[i, j] -= f * X[c, j]
+    for c in range(n - 1, -1, -1):
+        for j in range(X.shape[1]):
+            s = X[c, j]
+            for k in range(c + 1, n):
+                s -= M[c, k] * X[k, j]
+            X[c, j] = s / M[c, c]
+    return True, X
