@@ -148,6 +148,7 @@ def _pair_difference(m: int, I: np.ndarray, J: np.ndarray) -> tuple[np.ndarray, 
     return S, np.ascontiguousarray(S.T)
 
 
+_CHOLESKY_LO: np.ufunc | None
 try:  # the gufunc behind np.linalg.cholesky: NaN factors for the matrices that are not PD
     from numpy.linalg import _umath_linalg as _umath
 
@@ -331,7 +332,8 @@ def _barrier_solve(Y: np.ndarray, Wn: np.ndarray, Z0: np.ndarray, a: np.ndarray,
             dz = -_cho_solve(Lt, rhs.reshape(n, k_)).reshape(d, m, k_)
             return dz, S @ dz
 
-        corr_u = corr_l = 0.0
+        corr_u: float | np.ndarray = 0.0
+        corr_l: float | np.ndarray = 0.0
         if md.any():  # Mehrotra predictor: affine step (tau = 0)
             _, dva = solve(np.zeros_like(mu))
             dqa = 2.0 * (V * dva).sum(axis=0)
@@ -495,7 +497,7 @@ def elastic_batch(means: Any, axis_weight: Any, config: SensorConfig, eps: float
     geo = _geometry(config)
 
     # procrustes start (isotropic reduction of the per-axis weights, estimator.window)
-    full = (W > 0).all(axis=-1)
+    full = np.all(W > 0, axis=-1)
     sw = np.where(full, W.mean(axis=-1), 0.0)
     proc = procrustes_batch(np.where(full[..., None], Y, np.nan), sw, config)
     ok = proc.status == "ok"
@@ -523,7 +525,7 @@ def elastic_batch(means: Any, axis_weight: Any, config: SensorConfig, eps: float
                                       maxiter)
         Z = Zt.transpose(2, 1, 0)
         # sensors without data back at the start when every band still holds (as slsqp)
-        none = ~has.any(axis=-1)
+        none = ~np.any(has, axis=-1)
         if none.any():
             Zr = np.where(none[..., None], Z0, Z)
             back = none.any(axis=1) & (np.abs(_pair_gaps(Zr, config)) <= e).all(axis=1)

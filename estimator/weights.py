@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import math
 import re
+from collections.abc import Iterable
 from dataclasses import dataclass
 from typing import Any
 
@@ -206,14 +207,15 @@ def huff_weights(obs: Any, config: SensorConfig, threshold: float | None = None,
         thr = check_real(threshold, "threshold", lo=0.0, lo_open=True)
     mf = check_real(min_error, "min_error", lo=0.0, lo_open=True)
     m = config.m
-    present = ~nan.any(axis=-1)                                   # (..., s, m)
+    present = ~np.any(nan, axis=-1)                               # (..., s, m)
     o = np.where(present[..., None], arr, 0.0)
     # pairwise distances (..., s, m, m), one coordinate at a time (no (..., m, m, d) array;
     # the squares are added in the order of a sum over the last axis, so same floats)
-    dist2 = None
-    for k in range(arr.shape[-1]):
+    dk = o[..., :, None, 0] - o[..., None, :, 0]
+    dist2 = dk * dk
+    for k in range(1, arr.shape[-1]):
         dk = o[..., :, None, k] - o[..., None, :, k]
-        dist2 = dk * dk if dist2 is None else dist2 + dk * dk
+        dist2 = dist2 + dk * dk
     dist = np.sqrt(dist2)
     rel = present[..., :, None] & present[..., None, :] & ~np.eye(m, dtype=bool)
     err = np.where(rel, np.abs(dist - config.distances()), 0.0)   # steps 2-3
@@ -240,21 +242,21 @@ def huff_huber_weights(obs: Any, config: SensorConfig, threshold: float | None =
         * huber_weights(obs, c)
 
 
-def random_weights(shape: tuple[int, ...] | int, rng: np.random.Generator) -> np.ndarray:
+def random_weights(shape: int | Iterable[int], rng: np.random.Generator | None
+                   ) -> np.ndarray:
     """Control weights, i.i.d. uniform on [0, 1) from the passed Generator (Section 3.3,
     "random weight functions"; the distribution is not stated there, uniform is our choice).
     Weights at missing observations are ignored by the fit, so no obs is needed here."""
     if not isinstance(rng, np.random.Generator):
         raise ValueError(  # noqa: TRY004 (the project's bad-input contract is ValueError)
             f"rng: expected a numpy.random.Generator, got {type(rng).__name__}")
-    if isinstance(shape, (int, np.integer)) and not isinstance(shape, (bool, np.bool_)):
-        shp = (int(shape),)
-    else:
-        try:
-            shp = tuple(shape)
-        except TypeError:
-            raise TypeError(f"shape: must be an integer or a tuple of integers, got "
-                            f"{type(shape).__name__} {shape!r}") from None
+    try:
+        if isinstance(shape, (bool, np.bool_)):
+            raise TypeError
+        shp = (int(shape),) if isinstance(shape, (int, np.integer)) else tuple(shape)
+    except TypeError:
+        raise TypeError(f"shape: must be an integer or a tuple of integers, got "
+                        f"{type(shape).__name__} {shape!r}") from None
     shp = tuple(check_int(k, "shape", lo=0) for k in shp)
     try:
         return rng.random(shp)

@@ -10,10 +10,12 @@ through the ``cache`` argument (:class:`estimator.memo.TrackCache`, None: comput
 from __future__ import annotations
 
 import itertools
+from collections.abc import Iterator
 from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
+import numpy.typing as npt
 
 from estimator import lag as _lag
 from estimator import turns as _turns
@@ -33,6 +35,11 @@ from estimator.window import (
     window_moments,
 )
 
+#: Float arrays (positions m, yaw rad, weights) of the kernels.
+Floats = npt.NDArray[np.float64]
+#: One fit per row: positions (N, m, 2) m, yaw (N,) rad, status (N,) object.
+Fits = tuple[Floats, Floats, np.ndarray]
+
 #: Windows stacked per weight/solver call: keeps memory ~ this many samples x m x 2 floats.
 CHUNK_SAMPLES = 200_000
 
@@ -43,8 +50,8 @@ CHUNK_SAMPLES = 200_000
 #: {4, 8, 16} s x rate_on {0.02, 0.03, 0.05, 0.1} rad/s (rate_off = rate_on / 2) x source:
 #: best F1 0.42 (112 true, 171 false, 143 missed turning epochs). Slow turns under metre-level
 #: noise are hard to see on-line; the controller flag remains the reference.
-DETECTOR_DEFAULTS = {"window": 10, "source": "course", "span_s": 8.0, "rate_on": 0.05,
-                     "rate_off": 0.025, "min_speed": 0.05}
+DETECTOR_DEFAULTS: dict[str, Any] = {"window": 10, "source": "course", "span_s": 8.0,
+                                     "rate_on": 0.05, "rate_off": 0.025, "min_speed": 0.05}
 
 
 
@@ -85,13 +92,18 @@ class DynamicOptions(TrackerOptions):
                 raise ValueError(f"turning: expected a 1-D bool array, got {fl.dtype} "
                                  f"{fl.shape}")
 
+    @property
+    def _dynamic(self) -> DynamicWindow | None:
+        """``dynamic_window`` as the object ``__post_init__`` stored (None: fixed window)."""
+        return DynamicWindow.coerce(self.dynamic_window)
+
     def _rows(self, tt: np.ndarray, o: np.ndarray, cfg: SensorConfig) -> Rows:
         """The rows of the track, with the turning flags (checked against n) and the dynamic
         window's sizes (:func:`dynamic_window_sizes`)."""
-        n, s, dyn, turning = tt.size, self.window, self.dynamic_window, self.turning
+        n, s, dyn, turning = tt.size, self.window, self._dynamic, self.turning
         flags = np.zeros(n, dtype=bool)
         if isinstance(turning, str):
-            flags = detect_turning(tt, o, cfg, **(dyn.detector or {}))
+            flags = detect_turning(tt, o, cfg, **((dyn and dyn.detector) or {}))
         elif turning is not None:
             fl = np.asarray(turning)
             if fl.shape != (n,):
@@ -125,9 +137,14 @@ class WeightedOptions(DynamicOptions):
             raise ValueError(f"rng: weighting='random' needs a numpy.random.Generator, got "
                              f"{self.rng!r}")
 
+    @property
+    def _weighting(self) -> Weighting:
+        """``weighting`` as the :class:`Weighting` ``__post_init__`` stored."""
+        return Weighting.parse(self.weighting)
+
     def _common(self, cache: TrackCache | None) -> dict[str, Any]:
         """The weight arguments of the kernels (and the cache)."""
-        wt = self.weighting
+        wt = self._weighting
         return {"weighting": wt.scheme, "rng": self.rng, "huff_threshold": wt.huff_threshold,
                 "huber_c": wt.huber_c, "cache": cache}
 
@@ -210,13 +227,14 @@ def sample_huff(obs: np.ndarray, cfg: SensorConfig, weighting: str,
     return None
 
 
-def chunks(ends: np.ndarray, w: int, m: int):
+def chunks(ends: np.ndarray, w: int, m: int) -> Iterator[np.ndarray]:
+    """``ends`` in slices of at most :data:`CHUNK_SAMPLES` stacked samples (w x m each)."""
     size = max(1, CHUNK_SAMPLES // max(1, w * m))
     for a in range(0, ends.size, size):
         yield ends[a:a + size]
 
 
-def cumsum_means(obs: np.ndarray, ends: np.ndarray, w: int,
+def cumsum_means(obs: np.ndarray, ends: np.ndarray, w: int | np.ndarray,
                  weights: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
     """Window means (N, m, 2) and total weights (N, m) by cumulative sums: O(n).
 
@@ -253,6 +271,7 @@ def weighted_window_means(obs: np.ndarray, ends: np.ndarray, w: int, wts: np.nda
     o = np.where(present[..., None], obs, 0.0)
     start = ends - (w - 1)
     contiguous = ends.size > 0 and bool(np.all(np.diff(ends) == 1))
+    rows: slice | np.ndarray
     num = np.zeros((ends.size, obs.shape[1], 2))
     W = np.zeros((ends.size, obs.shape[1]))
     for j in range(w):
@@ -269,8 +288,11 @@ def weighted_window_means(obs: np.ndarray, ends: np.ndarray, w: int, wts: np.nda
     return np.where(full[..., None], means, np.nan), np.where(full, W, 0.0)
 
 
-def fit_windows(obs, cfg, ends, w, *, weighting, rng, huff_threshold, huber_c, solver, eps,
-                warm_start, fit_kw, cache, prev=None):
+def fit_windows(obs: np.ndarray, cfg: SensorConfig, ends: np.ndarray, w: int | np.ndarray, *,
+                weighting: str, rng: np.random.Generator | None, huff_threshold: float | None,
+                huber_c: float, solver: str, eps: float, warm_start: bool,
+                fit_kw: dict[str, Any], cache: TrackCache | None, prev: Floats | None = None
+                ) -> tuple[Floats, Floats, np.ndarray, Floats | None]:
     """Window fits for rows ending at ``ends`` with window size w (an int, or with
     procrustes or elastic and no / Huff weights also an (N,) int array of per-row sizes).
 
@@ -293,6 +315,7 @@ def fit_windows(obs, cfg, ends, w, *, weighting, rng, huff_threshold, huber_c, s
     if solver == "procrustes" and weighting in ("none", "huff"):
         pos, yaw, status = procrustes_fits(obs, cfg, ends, w, weighting, huff_threshold, cache)
         return pos, yaw, status, prev
+    w = one_size(w)
     a = 0
     huff = sample_huff(obs, cfg, weighting, huff_threshold, cache)
     ccp_problems = CcpProblems() if solver == "ccp" else None   # built once for these rows
@@ -300,8 +323,8 @@ def fit_windows(obs, cfg, ends, w, *, weighting, rng, huff_threshold, huber_c, s
         sl = slice(a, a + ch.size)
         if solver == "procrustes" and weighting == "random":
             # the weights need no data: sum the windows without stacking them
-            wts = _weights.random_weights((ch.size, w, m), rng)
-            means, sw = weighted_window_means(obs, ch, w, wts)
+            rw = _weights.random_weights((ch.size, w, m), rng)
+            means, sw = weighted_window_means(obs, ch, w, rw)
             bf = procrustes_batch(means, sw, cfg)
             pos[sl], yaw[sl], status[sl] = bf.positions, bf.yaw, bf.status
             a += ch.size
@@ -325,7 +348,10 @@ def fit_windows(obs, cfg, ends, w, *, weighting, rng, huff_threshold, huber_c, s
     return pos, yaw, status, prev
 
 
-def elastic_moments(obs, cfg, ends, w, *, weighting, rng, huff_threshold, huber_c, cache):
+def elastic_moments(obs: np.ndarray, cfg: SensorConfig, ends: np.ndarray, w: int | np.ndarray,
+                    *, weighting: str, rng: np.random.Generator | None,
+                    huff_threshold: float | None, huber_c: float, cache: TrackCache | None
+                    ) -> tuple[Floats, Floats]:
     """Per-axis window means (N, m, 2) and axis weights (N, m, 2) of the windows ending at
     ``ends`` for the batched elastic solver: cumulative sums for per-sample weights (none,
     Huff), weighted sums for random weights, stacked windows (in chunks) for Huber."""
@@ -333,6 +359,7 @@ def elastic_moments(obs, cfg, ends, w, *, weighting, rng, huff_threshold, huber_
         sw = None if weighting == "none" else recording_huff(obs, cfg, huff_threshold, cache)
         means, cnt = cumsum_means(obs, ends, w, sw)
         return means, np.repeat(cnt[..., None], 2, axis=-1)
+    w = one_size(w)
     means = np.full((ends.size, cfg.m, 2), np.nan)
     wax = np.zeros((ends.size, cfg.m, 2))
     huff = sample_huff(obs, cfg, weighting, huff_threshold, cache)
@@ -340,8 +367,8 @@ def elastic_moments(obs, cfg, ends, w, *, weighting, rng, huff_threshold, huber_
     for ch in chunks(ends, w, cfg.m):
         sl = slice(a, a + ch.size)
         if weighting == "random":
-            wts = _weights.random_weights((ch.size, w, cfg.m), rng)
-            mu, sw = weighted_window_means(obs, ch, w, wts)
+            rw = _weights.random_weights((ch.size, w, cfg.m), rng)
+            mu, sw = weighted_window_means(obs, ch, w, rw)
             means[sl], wax[sl] = mu, sw[..., None]
         else:
             st = stack_windows(obs, ch, w)
@@ -352,8 +379,10 @@ def elastic_moments(obs, cfg, ends, w, *, weighting, rng, huff_threshold, huber_
     return means, wax
 
 
-def elastic_fits(obs, cfg, ends, w, *, weighting, rng, huff_threshold, huber_c, eps, fit_kw,
-                 cache):
+def elastic_fits(obs: np.ndarray, cfg: SensorConfig, ends: np.ndarray, w: int | np.ndarray, *,
+                 weighting: str, rng: np.random.Generator | None, huff_threshold: float | None,
+                 huber_c: float, eps: float, fit_kw: dict[str, Any], cache: TrackCache | None
+                 ) -> Fits:
     """(positions (N, m, 2), yaw (N,), status (N,) object) of the elastic fits of the windows
     ending at ``ends`` (:func:`estimator.elastic.elastic_batch`), through ``cache.elastic``
     keyed by content: a sweep fits the same windows of the same observations for several
@@ -361,7 +390,7 @@ def elastic_fits(obs, cfg, ends, w, *, weighting, rng, huff_threshold, huber_c, 
     another's). A hit is an identical request (the same observations, configuration, windows
     and options), so it returns exactly what the call would. Random weights are never
     cached (they consume the generator)."""
-    def fits():
+    def fits() -> Fits:
         means, wax = elastic_moments(obs, cfg, ends, w, weighting=weighting, rng=rng,
                                      huff_threshold=huff_threshold, huber_c=huber_c,
                                      cache=cache)
@@ -376,14 +405,16 @@ def elastic_fits(obs, cfg, ends, w, *, weighting, rng, huff_threshold, huber_c, 
     return pos.copy(), yaw.copy(), status.copy()
 
 
-def procrustes_fits(obs, cfg, ends, w, weighting, huff_threshold, cache):
+def procrustes_fits(obs: np.ndarray, cfg: SensorConfig, ends: np.ndarray, w: int | np.ndarray,
+                    weighting: str, huff_threshold: float | None, cache: TrackCache | None
+                    ) -> Fits:
     """(positions (N, m, 2), yaw (N,), status (N,) object) of the closed-form fits of the
     windows ending at ``ends`` with no or Huff weights, through ``cache.procrustes`` keyed
     by content like :func:`elastic_fits` (the techniques of one noise key that share a
     window size share the fits; in the thesis preset 470 of 840 calls were repeats). Huff
     weights are per sample (each time step on its own, Section 3.3.3 steps 1-9), so the
     stacked windows share them: one call on all epochs, then cumulative sums."""
-    def fits():
+    def fits() -> Fits:
         sw = None if weighting == "none" else recording_huff(obs, cfg, huff_threshold, cache)
         means, cnt = cumsum_means(obs, ends, w, sw)
         bf = procrustes_batch(means, cnt, cfg)
@@ -395,6 +426,15 @@ def procrustes_fits(obs, cfg, ends, w, weighting, huff_threshold, cache):
            tuple(cfg.dead), weighting, repr(huff_threshold))
     pos, yaw, status = memo_get(cache, "procrustes", lambda: key, fits)
     return pos.copy(), yaw.copy(), status.copy()
+
+
+def one_size(w: int | np.ndarray) -> int:
+    """``w`` as one window size: per-row sizes (an array) take the cumulative-sum paths
+    only (no or Huff weights, procrustes or elastic)."""
+    if isinstance(w, np.ndarray):
+        raise TypeError(f"w: per-row window sizes (shape {w.shape}) need no or Huff weights "
+                        "and the procrustes or elastic solver")
+    return w
 
 
 def runs(values: np.ndarray) -> list[tuple[int, int]]:
@@ -453,8 +493,9 @@ def detect_turning(t: np.ndarray, obs: np.ndarray, config: SensorConfig,
 
 
 
-def lag_correct(tt, o, cfg, ends, wsize, pos, cg, heading, s, mode, span, dynamic, common,
-                eps):
+def lag_correct(tt: np.ndarray, o: np.ndarray, cfg: SensorConfig, ends: np.ndarray,
+                wsize: np.ndarray, pos: Floats, cg: Floats, heading: Floats, s: int, mode: str,
+                span: int, dynamic: bool, common: dict[str, Any], eps: float) -> Floats:
     """Section 3.4.2 shift for every row (see :mod:`estimator.lag`); ``heading`` (N,) rad
     is the orientation of step 5 (the law-of-cosines heading, or ``lag_heading``)."""
     if dynamic:

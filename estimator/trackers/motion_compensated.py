@@ -13,11 +13,13 @@ from typing import Any, ClassVar
 import numpy as np
 import pandas as pd
 
+from estimator.configuration import SensorConfig
 from estimator.memo import TrackCache
 from estimator.motion import motion_compensated_batch, motion_compensated_series
 from estimator.track_options import MotionOptions
 from estimator.trackers._common import cg_and_heading, frame, settings
 from estimator.trackers._windows import (
+    Floats,
     WeightedOptions,
     chunks,
     recording_huff,
@@ -47,7 +49,12 @@ class MotionCompensatedTracker(WeightedOptions):
         super().__post_init__()
         if self.motion is not None and not isinstance(self.motion, MotionOptions):
             raise TypeError(f"motion: expected a MotionOptions, got {type(self.motion).__name__}")
-        object.__setattr__(self, "motion", self.motion or MotionOptions())
+        object.__setattr__(self, "motion", self._motion)
+
+    @property
+    def _motion(self) -> MotionOptions:
+        """``motion`` as the object ``__post_init__`` stored (None: the defaults)."""
+        return self.motion or MotionOptions()
 
     def track(self, t: Any, obs: Any, config: Any, *, cache: TrackCache | None = None
               ) -> pd.DataFrame:
@@ -56,28 +63,31 @@ class MotionCompensatedTracker(WeightedOptions):
         :class:`estimator.memo.TrackCache` or None. Columns in :func:`estimator.tracking.track`."""
         tt, o, cfg = self._start(t, obs, config)
         rows = self._rows(tt, o, cfg)
-        ends, wsize, N, mo = rows.ends, rows.wsize, rows.ends.size, self.motion
+        ends, wsize, N, mo = rows.ends, rows.wsize, rows.ends.size, self._motion
         pos = np.full((N, cfg.m, 2), np.nan)
         yaw = np.full(N, np.nan)
         status = np.empty(N, dtype=object)
         extra = {k: np.full(N, np.nan) for k in ("yaw_rate", "vx", "vy")}
         for w in np.unique(wsize):
             sel = wsize == w
-            p, out, st = motion_windows(tt, o, cfg, ends[sel], int(w), yaw_rate=mo.yaw_rate,
+            p, out, fit_status = motion_windows(tt, o, cfg, ends[sel], int(w), yaw_rate=mo.yaw_rate,
                                         omega_max=mo.omega_max, **self._common(cache))
-            pos[sel], yaw[sel], status[sel] = p, out["yaw"], st
+            pos[sel], yaw[sel], status[sel] = p, out["yaw"], fit_status
             for k, col in extra.items():
                 col[sel] = out[k]
         extra = {"speed": np.hypot(extra["vx"], extra["vy"]), "yaw_rate": extra["yaw_rate"]}
         cg, yaw_loc = cg_and_heading(cfg, pos)
-        st = settings(self.name, self.window, cfg, weighting=self.weighting,
-                      dyn=self.dynamic_window, turning=self.turning)
+        st = settings(self.name, self.window, cfg, weighting=self._weighting,
+                      dyn=self._dynamic, turning=self.turning)
         return frame(tt, o, cfg, rows, pos=pos, cg=cg, yaw=yaw, yaw_loc=yaw_loc, status=status,
                      extra=extra, settings=st, layout_check=self.layout_check)
 
 
-def motion_windows(t, obs, cfg, ends, w, *, weighting, rng, huff_threshold, huber_c,
-                   yaw_rate, omega_max, cache):
+def motion_windows(t: np.ndarray, obs: np.ndarray, cfg: SensorConfig, ends: np.ndarray, w: int,
+                   *, weighting: str, rng: np.random.Generator | None,
+                   huff_threshold: float | None, huber_c: float, yaw_rate: bool,
+                   omega_max: float, cache: TrackCache | None
+                   ) -> tuple[Floats, dict[str, Floats], np.ndarray]:
     """Motion-compensated fits (:mod:`estimator.motion`) of the windows of size w ending at
     ``ends``: positions (N, m, 2), {"yaw", "yaw_rate", "vx", "vy"} (N,) each, status (N,)."""
     N, m = ends.size, cfg.m

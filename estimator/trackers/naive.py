@@ -36,11 +36,11 @@ class NaiveTracker(DynamicOptions):
         tt, o, cfg = self._start(t, obs, config)
         rows = self._rows(tt, o, cfg)
         means, cnt = cumsum_means(o, rows.ends, rows.wsize)
-        full = (cnt[:, cfg.cg_mask] > 0).all(axis=1)
+        full = np.all(cnt[:, cfg.cg_mask] > 0, axis=1)
         pos = np.where(full[:, None, None], means, np.nan)
         status = np.where(full, "ok", "insufficient_data").astype(object)
         cg, yaw_loc = cg_and_heading(cfg, pos, naive=True)
-        st = settings(self.name, self.window, cfg, dyn=self.dynamic_window, turning=self.turning)
+        st = settings(self.name, self.window, cfg, dyn=self._dynamic, turning=self.turning)
         return frame(tt, o, cfg, rows, pos=pos, cg=cg, yaw=np.full(rows.ends.size, np.nan),
                      yaw_loc=yaw_loc, status=status, extra={}, settings=st,
                      layout_check=self.layout_check)

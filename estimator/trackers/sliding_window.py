@@ -14,9 +14,10 @@ import numpy as np
 import pandas as pd
 
 from estimator._checks import check_int
+from estimator.configuration import SensorConfig
 from estimator.memo import TrackCache
 from estimator.track_options import FitOptions, LagCorrection
-from estimator.trackers._common import cg_and_heading, frame, settings
+from estimator.trackers._common import Rows, cg_and_heading, frame, settings
 from estimator.trackers._windows import WeightedOptions, fit_windows, lag_correct, runs
 from estimator.window import SOLVERS
 
@@ -52,8 +53,18 @@ class WindowTracker(WeightedOptions):
         if fit.warm_start and self.solver == "elastic":
             raise ValueError("warm_start: the batched elastic solver starts every window from "
                              "its procrustes fit; warm_start applies to 'slsqp' and 'ccp'")
-        lag = None if self.lag_correction is None else LagCorrection.coerce(self.lag_correction)
-        object.__setattr__(self, "lag_correction", lag)
+        object.__setattr__(self, "lag_correction", self._lag)
+
+    @property
+    def _fit(self) -> FitOptions:
+        """``fit`` as the object ``__post_init__`` stored (None: the defaults)."""
+        return self.fit or FitOptions()
+
+    @property
+    def _lag(self) -> LagCorrection | None:
+        """``lag_correction`` as the object ``__post_init__`` stored (None: no correction)."""
+        lag = self.lag_correction
+        return None if lag is None else LagCorrection.coerce(lag)
 
     def track(self, t: Any, obs: Any, config: Any, *, cache: TrackCache | None = None
               ) -> pd.DataFrame:
@@ -61,7 +72,7 @@ class WindowTracker(WeightedOptions):
         :class:`estimator.configuration.SensorConfig`; ``cache`` a
         :class:`estimator.memo.TrackCache` or None. Columns in :func:`estimator.tracking.track`."""
         tt, o, cfg = self._start(t, obs, config)
-        lag = self.lag_correction
+        lag = self._lag
         if lag is not None:
             if lag.velocity_span is not None:
                 check_int(lag.velocity_span, "velocity_span", 1, tt.size)
@@ -78,28 +89,29 @@ class WindowTracker(WeightedOptions):
             s = self.window
             shift = lag_correct(tt, o, cfg, rows.ends, rows.wsize, pos, cg, heading, s,
                                 lag.mode, lag.velocity_span or s,
-                                self.dynamic_window is not None, common, self.fit.eps)
+                                self.dynamic_window is not None, common, self._fit.eps)
             ok = np.all(np.isfinite(shift), axis=1)
             pos = pos + np.where(ok[:, None], shift, 0.0)[:, None, :]
             cg = cg + np.where(ok[:, None], shift, 0.0)
             lag_dx = np.where(ok, shift[:, 0], np.nan)
             lag_dy = np.where(ok, shift[:, 1], np.nan)
-        st = settings(self.name, self.window, cfg, weighting=self.weighting, lag=lag,
-                      dyn=self.dynamic_window, turning=self.turning, solver=self.solver,
-                      fit=self.fit)
+        st = settings(self.name, self.window, cfg, weighting=self._weighting, lag=lag,
+                      dyn=self._dynamic, turning=self.turning, solver=self.solver,
+                      fit=self._fit)
         return frame(tt, o, cfg, rows, pos=pos, cg=cg, yaw=yaw, yaw_loc=yaw_loc, status=status,
                      extra={}, settings=st, layout_check=self.layout_check, lag_dx=lag_dx,
                      lag_dy=lag_dy)
 
-    def _fits(self, o, cfg, rows, common):
+    def _fits(self, o: np.ndarray, cfg: SensorConfig, rows: Rows, common: dict[str, Any]
+              ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Positions (N, m, 2), yaw (N,) and status (N,) of every row's window fit."""
-        ends, wsize, solver, fo = rows.ends, rows.wsize, self.solver, self.fit
+        ends, wsize, solver, fo = rows.ends, rows.wsize, self.solver, self._fit
         eps, warm_start, fit_kw = fo.eps, fo.warm_start, fo.solver_kwargs() or {}
         N = ends.size
         pos = np.full((N, cfg.m, 2), np.nan)
         yaw = np.full(N, np.nan)
         status = np.empty(N, dtype=object)
-        wt = self.weighting
+        wt = self._weighting
         if solver in ("procrustes", "elastic") and wt.scheme in ("none", "huff") \
                 and wt.huff_threshold is None:
             # per-sample weights: every row, whatever its window size, from one set of
