@@ -16,16 +16,80 @@ from experiments.claims import (
     _COLUMNS,
     CLAIMS,
     COURSE_CLAIMS,
+    P1,
     RULE,
     ClaimResult,
+    _cond,
     _derived,
+    _per_seed,
+    _tw,
     evaluate_claims,
 )
 from experiments.markdown import md_row, md_separator
-from experiments.tables import PATH_LABELS, faithful, numpy_strings
+from experiments.spec import RESULTS_ROOT
+from experiments.tables import PATH_LABELS, THESIS_TABLES, faithful, numpy_strings, thesis_row
 from sim.atomic import atomic_write, atomic_write_text
 
-__all__ = ["main", "write_report"]
+__all__ = ["agreement", "main", "verdict_counts", "write_report"]
+
+#: The stationary claims' per-seed table (experiments.stationary, results/stationary).
+STATIONARY_SEEDS = RESULTS_ROOT / "stationary" / "claims_seeds.csv"
+
+
+# --------------------------------------------------------------------------- counts
+def agreement(main: pd.DataFrame) -> dict[str, int]:
+    """Published cells of Tables 4.1/4.2 (Path 1: 5 rows x 3 windows x 3 statistics x 2
+    axes) against our mean over seeds of the same row: ``cells`` compared, ``within10`` /
+    ``within25`` (|ours / published - 1| <= 0.10 / 0.25), ``beyond2x`` (ratio > 2 or < 0.5),
+    ``misses`` (beyond 25 %) and ``high`` (misses with ours above the published value)."""
+    w8, n = _tw(main), dict.fromkeys(("cells", "within10", "within25", "beyond2x", "misses",
+                                      "high"), 0)
+    for ax, tab in THESIS_TABLES.items():
+        for (w, row), stats in tab.items():
+            tech, mask = thesis_row(main, row)
+            for st, pub in stats.items():
+                v = _per_seed(main, _cond(P1, w, w8, tech, mask), f"e{ax}_{st}").dropna()
+                if v.empty:
+                    continue
+                r = float(v.mean()) / pub
+                n["cells"] += 1
+                n["within10"] += abs(r - 1) <= 0.10
+                n["within25"] += abs(r - 1) <= 0.25
+                n["beyond2x"] += not 0.5 <= r <= 2.0
+                n["misses"] += abs(r - 1) > 0.25
+                n["high"] += r > 1.25
+    return n
+
+
+def verdict_counts(results: list[ClaimResult]) -> str:
+    """"reproduced a, mixed b, not reproduced c" (and "not evaluated d" when any)."""
+    vs = [r.verdict for r in results]
+    order = ("reproduced", "mixed", "not reproduced", "not evaluated")
+    return ", ".join(f"{k} {vs.count(k)}" for k in order if vs.count(k) or k != order[-1])
+
+
+def _counts_lines(main: pd.DataFrame, res: list[ClaimResult]) -> list[str]:
+    """The Summary's agreement and verdict counts (issue 28), computed from the data."""
+    a = agreement(main)
+    ids = {c.cid for c in CLAIMS}
+    thesis = [r for r in res if r.claim.cid in ids]
+    course = [r for r in res if r.claim.cid not in ids]
+    lines = [(f"Verdicts of the thesis claims C1-C22: {verdict_counts(thesis)}; of the "
+              f"course variants: {verdict_counts(course)}.")]
+    if STATIONARY_SEEDS.exists():
+        from experiments.stationary_claims import evaluate as stationary_evaluate
+
+        st = stationary_evaluate(pd.read_csv(STATIONARY_SEEDS))
+        lines.append(f"Verdicts of the stationary claims (Sections 4.3-4.8, "
+                     f"results/stationary/claims.md): {verdict_counts(st)}.")
+    if a["cells"]:
+        lines.append(
+            f"Agreement with the published cells of Tables 4.1/4.2 (Path 1, {a['cells']} "
+            f"cells: 5 rows x windows 5/10/100 x mean/median/std x |x|/|y|; ours = the mean "
+            f"over seeds of the same row): {a['within10']} within 10 %, {a['within25']} within "
+            f"25 %, {a['beyond2x']} off by more than 2x; of the {a['misses']} beyond 25 %, "
+            f"{a['high']} are ours too high.")
+    return ["", *(x for line in lines for x in (line, ""))]
 
 
 # --------------------------------------------------------------------------- writing
@@ -160,7 +224,7 @@ def write_report(cells: pd.DataFrame, out_dir: str | Path, spec=None) -> Path:
             counts[r.verdict] = counts.get(r.verdict, 0) + 1
         lines += ["", (f"Totals ({lab}): " if lab else "Totals: ")
                   + ", ".join(f"{k}: {v}" for k, v in sorted(counts.items()))]
-    lines.append("")
+    lines += _counts_lines(evidence[per_variant[0][0]].main, per_variant[0][1])
     lines += [("Every mixed or not-reproduced claim has a line beginning `Cause:` in its "
               "section: the measured cause and the rows or study that show it "
               "(`experiments/causes.py`)."), ""]
