@@ -18,7 +18,8 @@ import math
 import numpy as np
 from numba import njit
 
-__all__ = ["rigid_ekf", "rigid_rts"]
+__all__ = ["rf_predict", "rf_state_at", "rf_step", "rf_update", "rigid_ekf", "rigid_rts",
+           "tight_run"]
 
 
 @njit(cache=True)
@@ -232,3 +233,146 @@ def _lu_solve(A, B):
                 s -= M[c, k] * X[k, j]
             X[c, j] = s / M[c, c]
     return True, X
+
+
+# ------------------------------------------------------------- single-tag range filter
+@njit(cache=True)
+def rf_predict(x, P, dt, d, yaw, q, q_yaw):
+    """Constant-velocity prediction of :class:`estimator.ranging.RangeFilter` over dt (s),
+    in place (reference: ``RangeFilter._predict_reference``): x (n,), P (n, n); d position
+    axes (velocities at d..2d-1), yaw and yaw rate at 2d, 2d + 1 when ``yaw``; q, q_yaw the
+    spectral densities. F = I + dt E (E[p, v] = 1 per position/rate pair); no-op for dt <= 0."""
+    if dt <= 0.0:
+        return
+    n = x.size
+    m = d + 1 if yaw else d
+    for i in range(m):
+        p = i if i < d else 2 * d
+        x[p] += dt * x[p + d if i < d else p + 1]
+    for i in range(m):                 # rows: F P (the rate rows are unchanged)
+        p = i if i < d else 2 * d
+        v = p + d if i < d else p + 1
+        for j in range(n):
+            P[p, j] += dt * P[v, j]
+    for i in range(m):                 # columns: (F P) F'
+        p = i if i < d else 2 * d
+        v = p + d if i < d else p + 1
+        for j in range(n):
+            P[j, p] += dt * P[j, v]
+    dt2 = dt * dt
+    for i in range(m):
+        p = i if i < d else 2 * d
+        v = p + d if i < d else p + 1
+        qq = q if i < d else q_yaw
+        P[p, p] += dt2 * dt / 3.0 * qq
+        P[p, v] += dt2 / 2.0 * qq
+        P[v, p] += dt2 / 2.0 * qq
+        P[v, v] += dt * qq
+
+
+@njit(cache=True)
+def rf_update(x, P, rec, lev, rx, tx, r, d, yaw, height, R, gate2, H, PH):
+    """One range r (m) of transmitter tx by receiver rx, in place (reference:
+    ``RangeFilter._update_reference``): h = |p + Rz(yaw) l_tx - p_rx| (level platform; known
+    height ``height`` when d == 2). H, PH (n,) scratch. Returns False (no change) when the
+    gate rejects the range (nu^2 > gate2 S) or the point sits on the receiver."""
+    n = x.size
+    px, py = x[0], x[1]
+    pz = x[2] if d == 3 else height
+    gx = gy = 0.0
+    if yaw:
+        th = x[2 * d]
+        c, s = math.cos(th), math.sin(th)
+        lx, ly, lz = lev[tx, 0], lev[tx, 1], lev[tx, 2]
+        px += c * lx - s * ly
+        py += s * lx + c * ly
+        pz += lz
+        gx, gy = -s * lx - c * ly, c * lx - s * ly
+    ex, ey, ez = px - rec[rx, 0], py - rec[rx, 1], pz - rec[rx, 2]
+    dist = math.sqrt(ex * ex + ey * ey + ez * ez)
+    if dist == 0.0:
+        return False
+    H[:] = 0.0
+    H[0], H[1] = ex / dist, ey / dist
+    if d == 3:
+        H[2] = ez / dist
+    if yaw:
+        H[2 * d] = (ex * gx + ey * gy) / dist
+    for i in range(n):
+        acc = 0.0
+        for j in range(n):
+            acc += P[i, j] * H[j]
+        PH[i] = acc
+    hph = 0.0
+    for i in range(n):
+        hph += H[i] * PH[i]
+    S = hph + R
+    nu = r - dist
+    if nu * nu > gate2 * S:
+        return False
+    for i in range(n):
+        ki = PH[i] / S
+        x[i] += ki * nu
+        for j in range(n):
+            P[i, j] -= ki * PH[j]
+    return True
+
+
+@njit(cache=True)
+def rf_step(x, P, dt, rec, lev, rx, tx, r, d, yaw, height, q, q_yaw, R, gate2, H, PH):
+    """:func:`rf_predict` over dt, then :func:`rf_update` with r (one call per range)."""
+    rf_predict(x, P, dt, d, yaw, q, q_yaw)
+    return rf_update(x, P, rec, lev, rx, tx, r, d, yaw, height, R, gate2, H, PH)
+
+
+@njit(cache=True)
+def rf_state_at(x, P, dt, d, yaw, height, q, pos, vel, std):
+    """Extrapolation of ``RangeFilter.state_at`` by dt >= 0 into pos, vel, std (3,); returns
+    the unwrapped yaw (NaN without yaw)."""
+    for i in range(3):
+        pos[i] = vel[i] = std[i] = 0.0
+    for i in range(d):
+        pos[i] = x[i] + dt * x[i + d]
+        vel[i] = x[i + d]
+        var = P[i, i] + 2 * dt * P[i, i + d] + dt * dt * P[i + d, i + d] + q * dt ** 3 / 3.0
+        std[i] = math.sqrt(max(var, 0.0))
+    if d == 2:
+        pos[2] = height
+    return x[2 * d] + dt * x[2 * d + 1] if yaw else np.nan
+
+
+@njit(cache=True)
+def tight_run(s, e, ts, rs, rxs, txs, skip, te, x, P, t_state, rec, lev, d, yaw, height, q,
+              q_yaw, R, gate2, run, lost_after, latest_t, latest_r, pos, vel, yaws, std,
+              used, gated, H, PH):
+    """The sample loop of :func:`estimator.ranging.tight_filter` while the filter is
+    initialised and not lost: from sample s and epoch e, until the end or a sample at which
+    ``run >= lost_after`` (that sample's epochs and ``latest_*`` already done). Epoch
+    outputs (pos, vel, std (n, 3), yaws (n,) unwrapped) are written in place. Returns
+    (s, e, run, t_state): the next sample to handle in Python (N at the end)."""
+    N, n = ts.size, te.size
+    while s < N:
+        ti = ts[s]
+        while e < n and te[e] < ti:
+            yaws[e] = rf_state_at(x, P, max(te[e] - t_state, 0.0), d, yaw, height, q,
+                                  pos[e], vel[e], std[e])
+            e += 1
+        ri = rs[s]
+        if math.isnan(ri) or skip[s]:
+            s += 1
+            continue
+        tx, rx = txs[s], rxs[s]
+        latest_t[tx, rx], latest_r[tx, rx] = ti, ri
+        if run >= lost_after:
+            return s, e, run, t_state
+        ok = rf_step(x, P, ti - t_state, rec, lev, rx, tx, ri, d, yaw, height, q, q_yaw, R,
+                     gate2, H, PH)
+        t_state = max(t_state, ti)
+        if ok:
+            used[s] = True
+            run = 0
+        else:
+            gated[s] = True
+            run += 1
+        s += 1
+    return s, e, run, t_state

@@ -45,6 +45,7 @@ from itertools import combinations
 
 import numpy as np
 
+from estimator import range_kernels
 from estimator import trilateration as tri
 from estimator._checks import check_array, check_increasing_times, check_int, check_real
 from estimator.kalman import pv_kalman
@@ -80,6 +81,9 @@ MIRROR_MODES = ("continuity", "side")
 #: ~2e9; nanoseconds would be ~2e18 and are refused by the unit check)
 _MAX_T = 1e12
 _THREE = ("simple", "closed_form", "cayley_menger")
+#: argument types of RangeFilter.update's fast path (checked by type, not isinstance)
+_FLOATS = frozenset({float, np.float64, int})
+_INTS = frozenset({int, np.int64, np.intp})
 
 
 # =============================================================================================
@@ -868,12 +872,15 @@ class RangeFilter:
     receivers (k, 3) m; levers (T, 3) m body frame or None; height_m: known z of the body
     origin or None. Streaming use: :meth:`initialise`, then :meth:`update` per range in time
     order (a range before the filter's time raises ValueError; equal times are fine);
-    :meth:`state_at` extrapolates without changing the filter.
+    :meth:`state_at` extrapolates without changing the filter. Predict and update run in the
+    compiled kernels of :mod:`estimator.range_kernels`; ``reference=True`` uses the numpy
+    reference (``_predict_reference`` / ``_update_reference``; same results to rounding).
     """
 
     def __init__(self, receivers: np.ndarray, *, sigma_range_m: float, accel_std_mps2: float,
                  height_m: float | None = None, levers: np.ndarray | None = None,
-                 yaw_accel_std: float = 1.0, gate: float = 5.0) -> None:
+                 yaw_accel_std: float = 1.0, gate: float = 5.0,
+                 reference: bool = False) -> None:
         self.rec = check_array(receivers, "receivers", max_abs=tri.MAX_ABS_M)
         if self.rec.ndim != 2 or self.rec.shape[1] != 3:
             raise ValueError(f"receivers: expected shape (k, 3), got {self.rec.shape}")
@@ -907,6 +914,12 @@ class RangeFilter:
             self._Qb[i, j] = self._Qb[j, i] = qq
             self._Qc[j, j] = qq
         self._H = np.zeros(n)
+        self._PH = np.zeros(n)
+        self._ntx = 1 if self.levers is None else self.levers.shape[0]
+        self._lev = np.zeros((self._ntx, 3)) if self.levers is None else \
+            np.ascontiguousarray(self.levers, dtype=float)
+        self._z = math.nan if self.height is None else self.height
+        self._reference = bool(reference)
 
     def initialise(self, t: float, position: np.ndarray, *, position_std: float,
                    speed_std: float, yaw: float = 0.0, yaw_std: float = math.pi) -> None:
@@ -948,6 +961,15 @@ class RangeFilter:
         return t
 
     def _predict(self, t: float) -> None:
+        if self._reference:
+            self._predict_reference(t)
+            return
+        if t > self.t:
+            range_kernels.rf_predict(self.x, self.P, t - self.t, self.d, self.yaw, self.q,
+                                     self.q_yaw)
+            self.t = t
+
+    def _predict_reference(self, t: float) -> None:
         dt = t - self.t
         if dt <= 0:
             return
@@ -977,9 +999,15 @@ class RangeFilter:
         """Predict to t (s, not before the filter's time; equal is fine), then update with
         range r (m, NaN: predict only) of (transmitter, receiver). Returns True if the range
         was used, False if the gate rejected it (or r is NaN). Before :meth:`initialise`, or
-        a t before the filter's time: ValueError."""
+        a t before the filter's time: ValueError. Plain float/int arguments in range take a
+        fast path; anything else gets the full checks (the same errors)."""
         if not self.initialised:
             raise ValueError("update: the filter is not initialised (call initialise first)")
+        if (type(t) in _FLOATS and type(r) in _FLOATS and type(receiver) in _INTS
+                and type(transmitter) in _INTS and self.t <= t <= _MAX_T
+                and 0.0 <= r <= tri.MAX_ABS_M and 0 <= receiver < self.rec.shape[0]
+                and 0 <= transmitter < self._ntx):
+            return self._update(t, receiver, transmitter, r)
         t = self._check_time(t)
         check_int(receiver, "receiver", lo=0, hi=self.rec.shape[0] - 1)
         ntx = 1 if self.levers is None else self.levers.shape[0]
@@ -991,7 +1019,19 @@ class RangeFilter:
         return self._update(t, int(receiver), int(transmitter), r)
 
     def _update(self, t: float, receiver: int, transmitter: int, r: float) -> bool:
-        self._predict(t)
+        if self._reference:
+            return self._update_reference(t, receiver, transmitter, r)
+        if math.isnan(r):
+            self._predict(t)
+            return False
+        ok = range_kernels.rf_step(self.x, self.P, t - self.t, self.rec, self._lev, receiver,
+                                   transmitter, r, self.d, self.yaw, self._z, self.q,
+                                   self.q_yaw, self.R, self.gate2, self._H, self._PH)
+        self.t = max(self.t, t)
+        return bool(ok)
+
+    def _update_reference(self, t: float, receiver: int, transmitter: int, r: float) -> bool:
+        self._predict_reference(t)
         if math.isnan(r):
             return False
         d = self.d
@@ -1166,7 +1206,8 @@ def _span(rec: np.ndarray) -> float:
 
 
 def tight_filter(streams: RangeStreams, receivers: np.ndarray, config: RangingConfig,
-                 epochs: np.ndarray, *, rejected: np.ndarray | None = None) -> TightResult:
+                 epochs: np.ndarray, *, rejected: np.ndarray | None = None,
+                 reference: bool = False) -> TightResult:
     """Run :class:`RangeFilter` over the streams in time order; report it at the epochs.
 
     Initialisation: at the first sample when every transmitter has >= 3 receivers with a range
@@ -1184,6 +1225,9 @@ def tight_filter(streams: RangeStreams, receivers: np.ndarray, config: RangingCo
     :data:`_FREE_FIX_ATTEMPTS` consecutive failed fixes, at most one attempt per
     ``max_gap_s`` (the ranges' freshness window) until one succeeds (normal data fail at
     most 2 in a row, measured on the synthetic scenes, so they are never throttled).
+    The sample loop runs in :func:`estimator.range_kernels.tight_run` while the filter is
+    initialised and not lost (the fixes in Python); ``reference=True``: all in Python with
+    the numpy filter (the same results to rounding).
     """
     _check_types(streams, config)
     rec = check_array(receivers, "receivers", max_abs=tri.MAX_ABS_M)
@@ -1196,7 +1240,8 @@ def tight_filter(streams: RangeStreams, receivers: np.ndarray, config: RangingCo
     height = config.height_m
     filt = RangeFilter(rec, sigma_range_m=config.sigma_range_m,
                        accel_std_mps2=config.accel_std_mps2, height_m=height, levers=levers,
-                       yaw_accel_std=config.yaw_accel_std, gate=config.tight_gate)
+                       yaw_accel_std=config.yaw_accel_std, gate=config.tight_gate,
+                       reference=reference)
     n = te.size
     pos = np.full((n, 3), np.nan)
     vel = np.full((n, 3), np.nan)
@@ -1212,22 +1257,33 @@ def tight_filter(streams: RangeStreams, receivers: np.ndarray, config: RangingCo
         raise ValueError(f"rejected: expected shape ({N},), got {skip.shape}")
     lost_after = config.relock_after * streams.n_channels
     max_gap = config.max_gap
-    reinit = []
+    reinit: list[float] = []
     run = 0
     failed, next_try = 0, -math.inf      # consecutive failed fixes; next allowed attempt (s)
     e = 0
     ts, rs, rxs, txs = streams.t, streams.r, streams.receiver, streams.transmitter
-    for s in range(N):
+    s = 0
+    while s < N:
+        if filt.initialised and run < lost_after and not reference:
+            # the compiled loop, until the end or a lost filter (see range_kernels.tight_run)
+            s, e, run, filt.t = range_kernels.tight_run(
+                s, e, ts, rs, rxs, txs, skip, te, filt.x, filt.P, filt.t, filt.rec, filt._lev,
+                filt.d, filt.yaw, filt._z, filt.q, filt.q_yaw, filt.R, filt.gate2, run,
+                lost_after, latest_t, latest_r, pos, vel, yaw, std, used, gated, filt._H,
+                filt._PH)
+            if s >= N:
+                break
         ti = ts[s]
         while e < n and te[e] < ti:
             if filt.initialised:
                 pos[e], vel[e], yaw[e], std[e] = filt.state_at(te[e])
             e += 1
         ri = rs[s]
+        s += 1
         if math.isnan(ri):
             continue
-        tx, rx = txs[s], rxs[s]
-        if skip[s]:
+        tx, rx = txs[s - 1], rxs[s - 1]
+        if skip[s - 1]:
             continue
         latest_t[tx, rx], latest_r[tx, rx] = ti, ri
         if not filt.initialised or run >= lost_after:
@@ -1246,18 +1302,19 @@ def tight_filter(streams: RangeStreams, receivers: np.ndarray, config: RangingCo
             filt.initialise(ti, fix[0], position_std=max(2.0 * fix[2], 1e-6),
                             speed_std=config.max_speed_mps, yaw=fix[1])
             run = 0
-            used[s] = True
+            used[s - 1] = True
             continue
         if filt._update(ti, rx, tx, ri):
-            used[s] = True
+            used[s - 1] = True
             run = 0
         else:
-            gated[s] = True
+            gated[s - 1] = True
             run += 1
     while e < n:
         if filt.initialised:
             pos[e], vel[e], yaw[e], std[e] = filt.state_at(te[e])
         e += 1
+    yaw = wrap_angle(yaw)                     # the compiled loop leaves yaw unwrapped
     if not filt.yaw:
         yaw[:] = np.nan
     return TightResult(te, pos, vel, yaw, std, used, gated, skip & np.isfinite(rs),
