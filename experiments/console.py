@@ -19,7 +19,7 @@ __all__ = ["CLIS", "script_name"]
 
 #: The CLI modules of experiments/ (each has ``main(argv)``), by module name.
 CLIS = ("bench", "export", "figures", "identification", "page", "paths_figure", "ranging",
-        "render", "report", "rigid_ranging", "stationary", "sweep", "ultrasonic")
+        "render", "report", "rigid_ranging", "sensitivity", "stationary", "sweep", "ultrasonic")
 
 
 def script_name(module: str) -> str:
@@ -47,6 +47,7 @@ ranging = _script("ranging")
 render = _script("render")
 report = _script("report")
 rigid_ranging = _script("rigid_ranging")
+sensitivity = _script("sensitivity")
 stationary = _script("stationary")
 sweep = _script("sweep")
 ultrasonic = _script("ultrasonic")
