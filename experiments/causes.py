@@ -49,6 +49,7 @@ from experiments.claims import (
     swap_techniques,
 )
 from experiments.markdown import md_row, md_separator
+from experiments.spec import RESULTS_ROOT
 from experiments.tables import (
     THESIS_TABLES,
     THESIS_WINDOWS,
@@ -65,6 +66,9 @@ __all__ = ["ORACLE_SWAP", "Evidence", "cause_line", "evidence", "observability_s
 ORACLE_SWAP = oracle_pairs()
 #: Below this median heading error (deg) the estimated orientation "matches" (claim C9).
 MATCH_DEG = 10.0
+#: The sensitivity study's committed outputs (``python -m experiments.sensitivity
+#: --reference``): C2, C8 and the small-window claims quote its re-measurements.
+SENSITIVITY_DIR = RESULTS_ROOT / "sensitivity"
 
 
 @dataclass
@@ -219,6 +223,86 @@ def _deg(rad: float) -> float:
     return math.degrees(rad) if np.isfinite(rad) else math.nan
 
 
+# --------------------------------------------------------------------------- sensitivity
+def _sens(name: str) -> pd.DataFrame:
+    """A table of the sensitivity study (empty when it has not been written)."""
+    f = SENSITIVITY_DIR / f"{name}.csv"
+    return pd.read_csv(f) if f.exists() else pd.DataFrame()
+
+
+def _sens_rows(cid: str, quantity: str, unit: str) -> list[tuple[str, str, pd.DataFrame]]:
+    """[(label, "**verdict** (k/n)", comparisons)] of claim ``cid`` in the sensitivity
+    study: the shipped setting, then each value of ``quantity``."""
+    s, c = _sens("sensitivity"), _sens("comparisons")
+    if s.empty or c.empty:
+        return []
+    out = []
+    for r in s[(s["claim"] == cid) & s["quantity"].isin(["shipped", quantity])].itertuples():
+        same = (c["claim"] == cid) & (c["quantity"] == r.quantity)
+        same &= c["value"].isna() if r.quantity == "shipped" else np.isclose(c["value"], r.value)
+        out.append(("shipped" if r.quantity == "shipped" else f"{r.value:g}{unit}",
+                    f"**{r.verdict}** ({r.supports}/{r.evaluated})", c[same]))
+    return out
+
+
+def _sens_intro(rows: list, what: str) -> str:
+    n = int(max(int(c["n_seeds"].max()) for _, _, c in rows if not c.empty))
+    return (f" Re-measured with {what} (sensitivity study, results/sensitivity/, {n} seeds, "
+            "its own shipped run beside): ")
+
+
+_NO_SENS = (" Not re-measured: results/sensitivity/ is missing (python -m "
+            "experiments.sensitivity --reference).")
+
+
+def _speed_text() -> str:
+    """C2 at other speeds: verdict and the Path 1 window-10 trail against the noise level."""
+    rows = _sens_rows("C2", "speed", " m/s")
+    if not rows:
+        return _NO_SENS
+    parts = []
+    for lab, vd, c in rows:
+        o = c[c["comparison"].str.startswith("Path 1 w=10: trail")]
+        parts.append(f"{lab} {vd}" + (f", w=10 trail {-o['mean_a'].iloc[0]:.2f} m vs noise "
+                                      f"{-o['mean_b'].iloc[0]:.2f} m" if len(o) else ""))
+    return _sens_intro(rows, "slower and faster speeds") + "; ".join(parts) + "."
+
+
+def _fraction_text() -> str:
+    """C8 under other common fractions: verdict and Huff's gain at window 1 on Path 1."""
+    rows = _sens_rows("C8", "common_fraction", "")
+    if not rows:
+        return _NO_SENS
+    parts = []
+    for lab, vd, c in rows:
+        o = c[c["comparison"] == "Path 1 w=1 mean |x|: huff < none"]
+        gain = (f", Huff lowers the w=1 mean |x| by "
+                f"{100 * (1 - o['mean_a'].iloc[0] / o['mean_b'].iloc[0]):.1f} %") if len(o) else ""
+        parts.append(f"common_fraction {lab} {vd}{gain}")
+    return _sens_intro(rows, "the common fraction varied") + "; ".join(parts) + "."
+
+
+def _wide_text(cid: str) -> str:
+    """Small-window comparisons of a turn claim with wider turns (larger target areas)."""
+    rows = _sens_rows(cid, "turn_width", " m")
+    t = _sens("turns")
+    if not rows or t.empty:
+        return ""
+    parts = []
+    for lab, _, c in rows:
+        small = c[(c["window"] > 0) & (c["window"] < 100)]
+        k = int((small["result"] == "supports").sum())
+        tt = t[(t["window"] == 5) & (t["quantity"] == ("shipped" if lab == "shipped"
+                                                         else "turn_width"))]
+        if lab != "shipped":
+            tt = tt[np.isclose(tt["value"], float(lab.split()[0]))]
+        share = f", {100 * tt['turn_share'].iloc[0]:.0f} % of the w=5 estimates" if len(tt) else ""
+        parts.append(f"target radius {lab}{share}: {k}/{len(small)} supports")
+    return ("." + _sens_intro(rows, "wider turns (larger target areas, so a wider turning "
+                              "flag and no-turns mask)").rstrip(": ")
+            + " at windows 5, 10: " + "; ".join(parts))
+
+
 # --------------------------------------------------------------------------- per claim
 def _c1(ev: Evidence, r: ClaimResult) -> str | None:
     nt = _straight(ev.main)
@@ -262,8 +346,9 @@ def _c2(ev: Evidence, r: ClaimResult) -> str | None:
                      f"= {expect:.2f} m at {sp[0]:g} m/s) against a noise level of "
                      f"{noise:.2f} m, paired difference [{o.lo:.2f}, {o.hi:.2f}]")
     return ("speed. How apparent a trail is depends on the platform's speed, which the "
-            "dissertation does not state (Set-up): " + "; ".join(parts) + ". "
-            "`experiments/presets/speed.toml` re-checks the claims at 0.5 and 1.5 m/s.")
+            "dissertation does not state (Set-up): " + "; ".join(parts) + "."
+            + _speed_text() + " `experiments/presets/speed.toml` re-checks the claims at 0.5 "
+            "and 1.5 m/s.")
 
 
 def _c3(ev: Evidence, r: ClaimResult) -> str | None:
@@ -321,7 +406,7 @@ def _c8(ev: Evidence, r: ClaimResult) -> str | None:
             f"rather than concentrated in a bad one. Measured: Huff lowers the mean |x| error "
             f"by {100 * (n - h) / n:.1f} % at window {w} on Path 1 ({h:.3f} vs {n:.3f} m), and "
             f"{k} of {len(r.outcomes)} comparisons are within seed noise (weighting table in "
-            "tables.md).")
+            "tables.md)." + _fraction_text())
 
 
 def _heading_by_fraction(ev: Evidence, window: int) -> list[tuple[str, float]]:
@@ -458,7 +543,8 @@ def _turns_and_heading(what: str, heading: str
                 return None
             parts.append(f"at windows {', '.join(map(str, small))} few turn estimates: {what} "
                          f"only on the estimates with a turn in their window ({share}), too few "
-                         "to move these statistics beyond the seed noise")
+                         "to move these statistics beyond the seed noise"
+                         + _wide_text(r.claim.cid))
         if large:
             o = _oracle_text(ev, r, large)
             if o is None:
