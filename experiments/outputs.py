@@ -14,8 +14,8 @@ The outputs fall into units, each with known inputs:
   columns and which cells kept per-epoch estimates; not their statistics) and the
   per-epoch files the group read when it was last drawn (a figure draws those files only).
 - ``page``: index.html (:mod:`experiments.page`). Inputs: the cell table, every per-epoch
-  file, REPORT.md, tables.md, claims.csv, the figures, manifest.json and the ultrasonic
-  flight series.
+  file, REPORT.md, tables.md, claims.csv, the figures, manifest.json and the flight series
+  the spec declared (``[page] flight``).
 
 Every unit also depends on the code of ``experiments/`` (any change there redraws all).
 ``outputs.local.json`` (git-ignored, like every ``*.local.json``) records each unit's input
@@ -284,9 +284,10 @@ def write_outputs(table: pd.DataFrame, out_dir: str | Path, *, spec: Any = None,
     from experiments import page
 
     pngs = sorted(p.name for p in out.glob("*.png"))
+    fdir = page.flight_dir(out)       # the flight series the spec declared, if any
     page_in = _digest(code, table_d, manifest, _epoch_stats(out, _epoch_keys(table)),
                       _stats(out, ["REPORT.md", "tables.md", "claims.csv", *pngs]),
-                      _stats(page.ULTRASONIC_DIR, ["flight_series.csv"]))
+                      _stats(fdir, ["flight_series.csv"]) if fdir else None)
     if unchanged("page", page_in):
         new["page"] = units["page"]
     else:

@@ -15,10 +15,12 @@ estimation). The page shows
   Fig 3.4, for every cell of a run);
 - the same for any other results folder passed with ``--with`` (e.g. a real-data recording
   run, contract below);
-- the ultrasonic flight of ``results/ultrasonic/flight_series.csv`` when it exists:
-  receivers, both transmitters (true and Kalman-estimated), the gated trilateration fix, and
-  range rays from every receiver with the raw and the gated range, plus ranges, position and
-  heading error over time;
+- the ultrasonic flight (``flight_series.csv`` of ``python -m experiments.ultrasonic``) when
+  the run's spec declares its folder (``[page] flight = "results/ultrasonic"``, as the thesis
+  preset does; recorded in ``manifest.json``) or ``--ultrasonic DIR`` names it, never by
+  default: receivers, both transmitters (true and Kalman-estimated), the gated trilateration
+  fix, and range rays from every receiver with the raw and the gated range, plus ranges,
+  position and heading error over time;
 - the claim report (``REPORT.md``) with its verdicts, the tables (``tables.md``: Tables
   4.1/4.2 with intervals, weighting, orientation, beyond rows, and whatever else the run
   wrote there) and every PNG figure of the folder.
@@ -71,12 +73,11 @@ import pandas as pd
 from experiments.outline import layout_outline
 from sim.atomic import atomic_write_text
 
-__all__ = ["ASSETS", "build_page", "flight_source", "main", "own_replay", "replay_source",
-           "write_page"]
+__all__ = ["ASSETS", "build_page", "declared_flight", "flight_dir", "flight_source", "main",
+           "own_replay", "replay_source", "write_page"]
 
 ASSETS = Path(__file__).resolve().parent / "page_assets"
 REPO = Path(__file__).resolve().parents[1]
-ULTRASONIC_DIR = REPO / "results" / "ultrasonic"
 
 #: Axes that only change the estimate, not the truth it is scored against; the other axes
 #: (path, config, path_overrides, recording, ...) define a track (one truth).
@@ -472,10 +473,15 @@ def _safe(label: str, fn, *args, **kw):
         return None, f'<div class="error-box">Could not build {html.escape(msg)}</div>'
 
 
+def _manifest(results: Path) -> dict:
+    """The run's manifest.json as a dict ({} when absent)."""
+    f = results / "manifest.json"
+    man = json.loads(f.read_text()) if f.exists() else {}
+    return man if isinstance(man, dict) else {}
+
+
 def _header(results: Path) -> tuple[str, str]:
-    man = {}
-    if (results / "manifest.json").exists():
-        man = json.loads((results / "manifest.json").read_text())
+    man = _manifest(results)
     spec = man.get("spec", {}) if isinstance(man.get("spec"), dict) else {}
     name = spec.get("name") or results.name
     code = man.get("code", {}) if isinstance(man.get("code"), dict) else {}
@@ -503,12 +509,59 @@ def own_replay(results: str | Path, max_points: int = 1000) -> tuple[dict | None
                  title=f"{name} (this run)")
 
 
-def build_page(results: str | Path, *, ultrasonic: str | Path | None = ULTRASONIC_DIR,
+def declared_flight(results: str | Path) -> tuple[str, Path | None] | None:
+    """The flight replay source the run's spec declared (``[page] flight`` in its
+    ``manifest.json``): (the value as written, its folder resolved against the spec's folder
+    by :func:`experiments.spec.flight_folder`, None while it holds no flight_series.csv),
+    or None when the run declared none. A bad value raises SpecError naming the field."""
+    man = _manifest(Path(results))
+    spec = man.get("spec") if isinstance(man.get("spec"), dict) else {}
+    value = (spec.get("page") or {}).get("flight")
+    if value is None:
+        return None
+    from experiments.spec import flight_folder
+
+    base = Path(man.get("spec_base_dir", "."))
+    return value, flight_folder(value, base if base.is_absolute() else REPO / base,
+                                "manifest.json: spec.page.flight")
+
+
+def flight_dir(results: str | Path) -> Path | None:
+    """The folder of the flight the run's page replays (:func:`declared_flight`), None when
+    it declared none, the folder holds no flight series or the value is bad (the page shows
+    why); what the outputs phase watches for changes."""
+    try:
+        declared = declared_flight(results)
+    except ValueError:
+        return None
+    return None if declared is None else declared[1]
+
+
+def _flight(results: Path, ultrasonic: str | Path | None) -> tuple[dict | None, str, str]:
+    """(flight payload or None, error box or "", the source as the page names it) from
+    ``ultrasonic`` when given, else from what the run declared (:func:`declared_flight`)."""
+    if ultrasonic is not None:
+        return (*_safe("the ultrasonic flight replay", flight_source, ultrasonic),
+                str(ultrasonic))
+    declared, err = _safe("the flight replay source", declared_flight, results)
+    if declared is None:
+        return None, err, ""
+    value, folder = declared
+    if folder is None:
+        return None, ('<div class="error-box">The spec names the flight replay source '
+                      f"<code>{html.escape(value)}</code> ([page] flight), which holds no "
+                      "flight_series.csv yet (<code>python -m experiments.ultrasonic</code> "
+                      "writes it).</div>"), value
+    return (*_safe("the ultrasonic flight replay", flight_source, folder), value)
+
+
+def build_page(results: str | Path, *, ultrasonic: str | Path | None = None,
                extra: tuple[str | Path, ...] = (), max_points: int = 1000,
                replay: tuple[dict | None, str] | None = None) -> str:
     """The HTML text of a results folder's page (see the module docstring).
 
-    ultrasonic : folder with ``flight_series.csv`` (None: no flight replay).
+    ultrasonic : folder with ``flight_series.csv`` (None: the one the run's spec declared
+        with ``[page] flight``, else no flight replay).
     extra : further results folders (same file contract) replayed beside this one.
     max_points : epochs kept per track in a replay (every k-th epoch).
     replay : this folder's replay made beforehand by :func:`own_replay` (None: made here).
@@ -525,9 +578,7 @@ def build_page(results: str | Path, *, ultrasonic: str | Path | None = ULTRASONI
         errs.append(err)
         if src:
             gps.append(src)
-    flight, ferr = (None, "")
-    if ultrasonic is not None:
-        flight, ferr = _safe("the ultrasonic flight replay", flight_source, ultrasonic)
+    flight, ferr, fsrc = _flight(results, ultrasonic)
 
     nav, secs = [], []
     body = "".join(errs)
@@ -546,7 +597,8 @@ def build_page(results: str | Path, *, ultrasonic: str | Path | None = ULTRASONI
     if flight or ferr:
         fbody = ferr
         if flight:
-            fbody += ("<p class=\"note\">From <code>results/ultrasonic/flight_series.csv</code> "
+            fsrc = html.escape(f"{fsrc.rstrip('/')}/flight_series.csv")
+            fbody += (f"<p class=\"note\">From <code>{fsrc}</code> "
                       "(<code>python -m experiments.ultrasonic</code>): the simulated quadcopter "
                       "square of thesis 003 Section 3.2 / Appendix C. Rays run from each receiver "
                       "towards the true front transmitter, as long as the measured range: a "
@@ -587,7 +639,7 @@ def build_page(results: str | Path, *, ultrasonic: str | Path | None = ULTRASONI
 
 
 def write_page(results: str | Path, *, out: str | Path | None = None,
-               ultrasonic: str | Path | None = ULTRASONIC_DIR,
+               ultrasonic: str | Path | None = None,
                extra: tuple[str | Path, ...] = (), max_points: int = 1000,
                replay: tuple[dict | None, str] | None = None) -> Path:
     """Write ``<results>/index.html`` (or ``out``); returns its path. See :func:`build_page`."""
@@ -625,9 +677,10 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--with", dest="extra", nargs="*", default=[], metavar="DIR",
                    help="more results folders to replay on the same page (e.g. a recording "
                         "run), e.g. --with results/my_recording")
-    p.add_argument("--ultrasonic", default=str(ULTRASONIC_DIR), metavar="DIR",
-                   help="folder with flight_series.csv (default results/ultrasonic); "
-                        "'none' leaves the flight out")
+    p.add_argument("--ultrasonic", metavar="DIR",
+                   help="folder with flight_series.csv to replay the ultrasonic flight from, "
+                        "e.g. --ultrasonic results/ultrasonic (default: the folder the run's "
+                        "spec declared with [page] flight, else no flight)")
     p.add_argument("--max-points", type=int, default=1000, metavar="N",
                    help="epochs kept per track in a replay (default 1000), e.g. --max-points 400")
     p.add_argument("--out", metavar="FILE", help="output file (default <results>/index.html)")
@@ -642,8 +695,10 @@ def main(argv: list[str] | None = None) -> int:
         return 2
     for folder in args.extra:
         _check_with(Path(folder), args.max_points)
-    us = None if args.ultrasonic.lower() == "none" else args.ultrasonic
-    path = write_page(res, out=args.out, ultrasonic=us, extra=tuple(args.extra),
+    if args.ultrasonic is not None and not (Path(args.ultrasonic) / "flight_series.csv").is_file():
+        raise ValueError(f"--ultrasonic {args.ultrasonic}: no flight_series.csv there (python -m "
+                         "experiments.ultrasonic writes it)")
+    path = write_page(res, out=args.out, ultrasonic=args.ultrasonic, extra=tuple(args.extra),
                       max_points=args.max_points)
     print(f"{path} ({path.stat().st_size / 1e6:.2f} MB)")
     return 0

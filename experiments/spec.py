@@ -35,6 +35,9 @@ field, e.g. ``grid[1].window[2]: must be a positive integer, got 0``)::
     seeds = [0]                     # seed values (or "all")
     where = { path = ["square100"] }   # optional filter on axis values
 
+    [page]                          # optional: what the run's page shows beside its cells
+    flight = "results/ultrasonic"   # the ultrasonic study's flight replay (flight_series.csv)
+
     [techniques."mypkg.mod:MyTracker"]  # optional: a plug-in tracker's options, label, colour
     options = { rear = 0, front = 4 }    # (README, Plug-in trackers; an alias table names
     label = "My tracker"                 #  its class with tracker = "pkg.mod:Name")
@@ -87,7 +90,8 @@ Axes (scalar or list; the dict-valued ones take a table or a list of tables):
 
 Names resolve to files at load time, and each cell's identity includes a hash of the files'
 contents, so editing a configuration invalidates exactly the cells that used it. Every file
-a spec names (``path``, ``config``, ``noise``, ``session:<file>``, ``recording``) follows
+a spec names (``path``, ``config``, ``noise``, ``session:<file>``, ``recording``, the
+``flight_series.csv`` of ``[page] flight``) follows
 one rule (:func:`estimator.model_files.resolve_model_file`): a bare name is looked up in
 ``models/<kind>/``; a path is relative to the spec's folder, then the project, and must
 resolve to a file inside the spec's folder, the project or the shared data beside it
@@ -114,7 +118,7 @@ from typing import Any
 
 from estimator.metrics import MASKS
 from estimator.model_files import MODELS_DIR as MODELS
-from estimator.model_files import SOURCE_CHECKOUT, parse_toml, resolve_model_file
+from estimator.model_files import PROJECT_DIR, SOURCE_CHECKOUT, parse_toml, resolve_model_file
 from estimator.track_options import GROWTH_RULES
 from estimator.weights import WEIGHTINGS as WEIGHT_SCHEMES
 from estimator.weights import Weighting
@@ -139,6 +143,7 @@ __all__ = [
     "DEFAULT_MASKS",
     "DYN_GROWTH",
     "FILTER_TECHNIQUES",
+    "FLIGHT_FILE",
     "MASKS",
     "NO_SOLVER",
     "NO_WEIGHTS",
@@ -152,6 +157,7 @@ __all__ = [
     "SpecError",
     "available_presets",
     "axis_help",
+    "flight_folder",
     "load_spec",
 ]
 
@@ -182,7 +188,9 @@ MAX_SESSION_S = 7 * 86400.0
 MAX_SEEDS = 10_000
 MAX_CELLS = 200_000
 _TOP = {"name", "description", "seed", "seeds", "masks", "sim_seed", "session_s", "defaults",
-        "grid", "epochs", "techniques"}
+        "grid", "epochs", "techniques", "page"}
+#: The file of a flight replay source (``[page] flight``; ``python -m experiments.ultrasonic``).
+FLIGHT_FILE = "flight_series.csv"
 
 
 class SpecError(ValueError):
@@ -518,6 +526,8 @@ class Spec:
     plugins: dict = field(default_factory=dict, repr=False)
     #: Plug-in techniques: name -> (source file of the tracker class, its sha256 prefix).
     plugin_files: dict = field(default_factory=dict, repr=False)
+    #: The ``[page]`` table (``flight``: the flight replay's source folder), or None.
+    page: dict | None = None
 
     @property
     def _base(self) -> Path | None:
@@ -618,6 +628,9 @@ class Spec:
         epochs = data.get("epochs")
         if epochs is not None:
             epochs = _check_epochs(epochs, f"{src}: epochs", rbase, plugins)
+        page = data.get("page")
+        if page is not None:
+            page = _check_page(page, f"{src}: page", rbase)
         n_grid = sum(math.prod(len(b[k]) for k in b if k != "name") for b in grid)
         if n_grid * len(seeds) > MAX_CELLS:
             raise SpecError(f"{src}: grid: {n_grid} axis combinations x {len(seeds)} seeds = "
@@ -625,7 +638,8 @@ class Spec:
         spec = cls(name=name, description=desc, seed=int(seed), seeds=seeds, masks=masks,
                    sim_seed=int(sim_seed), defaults=defaults, grid=tuple(grid), epochs=epochs,
                    session_s=float(session_s), source=src, base_dir=base, raw=data,
-                   direct_paths=base_dir is None, plugins=plugins, plugin_files=plugin_files)
+                   direct_paths=base_dir is None, plugins=plugins, plugin_files=plugin_files,
+                   page=page)
         spec.expand()   # resolve and check every file now, so bad names fail at load time
         return spec
 
@@ -833,7 +847,8 @@ class Spec:
                 "session_s": self.session_s,
                 "defaults": self.defaults, "grid": [dict(b) for b in self.grid],
                 "epochs": self.epochs, "source": self.source,
-                **({"techniques": self.raw.get("techniques", {})} if self.plugins else {})}
+                **({"techniques": self.raw.get("techniques", {})} if self.plugins else {}),
+                **({"page": self.page} if self.page else {})}
 
 
 # --------------------------------------------------------------------------- validation
@@ -921,6 +936,37 @@ def _check_epochs(e: object, where: str, base: Path, plugins: dict | None = None
                                        plugins=plugins)
                            for i, x in enumerate(vals)]
     return out
+
+
+def _check_page(p: object, where: str, base: Path | None) -> dict:
+    """The ``[page]`` table: ``flight``, the folder whose ``flight_series.csv`` the page
+    replays (:func:`flight_folder`); without it the page shows the run's own cells only."""
+    if not isinstance(p, dict):
+        raise SpecError(f"{where}: must be a table, e.g. [page] flight = \"results/ultrasonic\"")
+    unknown = sorted(set(p) - {"flight"})
+    if unknown:
+        raise SpecError(f"{where}: unknown key(s) {unknown}; allowed: ['flight']")
+    if "flight" in p:
+        flight_folder(p["flight"], base, f"{where}.flight")
+    return dict(p)
+
+
+def flight_folder(value: object, base: Path | None, where: str) -> Path | None:
+    """The folder ``[page] flight`` names, or None while it holds no :data:`FLIGHT_FILE`
+    (the page says so; ``python -m experiments.ultrasonic`` writes it). Its file resolves by
+    the one rule of :func:`_resolve` (relative to the spec's folder, then the project, never
+    outside them); a folder without the file must still be named inside them."""
+    if not isinstance(value, str) or not value.strip():
+        raise SpecError(f"{where}: must be a folder path (string), e.g. "
+                        f"\"results/ultrasonic\", got {value!r}")
+    p = Path(value)
+    cands = [p, PROJECT_DIR / p] if base is None else [base / p, PROJECT_DIR / p]
+    if any((c / FLIGHT_FILE).is_file() for c in cands):
+        return _resolve(None, str(p / FLIGHT_FILE), base, where).parent
+    if base is not None and (p.is_absolute() or ".." in p.parts):
+        raise SpecError(f"{where}: {value!r} must be named relative to the spec's folder or "
+                        "the project, inside them (no '..', not absolute)")
+    return None
 
 
 # --------------------------------------------------------------------------- plug-ins

@@ -60,7 +60,6 @@ def folder(tmp_path, monkeypatch):
     monkeypatch.setattr(figures, "figure_tasks", lambda: TASKS)
     monkeypatch.setattr(page, "write_page", write_page)
     monkeypatch.setattr(page, "own_replay", lambda out: ({"cells": []}, ""))
-    monkeypatch.setattr(page, "ULTRASONIC_DIR", tmp_path / "no-ultrasonic")
     return tmp_path, table, calls
 
 

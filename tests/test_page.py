@@ -22,7 +22,7 @@ from hypothesis import strategies as st
 
 from experiments import page
 from experiments.outline import is_simple_polygon, layout_outline
-from experiments.spec import Spec
+from experiments.spec import Spec, SpecError, load_spec
 from experiments.sweep import run
 
 REPO = Path(__file__).resolve().parents[1]
@@ -295,8 +295,13 @@ def test_flight_replay_matches_the_ultrasonic_study():
 
 def test_cli_and_report_write_the_page(tiny_run, tmp_path, capsys):
     out = tmp_path / "p.html"
-    assert page.main([str(tiny_run), "--out", str(out), "--ultrasonic", "none"]) == 0
+    assert page.main([str(tiny_run), "--out", str(out)]) == 0
     assert "MB)" in capsys.readouterr().out and payload(out.read_text())["flight"] is None
+    assert page.main([str(tiny_run), "--out", str(out), "--ultrasonic",
+                      str(REPO / "results" / "ultrasonic")]) == 0
+    assert payload(out.read_text())["flight"]["title"] == "ultrasonic flight"
+    with pytest.raises(ValueError, match=r"--ultrasonic .*nowhere: no flight_series.csv there"):
+        page.main([str(tiny_run), "--out", str(out), "--ultrasonic", str(tmp_path / "nowhere")])
     assert page.main([str(tmp_path / "nope")]) == 2
     assert page.main([str(tiny_run), "--max-points", "1"]) == 2
     assert "--max-points" in capsys.readouterr().err
@@ -305,6 +310,81 @@ def test_cli_and_report_write_the_page(tiny_run, tmp_path, capsys):
     (tiny_run / "index.html").unlink()
     assert report.main([str(tiny_run)]) == 0
     assert (tiny_run / "index.html").exists()
+
+
+# --------------------------------------------------------------------------- [page] flight
+def _declaring(run_dir: Path, dest: Path, flight: str) -> Path:
+    """A copy of a run's cells.parquet and manifest whose spec declares ``[page] flight``
+    (what a sweep of such a spec records), relative to the project."""
+    dest.mkdir()
+    (dest / "cells.parquet").write_bytes((run_dir / "cells.parquet").read_bytes())
+    man = json.loads((run_dir / "manifest.json").read_text())
+    man["spec"]["page"] = {"flight": flight}
+    man["spec_base_dir"] = "experiments/presets"
+    (dest / "manifest.json").write_text(json.dumps(man))
+    return dest
+
+
+def test_a_spec_without_a_flight_source_reads_no_other_study(tiny_run, monkeypatch):
+    """No ``[page] flight``: no flight section, and nothing under results/ultrasonic is
+    read (the page used to read it for every run)."""
+    def reads(*a, **k):
+        raise AssertionError(f"flight_source{a} read without a declared source")
+
+    monkeypatch.setattr(page, "flight_source", reads)
+    assert "page" not in json.loads((tiny_run / "manifest.json").read_text())["spec"]
+    html = page.build_page(tiny_run)
+    assert payload(html)["flight"] is None and 'id="flight"' not in html
+    assert page.flight_dir(tiny_run) is None
+
+
+def test_a_declared_flight_source_is_replayed(tiny_run, tmp_path):
+    run_dir = _declaring(tiny_run, tmp_path / "run", "results/ultrasonic")
+    assert page.declared_flight(run_dir) == ("results/ultrasonic", REPO / "results" / "ultrasonic")
+    html = page.build_page(run_dir)
+    assert payload(html)["flight"]["title"] == "ultrasonic flight"
+    assert "From <code>results/ultrasonic/flight_series.csv</code>" in html
+    # declared but not written yet: the page says so, no replay
+    empty = _declaring(tiny_run, tmp_path / "empty", "results/no-such-study")
+    html = page.build_page(empty)
+    assert payload(html)["flight"] is None and "holds no flight_series.csv yet" in html
+    assert page.flight_dir(empty) is None
+
+
+def test_the_thesis_preset_declares_its_flight_source():
+    spec = load_spec("thesis")
+    assert spec.page == {"flight": "results/ultrasonic"}
+    assert spec.to_dict()["page"] == spec.with_solver("elastic").to_dict()["page"]
+    assert "page" not in load_spec("quick").to_dict()
+
+
+@pytest.mark.parametrize("table, match", [
+    ({"flight": 3}, r"page\.flight: must be a folder path \(string\).*got 3"),
+    ({"flight": ""}, r"page\.flight: must be a folder path"),
+    ({"flight": "../../../etc"}, r"page\.flight: '\.\./\.\./\.\./etc' must be named relative"),
+    ({"flight": "/etc"}, r"page\.flight: '/etc' must be named relative"),
+    ({"flights": "results/ultrasonic"}, r"page: unknown key\(s\) \['flights'\]"),
+    ("results/ultrasonic", r"page: must be a table"),
+])
+def test_a_bad_page_table_is_a_one_line_spec_error(tmp_path, table, match):
+    with pytest.raises(SpecError, match=match) as ei:
+        Spec.from_dict({**TINY, "page": table}, source="s.toml", base_dir=tmp_path)
+    assert "\n" not in str(ei.value)
+
+
+def test_a_flight_source_outside_the_project_is_refused(tmp_path):
+    """A folder that holds the file but lies outside the spec's folder and the project: the
+    one path rule of every file a spec names refuses it, naming the field."""
+    outside = tmp_path / "elsewhere"
+    outside.mkdir()
+    (outside / "flight_series.csv").write_text("t\n0\n")
+    spec_dir = tmp_path / "specs"
+    spec_dir.mkdir()
+    (spec_dir / "s.toml").write_text(
+        'name = "s"\n[page]\nflight = "../elsewhere"\n'
+        '[[grid]]\npath = "square20"\nwindow = 1\n')
+    with pytest.raises(SpecError, match=r"page\.flight: .*leaves the folder of the file"):
+        load_spec(spec_dir / "s.toml")
 
 
 def test_tables_figure_grows_with_its_rows(tmp_path):
@@ -368,7 +448,8 @@ def test_page_in_headless_chromium(tiny_run, tmp_path, browser_page):
     cells and sources redraws; the flight plays; screenshots go to the test's tmp dir."""
     write_recording_folder(tmp_path / "rec", n=200)
     html = tmp_path / "index.html"
-    page.write_page(tiny_run, out=html, extra=(tmp_path / "rec",))
+    page.write_page(tiny_run, out=html, extra=(tmp_path / "rec",),
+                    ultrasonic=REPO / "results" / "ultrasonic")
     pg = browser_page
     pg.goto(html.as_uri())
     pg.wait_for_function("window.configpose && window.configpose.ready", timeout=10_000)
