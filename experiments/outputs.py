@@ -84,6 +84,25 @@ def _digest(*parts: Any) -> str:
                            digest_size=16).hexdigest()
 
 
+def _manifest_inputs(path: Path) -> str:
+    """What of ``manifest.json`` the report and the page show: everything but ``status``
+    (the outputs are written while it says "running"; the run marks it "complete" after
+    them, so with the status a resumed run redrew both although nothing they show had
+    changed). "" without a manifest, the text itself when it is not a JSON object."""
+    try:
+        text = path.read_text()
+    except OSError:
+        return ""
+    try:
+        man = json.loads(text)
+    except ValueError:
+        return text
+    if not isinstance(man, dict):
+        return text
+    man.pop("status", None)
+    return json.dumps(man, sort_keys=True)
+
+
 def _stat(path: Path) -> list[int] | None:
     """[size, modification time in ns] of a file, None when it does not exist."""
     try:
@@ -213,8 +232,7 @@ def write_outputs(table: pd.DataFrame, out_dir: str | Path, *, spec: Any = None,
     except (OSError, ValueError):
         state_text, units = None, {}
     code = code_digest()
-    man = out / "manifest.json"
-    manifest = man.read_text() if man.exists() else ""
+    manifest = _manifest_inputs(out / "manifest.json")
     table_d = frame_digest(table)
     spec_d = _digest(getattr(spec, "raw", None))
     layout_d = frame_digest(table, _layout_columns(table))

@@ -1039,8 +1039,6 @@ def _check_plugin_table(name: object, tab: object, where: str) -> None:
 def _entry_point_names(data: dict, tables: dict) -> list[str]:
     """``technique`` values of the spec that name an installed entry point of the group
     ``configpose.trackers`` (and neither a built-in technique nor a table)."""
-    from estimator.trackers.base import ENTRY_POINT_GROUP
-
     values = []
     for b in [data.get("defaults") or {}, *(data.get("grid") or [])]:
         v = b.get("technique") if isinstance(b, dict) else None
@@ -1050,6 +1048,10 @@ def _entry_point_names(data: dict, tables: dict) -> list[str]:
     if not values:
         return []
     import importlib.metadata
+
+    # imported only here: the tracker family (pandas, scipy) costs ~1 s to import, which a
+    # spec without entry-point names (every preset) would pay before its first simulation
+    from estimator.trackers.base import ENTRY_POINT_GROUP
 
     eps = {ep.name for ep in importlib.metadata.entry_points(group=ENTRY_POINT_GROUP)}
     return [x for x in dict.fromkeys(values) if x in eps]
