@@ -716,16 +716,19 @@ def _car_scores(yaw: np.ndarray, sd: np.ndarray | None, truth: np.ndarray, two: 
     return out
 
 
-def car_run(noise: str, seed: int, gtsam: bool = True) -> dict[str, dict]:
+def car_run(noise: str, seed: int, gtsam: bool = True, platform: str | None = None
+            ) -> dict[str, dict]:
     """One drive of the issue-25 car (sim.vehicle_case, drive seed ``seed``, noise seed
     1000 + seed as tests/pose_scenes.vehicle_scene) through :data:`CAR_ROWS` with defaults
-    (nothing given, nothing tuned): per row :func:`_car_scores` plus the CPU time per epoch
-    ``s_epoch``; the filter rows add the forward pass's NIS/dof and in-band share and the
-    share of >= 2-antenna rows flagged inconsistent; the GTSAM row holds ``error`` if it
-    fails."""
+    (nothing tuned; limits from the data, or the ``[platform]`` block of the configuration
+    named ``platform``, e.g. "car_rtk4", for the filter and the peer alike): per row
+    :func:`_car_scores` plus the CPU time per epoch ``s_epoch``; the filter rows add the
+    forward pass's NIS/dof and in-band share and the share of >= 2-antenna rows flagged
+    inconsistent; the GTSAM row holds ``error`` if it fails."""
+    from estimator.configuration import SensorConfig
     from estimator.epoch_fit import epoch_rigid_fits
     from estimator.gtsam_peer import run_gtsam_peer
-    from estimator.pose_filter import nis_summary, run_pose_filter
+    from estimator.pose_filter import PoseFilterParams, nis_summary, run_pose_filter
     from estimator.pose_smoother import fixed_lag_smooth, rts_smooth
     from sim.vehicle_case import simulate_vehicle_case, vehicle_observations
 
@@ -733,13 +736,14 @@ def car_run(noise: str, seed: int, gtsam: bool = True) -> dict[str, dict]:
     obs = vehicle_observations(case, noise, np.random.default_rng(1000 + seed))
     t, off, yaw = case.truth.t, case.config.body_positions - case.config.cg_body, case.truth.yaw
     two, n = np.isfinite(obs[..., 0]).sum(1) >= 2, t.size
+    par = PoseFilterParams.from_platform(platform and SensorConfig.load(platform).platform)
 
     def timed(fn: Callable[[], Any]) -> tuple[Any, float]:
         c0 = time.process_time()
         return fn(), (time.process_time() - c0) / n
 
     fit, s_fit = timed(lambda: epoch_rigid_fits(obs, off))
-    res, s_ekf = timed(lambda: run_pose_filter(t, obs, off))
+    res, s_ekf = timed(lambda: run_pose_filter(t, obs, off, par))
     fl, s_fl = timed(lambda: fixed_lag_smooth(res, t, res.params.lag_s))
     rts, s_rts = timed(lambda: rts_smooth(res))
     nis = nis_summary(res.nis, res.nis_dof)
@@ -754,7 +758,7 @@ def car_run(noise: str, seed: int, gtsam: bool = True) -> dict[str, dict]:
                                   two), **filt, "s_epoch": s_ekf + s_rts}}
     if gtsam:
         try:
-            peer = run_gtsam_peer(t, obs, off)
+            peer = run_gtsam_peer(t, obs, off, par)
             rows["GTSAM peer"] = {**_car_scores(peer.fixed_lag[:, 2], None, yaw, two),
                                   "s_epoch": peer.update_s / n}
         except Exception as exc:  # noqa: BLE001 - the table reports a failing peer
@@ -804,43 +808,56 @@ def _car_targets(runs: dict) -> list[str]:
     return lines
 
 
+#: Where the car table's filter and peer take their platform limits from: the data
+#: (the defaults) and the shipped layout's ``[platform]`` block (the sweep's car preset).
+CAR_LIMITS = (None, "car_rtk4")
+
+
 @section("car")
 def bench_car(quick: bool = False) -> list[dict]:
     """The table of issue 25 on the simulated car (``sim.vehicle_case``, 10 seeds, 2 with
-    ``--quick``): window 1, EKF, fixed-lag, RTS and the GTSAM peer (if installed) with
-    defaults on network RTK (models/noise/gps_rtk_network.toml) and two consumer replays;
-    heading RMS on the >= 2-antenna epochs, flips, finite share, NEES / NIS / inconsistent
-    share, CPU time per epoch, and the targets met or not (:func:`car_run`)."""
+    ``--quick``): window 1, EKF, fixed-lag, RTS and the GTSAM peer (if installed) on network
+    RTK (models/noise/gps_rtk_network.toml) and two consumer replays, once per
+    :data:`CAR_LIMITS`; heading RMS on the >= 2-antenna epochs, flips, finite share, NEES /
+    NIS / inconsistent share, CPU time per epoch, and the targets met or not
+    (:func:`car_run`)."""
     from estimator.gtsam_peer import gtsam_available
 
     seeds, gt = range(2 if quick else 10), gtsam_available()
     rows_ = [r for r in CAR_ROWS if gt or r != "GTSAM peer"]
-    runs = {i: dict(zip(rows_, zip(*[[d[r] for r in rows_] for d in
-                                     (car_run(i, s, gt) for s in seeds)], strict=True),
-                        strict=True)) for i in CAR_INPUTS}
-    print(f"### Simulated issue-25 car, seeds {seeds.start}-{seeds.stop - 1}: heading RMS "
-          "(deg) on the >= 2-antenna epochs, mean [median, max] over seeds, flips, finite "
-          "share (min)\n")
-    table = [{"input": i, **{r: _car_cell(list(runs[i][r])) for r in rows_}} for i in runs]
-    print_table(table, ["input", *rows_])
+    out: list[dict] = []
+    for lim in CAR_LIMITS:
+        runs = {i: dict(zip(rows_, zip(*[[d[r] for r in rows_] for d in
+                                         (car_run(i, s, gt, lim) for s in seeds)],
+                                       strict=True), strict=True)) for i in CAR_INPUTS}
+        what = f"{lim}'s [platform] limits" if lim else "defaults (limits from the data)"
+        print(f"### Simulated issue-25 car, {what}, seeds {seeds.start}-{seeds.stop - 1}: "
+              "heading RMS (deg) on the >= 2-antenna epochs, mean [median, max] over seeds, "
+              "flips, finite share (min)\n")
+        table = [{"limits": lim or "data", "input": i,
+                  **{r: _car_cell(list(runs[i][r])) for r in rows_}} for i in runs]
+        print_table(table, ["input", *rows_])
+        cons = [{"limits": lim or "data", "input": i, "row": r, **_car_consistency(runs[i][r])}
+                for i in runs for r in rows_[1:]]
+        print("\nConsistency (means over seeds; NEES chi2_1: 1 and 95 % in band when "
+              "consistent; NIS of the forward pass) and CPU time per epoch\n")
+        print_table(cons, ["input", "row", "NEES", "NEES in band", "NIS/dof", "NIS in band",
+                           "inconsistent", "CPU per epoch"])
+        print("\nTargets (issue 25):\n\n" + "\n".join(f"- {x}" for x in _car_targets(runs))
+              + "\n")
+        out += table + cons
+    return out
 
-    def fmt(rs: tuple, key: str, pct: bool = False) -> str:
+
+def _car_consistency(rs: tuple) -> dict:
+    """Means over the runs of the consistency columns and the CPU time per epoch."""
+    def fmt(key: str, pct: bool = False) -> str:
         v = np.array([r.get(key, np.nan) for r in rs], dtype=float)
         return "n/a" if np.isnan(v).all() else (f"{100 * np.nanmean(v):.1f} %" if pct
                                                 else f"{np.nanmean(v):.3g}")
-    cons = [{"input": i, "row": r, "NEES": fmt(runs[i][r], "nees"),
-             "NEES in band": fmt(runs[i][r], "nees_band", True), "NIS/dof": fmt(
-                 runs[i][r], "nis"), "NIS in band": fmt(runs[i][r], "nis_band", True),
-             "inconsistent": fmt(runs[i][r], "incons", True),
-             "CPU per epoch": _fmt(float(np.mean([x.get("s_epoch", np.nan)
-                                                  for x in runs[i][r]])))}
-            for i in runs for r in rows_[1:]]
-    print("\nConsistency (means over seeds; NEES chi2_1: 1 and 95 % in band when "
-          "consistent; NIS of the forward pass) and CPU time per epoch\n")
-    print_table(cons, ["input", "row", "NEES", "NEES in band", "NIS/dof", "NIS in band",
-                       "inconsistent", "CPU per epoch"])
-    print("\nTargets (issue 25):\n\n" + "\n".join(f"- {x}" for x in _car_targets(runs)) + "\n")
-    return table + cons
+    return {"NEES": fmt("nees"), "NEES in band": fmt("nees_band", True), "NIS/dof": fmt("nis"),
+            "NIS in band": fmt("nis_band", True), "inconsistent": fmt("incons", True),
+            "CPU per epoch": _fmt(float(np.mean([x.get("s_epoch", np.nan) for x in rs])))}
 
 
 def _peak_rss_bytes() -> int:
