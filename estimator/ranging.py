@@ -870,7 +870,11 @@ class RangeFilter:
     ``gate`` standard deviations is not used (:meth:`update` returns False).
 
     receivers (k, 3) m; levers (T, 3) m body frame or None; height_m: known z of the body
-    origin or None. Streaming use: :meth:`initialise`, then :meth:`update` per range in time
+    origin or None. height_bounds (lo, hi) m and fallback_height_m (None: the middle), free
+    z only: the body origin's plausible z interval (:meth:`RangingConfig.height_interval`);
+    after every range and at initialisation z is held in it, with the known-height fallback
+    where the ranges do not resolve z (:func:`estimator.range_kernels.rf_hold_height`).
+    Streaming use: :meth:`initialise`, then :meth:`update` per range in time
     order (a range before the filter's time raises ValueError; equal times are fine);
     :meth:`state_at` extrapolates without changing the filter. Predict and update run in the
     compiled kernels of :mod:`estimator.range_kernels`; ``reference=True`` uses the numpy
@@ -880,7 +884,8 @@ class RangeFilter:
     def __init__(self, receivers: np.ndarray, *, sigma_range_m: float, accel_std_mps2: float,
                  height_m: float | None = None, levers: np.ndarray | None = None,
                  yaw_accel_std: float = 1.0, gate: float = 5.0,
-                 reference: bool = False) -> None:
+                 height_bounds: tuple[float, float] | None = None,
+                 fallback_height_m: float | None = None, reference: bool = False) -> None:
         self.rec = check_array(receivers, "receivers", max_abs=tri.MAX_ABS_M)
         if self.rec.ndim != 2 or self.rec.shape[1] != 3:
             raise ValueError(f"receivers: expected shape (k, 3), got {self.rec.shape}")
@@ -919,7 +924,20 @@ class RangeFilter:
         self._lev = np.zeros((self._ntx, 3)) if self.levers is None else \
             np.ascontiguousarray(self.levers, dtype=float)
         self._z = math.nan if self.height is None else self.height
+        self._zb = self._height_bounds(height_bounds, fallback_height_m)
         self._reference = bool(reference)
+
+    def _height_bounds(self, bounds, fallback) -> np.ndarray:
+        """(lo, hi, fallback z, fallback variance) m, m^2 for free z (NaN: unbounded); the
+        fallback variance is the interval's uniform spread (hi - lo)^2 / 12."""
+        if bounds is None or self.height is not None:
+            return np.full(4, np.nan)
+        b = check_array(bounds, "height_bounds", shape=(2,), max_abs=tri.MAX_ABS_M)
+        if not b[0] < b[1]:
+            raise ValueError(f"height_bounds: expected (lo, hi) m with lo < hi, got {bounds!r}")
+        mid = 0.5 * (b[0] + b[1]) if fallback is None else check_real(
+            fallback, "fallback_height_m", lo=-tri.MAX_ABS_M, hi=tri.MAX_ABS_M)
+        return np.array([b[0], b[1], mid, (b[1] - b[0]) ** 2 / 12.0])
 
     def initialise(self, t: float, position: np.ndarray, *, position_std: float,
                    speed_std: float, yaw: float = 0.0, yaw_std: float = math.pi) -> None:
@@ -940,6 +958,10 @@ class RangeFilter:
         self.P = np.diag(np.asarray(var, dtype=float))
         self.t = float(t)
         self.initialised = True
+        if self._reference:
+            self._hold_reference()
+        else:
+            range_kernels.rf_hold_height(self.x, self.P, self._zb)
 
     def predict(self, t: float) -> None:
         """Propagate the state to time t (s; no-op for t equal to the filter's time).
@@ -1026,11 +1048,37 @@ class RangeFilter:
             return False
         ok = range_kernels.rf_step(self.x, self.P, t - self.t, self.rec, self._lev, receiver,
                                    transmitter, r, self.d, self.yaw, self._z, self.q,
-                                   self.q_yaw, self.R, self.gate2, self._H, self._PH)
+                                   self.q_yaw, self.R, self.gate2, self._H, self._PH, self._zb)
         self.t = max(self.t, t)
         return bool(ok)
 
     def _update_reference(self, t: float, receiver: int, transmitter: int, r: float) -> bool:
+        """numpy reference of the kernel path: predict, range update, height hold."""
+        if math.isnan(r):
+            self._predict_reference(t)
+            return False
+        ok = self._range_update_reference(t, receiver, transmitter, r)
+        self._hold_reference()
+        return ok
+
+    def _hold_reference(self) -> None:
+        """numpy reference of :func:`estimator.range_kernels.rf_hold_height`."""
+        lo, hi, mid, var = self._zb
+        if math.isnan(lo):
+            return
+        if self.P[2, 2] > (0.5 * (hi - lo)) ** 2:
+            g = self.P[2].copy()
+            S = self.P[2, 2] + var
+            self.x += g / S * (mid - self.x[2])
+            self.P -= np.outer(g / S, g)
+        z = self.x[2]
+        if z < lo or z > hi:
+            self.x[2] = lo if z < lo else hi
+            if (z < lo and self.x[5] < 0.0) or (z > hi and self.x[5] > 0.0):
+                self.x[5] = 0.0
+
+    def _range_update_reference(self, t: float, receiver: int, transmitter: int,
+                                r: float) -> bool:
         self._predict_reference(t)
         if math.isnan(r):
             return False
@@ -1074,6 +1122,8 @@ class RangeFilter:
         std[:d] = np.sqrt(np.maximum(var, 0.0))
         if d == 2:
             pos[2] = self.height
+        elif not math.isnan(self._zb[0]):
+            pos[2] = min(max(pos[2], self._zb[0]), self._zb[1])
         yaw = float(wrap_angle(self.x[2 * d] + dt * self.x[2 * d + 1])) if self.yaw else math.nan
         return pos, vel, yaw, std
 
@@ -1241,7 +1291,8 @@ def tight_filter(streams: RangeStreams, receivers: np.ndarray, config: RangingCo
     filt = RangeFilter(rec, sigma_range_m=config.sigma_range_m,
                        accel_std_mps2=config.accel_std_mps2, height_m=height, levers=levers,
                        yaw_accel_std=config.yaw_accel_std, gate=config.tight_gate,
-                       reference=reference)
+                       height_bounds=config.height_interval(rec),
+                       fallback_height_m=config.fallback_height_m, reference=reference)
     n = te.size
     pos = np.full((n, 3), np.nan)
     vel = np.full((n, 3), np.nan)
@@ -1268,7 +1319,7 @@ def tight_filter(streams: RangeStreams, receivers: np.ndarray, config: RangingCo
             # the compiled loop, until the end or a lost filter (see range_kernels.tight_run)
             s, e, run, filt.t = range_kernels.tight_run(
                 s, e, ts, rs, rxs, txs, skip, te, filt.x, filt.P, filt.t, filt.rec, filt._lev,
-                filt.d, filt.yaw, filt._z, filt.q, filt.q_yaw, filt.R, filt.gate2, run,
+                filt.d, filt.yaw, filt._z, filt.q, filt.q_yaw, filt.R, filt.gate2, filt._zb, run,
                 lost_after, latest_t, latest_r, pos, vel, yaw, std, used, gated, filt._H,
                 filt._PH)
             if s >= N:

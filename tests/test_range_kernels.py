@@ -69,17 +69,22 @@ def test_rigid_filter_and_smoother_kernels_match_the_references(cfg):
 # ------------------------------------------------------------- single-tag range filter
 
 
-@pytest.mark.parametrize("height, lev", [(1.0, None), (None, None),
-                                         (1.0, [[0.25, 0.1, 0.0], [-0.25, 0.0, 0.05]]),
-                                         (None, [[0.25, 0.1, 0.0], [-0.25, 0.0, 0.05]])])
-def test_range_filter_kernel_matches_the_numpy_reference(height, lev):
+LEV = [[0.25, 0.1, 0.0], [-0.25, 0.0, 0.05]]
+
+
+@pytest.mark.parametrize("height, lev, bounds", [
+    (1.0, None, None), (None, None, None), (1.0, LEV, None), (None, LEV, None),
+    (None, None, (1.1, 1.3)), (None, LEV, (0.0, 0.9))])
+def test_range_filter_kernel_matches_the_numpy_reference(height, lev, bounds):
     """500 ranges at uneven steps (some repeated times, 5 % spikes the gate rejects, a few
     NaN) through the kernel filter and the numpy reference: every return value identical,
-    state and covariance within TOL after each update."""
+    state and covariance within TOL after each update. Bounds (free z): the second holds z
+    below the truth (1.0 m) at its upper bound, the first is narrower than the initial z std
+    (the fallback pseudo-measurement)."""
     rng = np.random.default_rng(5)
     lev = None if lev is None else np.array(lev)
     kw = dict(sigma_range_m=0.1, accel_std_mps2=0.8, height_m=height, levers=lev,
-              yaw_accel_std=0.5, gate=4.0)
+              yaw_accel_std=0.5, gate=4.0, height_bounds=bounds)
     a, b = RangeFilter(UWB_ANCHORS, **kw), RangeFilter(UWB_ANCHORS, **kw, reference=True)
     for f in (a, b):
         f.initialise(0.0, [12.0, -1.0, 1.0], position_std=1.5, speed_std=2.0, yaw=0.3,
@@ -101,6 +106,8 @@ def test_range_filter_kernel_matches_the_numpy_reference(height, lev):
     assert rejected > 10
     for x, y in zip(a.state_at(t[-1] + 0.3), b.state_at(t[-1] + 0.3)):
         close(x, y)
+    if bounds is not None:
+        assert bounds[0] <= a.x[2] <= bounds[1]
 
 
 def test_range_filter_fast_path_keeps_the_checks():
