@@ -39,9 +39,10 @@ pedestrian or small ground robot).
 from __future__ import annotations
 
 import math
-from collections.abc import Mapping
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field, replace
 from itertools import combinations
+from typing import Any, cast
 
 import numpy as np
 
@@ -206,8 +207,8 @@ class RangeStreams:
         if self.t.size == 0 or self.t.size % self.n_channels:
             return False
         times = np.unique(self.t)
-        return times.size * self.n_channels == self.t.size and np.all(
-            np.bincount(self.channel, minlength=self.n_channels) == times.size)
+        return times.size * self.n_channels == self.t.size and bool(np.all(
+            np.bincount(self.channel, minlength=self.n_channels) == times.size))
 
     def padded(self, values: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray,
                                                                   np.ndarray]:
@@ -381,7 +382,8 @@ class RangingConfig:
         flies above the array), Appendix C's Kalman sigmas (3 mm/s^2, 2 mm) after a 40-sample
         lead-in, heading filter 1 deg/s^2, 1 deg; accelerations 1 m/s^2 (the simulated
         square's lateral limit)."""
-        base = {"sigma_range_m": 0.005, "max_speed_mps": 10.0, "accel_std_mps2": 1.0,
+        base: dict[str, Any] = {"sigma_range_m": 0.005, "max_speed_mps": 10.0,
+                                "accel_std_mps2": 1.0,
                     "noise_margin_m": 0.05, "max_change_m": 2.0, "sample_interval_s": 0.1,
                     "tx_separation_m": 0.5,
                     "lever_arms_m": ((0.25, 0.0, 0.0), (-0.25, 0.0, 0.0)),
@@ -405,8 +407,8 @@ class RangingConfig:
         the defaults (damped least squares with mirror continuity, per-fix Kalman sigmas,
         5-sigma gates).
         """
-        base = {"sigma_range_m": 0.1, "max_speed_mps": 3.0, "accel_std_mps2": 1.0,
-                "height_margin_m": 2.0}
+        base: dict[str, Any] = {"sigma_range_m": 0.1, "max_speed_mps": 3.0,
+                                "accel_std_mps2": 1.0, "height_margin_m": 2.0}
         base.update(changes)
         return cls(**base)
 
@@ -480,11 +482,11 @@ def best_triple(rec: np.ndarray) -> tuple[int, int, int]:
     rec = check_array(rec, "receivers", max_abs=tri.MAX_ABS_M)
     if rec.ndim != 2 or rec.shape[1] != 3 or rec.shape[0] < 3:
         raise ValueError(f"receivers: expected shape (k, 3) with k >= 3, got {rec.shape}")
-    best, area = None, -1.0
+    best, area = (0, 1, 2), -1.0
     for c in combinations(range(rec.shape[0]), 3):
-        a = np.linalg.norm(np.cross(rec[c[1]] - rec[c[0]], rec[c[2]] - rec[c[0]]))
+        a = float(np.linalg.norm(np.cross(rec[c[1]] - rec[c[0]], rec[c[2]] - rec[c[0]])))
         if a > area:
-            best, area = c, a
+            best, area = (c[0], c[1], c[2]), a
     return best
 
 
@@ -735,7 +737,7 @@ def trilaterate_epochs(ranges: np.ndarray, receivers: np.ndarray,
         raise ValueError(f"receivers_used: index {max(idx)} for {rec.shape[0]} receivers")
     ru = rec[list(idx)]
     levers = config.levers(nt)
-    fn = tri.METHODS[config.method]
+    fn: Callable[..., Any] = tri.METHODS[config.method]
     pos = np.full((n, nt, 3), np.nan)
     sig = np.full((n, nt, 3), np.nan)
     ok = np.zeros((n, nt), dtype=bool)
@@ -764,7 +766,7 @@ def trilaterate_epochs(ranges: np.ndarray, receivers: np.ndarray,
         pos[:, j] = p
         ok[:, j] = good
         sig[:, j] = _fix_sigma(ru, p, rj, config.sigma_range_m, known)
-        if held[:, j].any():          # z held: the bounds' uniform spread, not the geometry's
+        if bounds is not None and held[:, j].any():   # z held: the bounds' uniform spread
             sig[held[:, j], j] = _fix_sigma(ru, p[held[:, j]], rj[held[:, j]],
                                             config.sigma_range_m, True)
             sig[held[:, j], j, 2] = (bounds[1] - bounds[0]) / math.sqrt(12.0)
@@ -802,6 +804,7 @@ def filter_fixes(t: np.ndarray, fixes: Fixes, config: RangingConfig, *,
     if n <= lead:
         return out
     tl = tt[lead:]
+    sm: np.ndarray | float
     for j in range(nt):
         z = np.where(fixes.ok[lead:, j, None], fixes.position[lead:, j], np.nan)
         s = fixes.sigma[lead:, j]
@@ -1010,7 +1013,7 @@ class RangeFilter:
             p[2] = self.height
         if not self.yaw:
             return p, None
-        lx, ly, lz = self.levers[tx]
+        lx, ly, lz = self._lev[tx]
         c, s = math.cos(x[2 * d]), math.sin(x[2 * d])
         p[0] += c * lx - s * ly
         p[1] += s * lx + c * ly
@@ -1090,7 +1093,7 @@ class RangeFilter:
             return False
         H = self._H
         H[:d] = diff[:d] / dist
-        if self.yaw:
+        if dyaw is not None:
             H[2 * d] = (diff[0] * dyaw[0] + diff[1] * dyaw[1]) / dist
         PH = self.P @ H
         S = H @ PH + self.R
@@ -1451,9 +1454,9 @@ def localize(streams: RangeStreams, receivers: np.ndarray, config: RangingConfig
         yaw_fix = np.where(fixes.ok.all(axis=1), yaw_fix, np.nan) if config.method == \
             "damped_ls" else yaw_fix
         if np.isfinite(yaw_fix).any() and te.size:
-            yaw_f = wrap_angle(pv_kalman(te, unwrap_angle(yaw_fix),
-                                         config.heading_sigma_process,
-                                         config.heading_sigma_measurement))
+            yaw_f = wrap_angle(cast(np.ndarray, pv_kalman(te, unwrap_angle(yaw_fix),
+                                                          config.heading_sigma_process,
+                                                          config.heading_sigma_measurement)))
         else:
             yaw_f = np.full(te.size, np.nan)
     else:
