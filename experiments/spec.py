@@ -113,6 +113,7 @@ import math
 import re
 from collections.abc import Callable, Iterable
 from dataclasses import dataclass, field, make_dataclass, replace
+from operator import attrgetter
 from pathlib import Path
 from typing import Any
 
@@ -138,28 +139,10 @@ from experiments.techniques import (
 )
 from experiments.techniques import technique as _technique
 
-__all__ = [
-    "AXES",
-    "DEFAULT_MASKS",
-    "DYN_GROWTH",
-    "FILTER_TECHNIQUES",
-    "FLIGHT_FILE",
-    "MASKS",
-    "NO_SOLVER",
-    "NO_WEIGHTS",
-    "ORACLE_TECHNIQUES",
-    "PRESETS_DIR",
-    "SOLVERS",
-    "TECHNIQUES",
-    "WEIGHTINGS",
-    "Cell",
-    "Spec",
-    "SpecError",
-    "available_presets",
-    "axis_help",
-    "flight_folder",
-    "load_spec",
-]
+__all__ = ["AXES", "DEFAULT_MASKS", "DYN_GROWTH", "FILTER_TECHNIQUES", "FLIGHT_FILE", "MASKS",
+           "NO_SOLVER", "NO_WEIGHTS", "ORACLE_TECHNIQUES", "PRESETS_DIR", "SOLVERS", "TECHNIQUES",
+           "WEIGHTINGS", "Cell", "Spec", "SpecError", "available_presets", "axis_help",
+           "flight_folder", "load_spec"]
 
 REPO = Path(__file__).resolve().parents[1]
 #: Where results/ lives: the checkout's, or the working directory's for an installed wheel.
@@ -357,16 +340,9 @@ def _recording_value(v: str, where: str, base: Path | None, plugins: dict | None
         _resolve_recording(v, base, where)
 
 
-def _uses_solver(t: Technique) -> bool:
-    return t.uses_solver
-
-
-def _uses_weights(t: Technique) -> bool:
-    return t.uses_weights
-
-
-def _dynamic(t: Technique) -> bool:
-    return t.dynamic
+#: Whether an axis applies to a technique entry (:attr:`Axis.applies`).
+_uses_solver, _uses_weights = attrgetter("uses_solver"), attrgetter("uses_weights")
+_dynamic = attrgetter("dynamic")
 
 
 @dataclass(frozen=True)

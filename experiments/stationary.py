@@ -66,19 +66,9 @@ from experiments.stationary_analysis import (
 )
 from sim.gps import GpsNoiseModel, StationarySession, synthesize_session
 
-__all__ = [
-    "REFERENCE_OUT",
-    "WINDOW_SCHEMES",
-    "analyse",
-    "main",
-    "real_log_tables",
-    "sensor_table",
-    "split_sensitivity",
-    "weighting_estimates",
-    "window_estimates",
-    "window_spreads",
-    "write_claims",
-]
+__all__ = ["REFERENCE_OUT", "WINDOW_SCHEMES", "analyse", "main", "real_log_tables", "sensor_table",
+           "split_sensitivity", "weighting_estimates", "window_estimates", "window_spreads",
+           "write_claims"]
 
 REPO = Path(__file__).resolve().parents[1]
 #: The committed reference; written only by ``--reference``.

@@ -46,31 +46,11 @@ from experiments.techniques import (
 )
 from sim.atomic import atomic_write, atomic_write_text
 
-__all__ = [
-    "BEYOND_ROWS",
-    "GROWTH_ORDER",
-    "HEADING_ROWS",
-    "ORACLE_ROWS",
-    "PATH_LABELS",
-    "READING_ROWS",
-    "THESIS_ROWS",
-    "THESIS_TABLES",
-    "aggregate",
-    "faithful",
-    "fmt_ci",
-    "heading_table",
-    "merge_window_repeats",
-    "numpy_strings",
-    "orientation_table",
-    "plugin_section",
-    "run_name",
-    "seed_ci",
-    "side_studies",
-    "thesis_row",
-    "thesis_table",
-    "weighting_table",
-    "write_tables",
-]
+__all__ = ["BEYOND_ROWS", "GROWTH_ORDER", "HEADING_ROWS", "ORACLE_ROWS", "PATH_LABELS",
+           "READING_ROWS", "THESIS_ROWS", "THESIS_TABLES", "aggregate", "faithful", "fmt_ci",
+           "heading_table", "merge_window_repeats", "numpy_strings", "orientation_table",
+           "plugin_section", "run_name", "seed_ci", "side_studies", "thesis_row", "thesis_table",
+           "weighting_table", "write_tables"]
 
 PATH_LABELS = {"square100": "Path 1", "square200": "Path 2"}
 

@@ -38,33 +38,11 @@ from typing import Any
 from estimator.lag import LAG_MODES
 from estimator.track_options import FILTER_METHODS, METHODS, WEIGHTED_METHODS
 
-__all__ = [
-    "DYNAMIC",
-    "FILTER_TECHNIQUES",
-    "KINDS",
-    "LAG_HEADINGS",
-    "NO_SOLVER",
-    "NO_WEIGHTS",
-    "ORACLE_TECHNIQUES",
-    "REGISTRY",
-    "TECHNIQUES",
-    "PLUGIN_KEYS",
-    "PLUGIN_PALETTE",
-    "TURNING_SOURCES",
-    "Technique",
-    "course_pairs",
-    "heading_rows",
-    "is_plugin_name",
-    "oracle_pairs",
-    "plugin_entries",
-    "plugin_label",
-    "plugin_names",
-    "plugins_in_results",
-    "reading_rows",
-    "table_rows",
-    "technique",
-    "techniques_help",
-]
+__all__ = ["DYNAMIC", "FILTER_TECHNIQUES", "KINDS", "LAG_HEADINGS", "NO_SOLVER", "NO_WEIGHTS",
+           "ORACLE_TECHNIQUES", "REGISTRY", "TECHNIQUES", "PLUGIN_KEYS", "PLUGIN_PALETTE",
+           "TURNING_SOURCES", "Technique", "course_pairs", "heading_rows", "is_plugin_name",
+           "oracle_pairs", "plugin_entries", "plugin_label", "plugin_names", "plugins_in_results",
+           "reading_rows", "table_rows", "technique", "techniques_help"]
 
 #: What a technique is: a tracker of the dissertation, one beyond it, an oracle, or a
 #: user's tracker loaded as a plug-in.
