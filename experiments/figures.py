@@ -14,10 +14,14 @@ follow the GPS dissertation (000_8f82f8df647bf685.txt):
 - ``fig_beyond.png``: the dissertation's techniques beside the beyond-the-thesis trackers;
 - ``fig_oracle_lag_heading.png``: the lag correction with the estimated heading beside the
   ORACLE rows fed the simulator's heading (hatched; diagnostics, not estimator results);
-- ``fig_overlay_<path>_w<window>.png``: truth, observations and estimates of sensor 1 and
-  the CG along the path, Figs 4.34-4.49 style;
-- ``fig_sensor1_lag_<path>.png``: sensor 1 x and y against time at windows 10 and 100 with a
-  magnified stretch, Figs 4.50-4.53 (the lag);
+- ``fig_4_34_49_overlay_square100.png`` (Path 2: ``4_54_69``; Huff weights: ``4_74_89``,
+  ``4_94_109``): every sensor's observed, fitted and true track with the CG estimate, a row
+  per window, Figs 4.34-4.49, 4.54-4.69, 4.74-4.89, 4.94-4.109 (other paths:
+  ``fig_overlay_<path>[_huff].png``);
+- ``fig_4_50_53_sensor1_lag_square100.png`` (``4_70_73``; Huff ``4_90_93``, ``4_110_113``):
+  sensor 1 x and y against time at windows 10 and 100, the steepest rise and fall
+  magnified, Figs 4.50-4.53, 4.70-4.73, 4.90-4.93, 4.110-4.113 (the lag; with Huff weights
+  beside the lag-corrected estimate; other paths: ``fig_sensor1_lag_<path>[_huff].png``);
 - ``fig_tables.png``: Tables 4.1/4.2 as a chart, ours (mean and 95 % interval over seeds)
   beside the published values.
 
@@ -61,6 +65,13 @@ class _EpochColumns:
         self._file = pq.ParquetFile(path)
         self.columns = list(self._file.schema_arrow.names)
         self._cols: dict[str, pd.Series] = {}
+
+    def prefetch(self, names: list[str]) -> None:
+        """Read the unread ones of the columns ``names`` that exist, in one read."""
+        todo = [n for n in names if n in self.columns and n not in self._cols]
+        if todo:
+            tab = self._file.read(columns=todo)
+            self._cols.update({n: tab.column(n).to_pandas() for n in todo})
 
     def __getitem__(self, name: str) -> pd.Series:
         if name not in self._cols:
@@ -340,103 +351,215 @@ def _technique_fig(E: _Epochs, out: Path, written: list[Path], name: str, title:
     _save(fig, out / name, written)
 
 
-def _overlay_figs(E: _Epochs, out: Path, written: list[Path]) -> None:
+#: The dissertation's numbers of the all-sensor overlays and the sensor-1 lag figures per
+#: (family, path, weighting), Sections 4.10 (no weights) and 4.11 (Huff): "4_34_49" stands
+#: for Figs 4.34-4.49. Other paths are drawn alike, named by path ("as" the Path 1 numbers).
+FIG_NUMBERS = {
+    ("overlay", "square100", "none"): "4_34_49", ("overlay", "square200", "none"): "4_54_69",
+    ("overlay", "square100", "huff"): "4_74_89", ("overlay", "square200", "huff"): "4_94_109",
+    ("sensor1_lag", "square100", "none"): "4_50_53",
+    ("sensor1_lag", "square200", "none"): "4_70_73",
+    ("sensor1_lag", "square100", "huff"): "4_90_93",
+    ("sensor1_lag", "square200", "huff"): "4_110_113"}
+#: Colours of Sections 4.10-4.11: observed purple, sensor estimate blue, CG estimate green,
+#: truth red (here the lag-corrected estimate, which those figures lack, is green dashed).
+_OBS, _EST, _CG, _TRUE = "#9467bd", "C0", "C2", "C3"
+
+
+def _families(E: _Epochs, family: str):
+    """(path, weighting, rows, file name, "Figs ..." text) per path and weighting (no /
+    Huff) whose technique-"none" cells kept per-epoch files; rows: the first seed's cell
+    of each window, ascending."""
     for path in sorted(E.index["path"].unique()):
-        wt = "none" if not E.find(path=path, technique="none", weighting="none").empty else "huff"
-        windows = sorted(E.find(path=path, technique="none", weighting=wt)["window"].unique())
-        for w in sorted({windows[0], windows[-1]}) if windows else []:
-            r = _pick(E, path=path, technique="none", weighting=wt, window=w)
-            ep = E.load(r["key"])
-            s1 = _sensor1(ep)
-            fig, ax = _subplots(figsize=(8.5, 8))
-            ax.plot(ep[f"obs_{s1}_x"], ep[f"obs_{s1}_y"], ".", color="#9467bd", ms=2, alpha=0.5,
-                    label=f"sensor {s1} observed")
-            ax.plot(ep[f"x_{s1}"], ep[f"y_{s1}"], color="C0", lw=0.9,
-                    label=f"sensor {s1} estimate")
-            ax.plot(ep["cg_x"], ep["cg_y"], color="C2", lw=0.9, label="CG estimate")
-            ax.plot(ep["truth_cg_x"], ep["truth_cg_y"], color="C3", lw=1.6, label="CG truth")
-            ax.set_aspect("equal")
-            ax.set_xlabel("x east (m)")
-            ax.set_ylabel("y north (m)")
-            ax.grid(alpha=0.3)
-            ax.legend(loc="center", frameon=True, fontsize=9)   # the square's empty middle
-            ax.set_title(f"{PATH_LABELS.get(path, path)}: truth, observations and estimates, "
-                         f"window {w}, {WEIGHT_LABELS.get(wt, wt)} weights, seed {int(r['seed'])} "
-                         "(Figs 4.34-4.49)",
-                         fontsize=10)
-            _save(fig, out / f"fig_overlay_{path}_w{w}.png", written)
+        for wt in ("none", "huff"):
+            sub = E.find(path=path, technique="none", weighting=wt)
+            if sub.empty:
+                continue
+            rows = [_pick(E, path=path, technique="none", weighting=wt, window=w)
+                    for w in sorted(sub["window"].unique())]
+            nums = FIG_NUMBERS.get((family, path, wt))
+            a, b, c = (nums or FIG_NUMBERS[(family, "square100", wt)]).split("_")
+            name = (f"fig_{nums}_{family}_{path}.png" if nums else
+                    f"fig_{family}_{path}{'' if wt == 'none' else '_' + wt}.png")
+            yield path, wt, rows, name, f"{'' if nums else 'as '}Figs {a}.{b}-{a}.{c}"
 
 
-def _sensor1(ep: _EpochColumns) -> str:
-    names = [c[2:] for c in ep.columns if c.startswith("x_")]
-    return "1" if "1" in names else names[0]
+def _rms_txt(ep: _EpochColumns, x: str, y: str, s: str) -> str:
+    """RMS horizontal distance of columns (x, y) to sensor s's truth over the epochs where
+    both are known, as text ("none" without such epochs: a dead receiver, a gappy truth)."""
+    d = np.hypot(ep[x].to_numpy(float) - ep[f"truth_{s}_x"].to_numpy(float),
+                 ep[y].to_numpy(float) - ep[f"truth_{s}_y"].to_numpy(float))
+    d = d[np.isfinite(d)]
+    return f"{np.sqrt(np.mean(d ** 2)):.2f}" if d.size else "none"
 
 
-def _steepest_stretch(truth: np.ndarray) -> slice | None:
+def _legend(fig, lc: bool = False) -> None:
+    from matplotlib.lines import Line2D
+
+    spec = [("observed", _OBS, ".", "none"), ("sensor estimate", _EST, "", "-"),
+            ("CG estimate", _CG, "", "-"), ("sensor truth", _TRUE, "", "-")]
+    if lc:   # the lag figures: no CG line, the lag-corrected estimate instead
+        spec[2] = ("lag-corrected estimate (LC, Section 3.4.2)", _CG, "", "--")
+    fig.legend(handles=[Line2D([], [], color=c, marker=m, ls=ls, label=lb)
+                        for lb, c, m, ls in spec], loc="upper right", ncol=4, fontsize=9,
+               bbox_to_anchor=(0.995, 0.955), frameon=False)
+
+
+def _extent(*cols: pd.Series) -> tuple[float, float]:
+    """(lo, hi) of the finite values of ``cols`` with a margin, (0, 1) without any."""
+    v = np.concatenate([c.to_numpy(float) for c in cols])
+    v = v[np.isfinite(v)]
+    pad = 0.04 * (v.max() - v.min()) + 1.0 if v.size else 0.0
+    return (v.min() - pad, v.max() + pad) if v.size else (0.0, 1.0)
+
+
+def _overlay_row(ax, ep: _EpochColumns, sensors: list[str], top: bool) -> None:
+    """One window's row: a tile per sensor side by side on one axes, each kind of track one
+    line across the tiles (a figure's cost is its axes and artists), the x ticks under the
+    first tile (every tile spans the same metres)."""
+    from matplotlib.patches import Rectangle
+    from matplotlib.ticker import MaxNLocator
+
+    (x0, x1), (y0, y1) = (_extent(ep[f"truth_cg_{a}"], ep[f"cg_{a}"]) for a in "xy")
+    pitch, mid = 1.08 * (x1 - x0), (x0 + x1) / 2
+    ep.prefetch([f"{p}{s}{a}" for s in sensors for p, a in (("obs_", "_x"), ("obs_", "_y"),
+                ("truth_", "_x"), ("truth_", "_y"), ("x_", ""), ("y_", ""))])
+    for cols, kw in (("obs_{}_x obs_{}_y", {"ls": "none", "marker": ".", "ms": 1, "alpha": 0.4,
+                                             "color": _OBS}),
+                     ("truth_{}_x truth_{}_y", {"color": _TRUE, "lw": 1.2}),
+                     ("cg_x cg_y", {"color": _CG, "lw": 0.6}),
+                     ("x_{} y_{}", {"color": _EST, "lw": 0.6})):
+        xs, ys = [], []
+        for j, s in enumerate(sensors):       # a tile's track, then NaN: the line breaks
+            cx, cy = cols.format(s, s).split()
+            x = ep[cx].to_numpy(float)
+            xs += [np.where((x >= x0) & (x <= x1), x, np.nan) + j * pitch, [np.nan]]
+            ys += [ep[cy].to_numpy(float), [np.nan]]
+        ax.plot(np.concatenate(xs), np.concatenate(ys), **kw)
+    for j, s in enumerate(sensors):
+        ax.add_patch(Rectangle((x0 + j * pitch, y0), x1 - x0, y1 - y0, fill=False, lw=0.6,
+                               clip_on=False))
+        ax.text(mid + j * pitch, (y0 + y1) / 2, f"{_rms_txt(ep, f'obs_{s}_x', f'obs_{s}_y', s)}"
+                f" / {_rms_txt(ep, f'x_{s}', f'y_{s}', s)}", ha="center", va="center", fontsize=7)
+        if top:
+            ax.text(mid + j * pitch, y1, f"sensor {s}", ha="center", va="bottom", fontsize=9)
+    ax.set_xticks([t for t in MaxNLocator(3).tick_values(x0, x1) if x0 <= t <= x1])
+    ax.yaxis.set_major_locator(MaxNLocator(3))
+    ax.tick_params(labelsize=7)
+    ax.set(xlim=(x0, x1 + (len(sensors) - 1) * pitch), ylim=(y0, y1), aspect="equal")
+    ax.set_frame_on(False)
+
+
+def _overlay_figs(E: _Epochs, out: Path, written: list[Path]) -> None:
+    """Every sensor's observed, fitted and true track with the CG estimate, one row per
+    window and one tile per sensor: Figs 4.34-4.49 / 4.54-4.69 (no weights, Section 4.10)
+    and 4.74-4.89 / 4.94-4.109 (Huff, 4.11), one PNG per path and weighting; each tile
+    names the RMS distance (m) of the observations and of the fit to the sensor's truth."""
+    for path, wt, rows, name, figs in _families(E, "overlay"):
+        sensors = [c[2:] for c in E.load(rows[0]["key"]).columns if c.startswith("x_")]
+        fig, axes = _pyplot().subplots(len(rows), 1, squeeze=False,
+                                       figsize=(1.9 * len(sensors) + 0.7, 1.9 * len(rows) + 1))
+        fig.subplots_adjust(left=0.05, right=0.995, bottom=0.06, top=0.88, hspace=0.2)
+        for i, (ax, r) in enumerate(zip(axes[:, 0], rows)):
+            _overlay_row(ax, E.load(r["key"]), sensors, i == 0)
+            ax.set_ylabel(f"window {int(r['window'])}\ny north (m)", fontsize=8)
+        axes[-1, 0].set_xlabel("x east (m), per sensor", fontsize=8)
+        _legend(fig)
+        fig.suptitle(f"{PATH_LABELS.get(path, path)} ({path}): every sensor observed, fitted "
+                     f"and true, {WEIGHT_LABELS.get(wt, wt)} weights, seed {int(rows[0]['seed'])}"
+                     f" ({figs});\nmid-tile: RMS distance (m) to the sensor's truth of the "
+                     "observations / of the fit (none: no observations)", x=0.01, ha="left",
+                     fontsize=10)
+        _save(fig, out / name, written)
+
+
+def _steepest_stretch(truth: np.ndarray, sign: int = 0) -> slice | None:
     """The stretch of ``max(10, n // 7)`` epochs (n > 20) where the truth (n,) changes
-    fastest on average, counting only epochs whose slope is known (a gappy reference: NaN
-    rows); at least half of the stretch must be known. None when no stretch qualifies
-    (too short, or the reference is missing almost everywhere): the figure then has no
-    magnified inset."""
+    fastest on average (sign 0: |slope|; +1 / -1: the steepest rise / fall, None if it
+    never rises / falls), counting only epochs whose slope is known (a gappy reference:
+    NaN rows); at least half of the stretch must be known. None when no stretch qualifies
+    (too short, or the reference is missing almost everywhere)."""
     k = truth.size
     if k <= 20:
         return None
     span = max(10, k // 7)
-    slope = np.abs(np.gradient(truth)) if k > 1 else np.full(k, np.nan)
+    g = np.gradient(truth)
+    slope = np.abs(g) if sign == 0 else sign * g
     known = np.isfinite(slope)
     # the mean over the known epochs: the plain moving mean (as before gaps were handled,
     # so a complete reference picks the same stretch bit for bit) times span / known count
     mean = np.convolve(np.where(known, slope, 0.0), np.ones(span) / span, mode="valid")
     count = np.convolve(known.astype(float), np.ones(span), mode="valid")
-    ok = count >= 0.5 * span
-    if not ok.any():
-        return None
-    i0 = int(np.argmax(np.where(ok, mean * (span / np.maximum(count, 1.0)), -np.inf)))
-    return slice(i0, i0 + span)
+    score = np.where(count >= 0.5 * span, mean * (span / np.maximum(count, 1.0)), -np.inf)
+    i0 = int(np.argmax(score))
+    return slice(i0, i0 + span) if score[i0] > (0 if sign else -np.inf) else None
+
+
+def _lag_row(axes, ep: _EpochColumns, lc: _EpochColumns | None, s: str, axis: str) -> None:
+    """One row of the lag figure: sensor s's ``axis`` coordinate against time, (a) the
+    whole run, (b)/(c) the steepest rising/falling stretch magnified (blank if none)."""
+    t = ep["t"].to_numpy(float)
+    truth = ep[f"truth_{s}_{axis}"].to_numpy(float)
+    series = [(t, ep[f"obs_{s}_{axis}"].to_numpy(float), {"ls": "none", "marker": ".",
+                                                          "ms": 2, "color": _OBS}),
+              (t, truth, {"color": _TRUE, "lw": 1.5}),
+              (t, ep[f"{axis}_{s}"].to_numpy(float), {"color": _EST, "lw": 1.0})]
+    if lc is not None:
+        series.append((lc["t"].to_numpy(float), lc[f"{axis}_{s}"].to_numpy(float),
+                       {"color": _CG, "lw": 1.0, "ls": "--"}))
+    spans = [(t[0], t[-1])] + [None if sl is None else (t[sl][0], t[sl][-1]) for sl in
+                               (_steepest_stretch(truth, 1), _steepest_stretch(truth, -1))]
+    for ax, span in zip(axes, spans):
+        ax.grid(alpha=0.3)
+        ax.tick_params(labelsize=7)
+        ax.locator_params(nbins=4)
+        if span is None:
+            ax.text(0.5, 0.5, "no such stretch in the reference", ha="center",
+                    transform=ax.transAxes, fontsize=8)
+            continue
+        for tt, v, kw in series:
+            m = (tt >= span[0]) & (tt <= span[1])
+            ax.plot(tt[m], v[m], **kw)
 
 
 def _sensor1_lag_figs(E: _Epochs, out: Path, written: list[Path]) -> None:
-    for path in sorted(E.index["path"].unique()):
-        wt = "none" if not E.find(path=path, technique="none", weighting="none").empty else "huff"
-        windows = sorted(E.find(path=path, technique="none", weighting=wt)["window"].unique())
-        wins = [w for w in (10, 100) if w in windows] or windows[-2:]
-        if not wins:
-            continue
-        fig, axes = _subplots(2, len(wins), figsize=(7 * len(wins), 7.5), squeeze=False)
-        for c, w in enumerate(wins):
-            r = _pick(E, path=path, technique="none", weighting=wt, window=w)
-            ep = E.load(r["key"])
-            s1 = _sensor1(ep)
-            for rr, axis in enumerate(("x", "y")):
-                ax = axes[rr, c]
-                t = ep["t"].to_numpy()
-                ax.plot(t, ep[f"obs_{s1}_{axis}"], ".", color="#9467bd", ms=2, alpha=0.5)
-                ax.plot(t, ep[f"truth_{s1}_{axis}"], color="C3", lw=1.5)
-                ax.plot(t, ep[f"{axis}_{s1}"], color="C0", lw=1.0)
-                ax.set_xlabel("time (s)")
-                ax.set_ylabel(f"sensor {s1} {axis} (m)")
-                ax.grid(alpha=0.3)
-                ax.set_title(f"window {w}: sensor {s1} {axis} vs time", fontsize=10)
-                # magnified stretch: the steepest 15 % of the run (a straight leg)
-                sl = _steepest_stretch(ep[f"truth_{s1}_{axis}"].to_numpy(dtype=float))
-                if sl is not None:
-                    ins = ax.inset_axes([0.58, 0.06, 0.4, 0.38])
-                    ins.plot(t[sl], ep[f"obs_{s1}_{axis}"].to_numpy()[sl], ".", color="#9467bd",
-                             ms=2)
-                    ins.plot(t[sl], ep[f"truth_{s1}_{axis}"].to_numpy()[sl], color="C3", lw=1.5)
-                    ins.plot(t[sl], ep[f"{axis}_{s1}"].to_numpy()[sl], color="C0", lw=1.0)
-                    ins.set_title("magnified", fontsize=7)
-                    ins.tick_params(labelsize=6)
-                ax.text(0.01, 0.95, "truth", color="C3", transform=ax.transAxes, fontsize=9,
-                        va="top")
-                ax.text(0.01, 0.87, "estimate", color="C0", transform=ax.transAxes, fontsize=9,
-                        va="top")
-                ax.text(0.01, 0.79, "observed", color="#9467bd", transform=ax.transAxes,
-                        fontsize=9, va="top")
-        fig.suptitle(f"{PATH_LABELS.get(path, path)}: sensor {s1} against time, windows "
-                     f"{' and '.join(map(str, wins))}: the estimate trails the truth (lag, "
-                     f"Figs 4.50-4.53), {WEIGHT_LABELS.get(wt, wt)} weights, seed {int(r['seed'])}")
-        _save(fig, out / f"fig_sensor1_lag_{path}.png", written)
+    """Sensor 1's x and y against time at windows 10 and 100, rows x/y per window, columns
+    (a) the whole run, (b) positive, (c) negative slope magnified: Figs 4.50-4.53 /
+    4.70-4.73 (no weights) and 4.90-4.93 / 4.110-4.113 (Huff), one PNG per path and
+    weighting, without lag correction as there; where the sweep ran the lag correction
+    with these weights its estimate is drawn beside (dashed): what Section 4.12 removes."""
+    for path, wt, rows, name, figs in _families(E, "sensor1_lag"):
+        by_w = {int(r["window"]): r for r in rows}
+        wins = [w for w in (10, 100) if w in by_w] or sorted(by_w)[-2:]
+        s1 = _sensor1(E.load(by_w[wins[0]]["key"]))
+        fig, axes = _pyplot().subplots(2 * len(wins), 3, squeeze=False, width_ratios=[2, 1, 1],
+                                       figsize=(14, 4.4 * len(wins) + 1))
+        fig.subplots_adjust(left=0.06, right=0.99, bottom=0.05, top=0.9, wspace=0.15,
+                            hspace=0.45)
+        any_lc = False
+        for i, (w, axis) in enumerate((w, a) for w in wins for a in ("x", "y")):
+            lc = _pick(E, path=path, technique="lc", weighting=wt, window=w)
+            any_lc |= lc is not None
+            _lag_row(axes[i], E.load(by_w[w]["key"]), None if lc is None else E.load(lc["key"]),
+                     s1, axis)
+            axes[i, 0].set_ylabel(f"sensor {s1} {axis} (m)", fontsize=8)
+            for c, what in enumerate((f"window {w}: sensor {s1} {axis} against time",
+                                      "positive slope magnified", "negative slope magnified")):
+                axes[i, c].set_title(f"({'abc'[c]}) {what}", fontsize=9, loc="left")
+        for ax in axes[-1]:
+            ax.set_xlabel("time (s)", fontsize=8)
+        _legend(fig, lc=any_lc)
+        fig.suptitle(f"{PATH_LABELS.get(path, path)} ({path}): sensor {s1} against time, "
+                     f"{WEIGHT_LABELS.get(wt, wt)} weights, windows {' and '.join(map(str, wins))},"
+                     f" seed {int(rows[0]['seed'])} ({figs}): the estimate trails the truth "
+                     "(lag)\nx east, y north (the dissertation's X is north)", x=0.01,
+                     ha="left", fontsize=10)
+        _save(fig, out / name, written)
+
+
+def _sensor1(ep: _EpochColumns) -> str:
+    names = [c[2:] for c in ep.columns if c.startswith("x_")]
+    return "1" if "1" in names else names[0]
 
 
 def _tables_fig(out: Path, written: list[Path]) -> None:

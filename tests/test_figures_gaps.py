@@ -79,7 +79,7 @@ def test_every_figure_group_draws_a_gappy_reference(tmp_path, gaps):
         written += files
     names = {p.name for p in written}
     # the groups whose data the folder holds are drawn, gaps or not
-    assert {"fig_sensor1_lag_rec.png", "fig_overlay_rec_w1.png", "fig_weights_rec.png",
+    assert {"fig_sensor1_lag_rec.png", "fig_overlay_rec.png", "fig_weights_rec.png",
             "fig_beyond.png"} <= names
     assert all(p.stat().st_size > 0 for p in written)
 
@@ -94,6 +94,11 @@ def test_steepest_stretch_skips_unknown_epochs():
     assert sl2 is not None and np.isfinite(gappy[sl2]).mean() >= 0.5
     assert _steepest_stretch(np.full(100, np.nan)) is None      # all NaN: no inset
     assert _steepest_stretch(np.arange(15.0)) is None           # too short for an inset
+    # the signed stretches of the lag figures (positive / negative slope magnified)
+    assert 28 <= _steepest_stretch(truth, 1).start <= 48
+    assert _steepest_stretch(truth, -1) is None                 # it never falls
+    assert _steepest_stretch(60.0 - truth, -1).start == _steepest_stretch(truth, 1).start
+    assert _steepest_stretch(gappy, 1) is None                  # its only rise unknown
     # a complete reference picks what the moving mean alone picked (figures unchanged)
     rng = np.random.default_rng(1)
     z = np.cumsum(rng.normal(size=200))
