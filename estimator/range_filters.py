@@ -65,6 +65,7 @@ import warnings
 
 import numpy as np
 
+from estimator import range_kernels
 from estimator._checks import check_array, check_increasing_times, check_int, check_real
 
 __all__ = ["MAX_ABS", "MODES", "UnitWarning", "check_units", "separation_gate", "velocity_gate"]
@@ -167,7 +168,7 @@ def velocity_gate(t: np.ndarray, r: np.ndarray, max_speed: float = 10.0, *,
                   mode: str = "robust", sample_interval: float = 0.1,
                   noise_margin: float = 0.05, max_change: float = 2.0,
                   relock_after: int = 5, lead_in: int = 40,
-                  return_mask: bool = False):
+                  return_mask: bool = False, reference: bool = False):
     """Filter 1 of Section 3.2.2: reject range changes faster than ``max_speed``.
 
     Parameters
@@ -185,6 +186,8 @@ def velocity_gate(t: np.ndarray, r: np.ndarray, max_speed: float = 10.0, *,
     relock_after : robust mode: consecutive mutually consistent rejections that re-lock.
     lead_in : samples whose median initialises the reference (Appendix C: 40).
     return_mask : also return ``rejected`` (same shape as r, bool).
+    reference : run the numpy loop instead of the compiled one
+        (:func:`estimator.range_kernels.velocity_gate_run`; the same results).
 
     Returns the filtered ranges (same shape as ``r``) [and the rejected mask].
     """
@@ -200,15 +203,26 @@ def velocity_gate(t: np.ndarray, r: np.ndarray, max_speed: float = 10.0, *,
     check_units(tt, rr)
     thesis = mode == "thesis"
 
+    ref, t_ref = _lead_in_reference(rr, tt, lead_in)
+    loop = _gate_loop_reference if reference else range_kernels.velocity_gate_run
+    out, rejected = loop(rr, tt, ref, t_ref, thesis, vmax * dt_nom, margin, vmax, cap,
+                         relock_after)
+    if vec:
+        out, rejected = out[:, 0], rejected[:, 0]
+    return (out, rejected) if return_mask else out
+
+
+def _gate_loop_reference(rr, tt, ref, t_ref, thesis, fixed, margin, vmax, cap, relock_after):
+    """The numpy time loop of :func:`velocity_gate` (all channels per row), the reference of
+    :func:`estimator.range_kernels.velocity_gate_run` (same arguments and results)."""
     n, c = rr.shape
     out = rr.copy()
     rejected = np.zeros((n, c), dtype=bool)
-    ref, t_ref = _lead_in_reference(rr, tt, lead_in)
+    ref, t_ref = ref.copy(), t_ref.copy()
     ref2 = ref.copy()                # the accepted value before ref (robust mode)
     cand = np.full(c, np.nan)        # newest sample of the current rejected run
     t_cand = np.full(c, np.nan)
     count = np.zeros(c, dtype=int)   # length of the current run of consistent rejections
-    fixed = vmax * dt_nom
     for i in range(n):
         x = rr[i]
         ok = np.isfinite(x)
@@ -242,9 +256,7 @@ def velocity_gate(t: np.ndarray, r: np.ndarray, max_speed: float = 10.0, *,
         ref = np.where(accept, x, ref)
         out[i] = np.where(rej, ref, x)
         rejected[i] = rej
-    if vec:
-        out, rejected = out[:, 0], rejected[:, 0]
-    return (out, rejected) if return_mask else out
+    return out, rejected
 
 
 def separation_gate(r_a: np.ndarray, r_b: np.ndarray, max_sep: float = 0.5, *,

@@ -19,7 +19,7 @@ import numpy as np
 from numba import njit
 
 __all__ = ["rf_hold_height", "rf_predict", "rf_state_at", "rf_step", "rf_update", "rigid_ekf",
-           "rigid_rts", "tight_run"]
+           "pv_run", "rigid_rts", "tight_run", "velocity_gate_run"]
 
 
 @njit(cache=True)
@@ -412,3 +412,100 @@ def tight_run(s, e, ts, rs, rxs, txs, skip, te, x, P, t_state, rec, lev, d, yaw,
             run += 1
         s += 1
     return s, e, run, t_state
+
+
+# ------------------------------------------------------------------ PV Kalman on fixes
+@njit(cache=True)
+def pv_run(t, z, sm, x0, x1, P0, sp, gate, reinit_after):
+    """The loop of :func:`estimator.kalman.pv_kalman` (the reference): PV Kalman of one
+    signal z (n,) at times t (n,) s, per-sample measurement stds sm (n,), initial state
+    (x0, x1) and covariance P0 (2, 2) (``PVKalman.from_thesis``), process sigma sp, gate in
+    innovation stds (NaN: none), re-initialisation after ``reinit_after`` gated samples in a
+    row. Returns the filtered position (n,)."""
+    n = t.size
+    out = np.empty(n)
+    p00, p01, p10, p11 = P0[0, 0], P0[0, 1], P0[1, 0], P0[1, 1]
+    out[0] = x0
+    q2 = sp * sp
+    run = 0
+    for i in range(1, n):
+        dt = t[i] - t[i - 1]
+        x0 = x0 + dt * x1                     # A x
+        a00, a01 = p00 + dt * p10, p01 + dt * p11      # A P
+        p00 = a00 + a01 * dt + q2 * (dt ** 4 / 4.0)    # (A P) A' + Q
+        p01 = a01 + q2 * (dt ** 3 / 2.0)
+        p10 = p10 + p11 * dt + q2 * (dt ** 3 / 2.0)
+        p11 = p11 + q2 * dt ** 2
+        zi = z[i]
+        if math.isnan(zi):
+            out[i] = x0
+            continue
+        R = sm[i] * sm[i]
+        S = p00 + R
+        innov = zi - x0
+        if not math.isnan(gate) and innov * innov > gate * gate * S:
+            run += 1
+            if run >= reinit_after:
+                x0 = zi
+                p00, p01, p10 = R, 0.0, 0.0
+                run = 0
+            out[i] = x0
+            continue
+        run = 0
+        k0, k1 = p00 / S, p10 / S
+        x0, x1 = x0 + k0 * innov, x1 + k1 * innov
+        # (I - K [1, 0]) P, in the reference's operation order
+        p00, p01, p10, p11 = ((1.0 - k0) * p00, (1.0 - k0) * p01, -k1 * p00 + p10,
+                              -k1 * p01 + p11)
+        out[i] = x0
+    return out
+
+
+# ---------------------------------------------------------------- Filter 1 (velocity)
+@njit(cache=True)
+def velocity_gate_run(rr, tt, ref, t_ref, thesis, fixed, margin, vmax, cap, relock_after):
+    """The time loop of :func:`estimator.range_filters.velocity_gate` (reference: its numpy
+    loop, ``range_filters._gate_loop_reference``): rr, tt (n, c) ranges m and per-channel
+    times s, ref / t_ref (c,) the lead-in references (copied, not changed), thesis mode or
+    robust; fixed = max_speed x sample_interval (thesis), margin, vmax, cap, relock_after
+    (robust). Returns the gated ranges (n, c) and the rejected mask (n, c)."""
+    n, c = rr.shape
+    out = rr.copy()
+    rejected = np.zeros((n, c), dtype=np.bool_)
+    for j in range(c):
+        rf, tr = ref[j], t_ref[j]
+        rf2 = rf
+        cand, t_cand = np.nan, np.nan
+        count = 0
+        for i in range(n):
+            x = rr[i, j]
+            ok = not math.isnan(x)
+            if thesis:
+                accept = ok and abs(x - rf) <= fixed
+            else:
+                ti = tt[i, j]
+                a = margin + vmax * (ti - tr)
+                allow = cap if cap < a else a  # noqa: FURB136 (np.minimum: NaN propagates)
+                d_ref = abs(x - rf)
+                accept = ok and (d_ref <= allow or abs(x - rf2) <= allow)
+                a = margin + vmax * (ti - t_cand)
+                allow_c = cap if cap < a else a  # noqa: FURB136
+                d_c = abs(x - cand)
+                cont = ok and count > 0 and d_c <= allow_c and d_c < d_ref
+                accept = accept and not cont
+                rej = ok and not accept
+                if rej:
+                    count = count + 1 if cont else 1
+                    cand, t_cand = x, ti
+                    if count >= relock_after:
+                        accept = True
+                if accept:
+                    tr = ti
+                    count = 0
+            rej = ok and not accept
+            if accept:
+                rf2 = rf
+                rf = x
+            out[i, j] = rf if rej else x
+            rejected[i, j] = rej
+    return out, rejected

@@ -49,7 +49,7 @@ import numpy as np
 from estimator import range_kernels
 from estimator import trilateration as tri
 from estimator._checks import check_array, check_increasing_times, check_int, check_real
-from estimator.kalman import pv_kalman
+from estimator.kalman import PVKalman, pv_kalman
 from estimator.orientation import heading_from_points, unwrap_angle, wrap_angle
 from estimator.range_filters import MODES as GATE_MODES
 from estimator.range_filters import check_units, separation_gate, velocity_gate
@@ -823,13 +823,34 @@ def filter_fixes(t: np.ndarray, fixes: Fixes, config: RangingConfig, *,
                 sm = np.where(np.isfinite(za), sa, np.nan)
             else:
                 sm = sm_fixed
-            out[lead:, j, a] = pv_kalman(tl, za, sp, sm, gate=config.kalman_gate,
-                                         reinit_after=config.relock_after)
+            out[lead:, j, a] = _pv_kalman(tl, za, sp, sm, config.kalman_gate,
+                                          config.relock_after)
     if fixes.height_bounds is not None:      # the filter's z stays where the fixes are held
         lz = config.levers(nt)[:, 2]
         lo, hi = fixes.height_bounds
         out[..., 2] = np.clip(out[..., 2], lo + lz[None, :], hi + lz[None, :])
     return out
+
+
+def _pv_kalman(t: np.ndarray, z: np.ndarray, sp: float, sm: np.ndarray | float,
+               gate: float | None, reinit_after: int) -> np.ndarray:
+    """:func:`estimator.kalman.pv_kalman` (the reference, same arguments) with its loop in
+    :func:`estimator.range_kernels.pv_run`: the checks and the Appendix C initial state
+    (``PVKalman.from_thesis``) once, then the compiled loop. Returns (n,)."""
+    if np.ndim(sm) == 0:
+        s = np.full(t.size, float(sm))
+        s0 = float(sm)
+    else:
+        s = np.asarray(sm, dtype=float)
+        s0 = float(np.nanmedian(s)) if np.isfinite(s).any() else 1.0
+        bad = np.isfinite(z) & ~(s > 0)
+        if bad.any():
+            raise ValueError(f"sigma_measurement: must be > 0 where z is finite, got "
+                             f"{s[bad][0]!r}")
+    kf = PVKalman.from_thesis(t, z, sp, s0)
+    return range_kernels.pv_run(np.asarray(t, float), np.asarray(z, float), s, kf.x[0],
+                                kf.x[1], kf.P, kf.sigma_process,
+                                math.nan if gate is None else float(gate), int(reinit_after))
 
 
 def transmitter_heading(front: np.ndarray, rear: np.ndarray, levers: np.ndarray | None = None
