@@ -522,6 +522,8 @@ def _integrals_scalar(q: float) -> tuple[complex, complex, complex]:
 #: The series coefficients of F1, F2, F3 (real, then imaginary parts), highest power first,
 #: one row per power (for :func:`_integrals_scalar`).
 _HORNER = tuple(zip(*_EVEN, *_ODD))
+#: The same as an array (10, 6), for the compiled loop.
+_HORNER_ARRAY = np.array(_HORNER)
 
 
 _EYE = np.eye(NX)
@@ -1193,7 +1195,8 @@ def chi2_ppf(p: float, df: int) -> float:
 
 
 def run_pose_filter(t: np.ndarray, obs: np.ndarray, offsets: np.ndarray,
-                    params: PoseFilterParams = PoseFilterParams()) -> PoseFilterResult:
+                    params: PoseFilterParams = PoseFilterParams(), *,
+                    engine: str = "numba") -> PoseFilterResult:
     """Run the filter over a recording (module docstring for the model).
 
     t : (n,) s, finite and strictly increasing (uneven steps are fine), steps >= 1 ns
@@ -1206,12 +1209,18 @@ def run_pose_filter(t: np.ndarray, obs: np.ndarray, offsets: np.ndarray,
         heading), |offset| <= :data:`MAX_OFFSET_M`.
     params : :class:`PoseFilterParams` (limits, noise levels or None = estimated, no-slip
         point, reverse mode, gates).
+    engine : "numba" (default: the compiled loop of :mod:`estimator.pose_filter_kernel`)
+        or "numpy" (the reference: the loop below, numpy calls per epoch). They agree to
+        rounding: the same status, gate, deletion and restart decisions, states within
+        the tolerance of tests/test_pose_filter_kernel.py.
 
     Returns a :class:`PoseFilterResult` of n rows; rows before the start are NaN with status
     "waiting" or "no_data". Wrong shapes or values raise ValueError/TypeError naming the
     argument.
     """
     tt, obs, off = _check_run_args(t, obs, offsets, params)
+    if engine not in ENGINES:
+        raise ValueError(f"engine: must be one of {ENGINES}, got {engine!r}")
     params = params.resolve(tt, obs, off)
     n, m = obs.shape[:2]
     ns = np.asarray(params.no_slip_point_m, dtype=float)
@@ -1253,15 +1262,25 @@ def run_pose_filter(t: np.ndarray, obs: np.ndarray, offsets: np.ndarray,
     present = np.isfinite(obs[..., 0])
     starter = FilterStart(tt, obs, r_m, sigma_abs, params)
     monitor = _Monitor(starter, dt_med, params.gate_prob)
+    n_alive = max(int(present.any(axis=0).sum()), 1)
+    flip_dist = max(INIT_MOTION_SIGMAS * sigma_abs * math.sqrt(2.0 / n_alive), _extent(off),
+                    a_max * dt_med * dt_med)
+    out = (X, PP, XC, PC, PX_, seg, n_used, n_gated, n_steps, nis, nis_dof)
+    if engine == "numba" and _thr_table_size(n, m, monitor.window) <= MAX_THR_TABLE:
+        par = np.array([sigma_abs, va, vs, dt_med, gate, flip_thr, qa, qy, om_max, alat, a_max,
+                        v_max, lever, flip_dist, min(va, vs), params.flip_memory_s,
+                        monitor.thr1, float(params.reverse), float(params.max_rejects),
+                        float(monitor.window), INIT_MAX_YAW_SD, INIT_MOTION_SIGMAS,
+                        LOST_YAW_SD, MAX_FIT_YAW_SD, STANDSTILL_SIGMAS, REINIT_EPOCHS,
+                        REINIT_MIN_YAW_RAD, MAX_ITERATIONS, MAX_PRIOR_RATIO])
+        status = _run_kernel(tt, obs, present, r_m, starter, monitor, par, out)
+        return _result(out, status, delta, params, cg_offset)
 
     x = P = None
     lost = False          # the next start is a restart
     rej_abs = rej_step = 0
     llr = 0.0             # reverse mode: log-likelihood ratio for the flipped heading
     back = 0.0            # forward mode: backward travel over consecutive epochs, m
-    n_alive = max(int(present.any(axis=0).sum()), 1)
-    flip_dist = max(INIT_MOTION_SIGMAS * sigma_abs * math.sqrt(2.0 / n_alive), _extent(off),
-                    a_max * dt_med * dt_med)
     # what each epoch measures depends only on which antennas reported at it and at the
     # epoch before: built once per such pattern (_Pattern), the same numbers every time
     rows = [row.tobytes() for row in present]
@@ -1398,14 +1417,59 @@ def run_pose_filter(t: np.ndarray, obs: np.ndarray, offsets: np.ndarray,
         X[k], PP[k], status[k] = x, P, st
         if st == "flip_corrected":
             seg[k] = True
-    for S_ in (X, XC):                     # back to the layout's heading
+    return _result(out, status, delta, params, cg_offset)
+
+
+#: The filter's engines (:func:`run_pose_filter`).
+ENGINES = ("numba", "numpy")
+#: Largest table of chi-square quantiles the compiled loop takes (entries, 8 bytes each);
+#: beyond it (an NIS window of thousands of epochs) the numpy loop runs.
+MAX_THR_TABLE = 1 << 20
+
+
+def _thr_table_size(n: int, m: int, window: int) -> int:
+    """Entries of the NIS window's quantile table: every even summed dof up to the window's
+    epochs (at most n) times 2 dof per fix and per displacement (2m measurements)."""
+    return min(window, n) * 2 * m + 1
+
+
+def _run_kernel(tt: np.ndarray, obs: np.ndarray, present: np.ndarray, r_m: np.ndarray,
+                starter: FilterStart, monitor: _Monitor, par: np.ndarray, out: tuple
+                ) -> np.ndarray:
+    """The forward pass in :func:`estimator.pose_filter_kernel.forward_kernel`, filling
+    ``out`` (X, PP, XC, PC, PX_, seg, n_used, n_gated, n_steps, nis, nis_dof) as the
+    reference loop does; returns the status (n,) object array of strings."""
+    from estimator import pose_filter_kernel as kern
+
+    n, m = obs.shape[:2]
+    starter.fit_heading(0)                       # fills starter._spread
+    spread = starter._spread if starter._spread is not None else np.zeros(n)
+    r2 = (present * starter.r2[None, :]).sum(1)
+    j = np.arange(_thr_table_size(n, m, monitor.window))
+    with np.errstate(invalid="ignore"):
+        thr = _chdtri(2.0 * j, 1.0 - monitor.p)
+    code = np.zeros(n, dtype=np.int64)
+    X, PP, XC, PC, PX_, seg, n_used, n_gated, n_steps, nis, nis_dof = out
+    kern.forward_kernel(tt, obs, present, np.ascontiguousarray(r_m), starter.origin,
+                        starter.yaw, starter.cnt.astype(float), spread, r2, par, thr,
+                        _HORNER_ARRAY, _CW, X, PP, XC, PC, PX_, seg, code, n_used, n_gated,
+                        n_steps, nis, nis_dof)
+    return np.asarray(STATUSES, dtype=object)[code]
+
+
+def _result(out: tuple, status: np.ndarray, delta: float, params: PoseFilterParams,
+            cg_offset: np.ndarray) -> PoseFilterResult:
+    """The :class:`PoseFilterResult` of a forward pass's arrays ``out`` (see
+    :func:`_run_kernel`), headings turned back to the layout's (by -delta)."""
+    X, PP, XC, PC, PX_, seg, n_used, n_gated, n_steps, nis, nis_dof = out
+    for S_ in (X, XC):
         S_[:, YAW] = _wrap_array(S_[:, YAW] - delta)
     return PoseFilterResult(states=X, covariances=PP, prev_states=XC, prev_covariances=PC,
                             cross_covariances=PX_, segment_start=seg,
                             status=status.astype(str), n_used=n_used, n_gated=n_gated,
-                            n_steps=n_steps, sigma_abs_m=float(sigma_abs),
-                            sigma_step_m=float(sigma_step), cg_offset=cg_offset, nis=nis,
-                            nis_dof=nis_dof, params=params)
+                            n_steps=n_steps, sigma_abs_m=float(params.sigma_abs_m),
+                            sigma_step_m=float(params.sigma_step_m), cg_offset=cg_offset,
+                            nis=nis, nis_dof=nis_dof, params=params)
 
 
 def nis_summary(nis: np.ndarray, dof: np.ndarray, band: float = 0.95) -> dict[str, float]:

@@ -279,14 +279,16 @@ def test_deleted_residual_removes_a_gross_error_the_prior_gate_lets_through():
 
 
 # --------------------------------------------------------------------------- the loop
-def test_filter_loop_matches_filterpy_step_by_step(monkeypatch):
+@pytest.mark.parametrize("engine", ["numpy", "numba"])
+def test_filter_loop_matches_filterpy_step_by_step(monkeypatch, engine):
     """The loop's bookkeeping against FilterPy's EKF update, epoch by epoch: the stacked
     prior (x_k predicted by ctra_predict, tested above against ODE integration, beside
     x_{k-1}), the fixes at k and the displacements of the antennas seen at k-1 and k, the
     iterated update relinearised at the last estimate while it turns the heading by more
     than the documented threshold. No gating, a platform that never stops or exceeds a
     limit, so no projection acts; 1e-8 on states and covariances (rounding of two gain-form
-    implementations over 50 epochs)."""
+    implementations over 50 epochs). Both engines: the numpy reference and the compiled
+    loop (estimator.pose_filter_kernel, whose update is in the state space)."""
     from estimator.pose_filter import _predict as pred
 
     truth, cfg, _ = kinematic_truth("square20", "rover_gps4")
@@ -299,14 +301,14 @@ def test_filter_loop_matches_filterpy_step_by_step(monkeypatch):
     # the standstill hold (issue 25; tested on its own) changes the state at rest: off here
     import estimator.pose_filter as pf
 
-    monkeypatch.setattr(pf, "_standstill_hold", lambda *a: False)
+    monkeypatch.setattr(pf, "STANDSTILL_SIGMAS", -math.inf)   # never "within -inf sd"
     p = PoseFilterParams(max_accel_mps2=5.0, max_turn_rate_radps=5.0,
                          max_lateral_accel_mps2=20.0, sigma_abs_m=0.2, sigma_step_m=0.28,
                          gate_prob=1.0, reverse=True, max_yaw_accel_radps2=1.0,
                          max_speed_mps=1e3, no_slip_point_m=(0.0, 0.0),
                          travel_offset_rad=0.0)
     off = cfg.body_positions - cfg.cg_body
-    res = run_pose_filter(t, obs, off, p)
+    res = run_pose_filter(t, obs, off, p, engine=engine)
     k0 = int(np.flatnonzero(res.status == "init")[0])
     assert not np.isin(res.status, ["reset", "flip_corrected"]).any()
     run = np.isfinite(res.states[:, 0])

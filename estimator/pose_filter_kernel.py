@@ -1,0 +1,808 @@
+"""The pose filter's forward pass as one compiled loop (issue 27).
+
+The same filter as :func:`estimator.pose_filter.run_pose_filter` with ``engine="numpy"`` (the
+reference; module docstring of :mod:`estimator.pose_filter` for the model): CTRA prediction
+with stochastic cloning, the iterated robust update (prior gate, deleted-residual test,
+re-admission), the start and restart from the per-epoch rigid fits, the 10 s NIS window and
+the heading check with its re-initialisation, the standstill hold, the flip logic and the
+limits, all in one ``numba.njit(cache=True)`` function over plain arrays.
+
+One change of arithmetic, not of the model: the update works in the 12-dimensional state
+space instead of the 2k-dimensional measurement space (push-through identity, exact in exact
+arithmetic). With ``N = H^T R^-1 H``, ``b = H^T R^-1 nu`` and ``M = I + N Y``:
+``P+ = Y M^-1``, ``x+ = y + P+ b``, ``nu^T S^-1 nu = nu^T R^-1 nu - b^T P+ b``, and the
+2 x 2 diagonal blocks of ``S^-1`` that the deleted-residual test needs are
+``(I - H_i P+ H_i^T / r_i) / r_i`` (``H^T S^-1 = M^-1 H^T R^-1``). A 12 x 12 solve replaces the
+inverse of the innovation covariance (up to 32 x 32 with eight antennas), and a deletion
+costs a new 12 x 12 solve. ``M`` is invertible exactly when ``S`` is (Sylvester's
+determinant identity); a zero pivot counts as the reference's LinAlgError.
+
+Chi-square quantiles of the NIS window come from a table the caller fills with
+``scipy.special.chdtri`` (the reference's function) for every even number of degrees of
+freedom the window can sum to. Runs unchanged, only slower, with ``NUMBA_DISABLE_JIT=1``.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numba
+import numpy as np
+
+__all__ = ["forward_kernel"]
+
+# state layout: that of estimator.pose_filter (checked equal by the tests); the filter's
+# tuning constants (INIT_MAX_YAW_SD, ...) come with each call in ``par``, read from
+# estimator.pose_filter then, so there is one definition (and a test may patch it)
+PX, PY, YAW, V, A, OMEGA = 0, 1, 2, 3, 4, 5
+NX = 6
+MAX_DELETED = 3
+SERIES_BELOW = 1.0
+TWO_PI = 2.0 * math.pi
+#: status codes: indices into estimator.pose_filter.STATUSES
+S_NO_DATA, S_WAITING, S_INIT, S_RESET, S_OK, S_PREDICTED, S_FLIP, S_REINIT, S_INCONS = (
+    1, 2, 3, 4, 5, 6, 7, 8, 9)
+#: indices of the scalar parameters in ``par`` (see :func:`forward_kernel`)
+(I_SA, I_VA, I_VS, I_DTMED, I_GATE, I_FLIPTHR, I_QA, I_QY, I_OMMAX, I_ALAT, I_AMAX,
+ I_VMAX, I_LEVER, I_FLIPDIST, I_VARMIN, I_FLIPMEM, I_THR1, I_REVERSE, I_MAXREJ,
+ I_WINDOW, I_INIT_YAW_SD, I_INIT_SIGMAS, I_LOST_SD, I_FIT_SD, I_STAND_SIGMAS, I_REINIT_N,
+ I_REINIT_YAW, I_MAXIT, I_PRIOR_RATIO) = range(29)
+N_PAR = 29
+
+_jit = numba.njit(cache=True, nogil=True)
+
+
+@_jit
+def _wrap(a):
+    """Angle to (-pi, pi], the reference's ``_wrap`` (same operations)."""
+    if -math.pi < a <= math.pi:
+        return a
+    return math.pi - np.fmod(np.fmod(math.pi - a, TWO_PI) + TWO_PI, TWO_PI)
+
+
+@_jit
+def _pmax(a, b):
+    """Python's ``max(a, b)`` (a unless b > a: NaN and -0.0 kept as Python keeps them)."""
+    return b if b > a else a  # noqa: FURB136
+
+
+@_jit
+def _pmin(a, b):
+    """Python's ``min(a, b)``."""
+    return b if b < a else a  # noqa: FURB136
+
+
+@_jit
+def _integrals(q, horner):
+    """F1, F2, F3 of the CTRA motion (reference ``_integrals_scalar``, same operations);
+    horner (10, 6): the series coefficients, highest power first."""
+    aq = abs(q)
+    if aq >= SERIES_BELOW:
+        e = complex(math.cos(q), math.sin(q))
+        iq = 1j * q
+        f1 = (e - 1.0) / iq
+        f2 = (e - f1) / iq
+        return f1, f2, (e - 2.0 * f2) / iq
+    half = 3 if aq < 0.01 else 5 if aq < 0.1 else 7 if aq < 0.5 else 10
+    q2 = q * q
+    r1 = r2 = r3 = i1 = i2 = i3 = 0.0
+    for j in range(10 - half, 10):
+        r1 = r1 * q2 + horner[j, 0]
+        r2 = r2 * q2 + horner[j, 1]
+        r3 = r3 * q2 + horner[j, 2]
+        i1 = i1 * q2 + horner[j, 3]
+        i2 = i2 * q2 + horner[j, 4]
+        i3 = i3 * q2 + horner[j, 5]
+    return complex(r1, q * i1), complex(r2, q * i2), complex(r3, q * i3)
+
+
+@_jit
+def _add_noise(Pn, c, s, v, dt, qa, qy, cw):
+    """Process noise over dt added to Pn (6, 6) in place (reference ``_add_noise``)."""
+    ja = (qa / dt) if dt > 0 else 0.0
+    jy = qy * dt
+    pw = np.array([1.0, dt, dt * dt])
+    lat = np.array([1.0, 1.0, v])
+    Ma = np.empty((3, 3))
+    My = np.empty((3, 3))
+    for i in range(3):
+        for j in range(3):
+            Ma[i, j] = ja * dt * cw[i, j] * (pw[i] * pw[j])
+            My[i, j] = jy * dt * cw[i, j] * (pw[i] * pw[j]) * (lat[i] * lat[j])
+    ia = (A, V)
+    iy = (OMEGA, YAW)
+    for i in range(2):
+        for j in range(2):
+            Pn[ia[i], ia[j]] += Ma[i, j]
+    for i in range(2):
+        k = ia[i]
+        Pn[PX, k] += c * Ma[2, i]
+        Pn[k, PX] += c * Ma[2, i]
+        Pn[PY, k] += s * Ma[2, i]
+        Pn[k, PY] += s * Ma[2, i]
+    for i in range(2):
+        for j in range(2):
+            Pn[iy[i], iy[j]] += My[i, j]
+    for i in range(2):
+        k = iy[i]
+        Pn[PX, k] -= s * My[2, i]
+        Pn[k, PX] -= s * My[2, i]
+        Pn[PY, k] += c * My[2, i]
+        Pn[k, PY] += c * My[2, i]
+    Pn[PX, PX] += c * c * Ma[2, 2] + s * s * My[2, 2]
+    Pn[PY, PY] += s * s * Ma[2, 2] + c * c * My[2, 2]
+    Pn[PX, PY] += c * s * (Ma[2, 2] - My[2, 2])
+    Pn[PY, PX] += c * s * (Ma[2, 2] - My[2, 2])
+
+
+@_jit
+def _matmul(Aa, Bb):
+    """Aa @ Bb for small dense matrices (plain loops: no BLAS call overhead)."""
+    n, k = Aa.shape
+    m = Bb.shape[1]
+    out = np.zeros((n, m))
+    for i in range(n):
+        for p in range(k):
+            a = Aa[i, p]
+            if a != 0.0:
+                for j in range(m):
+                    out[i, j] += a * Bb[p, j]
+    return out
+
+
+@_jit
+def _predict(x, P, dt, qa, qy, horner, cw):
+    """CTRA prediction (reference ``_predict``): (x' (6,), P' (6, 6), F P (6, 6))."""
+    px, py, yaw, v, acc, om = x[0], x[1], x[2], x[3], x[4], x[5]
+    f1, f2, f3 = _integrals(om * dt, horner)
+    rot = complex(math.cos(yaw), math.sin(yaw))
+    d = rot * (v * dt * f1 + acc * dt * dt * f2)
+    dv = rot * dt * f1
+    da = rot * dt * dt * f2
+    dq = rot * 1j * (v * dt * f2 + acc * dt * dt * f3) * dt
+    F = np.eye(NX)
+    F[PX, YAW], F[PY, YAW] = -d.imag, d.real
+    F[PX, V], F[PY, V] = dv.real, dv.imag
+    F[PX, A], F[PY, A] = da.real, da.imag
+    F[PX, OMEGA], F[PY, OMEGA] = dq.real, dq.imag
+    F[YAW, OMEGA] = dt
+    F[V, A] = dt
+    FP = _matmul(F, P)
+    Pn = _matmul(FP, F.T.copy())
+    _add_noise(Pn, rot.real, rot.imag, v, dt, qa, qy, cw)
+    xn = np.array([px + d.real, py + d.imag, _wrap(yaw + om * dt), v + acc * dt, acc, om])
+    return xn, Pn, FP
+
+
+#: The stacked state's components a measurement involves (position and heading of x_k and
+#: x_{k-1}): the Jacobians are stored over these six columns only.
+COLS = (PX, PY, YAW, NX + PX, NX + PY, NX + YAW)
+NC = 6
+
+
+@_jit
+def _measure(yl, rr, nfix):
+    """Predicted measurements h (k, 2) and Jacobian H (2k, 6) over :data:`COLS` at the
+    stacked state yl (12,) for the lever arms rr (k, 2): the first ``nfix`` are fixes, the
+    rest displacements (reference ``_fill_measurements``, same operations)."""
+    k = rr.shape[0]
+    c, s = math.cos(yl[YAW]), math.sin(yl[YAW])
+    cp, sp = math.cos(yl[NX + YAW]), math.sin(yl[NX + YAW])
+    h = np.empty((k, 2))
+    H = np.zeros((2 * k, NC))
+    for i in range(k):
+        ax, ay = rr[i, 0], rr[i, 1]
+        rx = c * ax - s * ay
+        ry = s * ax + c * ay
+        H[2 * i, 0] = 1.0
+        H[2 * i + 1, 1] = 1.0
+        H[2 * i, 2] = -ry
+        H[2 * i + 1, 2] = rx
+        if i < nfix:
+            h[i, 0] = yl[PX] + rx
+            h[i, 1] = yl[PY] + ry
+        else:
+            qx = cp * ax - sp * ay
+            qy = sp * ax + cp * ay
+            h[i, 0] = yl[PX] - yl[NX + PX] + rx - qx
+            h[i, 1] = yl[PY] - yl[NX + PY] + ry - qy
+            H[2 * i, 3] = -1.0
+            H[2 * i + 1, 4] = -1.0
+            H[2 * i, 5] = qy
+            H[2 * i + 1, 5] = -qx
+    return h, H
+
+
+@_jit
+def _sub(Y):
+    """Y's rows :data:`COLS` (6, 12) and their (6, 6) block."""
+    Yr = np.empty((NC, Y.shape[1]))
+    Yc = np.empty((NC, NC))
+    for i in range(NC):
+        for j in range(Y.shape[1]):
+            Yr[i, j] = Y[COLS[i], j]
+        for j in range(NC):
+            Yc[i, j] = Y[COLS[i], COLS[j]]
+    return Yr, Yc
+
+
+@_jit
+def _hdot(H, r, d):
+    """Row r of H (6 columns) times the stacked vector d (12,) at :data:`COLS`."""
+    s = 0.0
+    for j in range(NC):
+        s += H[r, j] * d[COLS[j]]
+    return s
+
+
+@_jit
+def _block(H, Yc, i):
+    """The 2 x 2 block H_i Yc H_i^T (a, b, c) of measurement i (Yc over :data:`COLS`)."""
+    a = b = c = 0.0
+    for p in range(NC):
+        h0, h1 = H[2 * i, p], H[2 * i + 1, p]
+        if h0 == 0.0 and h1 == 0.0:
+            continue
+        for q in range(NC):
+            yq = Yc[p, q]
+            a += h0 * yq * H[2 * i, q]
+            b += h0 * yq * H[2 * i + 1, q]
+            c += h1 * yq * H[2 * i + 1, q]
+    return a, b, c
+
+
+@_jit
+def _quad(a, b, c, ex, ey):
+    """e^T [[a, b], [b, c]]^-1 e."""
+    return (c * ex * ex - 2.0 * b * ex * ey + a * ey * ey) / (a * c - b * b)
+
+
+@_jit
+def _solve_inplace(Mm, B):
+    """Solve Mm X = B (n, n), (n, r) in place by Gaussian elimination with partial pivoting;
+    B receives X. False on a zero or non-finite pivot (the reference's LinAlgError)."""
+    n = Mm.shape[0]
+    r = B.shape[1]
+    for col in range(n):
+        piv = col
+        best = abs(Mm[col, col])
+        for i in range(col + 1, n):
+            v = abs(Mm[i, col])
+            if v > best:
+                best, piv = v, i
+        if not (best > 0.0 and best < math.inf):
+            return False
+        if piv != col:
+            for j in range(n):
+                Mm[col, j], Mm[piv, j] = Mm[piv, j], Mm[col, j]
+            for j in range(r):
+                B[col, j], B[piv, j] = B[piv, j], B[col, j]
+        d = Mm[col, col]
+        for i in range(col + 1, n):
+            f = Mm[i, col] / d
+            if f != 0.0:
+                for j in range(col + 1, n):
+                    Mm[i, j] -= f * Mm[col, j]
+                for j in range(r):
+                    B[i, j] -= f * B[col, j]
+    for col in range(n - 1, -1, -1):
+        d = Mm[col, col]
+        for j in range(r):
+            s = B[col, j]
+            for p in range(col + 1, n):
+                s -= Mm[col, p] * B[p, j]
+            B[col, j] = s / d
+    return True
+
+
+@_jit
+def _posterior(Y, H, nu, var, acc):
+    """The joint update over the accepted measurements in the measured columns (module
+    docstring): with ``N = H^T R^-1 H``, ``b = H^T R^-1 nu`` (6 columns) and
+    ``M = I + N Y_cc``, returns P+ = Y - Y_:c M^-1 N Y_c: (12, 12, unsymmetrised), the
+    step dx = Y_:c M^-1 b (12,), ``b^T Y_cc M^-1 b`` (for the NIS) and ok (False on a zero
+    pivot)."""
+    n = Y.shape[0]
+    k = var.shape[0]
+    N = np.zeros((NC, NC))
+    b = np.zeros(NC)
+    for i in range(k):
+        if not acc[i]:
+            continue
+        w = 1.0 / var[i]
+        for r in (2 * i, 2 * i + 1):
+            e = nu[i, r - 2 * i] * w
+            for p in range(NC):
+                hp = H[r, p]
+                if hp == 0.0:
+                    continue
+                b[p] += hp * e
+                hw = hp * w
+                for q in range(NC):
+                    N[p, q] += hw * H[r, q]
+    Yr, Yc = _sub(Y)
+    Mm = np.eye(NC) + _matmul(N, Yc)
+    rhs = np.empty((NC, n + 1))
+    rhs[:, :n] = _matmul(N, Yr)
+    rhs[:, n] = b
+    ok = _solve_inplace(Mm, rhs)
+    Pa = Y.copy()
+    dx = np.zeros(n)
+    for i in range(n):
+        for p in range(NC):
+            yip = Y[i, COLS[p]]
+            if yip == 0.0:
+                continue
+            dx[i] += yip * rhs[p, n]
+            for j in range(n):
+                Pa[i, j] -= yip * rhs[p, j]
+    byb = 0.0
+    for p in range(NC):
+        s = 0.0
+        for q in range(NC):
+            s += Yc[p, q] * rhs[q, n]
+        byb += b[p] * s
+    return Pa, dx, byb, ok
+
+
+@_jit
+def _kalman_update(y, Y, nu, H, var, gate, acc, gated, want_nis):
+    """Reference ``_kalman_update`` in the state space: prior gate (``gated``: acc from the
+    prior's blocks, else the caller's acc), deleted-residual test, joint update. Returns
+    (y+, Y+, acc, nis (NaN unless want_nis), ok)."""
+    k = var.shape[0]
+    nis = math.nan
+    finite_gate = gate != math.inf
+    if want_nis:
+        Pa, dx, byb, ok = _posterior(Y, H, nu, var, np.ones(k, dtype=np.bool_))
+        if not ok:
+            return y, Y, acc, nis, False
+        s = 0.0
+        for i in range(k):
+            s += (nu[i, 0] * nu[i, 0] + nu[i, 1] * nu[i, 1]) / var[i]
+        nis = s - byb
+    if gated:
+        Yc = _sub(Y)[1]
+        for i in range(k):
+            if finite_gate:
+                a, bb, c = _block(H, Yc, i)
+                acc[i] = _quad(a + var[i], bb, c + var[i], nu[i, 0], nu[i, 1]) <= gate
+            else:
+                acc[i] = True
+    deletions = MAX_DELETED if finite_gate else 0
+    while acc.any():
+        Pa, dx, byb, ok = _posterior(Y, H, nu, var, acc)
+        if not ok:
+            return y, Y, acc, nis, False
+        if deletions and acc.sum() >= 2:
+            worst, wstat = _worst(Pa, dx, H, nu, var, acc)
+            if wstat > gate:
+                acc[worst] = False
+                deletions -= 1
+                continue
+        return y + dx, 0.5 * (Pa + Pa.T), acc, nis, True
+    return y, Y, acc, nis, True
+
+
+@_jit
+def _worst(Pa, dx, H, nu, var, acc):
+    """The deleted-residual test (reference test 2): the accepted measurement with the
+    largest ``u_i^T ((S^-1)_ii)^-1 u_i``, with ``u_i = (nu_i - H_i dx) / r_i`` and
+    ``(S^-1)_ii = (I - H_i P+ H_i^T / r_i) / r_i``; returns (index, statistic)."""
+    Pc = _sub(Pa)[1]
+    worst, wstat = -1, -math.inf
+    for i in range(var.shape[0]):
+        if not acc[i]:
+            continue
+        a, bb, c = _block(H, Pc, i)
+        r = var[i]
+        ux = (nu[i, 0] - _hdot(H, 2 * i, dx)) / r
+        uy = (nu[i, 1] - _hdot(H, 2 * i + 1, dx)) / r
+        st = _quad((1.0 - a / r) / r, -bb / r / r, (1.0 - c / r) / r, ux, uy)
+        if st > wstat:
+            worst, wstat = i, st
+    return worst, wstat
+
+
+@_jit
+def _iterated_update(y, Y, z, rr, nfix, var, gate, lever, tol, maxit):
+    """Reference ``_iterated_update``: (y+, Y+, acc, prior NIS, ok)."""
+    k = var.shape[0]
+    yl = y
+    acc = np.zeros(k, dtype=np.bool_)
+    y1, Y1 = y, Y
+    nis = math.nan
+    for it in range(maxit):
+        h, H = _measure(yl, rr, nfix)
+        nu = z - h
+        if it > 0:
+            d = y - yl
+            dd = y1 - y
+            Y1c = _sub(Y1)[1]
+            for i in range(k):
+                nu[i, 0] -= _hdot(H, 2 * i, d)
+                nu[i, 1] -= _hdot(H, 2 * i + 1, d)
+                if acc[i]:
+                    continue
+                a, b, c = _block(H, Y1c, i)
+                ex = nu[i, 0] - _hdot(H, 2 * i, dd)
+                ey = nu[i, 1] - _hdot(H, 2 * i + 1, dd)
+                if _quad(a + var[i], b, c + var[i], ex, ey) <= gate:
+                    acc[i] = True
+        y1, Y1, acc, nis_i, ok = _kalman_update(y, Y, nu, H, var, gate, acc, it == 0, it == 0)
+        if it == 0:
+            nis = nis_i
+        if not ok:
+            return y, Y, np.zeros(k, dtype=np.bool_), nis, False
+        if not acc.any():
+            break
+        turn = _pmax(abs(_wrap(y1[YAW] - yl[YAW])), abs(_wrap(y1[NX + YAW] - yl[NX + YAW])))
+        if 0.5 * turn * turn * lever < tol:
+            break
+        yl = y1
+    return y1, Y1, acc, nis, True
+
+
+@_jit
+def _start_state(k, org, yaw0, v0, ysd, vsd, om0, sa, cnt, amax, ommax):
+    """Start / re-initialisation state (6,) and diagonal covariance (reference
+    ``FilterStart.offer`` / ``refit``)."""
+    pvar = sa * sa / cnt[k]
+    x = np.array([org[k, 0], org[k, 1], _wrap(yaw0), v0, 0.0, om0])
+    P = np.zeros((NX, NX))
+    P[0, 0], P[1, 1], P[2, 2] = pvar, pvar, ysd ** 2
+    P[3, 3], P[4, 4], P[5, 5] = vsd ** 2, amax ** 2, (0.5 * ommax) ** 2
+    return x, P
+
+
+@_jit
+def _fit_speed(k, yaw0, tt, org, cnt, sa, amax, reverse):
+    """Speed along yaw0 from the fits of k-1 and k and its sd (reference ``_fit_speed``)."""
+    dt = tt[k] - tt[k - 1]
+    d0, d1 = org[k, 0] - org[k - 1, 0], org[k, 1] - org[k - 1, 1]
+    v0 = (d0 * math.cos(yaw0) + d1 * math.sin(yaw0)) / dt
+    vsd = math.hypot(amax * dt, sa * math.sqrt(1.0 / cnt[k] + 1.0 / cnt[k - 1]) / dt)
+    if not reverse:
+        v0 = _pmax(v0, 0.0)
+    return v0, vsd
+
+
+@_jit
+def _fit_heading(k, fyaw, cnt, spread, sa):
+    """Epoch k's rigid-fit heading and its sd (reference ``FilterStart.fit_heading``)."""
+    if cnt[k] < 2:
+        return math.nan, math.inf
+    sp = spread[k]
+    return fyaw[k], (sa / math.sqrt(sp) if sp > 0 else math.inf)
+
+
+@_jit
+def _offer(k, anchor, tt, org, fyaw, cnt, r2, sa, amax, ommax, reverse, par):
+    """Reference ``FilterStart.offer``: (started, x0, P0, new anchor)."""
+    x0 = np.zeros(NX)
+    P0 = np.zeros((NX, NX))
+    if cnt[k] < 2:
+        return False, x0, P0, anchor
+    yaw_sd = sa / math.sqrt(r2[k]) if r2[k] > 0 else math.inf
+    if yaw_sd < par[I_INIT_YAW_SD]:
+        if k == 0 or cnt[k - 1] < 2:
+            return False, x0, P0, anchor
+        yaw0, ysd = fyaw[k], yaw_sd
+        v0, vsd = _fit_speed(k, yaw0, tt, org, cnt, sa, amax, reverse)
+    elif anchor < 0:
+        return False, x0, P0, k
+    else:
+        a = anchor
+        d0, d1 = org[k, 0] - org[a, 0], org[k, 1] - org[a, 1]
+        dist = math.hypot(d0, d1)
+        sd = sa * math.sqrt(1.0 / cnt[k] + 1.0 / cnt[a])
+        if dist <= par[I_INIT_SIGMAS] * sd:
+            return False, x0, P0, anchor
+        course = math.atan2(d1, d0)
+        sp = dist / (tt[k] - tt[a])
+        ysd, vsd = sd / dist, _pmax(sp, amax)
+        if reverse and math.cos(course - fyaw[k]) < 0:
+            yaw0, v0 = course + math.pi, -sp
+        else:
+            yaw0, v0 = course, sp
+    x0, P0 = _start_state(k, org, yaw0, v0, ysd, vsd, 0.0, sa, cnt, amax, ommax)
+    return True, x0, P0, -1
+
+
+@_jit
+def _refit(k, x, tt, org, fyaw, cnt, spread, sa, amax, ommax, reverse):
+    """Reference ``FilterStart.refit``."""
+    yaw0, ysd = _fit_heading(k, fyaw, cnt, spread, sa)
+    v0, vsd = x[V], _pmax(abs(x[V]), amax)
+    if k > 0 and cnt[k - 1] >= 2:
+        v0, vsd = _fit_speed(k, yaw0, tt, org, cnt, sa, amax, reverse)
+    return _start_state(k, org, yaw0, v0, ysd, vsd, x[OMEGA], sa, cnt, amax, ommax)
+
+
+@_jit
+def _flip(x, P):
+    """Reference ``_flip``: heading + pi, -v, -a; P mapped by diag(1, 1, 1, -1, -1, 1)."""
+    xn = x.copy()
+    xn[YAW] = _wrap(x[YAW] + math.pi)
+    xn[V] = -x[V]
+    xn[A] = -x[A]
+    J = np.array([1.0, 1.0, 1.0, -1.0, -1.0, 1.0])
+    Pn = np.empty((NX, NX))
+    for i in range(NX):
+        for j in range(NX):
+            Pn[i, j] = P[i, j] * J[i] * J[j]
+    return xn, Pn
+
+
+@_jit
+def _finite(x, P):
+    for i in range(NX):
+        if not math.isfinite(x[i]):
+            return False
+        for j in range(NX):
+            if not math.isfinite(P[i, j]):
+                return False
+    return True
+
+
+@_jit
+def _project(x, par):
+    """Forward speed, speed limit, yaw-rate and acceleration limits (reference, in place)."""
+    if par[I_REVERSE] == 0.0 and x[V] < 0.0:
+        x[V] = 0.0
+    vmax = par[I_VMAX]
+    if abs(x[V]) > vmax:
+        x[V] = math.copysign(vmax, x[V])
+    om_max = par[I_OMMAX]
+    lim = om_max if x[V] == 0 else _pmin(om_max, par[I_ALAT] / abs(x[V]))
+    if abs(x[OMEGA]) > lim:
+        x[OMEGA] = math.copysign(lim, x[OMEGA])
+    if abs(x[A]) > par[I_AMAX]:
+        x[A] = math.copysign(par[I_AMAX], x[A])
+
+
+@_jit
+def _hold(x, P, k, present, fyaw, cnt, spread, par):
+    """Reference ``_standstill_hold`` (x, P changed in place when it holds)."""
+    if not present[k].any():
+        return False
+    if not x[V] <= par[I_STAND_SIGMAS] * math.sqrt(_pmax(P[V, V], 0.0)):
+        return False
+    if _fit_heading(k, fyaw, cnt, spread, par[I_SA])[1] <= par[I_FIT_SD]:
+        return False
+    x[OMEGA] = 0.0
+    var = P[OMEGA, OMEGA]
+    P[OMEGA, :] = 0.0
+    P[:, OMEGA] = 0.0
+    P[OMEGA, OMEGA] = _pmin(var, 1e-12)
+    return True
+
+
+@_jit
+def _measurements(k, present, obs, r_m, va, vs):
+    """Epoch k's lever arms (fixes first, then displacements since k-1), measurements z
+    (k, 2), variances (k,), the fixes' antenna indices and the number of displacements."""
+    m = r_m.shape[0]
+    ik = np.empty(m, dtype=np.int64)
+    js = np.empty(m, dtype=np.int64)
+    nf = nd = 0
+    for i in range(m):
+        if present[k, i]:
+            ik[nf] = i
+            nf += 1
+            if present[k - 1, i]:
+                js[nd] = i
+                nd += 1
+    kk = nf + nd
+    rr = np.empty((kk, 2))
+    z = np.empty((kk, 2))
+    var = np.empty(kk)
+    for j in range(nf):
+        i = ik[j]
+        rr[j] = r_m[i]
+        z[j, 0], z[j, 1] = obs[k, i, 0], obs[k, i, 1]
+        var[j] = va
+    for j in range(nd):
+        i = js[j]
+        rr[nf + j] = r_m[i]
+        z[nf + j, 0] = obs[k, i, 0] - obs[k - 1, i, 0]
+        z[nf + j, 1] = obs[k, i, 1] - obs[k - 1, i, 1]
+        var[nf + j] = vs
+    return rr, z, var, ik[:nf], nd
+
+
+@_jit
+def _monitor(buf, head, count, k, nis, dof, x, P, n_gated, counters, thr_table, par,
+             fyaw, cnt, spread):
+    """Reference ``_Monitor.check``: returns (bad, refit wanted, head, count); the window's
+    (nis, dof) ring buffer ``buf`` (window, 2), ``counters`` = [disagree, locked]."""
+    if dof == 0 or not math.isfinite(nis):
+        return False, False, head, count
+    window = buf.shape[0]
+    buf[head, 0], buf[head, 1] = nis, dof
+    head = (head + 1) % window
+    count = min(count + 1, window)
+    tot = 0.0
+    df = 0
+    for j in range(count):
+        e = (head - count + j) % window
+        tot += buf[e, 0]
+        df += int(buf[e, 1])
+    bad = tot > thr_table[df // 2]
+    yaw, sd = _fit_heading(k, fyaw, cnt, spread, par[I_SA])
+    if not sd <= par[I_FIT_SD]:
+        counters[0] = counters[1] = 0
+        return bad, False, head, count
+    d = _wrap(yaw - x[YAW])
+    var = P[YAW, YAW] + sd * sd
+    off = d * d > par[I_THR1] * var and abs(d) > par[I_REINIT_YAW]
+    counters[0] = counters[0] + 1 if off else 0
+    counters[1] = counters[1] + 1 if (bad and n_gated > 0) else 0
+    if max(counters[0], counters[1]) >= par[I_REINIT_N]:
+        return bad, True, 0, 0
+    return bad, False, head, count
+
+
+@_jit
+def _direction(x, P, y, k, ik, acc, obs, r_m, dt, par, back, llr):
+    """Direction of travel after epoch k's update (reference): (x, P, flipped, back, llr)."""
+    flipped = False
+    if par[I_REVERSE] == 0.0:
+        mh = y[YAW] + 0.5 * _wrap(y[NX + YAW] - y[YAW])
+        step = ((y[PX] - y[NX + PX]) * math.cos(mh) + (y[PY] - y[NX + PY]) * math.sin(mh))
+        back = back - step if step < 0.0 else 0.0
+        if back > par[I_FLIPDIST]:
+            x, P = _flip(x, P)
+            flipped, back = True, 0.0
+        elif x[V] < 0.0:
+            x[V] = 0.0
+        return x, P, flipped, back, llr
+    ngood = 0
+    for j in range(ik.shape[0]):
+        ngood += acc[j]
+    if ngood >= 2:
+        c, s = math.cos(x[YAW]), math.sin(x[YAW])
+        sp = sm = 0.0
+        for j in range(ik.shape[0]):
+            if not acc[j]:
+                continue
+            i = ik[j]
+            hx = x[PX] + (c * r_m[i, 0] - s * r_m[i, 1])
+            hy = x[PY] + (s * r_m[i, 0] + c * r_m[i, 1])
+            ex, ey = obs[k, i, 0] - hx, obs[k, i, 1] - hy
+            mx, my = ex + 2.0 * (hx - x[PX]), ey + 2.0 * (hy - x[PY])
+            sp += ex * ex + ey * ey
+            sm += mx * mx + my * my
+        llr = llr * math.exp(-dt / par[I_FLIPMEM]) + (sp - sm) / (2.0 * par[I_VA])
+        if llr > par[I_FLIPTHR]:
+            x, P = _flip(x, P)
+            flipped, llr = True, 0.0
+    return x, P, flipped, back, llr
+
+
+@_jit
+def _stack(xp, Pp, FP, x, P):
+    """The stacked state (x_k, x_{k-1}) (12,) and its covariance (12, 12)."""
+    y = np.empty(2 * NX)
+    Y = np.empty((2 * NX, 2 * NX))
+    for i in range(NX):
+        y[i], y[NX + i] = xp[i], x[i]
+        for j in range(NX):
+            Y[i, j] = Pp[i, j]
+            Y[i, NX + j] = FP[i, j]
+            Y[NX + i, j] = FP[j, i]
+            Y[NX + i, NX + j] = P[i, j]
+    return y, Y
+
+
+@_jit
+def forward_kernel(tt, obs, present, r_m, org, fyaw, cnt, spread, r2, par, thr_table,
+                   horner, cw, X, PP, XC, PC, PX_, seg, status, n_used, n_gated, n_steps,
+                   nis, nis_dof):
+    """The forward pass (reference loop of ``run_pose_filter``) over prepared arrays.
+
+    tt (n,) s; obs (n, m, 2) m; present (n, m) bool; r_m (m, 2) lever arms from the no-slip
+    point (travel frame); the rigid fits org (n, 2), fyaw (n,), cnt (n,) float, spread (n,)
+    (sum of squared offsets about the present antennas' centroid) and r2 (n,) (sum of the
+    present antennas' |r|^2); par (N_PAR,) the scalars (I_* indices); thr_table: chi-square
+    upper quantiles by summed dof / 2; horner (10, 6), cw (3, 3) the reference's constants.
+    Fills the output arrays (NaN / 0 initialised by the caller; status as codes)."""
+    n = tt.shape[0]
+    sa, va, vs = par[I_SA], par[I_VA], par[I_VS]
+    amax, ommax = par[I_AMAX], par[I_OMMAX]
+    reverse = par[I_REVERSE] != 0.0
+    max_rejects = int(par[I_MAXREJ])
+    dt_med = par[I_DTMED]
+    maxit = int(par[I_MAXIT])
+    lost_var = par[I_LOST_SD] ** 2
+    buf = np.zeros((int(par[I_WINDOW]), 2))
+    head = count = 0
+    counters = np.zeros(2, dtype=np.int64)
+    x = np.zeros(NX)
+    P = np.zeros((NX, NX))
+    running = lost = False
+    anchor = -1
+    rej_abs = rej_step = 0
+    llr = back = 0.0
+    dt = 0.0
+    xp, Pp, FP = x, P, P
+    for k in range(n):
+        if running:
+            dt = tt[k] - tt[k - 1]
+            hold = _hold(x, P, k, present, fyaw, cnt, spread, par)
+            xp, Pp, FP = _predict(x, P, dt, par[I_QA] * dt / dt_med,
+                                  0.0 if hold else par[I_QY] * dt_med / dt, horner, cw)
+            if present[k].any():
+                spr = _pmax(Pp[PX, PX], Pp[PY, PY]) + par[I_LEVER] * par[I_LEVER] * Pp[YAW, YAW]
+                if not spr <= par[I_PRIOR_RATIO] * par[I_VARMIN]:
+                    running, anchor, lost = False, -1, True
+        if not running:
+            if not present[k].any():
+                status[k] = S_NO_DATA
+                continue
+            status[k] = S_WAITING
+            got, x, P, anchor = _offer(k, anchor, tt, org, fyaw, cnt, r2, sa, amax, ommax,
+                                       reverse, par)
+            if not got:
+                continue
+            running = True
+            X[k], PP[k], seg[k] = x, P, True
+            status[k] = S_RESET if lost else S_INIT
+            n_used[k] = present[k].sum()
+            rej_abs, rej_step, llr, back = 0, 0, 0.0, 0.0
+            head = count = 0
+            counters[:] = 0
+            continue
+        y, Y = _stack(xp, Pp, FP, x, P)
+        st = S_PREDICTED
+        rr, z, var, ik, nd = _measurements(k, present, obs, r_m, va, vs)
+        nf = ik.shape[0]
+        acc = np.zeros(nf + nd, dtype=np.bool_)
+        if nf:
+            y1, Y1, acc, nis_k, ok = _iterated_update(y, Y, z, rr, nf, var, par[I_GATE],
+                                                      par[I_LEVER], 0.1 * sa, maxit)
+            if not ok:
+                rej_abs = rej_step = max_rejects
+            if math.isfinite(nis_k):
+                nis[k], nis_dof[k] = nis_k, 2 * (nf + nd)
+            n_used[k] = acc[:nf].sum()
+            n_gated[k] = nf - n_used[k]
+            n_steps[k] = acc[nf:].sum()
+            rej_abs = rej_abs + 1 if n_used[k] == 0 else 0
+            rej_step = rej_step + 1 if (nd >= 2 and n_steps[k] == 0) else 0
+            if max(rej_abs, rej_step) >= max_rejects:
+                running, anchor, lost = False, -1, True
+                status[k] = S_WAITING
+                continue
+            if acc.any():
+                y, Y, st = y1, Y1, S_OK
+                y[YAW] = _wrap(y[YAW])
+                y[NX + YAW] = _wrap(y[NX + YAW])
+        x, P = y[:NX].copy(), Y[:NX, :NX].copy()
+        XC[k], PC[k], PX_[k] = y[NX:], Y[NX:, NX:], Y[:NX, NX:]
+        bad, want, head, count = _monitor(buf, head, count, k, nis[k], nis_dof[k], x, P,
+                                          n_gated[k], counters, thr_table, par, fyaw, cnt,
+                                          spread)
+        if want:
+            counters[:] = 0
+            x, P = _refit(k, x, tt, org, fyaw, cnt, spread, sa, amax, ommax, reverse)
+            X[k], PP[k], seg[k], status[k] = x, P, True, S_REINIT
+            XC[k], PC[k], PX_[k] = np.nan, np.nan, np.nan
+            rej_abs, rej_step, llr, back = 0, 0, 0.0, 0.0
+            continue
+        if bad and st == S_OK:
+            st = S_INCONS
+        if nf:
+            x, P, flipped, back, llr = _direction(x, P, y, k, ik, acc, obs, r_m, dt, par,
+                                                  back, llr)
+            if flipped:
+                st = S_FLIP
+        if not (P[YAW, YAW] <= lost_var and _finite(x, P)):
+            running, anchor, lost = False, -1, True
+            status[k] = S_WAITING
+            XC[k], PC[k], PX_[k] = np.nan, np.nan, np.nan
+            continue
+        _project(x, par)
+        X[k], PP[k], status[k] = x, P, st
+        if st == S_FLIP:
+            seg[k] = True
