@@ -679,44 +679,26 @@ class Spec:
         if v["recording"] != "-":
             return             # checked by _recording_axes: no overrides on recordings
         if v["path_overrides"]:
-            k = ("path", files["path"][0], _canon(v["path_overrides"]))
-            if k not in checked:
-                from sim.paths import Path as SimPath
-                from sim.paths import load_path
+            from sim.paths import Path as SimPath
+            from sim.paths import load_path
 
-                d = load_path(files["path"][0]).to_dict()
-                d.update(v["path_overrides"])
-                try:
-                    SimPath.from_dict(d, source="path_overrides")
-                except ValueError as exc:
-                    raise SpecError(f"{where}.path_overrides: {exc}") from None
-                checked.add(k)
-        if "noise" in files and not v["noise"].startswith("session:"):
-            k = ("noise-model", files["noise"][0])
-            if k not in checked:  # a GPS noise model must load (not, e.g., the ultrasonic one)
-                from sim.gps import GpsNoiseModel
+            def overridden_path() -> None:
+                d = {**load_path(files["path"][0]).to_dict(), **v["path_overrides"]}
+                SimPath.from_dict(d, source="path_overrides")
 
-                try:
-                    GpsNoiseModel.load(files["noise"][0])
-                except (ValueError, TypeError) as exc:
-                    raise SpecError(f"{where}.noise: {v['noise']!r} is not a GPS noise model: "
-                                    f"{exc}") from None
-                checked.add(k)
+            _once(checked, ("path", files["path"][0], _canon(v["path_overrides"])),
+                  f"{where}.path_overrides", overridden_path)
         if v["noise_overrides"] and v["noise"].startswith("session:"):
             _check_session_overrides(v["noise_overrides"], f"{where}.noise_overrides")
         elif v["noise_overrides"]:
             if "noise" not in files:
                 raise SpecError(f"{where}.noise_overrides: only applies to a noise model or "
                                 f"a session, not to noise {v['noise']!r}")
-            k = ("noise", files["noise"][0], _canon(v["noise_overrides"]))
-            if k not in checked:
-                from sim.gps import GpsNoiseModel
+            from sim.gps import GpsNoiseModel
 
-                try:
-                    GpsNoiseModel.load(files["noise"][0]).with_overrides(**v["noise_overrides"])
-                except (ValueError, TypeError) as exc:
-                    raise SpecError(f"{where}.noise_overrides: {exc}") from None
-                checked.add(k)
+            _once(checked, ("noise", files["noise"][0], _canon(v["noise_overrides"])),
+                  f"{where}.noise_overrides", lambda: GpsNoiseModel.load(
+                      files["noise"][0]).with_overrides(**v["noise_overrides"]))
 
     def _recording_axes(self, v: dict, explicit_config: bool, hashes: dict, where: str) -> None:
         """Fill a recording cell's axes (spec docstring): path / noise labels, no
@@ -849,6 +831,17 @@ def _check_kind(kind: str, path: Path, where: str, value: str) -> None:
         what = {"paths": "path file", "configs": "sensor configuration",
                 "noise": "GPS noise model"}[kind]
         raise SpecError(f"{where}: {value!r} is not a {what}: {exc}") from None
+
+
+def _once(checked: set, key: tuple, where: str, check: Callable[[], object]) -> None:
+    """Run ``check`` once per ``key`` (a file and its overrides); its ValueError or TypeError
+    becomes a :class:`SpecError` naming ``where``."""
+    if key not in checked:
+        try:
+            check()
+        except (ValueError, TypeError) as exc:
+            raise SpecError(f"{where}: {exc}") from None
+        checked.add(key)
 
 
 def _is_int(v: object) -> bool:
@@ -1012,15 +1005,19 @@ def _check_plugin_table(name: object, tab: object, where: str) -> None:
         raise SpecError(f"{where}.color: must be a colour '#rrggbb', got {color!r}")
 
 
+def _technique_uses(data: dict) -> Iterable[tuple[str, object]]:
+    """(where, value) of every ``technique`` the spec sets: "defaults", "grid[1]", ..."""
+    for where, b in [("defaults", data.get("defaults") or {}),
+                     *((f"grid[{i}]", b) for i, b in enumerate(data.get("grid") or []))]:
+        yield where, b.get("technique") if isinstance(b, dict) else None
+
+
 def _entry_point_names(data: dict, tables: dict) -> list[str]:
     """``technique`` values of the spec that name an installed entry point of the group
     ``configpose.trackers`` (and neither a built-in technique nor a table)."""
-    values = []
-    for b in [data.get("defaults") or {}, *(data.get("grid") or [])]:
-        v = b.get("technique") if isinstance(b, dict) else None
-        values += [x for x in (v if isinstance(v, list) else [v])
-                   if isinstance(x, str) and ":" not in x and x not in TECHNIQUES
-                   and x not in tables]
+    values = [x for _, v in _technique_uses(data) for x in (v if isinstance(v, list) else [v])
+              if isinstance(x, str) and ":" not in x and x not in TECHNIQUES
+              and x not in tables]
     if not values:
         return []
     import importlib.metadata
@@ -1035,9 +1032,7 @@ def _entry_point_names(data: dict, tables: dict) -> list[str]:
 
 def _first_use(data: dict, name: str) -> str:
     """Where the spec first names technique ``name``: "grid[1].technique[2]" or the like."""
-    for where, b in [("defaults", data.get("defaults") or {}),
-                     *((f"grid[{i}]", b) for i, b in enumerate(data.get("grid") or []))]:
-        v = b.get("technique") if isinstance(b, dict) else None
+    for where, v in _technique_uses(data):
         if isinstance(v, list) and name in v:
             return f"{where}.technique[{v.index(name)}]"
         if v == name:
