@@ -393,16 +393,29 @@ def _rms_txt(ep: _EpochColumns, x: str, y: str, s: str) -> str:
     return f"{np.sqrt(np.mean(d ** 2)):.2f}" if d.size else "none"
 
 
-def _legend(fig, lc: bool = False) -> None:
+def _legend(fig, lc: bool | None = None) -> None:
+    """The tracks' legend, top right; ``lc``: a lag figure (no CG estimate), with (True)
+    or without the lag-corrected estimate."""
     from matplotlib.lines import Line2D
 
     spec = [("observed", _OBS, ".", "none"), ("sensor estimate", _EST, "", "-"),
             ("CG estimate", _CG, "", "-"), ("sensor truth", _TRUE, "", "-")]
-    if lc:   # the lag figures: no CG line, the lag-corrected estimate instead
-        spec[2] = ("lag-corrected estimate (LC, Section 3.4.2)", _CG, "", "--")
+    if lc is not None:
+        spec[2:3] = [("lag-corrected estimate (LC, Section 3.4.2)", _CG, "", "--")] * lc
     fig.legend(handles=[Line2D([], [], color=c, marker=m, ls=ls, label=lb)
                         for lb, c, m, ls in spec], loc="upper right", ncol=4, fontsize=9,
-               bbox_to_anchor=(0.995, 0.955), frameon=False)
+               bbox_to_anchor=(0.995, 1 - 0.45 / fig.get_figheight()), frameon=False)
+
+
+def _grid(rows: int, cols: int, width: float, row_h: float, *, width_ratios=None, **adjust):
+    """A figure of rows x cols axes, ``row_h`` inches per row (``width`` inches wide), with
+    fixed margins: 1.05 in above (title, legend), 0.5 in below (labels); no layout engine
+    (one layout pass less per figure)."""
+    h = rows * row_h + 1.55
+    fig, axes = _pyplot().subplots(rows, cols, squeeze=False, figsize=(width, h),
+                                   width_ratios=width_ratios)
+    fig.subplots_adjust(bottom=0.5 / h, top=1 - 1.05 / h, **adjust)
+    return fig, axes
 
 
 def _extent(*cols: pd.Series) -> tuple[float, float]:
@@ -421,6 +434,8 @@ def _overlay_row(ax, ep: _EpochColumns, sensors: list[str], top: bool) -> None:
     from matplotlib.ticker import MaxNLocator
 
     (x0, x1), (y0, y1) = (_extent(ep[f"truth_cg_{a}"], ep[f"cg_{a}"]) for a in "xy")
+    half = max(x1 - x0, y1 - y0) / 2            # square tiles, whatever the path's shape
+    (x0, x1), (y0, y1) = ((c - half, c + half) for c in ((x0 + x1) / 2, (y0 + y1) / 2))
     pitch, mid = 1.08 * (x1 - x0), (x0 + x1) / 2
     ep.prefetch([f"{p}{s}{a}" for s in sensors for p, a in (("obs_", "_x"), ("obs_", "_y"),
                 ("truth_", "_x"), ("truth_", "_y"), ("x_", ""), ("y_", ""))])
@@ -457,9 +472,8 @@ def _overlay_figs(E: _Epochs, out: Path, written: list[Path]) -> None:
     names the RMS distance (m) of the observations and of the fit to the sensor's truth."""
     for path, wt, rows, name, figs in _families(E, "overlay"):
         sensors = [c[2:] for c in E.load(rows[0]["key"]).columns if c.startswith("x_")]
-        fig, axes = _pyplot().subplots(len(rows), 1, squeeze=False,
-                                       figsize=(1.9 * len(sensors) + 0.7, 1.9 * len(rows) + 1))
-        fig.subplots_adjust(left=0.05, right=0.995, bottom=0.06, top=0.88, hspace=0.2)
+        fig, axes = _grid(len(rows), 1, max(9.0, 1.9 * len(sensors) + 0.7), 1.9, left=0.05,
+                          right=0.995, hspace=0.2)
         for i, (ax, r) in enumerate(zip(axes[:, 0], rows)):
             _overlay_row(ax, E.load(r["key"]), sensors, i == 0)
             ax.set_ylabel(f"window {int(r['window'])}\ny north (m)", fontsize=8)
@@ -532,10 +546,8 @@ def _sensor1_lag_figs(E: _Epochs, out: Path, written: list[Path]) -> None:
         by_w = {int(r["window"]): r for r in rows}
         wins = [w for w in (10, 100) if w in by_w] or sorted(by_w)[-2:]
         s1 = _sensor1(E.load(by_w[wins[0]]["key"]))
-        fig, axes = _pyplot().subplots(2 * len(wins), 3, squeeze=False, width_ratios=[2, 1, 1],
-                                       figsize=(14, 4.4 * len(wins) + 1))
-        fig.subplots_adjust(left=0.06, right=0.99, bottom=0.05, top=0.9, wspace=0.15,
-                            hspace=0.45)
+        fig, axes = _grid(2 * len(wins), 3, 14, 2.2, left=0.06, right=0.99, wspace=0.15,
+                          hspace=0.45, width_ratios=[2, 1, 1])
         any_lc = False
         for i, (w, axis) in enumerate((w, a) for w in wins for a in ("x", "y")):
             lc = _pick(E, path=path, technique="lc", weighting=wt, window=w)

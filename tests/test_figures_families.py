@@ -99,6 +99,8 @@ def test_lag_figure_rows_and_magnified_slopes(drawn, name, lc):
         assert _coloured(img, ax.get_window_extent().extents) > 100, ax.get_title("left")
         # observed, truth, estimate; the lag-corrected estimate only with Huff weights
         assert len(ax.lines) == 3 + lc, ax.get_title("left")
+    labels = [t.get_text() for t in fig.legends[0].get_texts()]
+    assert any("lag-corrected" in lb for lb in labels) == lc and "CG estimate" not in labels
     for row in (0, 1):
         rise, fall = fig.axes[3 * row + 1], fig.axes[3 * row + 2]
         assert "positive" in rise.get_title("left") and "negative" in fall.get_title("left")
