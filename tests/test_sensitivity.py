@@ -124,13 +124,17 @@ def test_evaluate_variants_flags_the_flip_and_feeds_the_cause_line(tmp_path, mon
     for name, df in (("sensitivity", sens), ("comparisons", comps)):
         df.to_csv(tmp_path / f"{name}.csv", index=False)
     monkeypatch.setattr(causes, "SENSITIVITY_DIR", tmp_path)
-    text = causes._fraction_text()
-    assert "common_fraction shipped **reproduced** (64/64), Huff lowers the w=1 mean |x| by " \
-           "19." in text
-    assert "common_fraction 0 **mixed** (32/64), Huff lowers the w=1 mean |x| by " \
-           "0.0 %" in text
+    text = causes._fraction_text(causes._fraction_gains())
+    gain = "Huff lowers the w=1 mean |x| by "
+    assert f"common_fraction shipped **reproduced** (64/64), {gain}19." in text
+    assert f"common_fraction 0 **mixed** (32/64), {gain}0.0 %" in text
+    main = _derived(_weighting_cells(0.8))
+    r = next(x for x in evaluate_claims(main) if x.claim.cid == "C8")
+    ev = causes.Evidence(main, main, main.iloc[:0])
+    assert "not the common part of the error" in causes._c8(ev, r)   # cf 0 gains 0 %
     monkeypatch.setattr(causes, "SENSITIVITY_DIR", tmp_path / "absent")
-    assert "Not re-measured" in causes._fraction_text()
+    assert "Not re-measured" in causes._fraction_text(causes._fraction_gains())
+    assert "the error common to all receivers moves them alike" in causes._c8(ev, r)
 
 
 def test_evaluate_variants_names_a_missing_variant():
