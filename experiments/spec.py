@@ -1,106 +1,14 @@
 """Declarative experiment specs: TOML files validated on load, expanded into a grid of cells.
 
 A spec names *what* to run (paths, sensor configurations, noise models, seeds, window sizes,
-weighting schemes, techniques, solvers, evaluation masks); :mod:`experiments.sweep` runs it.
-The axes are those of the GPS dissertation's moving-platform study
-(000_8f82f8df647bf685.txt, Sections 4.9-4.12): Path 1 / Path 2, sliding windows 1-100,
-no / random / Huff weights, lag correction (LC, Section 3.4.2), dynamic window (Dyn SW,
-Section 3.4.2.1) and their combination, scored on the full path and on the path without
-turns (Tables 4.1 and 4.2), plus the beyond-the-dissertation trackers.
-
-Format (every key validated; unknown keys and bad values raise :class:`SpecError` naming the
-field, e.g. ``grid[1].window[2]: must be a positive integer, got 0``)::
-
-    name = "thesis"                 # required; results go to results/<name>/
-    description = "..."             # optional
-    seed = 2013                     # spec seed: root of every random stream (default 0)
-    seeds = 10                      # number of seeds (0..n-1) or an explicit list [3, 7, 11]
-    masks = ["full", "no_turns"]    # evaluation masks (default these two; also "no_turns_window")
-    sim_seed = 0                    # seed handed to the simulator (default 0)
-    session_s = 4000                # length of each synthesized stationary session, s (4.1.1)
-
-    [defaults]                      # axis values used where a grid block does not set them
-    config = "rover_gps8"
-    noise = "gps_stationary"
-    solver = "procrustes"
-
-    [[grid]]                        # one block = the Cartesian product of its axes;
-    name = "weighting"              # the spec's cells are the union of all blocks
-    path = ["square100", "square200"]
-    window = [1, 5, 10, 100]
-    weighting = ["none", "random", "huff"]
-    technique = "none"
-
-    [epochs]                        # optional: keep per-epoch estimates for some cells
-    seeds = [0]                     # seed values (or "all")
-    where = { path = ["square100"] }   # optional filter on axis values
-
-    [page]                          # optional: what the run's page shows beside its cells
-    flight = "results/ultrasonic"   # the ultrasonic study's flight replay (flight_series.csv)
-
-    [techniques."mypkg.mod:MyTracker"]  # optional: a plug-in tracker's options, label, colour
-    options = { rear = 0, front = 4 }    # (README, Plug-in trackers; an alias table names
-    label = "My tracker"                 #  its class with tracker = "pkg.mod:Name")
-
-Axes (scalar or list; the dict-valued ones take a table or a list of tables):
-
-- ``path``: name in ``models/paths/`` or a ``.toml`` file (relative to the spec file).
-- ``path_overrides``: table of path fields replacing the file's values (e.g. cruise speed).
-- ``config``: sensor configuration, name in ``models/configs/`` or a ``.toml`` file.
-- ``noise``: noise model name in ``models/noise/`` or a ``.toml`` file; ``"none"`` for
-  noise-free observations; ``"session:<file>"`` replays a saved stationary session.
-- ``noise_overrides``: table of noise-model fields (e.g. the common-mode split); with
-  ``noise = "session:<file>"``, how the session drives the antennas (``replay`` = a mode of
-  :data:`sim.gps.REPLAY_MODES`, ``receiver``, ``shift_s``, ``model``), e.g. one real log
-  replayed onto every antenna as decorrelated segments: ``{replay = "shifted"}``.
-- ``recording``: a real (or synthetic) multi-antenna recording instead of a path + noise
-  model: a name in ``models/recordings/`` or a recording ``.toml`` file (format in
-  :func:`sim.recording.load_recording`). Its cells run the estimators on the recording's
-  observations (or, for a recording with ``[replay]``, on its reference + the replayed
-  error drawn per seed) and are scored against its reference where it has one (cells
-  without a reference get coverage and status counts only). ``path``, ``noise`` and their
-  overrides do not apply and are recorded as ``recording-<name>`` / ``recording`` (or
-  ``replay:<mode>``), except that ``noise_overrides`` of a recording with ``[replay]``
-  replace its replay options (the session keys above, e.g. ``{replay = "identical"}``);
-  ``config`` defaults to the recording's own and may be replaced in the block (same
-  antenna names, e.g. a layout from measured distances to compare); turning "controller"
-  means the reference's turn flags.
-- ``window`` (positive int), ``weighting`` (:data:`WEIGHTINGS`, or ``"huff:<t>"`` with a
-  Huff threshold of t metres, :class:`estimator.weights.Weighting`), ``technique``
-  (:data:`TECHNIQUES`, the registry :mod:`experiments.techniques` says what each runs and
-  which axes apply), ``solver`` (:data:`SOLVERS`), ``dyn_window`` (small window of the
-  dynamic technique, default 1), ``turning`` ("controller" flag or estimate-based "detector"),
-  ``dyn_growth`` (how the dynamic window grows back after a turn: "jump", default, or
-  "refill", one epoch per step, :data:`DYN_GROWTH`).
-  Axes that do not apply to a technique are recorded as "-" (0 for ``dyn_window``): the
-  solver for motion_compensated / naive and the pose-filter family (ekf, ekf_fixed_lag,
-  ekf_smoother, gtsam), the weighting for naive and that family, and dyn_window / turning /
-  dyn_growth for techniques without the dynamic window. The filter family takes the
-  platform's limits and no-slip point from the simulated vehicle (the path file and the
-  vehicle model).
-- ``masks`` (top level): "full", "no_turns" (estimates dated at an epoch that is not
-  turning), "no_turns_window" (estimates whose whole window is free of turning epochs).
-- Oracle techniques (:data:`ORACLE_TECHNIQUES`) use the simulator's truth and are reported
-  as diagnostics, never as estimator results.
-- Plug-in techniques: a ``technique`` value that is an import path ``"pkg.module:Class"``,
-  the name of a ``[techniques."<name>"]`` table, or an entry point of the group
-  ``configpose.trackers`` runs that tracker (:func:`_load_plugins` builds it once at load,
-  so every import, class and option error names the field). Only ``window`` and the
-  observation axes apply to it; its cells' keys include its options and its class's source.
-
-Names resolve to files at load time, and each cell's identity includes a hash of the files'
-contents, so editing a configuration invalidates exactly the cells that used it. Every file
-a spec names (``path``, ``config``, ``noise``, ``session:<file>``, ``recording``, the
-``flight_series.csv`` of ``[page] flight``) follows
-one rule (:func:`estimator.model_files.resolve_model_file`): a bare name is looked up in
-``models/<kind>/``; a path is relative to the spec's folder, then the project, and must
-resolve to a file inside the spec's folder, the project or the shared data beside it
-(``../`` escapes and absolute paths elsewhere, such as ``/etc/hostname``, are errors). A
-spec built in Python with ``Spec.from_dict`` and no ``base_dir`` names its files directly.
-A file given by path is labelled by its model's ``name`` (a path file's name is its stem)
-in cells, tables and file names (``path = "my.toml"`` -> ``my``), never with ``.toml``; two
-files with one label on one axis are an error.
-TOML nested too deeply for the parser is a one-line :class:`SpecError` naming the file.
+weighting schemes, techniques, solvers, evaluation masks, the page's extra replay); the
+sweep (:mod:`experiments.sweep`) runs it. The format, every axis and the path rule for the
+files a spec names are in ``docs/spec-format.md``. Every key is validated: unknown keys and
+bad values raise :class:`SpecError` naming the field (``grid[1].window[2]: must be a
+positive integer, got 0``). One declaration per axis (:data:`AXIS_SCHEMA`) gives the Cell
+type, the validation and the expansion; a cell's key hashes its axes, seeds and the
+contents of the files it names (GPS dissertation 000_8f82f8df647bf685.txt, Sections
+4.9-4.12: the axes of its moving-platform study).
 """
 
 from __future__ import annotations
