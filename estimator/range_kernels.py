@@ -509,3 +509,155 @@ def velocity_gate_run(rr, tt, ref, t_ref, thesis, fixed, margin, vmax, cap, relo
             out[i, j] = rf if rej else x
             rejected[i, j] = rej
     return out, rejected
+
+
+# ------------------------------------------------------- damped range least squares (LM)
+@njit(cache=True)
+def _lm_eval(G, dzm, has_dz, rm, wm, p, A, g):
+    """Residuals' cost, J'J (into A) and J'f (into g) of one row at p (d,)."""
+    k, d = G.shape
+    A[:, :] = 0.0
+    g[:] = 0.0
+    cost = 0.0
+    J = np.empty(d)
+    for i in range(k):
+        d2 = 0.0
+        for c in range(d):
+            J[c] = p[c] - G[i, c]
+            d2 += J[c] * J[c]
+        if has_dz:
+            d2 += dzm[i] * dzm[i]
+        dist = math.sqrt(d2)
+        if not wm[i]:
+            continue
+        inv = dist if dist > 0 else 1.0
+        f = dist - rm[i]
+        cost += f * f
+        for a in range(d):
+            J[a] /= inv
+        for a in range(d):
+            g[a] += J[a] * f
+            for b in range(d):
+                A[a, b] += J[a] * J[b]
+    return cost
+
+
+@njit(cache=True)
+def lm_rows(G, dz, has_dz, r, w, p0, radius, tol, max_iter, scale):
+    """Algorithm 3.16 of Madsen, Nielsen and Tingleff (2004) per row, the loop of
+    :func:`estimator.trilateration._levenberg_marquardt` (the batched numpy reference; same
+    arguments, dz (M, k) zeros when not has_dz). Returns p (M, d), iterations, stopped by a
+    test, on the bound, cost (M,) and the final J'J (M, d, d)."""
+    m, d = p0.shape
+    P = p0.copy()
+    iters = np.zeros(m, dtype=np.int64)
+    done = np.zeros(m, dtype=np.bool_)
+    bound = np.zeros(m, dtype=np.bool_)
+    costs = np.zeros(m)
+    AA = np.zeros((m, d, d))
+    A, g = np.zeros((d, d)), np.zeros(d)
+    An, gn = np.zeros((d, d)), np.zeros(d)
+    pn, h, M = np.zeros(d), np.zeros(d), np.zeros((d, d))
+    for row in range(m):
+        p = P[row]
+        cost = _lm_eval(G, dz[row], has_dz, r[row], w[row], p, A, g)
+        eps1 = tol * scale[row]
+        mu = 0.0
+        for a in range(d):
+            mu = max(mu, A[a, a])
+        mu = 1e-3 * mu
+        mu = mu if mu > 0 else 1e-3
+        nu = 2.0
+        stop = _absmax(g) <= eps1
+        on_b = False
+        for _ in range(max_iter):
+            if stop:
+                break
+            iters[row] += 1
+            _damped_step(A, g, mu, M, h)
+            if _norm(h) <= tol * (_norm(p) + scale[row]):
+                stop = True
+                break
+            for a in range(d):
+                pn[a] = p[a] + h[a]
+            nrm = _norm(pn)
+            out = nrm > radius[row]
+            if out:
+                sc = radius[row] / (nrm if nrm > 0 else 1.0)
+                for a in range(d):
+                    pn[a] *= sc
+            cost_new = _lm_eval(G, dz[row], has_dz, r[row], w[row], pn, An, gn)
+            pred = 0.0
+            for a in range(d):
+                pred += h[a] * (mu * h[a] - g[a])
+            pred *= 0.5
+            num = 0.5 * (cost - cost_new)
+            rho = num / pred if pred != 0.0 else (math.inf * num if num != 0 else math.nan)
+            if cost_new < cost and rho > 0:
+                p[:] = pn
+                cost = cost_new
+                A[:, :] = An
+                g[:] = gn
+                on_b = out
+                mu *= max(1.0 / 3.0, 1.0 - (2.0 * rho - 1.0) ** 3)
+                nu = 2.0
+                if _absmax(g) <= eps1:
+                    stop = True
+            else:
+                mu *= nu
+                nu *= 2.0
+            if not math.isfinite(mu) or mu > 1e300:
+                mu = 1e300
+            nu = min(nu, 1e300)
+        done[row] = stop
+        bound[row] = on_b
+        costs[row] = cost
+        AA[row] = A
+    return P, iters, done, bound, costs, AA
+
+
+@njit(cache=True)
+def _absmax(g):
+    out = 0.0
+    for v in g:
+        out = max(out, abs(v))
+    return out
+
+
+@njit(cache=True)
+def _norm(v):
+    acc = 0.0
+    for x in v:
+        acc += x * x
+    return math.sqrt(acc)
+
+
+@njit(cache=True)
+def _damped_step(A, g, mu, M, h):
+    """h = -(A + mu I)^-1 g by Gaussian elimination with partial pivoting in the scratch M
+    (d, d) (A + mu I is positive definite for mu > 0)."""
+    d = g.size
+    for a in range(d):
+        h[a] = -g[a]
+        for b in range(d):
+            M[a, b] = A[a, b]
+        M[a, a] += mu
+    for c in range(d):
+        p = c
+        for i in range(c + 1, d):
+            if abs(M[i, c]) > abs(M[p, c]):
+                p = i
+        if p != c:
+            for j in range(d):
+                M[c, j], M[p, j] = M[p, j], M[c, j]
+            h[c], h[p] = h[p], h[c]
+        for i in range(c + 1, d):
+            f = M[i, c] / M[c, c]
+            for j in range(c, d):
+                M[i, j] -= f * M[c, j]
+            h[i] -= f * h[c]
+    for c in range(d - 1, -1, -1):
+        acc = h[c]
+        for j in range(c + 1, d):
+            acc -= M[c, j] * h[j]
+        h[c] = acc / M[c, c]

@@ -78,6 +78,7 @@ from dataclasses import dataclass, fields
 
 import numpy as np
 
+from estimator import range_kernels
 from estimator._checks import check_array, check_int, check_real
 
 __all__ = [
@@ -623,6 +624,21 @@ def _project(p: np.ndarray, radius: np.ndarray) -> tuple[np.ndarray, np.ndarray]
 
 
 def _levenberg_marquardt(G, dz, r, w, p0, radius, tol, max_iter, scale):
+    """Algorithm 3.16 of Madsen, Nielsen and Tingleff (2004) on the range residuals, per row
+    in the compiled :func:`estimator.range_kernels.lm_rows`; arguments and results as
+    :func:`_levenberg_marquardt_reference` (the batched numpy version, kept as the reference:
+    the same iterates to rounding, tested)."""
+    m, d = p0.shape
+    has_dz = dz is not None
+    dzz = np.ascontiguousarray(dz, dtype=float) if has_dz else np.zeros((m, G.shape[0]))
+    p, iters, done, bound, cost, A = range_kernels.lm_rows(
+        np.ascontiguousarray(G, dtype=float), dzz, has_dz, np.ascontiguousarray(r, float),
+        np.ascontiguousarray(w, dtype=bool), np.array(p0, dtype=float), np.asarray(radius, float),
+        float(tol), int(max_iter), np.asarray(scale, dtype=float))
+    return p, iters, done, bound, cost, _well_conditioned(A)
+
+
+def _levenberg_marquardt_reference(G, dz, r, w, p0, radius, tol, max_iter, scale):
     """Batched Algorithm 3.16 of Madsen, Nielsen and Tingleff (2004) on the range residuals.
 
     G (k, d) receivers (centred), dz (M, k) or None, r (M, k) with 0 where w is False, w (M, k)
