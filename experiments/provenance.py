@@ -63,9 +63,9 @@ def code_version() -> dict:
     info["python"] = platform.python_version()
     info["numpy"] = np.__version__
     try:
-        import mujoco
-
-        info["mujoco"] = mujoco.__version__
+        # the installed distribution's version (the same string as mujoco.__version__),
+        # without importing mujoco: 0.5 s a resumed or a worker-simulated run does not need
+        info["mujoco"] = version("mujoco")
     except Exception:  # noqa: BLE001
         info["mujoco"] = None
     return info

@@ -4,6 +4,8 @@ no file rewritten (the git-ignored run.local.json sidecar aside)."""
 import json
 import time
 
+import pytest
+
 from experiments import outputs
 from experiments.spec import Spec
 from experiments.sweep import run
@@ -25,7 +27,21 @@ def _stamps(folder):
             if p.is_file() and p.name != "run.local.json"}
 
 
-def test_a_resumed_run_rewrites_no_file(tmp_path):
+@pytest.fixture
+def frozen_code(monkeypatch):
+    """The code digests and version as constants: the code is an input of every cell and
+    output, and in a working tree edited (and committed to) meanwhile it may change between
+    the runs of a test."""
+    from experiments.runner import run as run_mod
+    from experiments.runner import store
+
+    for mod in (run_mod, store):
+        monkeypatch.setattr(mod, "cell_code_digest", lambda: "cells-code")
+    monkeypatch.setattr(outputs, "code_digest", lambda: "outputs-code")
+    monkeypatch.setattr(run_mod, "code_version", lambda: {"git_describe": "frozen"})
+
+
+def test_a_resumed_run_rewrites_no_file(tmp_path, frozen_code):
     """The first run writes its outputs while manifest.json says "running" and then marks
     it "complete": that status must not count as an input of the report or the page (it
     did: every resume redrew both, 2 of the 12 outputs of the quick preset)."""
@@ -60,3 +76,39 @@ def test_manifest_status_is_not_an_input(tmp_path):
     assert outputs._manifest_inputs(tmp_path / "absent.json") == ""
     man.write_text("not json")
     assert outputs._manifest_inputs(man) == "not json"
+
+
+
+def test_a_resume_reads_the_cell_table_not_the_cell_files(tmp_path, monkeypatch, frozen_code):
+    """The store's index (cells.local.json) says which cell files cells.parquet was assembled
+    from: while they are as they were, a resume reads the one table (0.1 s) instead of every
+    cell file (1.0 s for the thesis preset's 1160), and an edited cell file is read again."""
+    from types import SimpleNamespace
+
+    from experiments.runner import store
+    from tests.test_sweep import _fake_run, _fake_spec, fake_cell
+
+    spec = _fake_spec()
+    first = _fake_run(spec, tmp_path, cell_fn=fake_cell)
+    assert (tmp_path / store.INDEX_FILE).exists()
+    parsed: list[str] = []
+
+    def loads(text):
+        parsed.append(text)
+        return json.loads(text)
+
+    def no_read(self, keys):
+        raise AssertionError("read every cell file")
+
+    with monkeypatch.context() as m:
+        m.setattr(store, "json", SimpleNamespace(loads=loads, dumps=json.dumps))
+        m.setattr(store.CellStore, "read_cells", no_read)
+        again = _fake_run(spec, tmp_path, cell_fn=fake_cell)
+    assert again.n_resumed == first.n_cells and again.cells.equals(first.cells)
+    index = (tmp_path / store.INDEX_FILE).read_text()
+    assert parsed and all(t == index for t in parsed)       # the index, no cell file
+    # an edited cell file (its size and mtime change) is read and checked again
+    f = next((tmp_path / "cells").glob("*.json"))
+    f.write_text("{")
+    r = _fake_run(spec, tmp_path, cell_fn=fake_cell)
+    assert (r.n_computed, r.n_resumed) == (1, first.n_cells - 1)

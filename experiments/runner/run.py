@@ -359,11 +359,12 @@ class _Run:
         t_out0 = time.perf_counter()
         out_dir = self.out_dir
         keys = [c.key for c in self.cells]
-        table = self.store.read_cells(keys)
+        table = self.store.read_table(keys)
         errors = self.store.read_errors(keys)
         final = json_text({**manifest, "status": _final_status(errors)})
         if n_now or final != self.before or not (out_dir / "cells.parquet").exists():
             write_table(table, out_dir / "cells.parquet")
+        self.store.write_index(keys, self.code)
         write_json(out_dir / "errors.json", errors)
         res = Results(spec=self.spec, out_dir=out_dir, cells=table, errors=errors,
                       n_cells=len(self.cells), n_computed=n_now - len(errors),

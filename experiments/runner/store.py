@@ -38,6 +38,12 @@ class SweepError(RuntimeError):
 
 
 
+#: The store's index (git-ignored): the code digest, the [size, mtime ns] of every cell
+#: file and per-epoch parquet as they were when ``cells.parquet`` was assembled from them,
+#: and that table's own; what matches it is known to be sound without reading it again.
+INDEX_FILE = "cells.local.json"
+
+
 class CellStore:
     """One JSON file per finished cell (atomic), one parquet per cell's per-epoch table."""
 
@@ -65,7 +71,10 @@ class CellStore:
             or unreadable (only the parquet footer is read: cheap, and it catches truncation).
         """
         stale, damaged = set(), set()
+        known = self._indexed(code)
         for k in keys:
+            if k in known and known[k] == self._file_stats(k):
+                continue                    # as read and assembled by the last run
             try:
                 rec = json.loads((self.cells_dir / f"{k}.json").read_text())
                 ok = isinstance(rec, dict) and isinstance(rec.get("rows"), list)
@@ -77,6 +86,45 @@ class CellStore:
             elif rec.get("code") != code:
                 stale.add(k)
         return stale, damaged
+
+    # ------------------------------------------------------------ index
+    def _file_stats(self, key: str) -> list:
+        """[cell file, per-epoch parquet] of ``key`` as [size, mtime ns] (None: absent)."""
+        return [_stat(self.cells_dir / f"{key}.json"), _stat(self.epochs_dir / f"{key}.parquet")]
+
+    def _index(self) -> dict:
+        try:
+            idx = json.loads((self.out / INDEX_FILE).read_text())
+        except (OSError, ValueError):
+            return {}
+        return idx if isinstance(idx, dict) and isinstance(idx.get("cells"), dict) else {}
+
+    def _indexed(self, code: str) -> dict[str, list]:
+        """The index's file stats per key when it was written for ``code``, else {}."""
+        idx = self._index()
+        return idx["cells"] if idx.get("code") == code else {}
+
+    def write_index(self, keys: Iterable[str], code: str) -> None:
+        """Record the files of ``keys`` and ``cells.parquet`` (just assembled from them) as
+        they are now; not written where the folder is read-only (the index only saves time)."""
+        idx = {"code": code, "cells": {k: self._file_stats(k) for k in keys},
+               "table": _stat(self.out / "cells.parquet")}
+        with suppress(OSError):
+            write_json(self.out / INDEX_FILE, idx)
+
+    def read_table(self, keys: list[str]) -> pd.DataFrame:
+        """The cell table of ``keys``: ``cells.parquet`` when it was assembled from exactly
+        these cell files as they are now (the index says so), else :meth:`read_cells`
+        (reading 1160 cell files took 1.0 s, the parquet 0.1 s; the same frame)."""
+        idx = self._index()
+        cells = idx.get("cells", {})
+        table = self.out / "cells.parquet"
+        if (idx.get("table") is not None and idx["table"] == _stat(table)
+                and list(cells) == keys and all(cells[k] == self._file_stats(k) for k in keys)):
+            import pandas as pd
+
+            return pd.read_parquet(table)
+        return self.read_cells(keys)
 
     def clear(self, keys: Iterable[str]) -> None:
         for k in keys:
@@ -219,6 +267,15 @@ def _pid_alive(pid: int) -> bool:
 def unwritable(out_dir: Path, why: OSError) -> SweepError:
     return SweepError(f"cannot write {out_dir}: {why.strerror or why}; the run has cells or "
                       "outputs to write there (fix the permissions or give another --out)")
+
+
+def _stat(path: Path) -> list[int] | None:
+    """[size, modification time in ns] of a file, None when it does not exist."""
+    try:
+        st = path.stat()
+    except OSError:
+        return None
+    return [st.st_size, st.st_mtime_ns]
 
 
 def _parquet_readable(path: Path) -> bool:
