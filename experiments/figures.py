@@ -25,8 +25,10 @@ follow the GPS dissertation (000_8f82f8df647bf685.txt):
 - ``fig_tables.png``: Tables 4.1/4.2 as a chart, ours (mean and 95 % interval over seeds)
   beside the published values.
 
-Box plots pool the per-epoch errors of the seeds whose per-epoch files the spec kept
-(the dissertation's box plots are one run); the seeds are named in each title.
+The rows of the overlay and lag figures (sensor tiles, time series) are drawn by
+:mod:`experiments.track_panels`. Box plots pool the per-epoch errors of the seeds whose
+per-epoch files the spec kept (the dissertation's box plots are one run); the seeds are
+named in each title.
 """
 
 from __future__ import annotations
@@ -40,6 +42,7 @@ import numpy as np
 import pandas as pd
 
 from experiments.techniques import ORACLE_TECHNIQUES, REGISTRY, plugins_in_results
+from experiments.track_panels import lag_row, legend, overlay_row
 
 __all__ = ["draw_all", "draw_task", "figure_tasks", "load_epochs", "main"]
 
@@ -361,9 +364,6 @@ FIG_NUMBERS = {
     ("sensor1_lag", "square200", "none"): "4_70_73",
     ("sensor1_lag", "square100", "huff"): "4_90_93",
     ("sensor1_lag", "square200", "huff"): "4_110_113"}
-#: Colours of Sections 4.10-4.11: observed purple, sensor estimate blue, CG estimate green,
-#: truth red (here the lag-corrected estimate, which those figures lack, is green dashed).
-_OBS, _EST, _CG, _TRUE = "#9467bd", "C0", "C2", "C3"
 
 
 def _families(E: _Epochs, family: str):
@@ -384,29 +384,6 @@ def _families(E: _Epochs, family: str):
             yield path, wt, rows, name, f"{'' if nums else 'as '}Figs {a}.{b}-{a}.{c}"
 
 
-def _rms_txt(ep: _EpochColumns, x: str, y: str, s: str) -> str:
-    """RMS horizontal distance of columns (x, y) to sensor s's truth over the epochs where
-    both are known, as text ("none" without such epochs: a dead receiver, a gappy truth)."""
-    d = np.hypot(ep[x].to_numpy(float) - ep[f"truth_{s}_x"].to_numpy(float),
-                 ep[y].to_numpy(float) - ep[f"truth_{s}_y"].to_numpy(float))
-    d = d[np.isfinite(d)]
-    return f"{np.sqrt(np.mean(d ** 2)):.2f}" if d.size else "none"
-
-
-def _legend(fig, lc: bool | None = None) -> None:
-    """The tracks' legend, top right; ``lc``: a lag figure (no CG estimate), with (True)
-    or without the lag-corrected estimate."""
-    from matplotlib.lines import Line2D
-
-    spec = [("observed", _OBS, ".", "none"), ("sensor estimate", _EST, "", "-"),
-            ("CG estimate", _CG, "", "-"), ("sensor truth", _TRUE, "", "-")]
-    if lc is not None:
-        spec[2:3] = [("lag-corrected estimate (LC, Section 3.4.2)", _CG, "", "--")] * lc
-    fig.legend(handles=[Line2D([], [], color=c, marker=m, ls=ls, label=lb)
-                        for lb, c, m, ls in spec], loc="upper right", ncol=4, fontsize=9,
-               bbox_to_anchor=(0.995, 1 - 0.45 / fig.get_figheight()), frameon=False)
-
-
 def _grid(rows: int, cols: int, width: float, row_h: float, *, width_ratios=None, **adjust):
     """A figure of rows x cols axes, ``row_h`` inches per row (``width`` inches wide), with
     fixed margins: 1.05 in above (title, legend), 0.5 in below (labels); no layout engine
@@ -416,53 +393,6 @@ def _grid(rows: int, cols: int, width: float, row_h: float, *, width_ratios=None
                                    width_ratios=width_ratios)
     fig.subplots_adjust(bottom=0.5 / h, top=1 - 1.05 / h, **adjust)
     return fig, axes
-
-
-def _extent(*cols: pd.Series) -> tuple[float, float]:
-    """(lo, hi) of the finite values of ``cols`` with a margin, (0, 1) without any."""
-    v = np.concatenate([c.to_numpy(float) for c in cols])
-    v = v[np.isfinite(v)]
-    pad = 0.04 * (v.max() - v.min()) + 1.0 if v.size else 0.0
-    return (v.min() - pad, v.max() + pad) if v.size else (0.0, 1.0)
-
-
-def _overlay_row(ax, ep: _EpochColumns, sensors: list[str], top: bool) -> None:
-    """One window's row: a tile per sensor side by side on one axes, each kind of track one
-    line across the tiles (a figure's cost is its axes and artists), the x ticks under the
-    first tile (every tile spans the same metres)."""
-    from matplotlib.patches import Rectangle
-    from matplotlib.ticker import MaxNLocator
-
-    (x0, x1), (y0, y1) = (_extent(ep[f"truth_cg_{a}"], ep[f"cg_{a}"]) for a in "xy")
-    half = max(x1 - x0, y1 - y0) / 2            # square tiles, whatever the path's shape
-    (x0, x1), (y0, y1) = ((c - half, c + half) for c in ((x0 + x1) / 2, (y0 + y1) / 2))
-    pitch, mid = 1.08 * (x1 - x0), (x0 + x1) / 2
-    ep.prefetch([f"{p}{s}{a}" for s in sensors for p, a in (("obs_", "_x"), ("obs_", "_y"),
-                ("truth_", "_x"), ("truth_", "_y"), ("x_", ""), ("y_", ""))])
-    for cols, kw in (("obs_{}_x obs_{}_y", {"ls": "none", "marker": ".", "ms": 1, "alpha": 0.4,
-                                             "color": _OBS}),
-                     ("truth_{}_x truth_{}_y", {"color": _TRUE, "lw": 1.2}),
-                     ("cg_x cg_y", {"color": _CG, "lw": 0.6}),
-                     ("x_{} y_{}", {"color": _EST, "lw": 0.6})):
-        xs, ys = [], []
-        for j, s in enumerate(sensors):       # a tile's track, then NaN: the line breaks
-            cx, cy = cols.format(s, s).split()
-            x = ep[cx].to_numpy(float)
-            xs += [np.where((x >= x0) & (x <= x1), x, np.nan) + j * pitch, [np.nan]]
-            ys += [ep[cy].to_numpy(float), [np.nan]]
-        ax.plot(np.concatenate(xs), np.concatenate(ys), **kw)
-    for j, s in enumerate(sensors):
-        ax.add_patch(Rectangle((x0 + j * pitch, y0), x1 - x0, y1 - y0, fill=False, lw=0.6,
-                               clip_on=False))
-        ax.text(mid + j * pitch, (y0 + y1) / 2, f"{_rms_txt(ep, f'obs_{s}_x', f'obs_{s}_y', s)}"
-                f" / {_rms_txt(ep, f'x_{s}', f'y_{s}', s)}", ha="center", va="center", fontsize=7)
-        if top:
-            ax.text(mid + j * pitch, y1, f"sensor {s}", ha="center", va="bottom", fontsize=9)
-    ax.set_xticks([t for t in MaxNLocator(3).tick_values(x0, x1) if x0 <= t <= x1])
-    ax.yaxis.set_major_locator(MaxNLocator(3))
-    ax.tick_params(labelsize=7)
-    ax.set(xlim=(x0, x1 + (len(sensors) - 1) * pitch), ylim=(y0, y1), aspect="equal")
-    ax.set_frame_on(False)
 
 
 def _overlay_figs(E: _Epochs, out: Path, written: list[Path]) -> None:
@@ -475,65 +405,16 @@ def _overlay_figs(E: _Epochs, out: Path, written: list[Path]) -> None:
         fig, axes = _grid(len(rows), 1, max(9.0, 1.9 * len(sensors) + 0.7), 1.9, left=0.05,
                           right=0.995, hspace=0.2)
         for i, (ax, r) in enumerate(zip(axes[:, 0], rows)):
-            _overlay_row(ax, E.load(r["key"]), sensors, i == 0)
+            overlay_row(ax, E.load(r["key"]), sensors, i == 0)
             ax.set_ylabel(f"window {int(r['window'])}\ny north (m)", fontsize=8)
         axes[-1, 0].set_xlabel("x east (m), per sensor", fontsize=8)
-        _legend(fig)
+        legend(fig)
         fig.suptitle(f"{PATH_LABELS.get(path, path)} ({path}): every sensor observed, fitted "
                      f"and true, {WEIGHT_LABELS.get(wt, wt)} weights, seed {int(rows[0]['seed'])}"
                      f" ({figs});\nmid-tile: RMS distance (m) to the sensor's truth of the "
                      "observations / of the fit (none: no observations)", x=0.01, ha="left",
                      fontsize=10)
         _save(fig, out / name, written)
-
-
-def _steepest_stretch(truth: np.ndarray, sign: int = 0) -> slice | None:
-    """The stretch of ``max(10, n // 7)`` epochs (n > 20) where the truth (n,) changes
-    fastest on average (sign 0: |slope|; +1 / -1: the steepest rise / fall, None if it
-    never rises / falls), counting only epochs whose slope is known (a gappy reference:
-    NaN rows); at least half of the stretch must be known. None when no stretch qualifies
-    (too short, or the reference is missing almost everywhere)."""
-    k = truth.size
-    if k <= 20:
-        return None
-    span = max(10, k // 7)
-    g = np.gradient(truth)
-    slope = np.abs(g) if sign == 0 else sign * g
-    known = np.isfinite(slope)
-    # the mean over the known epochs: the plain moving mean (as before gaps were handled,
-    # so a complete reference picks the same stretch bit for bit) times span / known count
-    mean = np.convolve(np.where(known, slope, 0.0), np.ones(span) / span, mode="valid")
-    count = np.convolve(known.astype(float), np.ones(span), mode="valid")
-    score = np.where(count >= 0.5 * span, mean * (span / np.maximum(count, 1.0)), -np.inf)
-    i0 = int(np.argmax(score))
-    return slice(i0, i0 + span) if score[i0] > (0 if sign else -np.inf) else None
-
-
-def _lag_row(axes, ep: _EpochColumns, lc: _EpochColumns | None, s: str, axis: str) -> None:
-    """One row of the lag figure: sensor s's ``axis`` coordinate against time, (a) the
-    whole run, (b)/(c) the steepest rising/falling stretch magnified (blank if none)."""
-    t = ep["t"].to_numpy(float)
-    truth = ep[f"truth_{s}_{axis}"].to_numpy(float)
-    series = [(t, ep[f"obs_{s}_{axis}"].to_numpy(float), {"ls": "none", "marker": ".",
-                                                          "ms": 2, "color": _OBS}),
-              (t, truth, {"color": _TRUE, "lw": 1.5}),
-              (t, ep[f"{axis}_{s}"].to_numpy(float), {"color": _EST, "lw": 1.0})]
-    if lc is not None:
-        series.append((lc["t"].to_numpy(float), lc[f"{axis}_{s}"].to_numpy(float),
-                       {"color": _CG, "lw": 1.0, "ls": "--"}))
-    spans = [(t[0], t[-1])] + [None if sl is None else (t[sl][0], t[sl][-1]) for sl in
-                               (_steepest_stretch(truth, 1), _steepest_stretch(truth, -1))]
-    for ax, span in zip(axes, spans):
-        ax.grid(alpha=0.3)
-        ax.tick_params(labelsize=7)
-        ax.locator_params(nbins=4)
-        if span is None:
-            ax.text(0.5, 0.5, "no such stretch in the reference", ha="center",
-                    transform=ax.transAxes, fontsize=8)
-            continue
-        for tt, v, kw in series:
-            m = (tt >= span[0]) & (tt <= span[1])
-            ax.plot(tt[m], v[m], **kw)
 
 
 def _sensor1_lag_figs(E: _Epochs, out: Path, written: list[Path]) -> None:
@@ -552,15 +433,15 @@ def _sensor1_lag_figs(E: _Epochs, out: Path, written: list[Path]) -> None:
         for i, (w, axis) in enumerate((w, a) for w in wins for a in ("x", "y")):
             lc = _pick(E, path=path, technique="lc", weighting=wt, window=w)
             any_lc |= lc is not None
-            _lag_row(axes[i], E.load(by_w[w]["key"]), None if lc is None else E.load(lc["key"]),
-                     s1, axis)
+            lag_row(axes[i], E.load(by_w[w]["key"]), None if lc is None else E.load(lc["key"]),
+                    s1, axis)
             axes[i, 0].set_ylabel(f"sensor {s1} {axis} (m)", fontsize=8)
             for c, what in enumerate((f"window {w}: sensor {s1} {axis} against time",
                                       "positive slope magnified", "negative slope magnified")):
                 axes[i, c].set_title(f"({'abc'[c]}) {what}", fontsize=9, loc="left")
         for ax in axes[-1]:
             ax.set_xlabel("time (s)", fontsize=8)
-        _legend(fig, lc=any_lc)
+        legend(fig, lc=any_lc)
         fig.suptitle(f"{PATH_LABELS.get(path, path)} ({path}): sensor {s1} against time, "
                      f"{WEIGHT_LABELS.get(wt, wt)} weights, windows {' and '.join(map(str, wins))},"
                      f" seed {int(rows[0]['seed'])} ({figs}): the estimate trails the truth "

@@ -14,7 +14,8 @@ import pandas as pd
 import pytest
 
 from experiments import figures
-from experiments.figures import _flag, _steepest_stretch, draw_task, figure_tasks
+from experiments.figures import _flag, draw_task, figure_tasks
+from experiments.track_panels import steepest_stretch as _steepest_stretch
 
 N = 120
 
