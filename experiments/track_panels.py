@@ -62,7 +62,7 @@ def overlay_row(ax, ep, sensors: list[str], top: bool) -> None:
     pitch, mid = 1.08 * (x1 - x0), (x0 + x1) / 2
     ep.prefetch([f"{p}{s}{a}" for s in sensors for p, a in (("obs_", "_x"), ("obs_", "_y"),
                 ("truth_", "_x"), ("truth_", "_y"), ("x_", ""), ("y_", ""))])
-    for cols, kw in (("obs_{}_x obs_{}_y", {"ls": "none", "marker": ".", "ms": 1, "alpha": 0.4,
+    for cols, kw in (("obs_{}_x obs_{}_y", {"ls": "none", "marker": ".", "ms": 1,
                                              "color": OBS}),
                      ("truth_{}_x truth_{}_y", {"color": TRUE, "lw": 1.2}),
                      ("cg_x cg_y", {"color": CG, "lw": 0.6}),
