@@ -564,11 +564,13 @@ def test_replay_one_extremes_raise_or_return_finite(mode, shift, start, receiver
     assert np.isfinite(obs).all()
 
 
+@pytest.mark.parametrize("engine", ["numba", "numpy"])
 @pytest.mark.parametrize("trial", range(6))
-def test_first_order_filter_is_lfilter_bit_for_bit(trial):
+def test_first_order_filter_is_lfilter_bit_for_bit(trial, engine):
     """The recursion replaces scipy.signal.lfilter in gauss_markov (to keep scipy.signal out of
     the sweep workers) and must give the same numbers, not merely close ones: the committed
-    references were made with lfilter."""
+    references were made with lfilter. Both engines: the compiled loop (sim.kernels) and the
+    numpy reference."""
     from scipy.signal import lfilter
 
     from sim.gps import first_order_filter
@@ -579,5 +581,7 @@ def test_first_order_filter_is_lfilter_bit_for_bit(trial):
     x = rng.standard_normal((n, series, 2)) * 10.0 ** rng.uniform(-3, 3)
     for gain in (1.0, float(rng.uniform(0.01, 2.0))):
         want = lfilter([gain], [1.0, -phi], x, axis=0)
-        assert np.array_equal(first_order_filter(x, gain, phi), want)
-    assert first_order_filter(np.zeros((0, 3)), 1.0, 0.5).shape == (0, 3)
+        assert np.array_equal(first_order_filter(x, gain, phi, engine=engine), want)
+    assert first_order_filter(np.zeros((0, 3)), 1.0, 0.5, engine=engine).shape == (0, 3)
+    with pytest.raises(ValueError, match="engine"):
+        first_order_filter(x, 1.0, phi, engine="fortran")
