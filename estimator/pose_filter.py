@@ -1482,8 +1482,11 @@ def nis_summary(nis: np.ndarray, dof: np.ndarray, band: float = 0.95) -> dict[st
     ok = np.isfinite(v) & (d > 0)
     if not ok.any():
         return {"mean_nis_per_dof": math.nan, "share_in_band": math.nan, "n": 0}
-    lo = _chdtri(d[ok], 0.5 + 0.5 * band)
-    hi = _chdtri(d[ok], 0.5 - 0.5 * band)
+    # the band per distinct dof (a few small integers), not per row: the same numbers, and
+    # ~0.2 ms instead of ~2 ms per call on a 4000-epoch track (1440 calls in the thesis preset)
+    dof_u, row = np.unique(d[ok], return_inverse=True)
+    lo = _chdtri(dof_u, 0.5 + 0.5 * band)[row]
+    hi = _chdtri(dof_u, 0.5 - 0.5 * band)[row]
     inside = (v[ok] >= lo) & (v[ok] <= hi)
     return {"mean_nis_per_dof": float(v[ok].sum() / d[ok].sum()),
             "share_in_band": float(inside.mean()), "n": int(ok.sum())}
