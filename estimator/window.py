@@ -84,7 +84,7 @@ from __future__ import annotations
 import math
 import warnings
 from dataclasses import dataclass
-from typing import Any
+from typing import Any, Literal
 
 import numpy as np
 
@@ -233,7 +233,7 @@ def window_means(obs: Any, weights: Any | None = None) -> tuple[np.ndarray, np.n
     """
     arr, present = _check_obs(obs)
     means, Wa = _moments(arr, present, weights)
-    full = (Wa > 0).all(axis=-1)
+    full = np.asarray((Wa > 0).all(axis=-1))
     sw = np.where(full, Wa.mean(axis=-1), 0.0)
     means = np.where(full[..., None], means, np.nan)
     return means, sw
@@ -283,7 +283,7 @@ def sliding_window_means(obs: Any, window: int, weights: Any | None = None
     cnt = np.concatenate([zero, np.cumsum(wa > 0, axis=0)])
     has = (cnt[window:] - cnt[:-window]) > 0
     Wa = np.where(has, Wa, 0.0)
-    full = (Wa > 0).all(axis=-1)
+    full = np.asarray((Wa > 0).all(axis=-1))
     with np.errstate(invalid="ignore", divide="ignore"):
         means = np.where(full[..., None], S / Wa + ref, np.nan)
     sw = np.where(full, Wa.mean(axis=-1), 0.0)
@@ -422,7 +422,8 @@ def _fast_obs(obs: Any, config: SensorConfig):
     return arr, nan, present, np.add.reduce(sel, axis=0) / k  # == arr[present].mean(0)
 
 
-def _fast_weights(weights: Any, present: np.ndarray, d: int) -> np.ndarray | None:
+def _fast_weights(weights: Any, present: np.ndarray, d: int
+                  ) -> np.ndarray | None | Literal[False]:
     """Weights zeroed at missing samples, (s, m) isotropic or (s, m, d) per axis (None in:
     None out), or False if they would fail :func:`_check_weights` (shape, NaN, inf, < 0,
     > MAX_WEIGHT)."""
@@ -676,7 +677,7 @@ def fit_window(obs: Any, config: SensorConfig, weights: Any | None = None, eps: 
     if p_sol is not None and not full.all():
         p_sol = _restore_unobserved(p_sol, start, ~full, config, e)
     status = _accept(p_sol, obs0, wa, obj_proc, config, e)
-    if status != "ok":
+    if status != "ok" or p_sol is None:          # (_accept says so when p_sol is None)
         return _result(p_proc, centre, config, obj_proc, mirror, solver, iters, status,
                        yaw=float(bf.yaw[0]))
     return _result(p_sol, centre, config, _objective(obs0, wa, p_sol), mirror, solver,
@@ -779,7 +780,8 @@ def _solve_slsqp(yc: np.ndarray, Wa: np.ndarray, config: SensorConfig, eps: floa
         Jq[rows[:, None], colsJ] = -diff
         return np.concatenate([-Jq, Jq])
 
-    res = minimize(fun, start.ravel(), jac=True, method="SLSQP",
+    # (scipy-stubs' overloads of minimize do not cover jac=True with a (f, grad) function)
+    res = minimize(fun, start.ravel(), jac=True, method="SLSQP",  # type: ignore[call-overload]
                    constraints=[{"type": "ineq", "fun": cons, "jac": cons_jac}],
                    options={"maxiter": int(maxiter), "ftol": 1e-12})
     return res.x.reshape(m, d), int(res.nit)
@@ -838,7 +840,8 @@ def _ccp_problem(m: int, d: int) -> tuple:
     constraints = [cp.norm(D, 2, axis=1) <= ub,              # convex upper bound (SOC)
                    cp.sum(cp.multiply(U, D), axis=1) >= lb]  # linearized lower bound
     prob = cp.Problem(cp.Minimize(objective), constraints)
-    assert prob.is_dcp(dpp=True)
+    # (cvxpy's type hints do not declare is_dcp's dpp argument)
+    assert prob.is_dcp(dpp=True)  # type: ignore[call-arg]
     return (prob, z, sqrt_w, sqrt_w_y, U, ub, lb)
 
 
