@@ -178,25 +178,77 @@ def _sym(P, i, j):
 def rigid_rts(times, segment, x_pred, P_pred, x_post, P_post):
     """RTS smoother over :func:`rigid_ekf`'s epochs (reference: ``rigid_ranging
     ._smooth_reference``): full (T, 7) states and (T, 7, 7) covariances in, smoothed ones
-    out; a change of segment (or segment -1) breaks the chain. The gain C = P_k F' Pp^-1 is
-    solved by LU of Pp; a singular prediction (bias state off) uses the pseudo-inverse, as
-    the reference."""
+    out, and ok; a change of segment (or segment -1) breaks the chain. The gain
+    C = P_k F' Pp^-1 is solved by LU of Pp; a singular prediction whose zero-variance states
+    (bias state off) have zero rows is solved on the other states (= the reference's
+    pseudo-inverse); any other singular one returns ok False (the caller falls back to the
+    reference). Plain loops, no BLAS/LAPACK (fast compilation)."""
     T = times.size
     xs = x_post.copy()
     Ps = P_post.copy()
-    F = np.eye(7)
+    FP, C, D, tmp = np.empty((7, 7)), np.empty((7, 7)), np.empty((7, 7)), np.empty((7, 7))
+    dx = np.empty(7)
     for k in range(T - 2, -1, -1):
         if segment[k] < 0 or segment[k + 1] != segment[k]:
             continue
         dt = times[k + 1] - times[k]
-        F[0, 3] = F[1, 4] = F[2, 5] = dt
-        Pp = P_pred[k + 1]
-        FP = F @ P_post[k]
-        ok, X = _lu_solve(Pp, FP)
-        C = X.T.copy() if ok else (P_post[k] @ F.T) @ np.linalg.pinv(Pp)
-        xs[k] = x_post[k] + C @ (xs[k + 1] - x_pred[k + 1])
-        Ps[k] = P_post[k] + C @ (Ps[k + 1] - Pp) @ C.T
-    return xs, Ps
+        Pk = P_post[k]
+        for i in range(7):                   # F P_k (F = I + dt on (0,3), (1,4), (2,5))
+            for j in range(7):
+                FP[i, j] = Pk[i, j] + dt * Pk[i + 3, j] if i < 3 else Pk[i, j]
+        if not _masked_solve(P_pred[k + 1], FP, C):     # C <- Pp^-1 F P_k = (P_k F' Pp^-1)'
+            return xs, Ps, False
+        for i in range(7):
+            dx[i] = xs[k + 1, i] - x_pred[k + 1, i]
+            for j in range(7):
+                D[i, j] = Ps[k + 1, i, j] - P_pred[k + 1, i, j]
+        for i in range(7):                   # x_k + C' dx; tmp = C' D
+            acc = x_post[k, i]
+            for j in range(7):
+                acc += C[j, i] * dx[j]
+            xs[k, i] = acc
+            for j in range(7):
+                a = 0.0
+                for m in range(7):
+                    a += C[m, i] * D[m, j]
+                tmp[i, j] = a
+        for i in range(7):                   # P_k + (C' D) C
+            for j in range(7):
+                a = Pk[i, j]
+                for m in range(7):
+                    a += tmp[i, m] * C[m, j]
+                Ps[k, i, j] = a
+    return xs, Ps, True
+
+
+@njit(cache=True)
+def _masked_solve(A, B, X):
+    """X <- A^-1 B (7, 7) by LU; if A is singular, the same on the states whose variance is
+    not 0 (the rows of X of the others set to 0), which is the pseudo-inverse solution when
+    those states' rows of A are zero. False if that is singular too."""
+    n = A.shape[0]
+    keep = np.ones(n, dtype=np.bool_)
+    for _ in range(2):
+        idx = np.flatnonzero(keep)
+        m = idx.size
+        M = np.empty((m, m))
+        Y = np.empty((m, B.shape[1]))
+        for a in range(m):
+            for b in range(m):
+                M[a, b] = A[idx[a], idx[b]]
+            for j in range(B.shape[1]):
+                Y[a, j] = B[idx[a], j]
+        ok, Z = _lu_solve(M, Y)
+        if ok:
+            X[:, :] = 0.0
+            for a in range(m):
+                for j in range(B.shape[1]):
+                    X[idx[a], j] = Z[a, j]
+            return True
+        for i in range(n):
+            if A[i, i] == 0.0:
+                keep[i] = False
+    return False
 
 
 @njit(cache=True)

@@ -912,12 +912,13 @@ def smooth(res: TrackResult, *, reference: bool = False) -> TrackResult:
     re-initialisation breaks the chain). Returns a TrackResult whose ``state_post`` /
     ``cov_post`` are the smoothed ones (the other fields as in ``res``). Runs the compiled
     :func:`estimator.range_kernels.rigid_rts`; ``reference=True`` the numpy reference."""
-    if reference:
+    ok = False
+    if not reference:
+        xs, Ps, ok = range_kernels.rigid_rts(res.times, res.segment.astype(np.int64),
+                                             res.state_pred, res.cov_pred, res.state_post,
+                                             res.cov_post)
+    if not ok:                  # asked for, or a singular prediction the kernel leaves
         xs, Ps = _smooth_reference(res)
-    else:
-        xs, Ps = range_kernels.rigid_rts(res.times, res.segment.astype(np.int64),
-                                         res.state_pred, res.cov_pred, res.state_post,
-                                         res.cov_post)
     return replace(res, state_post=xs, cov_post=Ps)
 
 

@@ -35,8 +35,10 @@ wall and CPU time per call over many windows, beside the batched route's time pe
 <= 30 us per 2-D call (issue 27).
 
 Section ``sim``: wall time of each MuJoCo simulation with the cache disabled, and simulated
-seconds per wall second. Section ``ranging``: the tightly coupled range filter per range update
-and batch trilateration per epoch (see :func:`bench_ranging`). Section ``track``:
+seconds per wall second. Section ``ranging``: the tightly coupled range filter per range update,
+batch trilateration and the whole range pipeline per epoch, the rigid-body filter and smoother
+against real time, and the compiled kernels' compile / cached-load times, each beside its
+numpy reference (see :func:`bench_ranging`). Section ``track``:
 ``estimator.tracking.track`` over a 1000-epoch recording per method. Section ``sweep``: wall
 time and phases of the main job, ``python -m experiments.sweep``, in fresh processes: the
 thesis preset from an empty cache, the same run resumed, the quick preset from an empty cache
@@ -616,11 +618,15 @@ def bench_ranging(quick: bool = False) -> list[dict]:
     own clock, 0.1 m range noise, 120 s (4800 ranges). ``tight_filter`` time divided by the
     ranges it processed (initialisation, prediction, gating and update per range, epoch
     outputs included); ``RangeFilter.update`` alone; ``damped_ls`` and ``cayley_menger`` over
-    all 1200 epochs at once, divided by the epochs. Wall and CPU (process) time: on a shared
-    machine the CPU time is the figure to compare with the 50 us target.
+    all 1200 epochs at once, divided by the epochs; ``localize`` (the whole pipeline: gates,
+    fixes, Kalman, tight filter) per epoch. Wall and CPU (process) time: on a shared machine
+    the CPU time is the figure to compare with the 5 us / 50 us targets (issue 27). Beside
+    each compiled figure its numpy/Python reference (``reference=True``). Then the rigid-body
+    filter (issue 26, :func:`_bench_rigid`) and the kernels' compile and cached-load times
+    in fresh processes (:func:`_bench_kernel_load`, skipped with ``--quick``).
     """
+    from estimator import ranging as rg
     from estimator import trilateration as tri
-    from estimator.ranging import RangeFilter, RangeStreams, RangingConfig, tight_filter
 
     rng = np.random.default_rng(12)
     anchors = np.array([[2.5775, 0.87, 1.97], [2.5775, -0.87, 1.97], [2.5775, -0.87, 0.5],
@@ -635,7 +641,7 @@ def bench_ranging(quick: bool = False) -> list[dict]:
     for j in range(4):
         t = rng.uniform(0, 0.1) + np.arange(0, dur, 0.1)
         chans[j] = (t, np.linalg.norm(tag(t) - anchors[j], axis=1) + rng.normal(0, 0.1, t.size))
-    streams = RangeStreams.from_channels(chans, n_receivers=4)
+    streams = rg.RangeStreams.from_channels(chans, n_receivers=4)
     epochs = np.arange(0.1, dur, 0.1)
     reps = 3 if quick else 7
     ref = Reference(3 if quick else 5)
@@ -653,24 +659,31 @@ def bench_ranging(quick: bool = False) -> list[dict]:
 
     rows = []
     for label, h in (("known height (4 states)", 1.0), ("free z (6 states)", None)):
-        cfg = RangingConfig.uwb_ground_tag(height_m=h)
-        wall, cpu = timed(lambda cfg=cfg: tight_filter(streams, anchors, cfg, epochs))
-        f = RangeFilter(anchors, sigma_range_m=0.1, accel_std_mps2=1.0, height_m=h)
-        f.initialise(0.0, [10.0, 0.0, 1.0], position_std=1.0, speed_std=1.0)
-        r10 = np.linalg.norm(np.array([10.0, 0.0, 1.0]) - anchors, axis=1)
-        n_up = 2000
-
-        def updates(f: RangeFilter = f, r10: np.ndarray = r10, n_up: int = n_up) -> None:
-            for i in range(n_up):
-                f.update(f.t + 0.025, i % 4, 0, r10[i % 4])
-        up, up_cpu = timed(updates)
+        cfg = rg.RangingConfig.uwb_ground_tag(height_m=h)
+        wall, cpu = timed(lambda cfg=cfg: rg.tight_filter(streams, anchors, cfg, epochs))
         n = streams.t.size
         rows.append({"what": f"tight_filter, {label}", "per unit": _fmt(wall / n),
                      "cpu per unit": _fmt(cpu / n), "unit": "range", "total": _fmt(wall),
                      "x probe": ref.ratio(wall / n)})
-        rows.append({"what": f"RangeFilter.update, {label}", "per unit": _fmt(up / n_up),
-                     "cpu per unit": _fmt(up_cpu / n_up), "unit": "range", "total": _fmt(up),
-                     "x probe": ref.ratio(up / n_up)})
+        r10 = np.linalg.norm(np.array([10.0, 0.0, 1.0]) - anchors, axis=1).tolist()
+        n_up = 2000
+        for tag_ in ("", " (numpy reference)"):
+            f = rg.RangeFilter(anchors, sigma_range_m=0.1, accel_std_mps2=1.0, height_m=h,
+                            reference=bool(tag_))
+            f.initialise(0.0, [10.0, 0.0, 1.0], position_std=1.0, speed_std=1.0)
+
+            def updates(f: rg.RangeFilter = f, r10: list = r10, n_up: int = n_up) -> None:
+                for i in range(n_up):
+                    f.update(f.t + 0.025, i % 4, 0, r10[i % 4])
+            up, up_cpu = timed(updates)
+            rows.append({"what": f"RangeFilter.update, {label}{tag_}",
+                         "per unit": _fmt(up / n_up), "cpu per unit": _fmt(up_cpu / n_up),
+                         "unit": "range", "total": _fmt(up), "x probe": ref.ratio(up / n_up)})
+        wall, cpu = timed(lambda cfg=cfg: rg.localize(streams, anchors, cfg, epochs=epochs))
+        ne = epochs.size
+        rows.append({"what": f"localize (whole pipeline), {label}", "per unit": _fmt(wall / ne),
+                     "cpu per unit": _fmt(cpu / ne), "unit": "epoch", "total": _fmt(wall),
+                     "x probe": ref.ratio(wall / ne)})
     R = np.stack([np.interp(epochs, *chans[j]) for j in range(4)], 1)
     for label, fn in (("damped_ls, known height", lambda: tri.damped_ls(anchors, R,
                                                                          height_m=1.0)),
@@ -681,12 +694,87 @@ def bench_ranging(quick: bool = False) -> list[dict]:
         rows.append({"what": label, "per unit": _fmt(wall / epochs.size),
                      "cpu per unit": _fmt(cpu / epochs.size), "unit": "epoch",
                      "total": _fmt(wall), "x probe": ref.ratio(wall / epochs.size)})
+    rows += _bench_rigid(timed, ref)
+    if not quick:
+        rows += _bench_kernel_load(ref)
     print(f"### Ranging: {streams.t.size} ranges, {epochs.size} epochs, median over {reps} "
           "repeats (wall and CPU time)\n")
     print(ref.line() + " (wall per unit)\n")
     print_table(rows, ["what", "per unit", "cpu per unit", "unit", "total", "x probe"])
     print()
     return rows
+
+
+#: the shared driven rigid-body run (issue 26), used when present
+RIGID_RUN = Path(__file__).resolve().parents[2] / "shared/realdata/uwb_rigid/dynamic/fast"
+
+
+def _bench_rigid(timed: Callable, ref: Reference) -> list[dict]:
+    """The tightly coupled rigid-body filter (``estimator.rigid_ranging.track``, one update
+    per range) and its RTS smoother on the shared driven run (RIGID_RUN; skipped when
+    absent), initialised from the robust joint fit as ``experiments.rigid_ranging`` does: per
+    update (whole ``track`` call / ranges), and track + smooth against the run's duration
+    (the "x real time" rows; issue 26 target >= 100x), compiled and reference."""
+    if not (RIGID_RUN / "setup.toml").is_file():
+        print(f"(rigid rows skipped: {RIGID_RUN} absent)")
+        return []
+    from estimator import rigid_ranging as rr
+    from experiments.rigid_ranging import SIGMA_M
+    from sim.range_recording import load_range_recording
+
+    rec = load_range_recording(RIGID_RUN)
+    fit = rr.fit_pose(rec.anchors, rec.body, rec.ranges, origin_z_m=rec.origin_z_m,
+                      sigma_m=SIGMA_M, robust="huber", bias="common")
+    init = np.where(np.isin(fit.status, ("ok", "maxiter"))[:, None], fit.pose, np.nan)
+    stream = rr.grid_to_stream(rec.times, rec.ranges)
+    span = float(rec.times[-1] - rec.times[0])
+    rows = []
+    for tag_, reference in (("", False), (" (Python/numpy reference)", True)):
+        def run(reference: bool = reference) -> None:
+            res = rr.track(rec.anchors, rec.body, *stream, rec.times, init,
+                           init_bias=fit.bias[:, 0], origin_z_m=rec.origin_z_m,
+                           config=rr.FilterConfig(sigma_range_m=SIGMA_M), reference=reference)
+            rr.smooth(res, reference=reference)
+        wall, cpu = timed(run)
+        n = stream[0].size
+        rows.append({"what": f"rigid track + smooth, driven run, {span / wall:.0f}x real time"
+                     f" (cpu {span / cpu:.0f}x){tag_}", "per unit": _fmt(wall / n),
+                     "cpu per unit": _fmt(cpu / n), "unit": "range", "total": _fmt(wall),
+                     "x probe": ref.ratio(wall / n)})
+    return rows
+
+
+def _bench_kernel_load(ref: Reference) -> list[dict]:
+    """Wall time of a fresh process that imports the range modules and runs every compiled
+    kernel once on a small case, with an empty numba cache (compilation) and again with the
+    cache it left (cached load), minus the same process with the JIT disabled (imports)."""
+    import subprocess
+    import sys
+    import tempfile
+
+    code = ("import numpy as np; from estimator.ranging import localize, RangeStreams, "
+            "RangingConfig as C; from estimator import rigid_ranging as rr; "
+            "A = np.array([[0, 0, 2.0], [5, 0, 0.5], [5, 5, 2.0], [0, 5, 0.5]]); "
+            "t = np.arange(0, 20, 0.1); p = np.c_[2.5 + np.cos(t / 5), 2.5 + np.sin(t / 5), "
+            "np.ones_like(t)]; s = RangeStreams.from_synchronous(t, np.linalg.norm("
+            "p[:, None] - A, axis=2)); localize(s, A, C.uwb_ground_tag()); "
+            "r = rr.track(np.eye(3) * 3, [[0, 0], [0.3, 0]], [0.0, 0.1], [0, 1], [0, 1], "
+            "[3.0, 3.0], [0.0], [[0.0, 0.0, 0.0]]); rr.smooth(r)")
+    repo = Path(__file__).resolve().parents[1]
+
+    def once(env: dict) -> float:
+        t0 = time.perf_counter()
+        subprocess.run([sys.executable, "-c", code], cwd=repo, env={**os.environ, **env},
+                       check=True, capture_output=True)
+        return time.perf_counter() - t0
+
+    with tempfile.TemporaryDirectory() as cache:
+        base = once({"NUMBA_DISABLE_JIT": "1"})
+        first, cached = once({"NUMBA_CACHE_DIR": cache}), once({"NUMBA_CACHE_DIR": cache})
+    return [{"what": what, "per unit": _fmt(sec - base), "cpu per unit": "-", "unit": "process",
+             "total": _fmt(sec), "x probe": ref.ratio(sec - base)}
+            for what, sec in (("range kernels: compile (empty cache)", first),
+                              ("range kernels: cached load", cached))]
 
 
 # ----------------------------------------------------------------------------- car (issue 25)

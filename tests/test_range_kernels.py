@@ -60,6 +60,10 @@ def test_rigid_filter_and_smoother_kernels_match_the_references(cfg):
         close(getattr(a, f), getattr(b, f))
     for f in ("segment", "reinit", "n_accepted", "n_gated", "accepted"):
         np.testing.assert_array_equal(getattr(a, f), getattr(b, f))
+    from estimator.range_kernels import rigid_rts
+
+    assert rigid_rts(a.times, a.segment, a.state_pred, a.cov_pred, a.state_post,
+                     a.cov_post)[2]                         # no fallback to the reference
     sa, sb = rr.smooth(a), rr.smooth(a, reference=True)
     close(sa.state_post, sb.state_post)
     close(sa.cov_post, sb.cov_post)
