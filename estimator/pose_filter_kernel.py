@@ -49,7 +49,8 @@ S_NO_DATA, S_WAITING, S_INIT, S_RESET, S_OK, S_PREDICTED, S_FLIP, S_REINIT, S_IN
  I_REINIT_YAW, I_MAXIT, I_PRIOR_RATIO) = range(29)
 N_PAR = 29
 
-_jit = numba.njit(cache=True, nogil=True)
+#: internal helpers: called from compiled code only (no CPython wrapper: less to compile)
+_jit = numba.njit(cache=True, nogil=True, no_cpython_wrapper=True)
 
 
 @_jit
@@ -70,6 +71,60 @@ def _pmax(a, b):
 def _pmin(a, b):
     """Python's ``min(a, b)``."""
     return b if b < a else a  # noqa: FURB136
+
+
+@_jit
+def _vec(a0, a1, a2, a3, a4, a5):
+    """A state vector (6,) (no list literal: array expressions and lists compile slowly)."""
+    v = np.empty(NX)
+    v[0], v[1], v[2], v[3], v[4], v[5] = a0, a1, a2, a3, a4, a5
+    return v
+
+
+@_jit
+def _axpy(a, x, y):
+    """a x + y for vectors (plain loop)."""
+    out = np.empty(y.shape[0])
+    for i in range(y.shape[0]):
+        out[i] = a * x[i] + y[i]
+    return out
+
+
+@_jit
+def _anyrow(b, k):
+    """Any of the bool row b[k]."""
+    for i in range(b.shape[1]):  # noqa: SIM110 (a generator does not compile)
+        if b[k, i]:
+            return True
+    return False
+
+
+@_jit
+def _count(b, lo, hi):
+    """Number of True in b[lo:hi]."""
+    c = 0
+    for i in range(lo, hi):
+        c += b[i]
+    return c
+
+
+@_jit
+def _put(Xo, Po, k, y, Y, off):
+    """Xo[k] = y[off:off + 6] and Po[k] = Y[off:off + 6, off:off + 6] (loops)."""
+    for i in range(NX):
+        Xo[k, i] = y[off + i]
+        for j in range(NX):
+            Po[k, i, j] = Y[off + i, off + j]
+
+
+@_jit
+def _nan_rows(XC, PC, PX_, k):
+    """Row k of the clone outputs NaN."""
+    for i in range(NX):
+        XC[k, i] = math.nan
+        for j in range(NX):
+            PC[k, i, j] = math.nan
+            PX_[k, i, j] = math.nan
 
 
 @_jit
@@ -101,8 +156,10 @@ def _add_noise(Pn, c, s, v, dt, qa, qy, cw):
     """Process noise over dt added to Pn (6, 6) in place (reference ``_add_noise``)."""
     ja = (qa / dt) if dt > 0 else 0.0
     jy = qy * dt
-    pw = np.array([1.0, dt, dt * dt])
-    lat = np.array([1.0, 1.0, v])
+    pw = np.empty(3)
+    pw[0], pw[1], pw[2] = 1.0, dt, dt * dt
+    lat = np.empty(3)
+    lat[0], lat[1], lat[2] = 1.0, 1.0, v
     Ma = np.empty((3, 3))
     My = np.empty((3, 3))
     for i in range(3):
@@ -168,9 +225,13 @@ def _predict(x, P, dt, qa, qy, horner, cw):
     F[YAW, OMEGA] = dt
     F[V, A] = dt
     FP = _matmul(F, P)
-    Pn = _matmul(FP, F.T.copy())
+    Ft = np.empty((NX, NX))
+    for i in range(NX):
+        for j in range(NX):
+            Ft[i, j] = F[j, i]
+    Pn = _matmul(FP, Ft)
     _add_noise(Pn, rot.real, rot.imag, v, dt, qa, qy, cw)
-    xn = np.array([px + d.real, py + d.imag, _wrap(yaw + om * dt), v + acc * dt, acc, om])
+    xn = _vec(px + d.real, py + d.imag, _wrap(yaw + om * dt), v + acc * dt, acc, om)
     return xn, Pn, FP
 
 
@@ -214,15 +275,21 @@ def _measure(yl, rr, nfix):
 
 
 @_jit
+def _col(j):
+    """Column of the stacked state for measured column j (:data:`COLS`)."""
+    return j if j < 3 else j + 3
+
+
+@_jit
 def _sub(Y):
     """Y's rows :data:`COLS` (6, 12) and their (6, 6) block."""
     Yr = np.empty((NC, Y.shape[1]))
     Yc = np.empty((NC, NC))
     for i in range(NC):
         for j in range(Y.shape[1]):
-            Yr[i, j] = Y[COLS[i], j]
+            Yr[i, j] = Y[_col(i), j]
         for j in range(NC):
-            Yc[i, j] = Y[COLS[i], COLS[j]]
+            Yc[i, j] = Y[_col(i), _col(j)]
     return Yr, Yc
 
 
@@ -231,7 +298,7 @@ def _hdot(H, r, d):
     """Row r of H (6 columns) times the stacked vector d (12,) at :data:`COLS`."""
     s = 0.0
     for j in range(NC):
-        s += H[r, j] * d[COLS[j]]
+        s += H[r, j] * d[_col(j)]
     return s
 
 
@@ -303,43 +370,49 @@ def _posterior(Y, H, nu, var, acc):
     step dx = Y_:c M^-1 b (12,), ``b^T Y_cc M^-1 b`` (for the NIS) and ok (False on a zero
     pivot)."""
     n = Y.shape[0]
+    nc = H.shape[1]
     k = var.shape[0]
-    N = np.zeros((NC, NC))
-    b = np.zeros(NC)
+    N = np.zeros((nc, nc))
+    b = np.zeros(nc)
     for i in range(k):
         if not acc[i]:
             continue
         w = 1.0 / var[i]
-        for r in (2 * i, 2 * i + 1):
-            e = nu[i, r - 2 * i] * w
-            for p in range(NC):
+        for j in range(2):
+            r = 2 * i + j
+            e = nu[i, j] * w
+            for p in range(nc):
                 hp = H[r, p]
                 if hp == 0.0:
                     continue
                 b[p] += hp * e
                 hw = hp * w
-                for q in range(NC):
+                for q in range(nc):
                     N[p, q] += hw * H[r, q]
     Yr, Yc = _sub(Y)
-    Mm = np.eye(NC) + _matmul(N, Yc)
-    rhs = np.empty((NC, n + 1))
-    rhs[:, :n] = _matmul(N, Yr)
-    rhs[:, n] = b
+    Mm = _matmul(N, Yc)
+    NYr = _matmul(N, Yr)
+    rhs = np.empty((nc, n + 1))
+    for p in range(nc):
+        Mm[p, p] += 1.0
+        for j in range(n):
+            rhs[p, j] = NYr[p, j]
+        rhs[p, n] = b[p]
     ok = _solve_inplace(Mm, rhs)
     Pa = Y.copy()
     dx = np.zeros(n)
     for i in range(n):
-        for p in range(NC):
-            yip = Y[i, COLS[p]]
+        for p in range(nc):
+            yip = Y[i, _col(p)]
             if yip == 0.0:
                 continue
             dx[i] += yip * rhs[p, n]
             for j in range(n):
                 Pa[i, j] -= yip * rhs[p, j]
     byb = 0.0
-    for p in range(NC):
+    for p in range(nc):
         s = 0.0
-        for q in range(NC):
+        for q in range(nc):
             s += Yc[p, q] * rhs[q, n]
         byb += b[p] * s
     return Pa, dx, byb, ok
@@ -370,17 +443,22 @@ def _kalman_update(y, Y, nu, H, var, gate, acc, gated, want_nis):
             else:
                 acc[i] = True
     deletions = MAX_DELETED if finite_gate else 0
-    while acc.any():
+    while _count(acc, 0, k):
         Pa, dx, byb, ok = _posterior(Y, H, nu, var, acc)
         if not ok:
             return y, Y, acc, nis, False
-        if deletions and acc.sum() >= 2:
+        if deletions and _count(acc, 0, k) >= 2:
             worst, wstat = _worst(Pa, dx, H, nu, var, acc)
             if wstat > gate:
                 acc[worst] = False
                 deletions -= 1
                 continue
-        return y + dx, 0.5 * (Pa + Pa.T), acc, nis, True
+        n = Pa.shape[0]
+        Pn = np.empty((n, n))
+        for i in range(n):
+            for j in range(n):
+                Pn[i, j] = 0.5 * (Pa[i, j] + Pa[j, i])
+        return _axpy(1.0, dx, y), Pn, acc, nis, True
     return y, Y, acc, nis, True
 
 
@@ -414,10 +492,12 @@ def _iterated_update(y, Y, z, rr, nfix, var, gate, lever, tol, maxit):
     nis = math.nan
     for it in range(maxit):
         h, H = _measure(yl, rr, nfix)
-        nu = z - h
+        nu = np.empty((k, 2))
+        for i in range(k):
+            nu[i, 0], nu[i, 1] = z[i, 0] - h[i, 0], z[i, 1] - h[i, 1]
         if it > 0:
-            d = y - yl
-            dd = y1 - y
+            d = _axpy(-1.0, yl, y)
+            dd = _axpy(-1.0, y, y1)
             Y1c = _sub(Y1)[1]
             for i in range(k):
                 nu[i, 0] -= _hdot(H, 2 * i, d)
@@ -434,7 +514,7 @@ def _iterated_update(y, Y, z, rr, nfix, var, gate, lever, tol, maxit):
             nis = nis_i
         if not ok:
             return y, Y, np.zeros(k, dtype=np.bool_), nis, False
-        if not acc.any():
+        if not _count(acc, 0, k):
             break
         turn = _pmax(abs(_wrap(y1[YAW] - yl[YAW])), abs(_wrap(y1[NX + YAW] - yl[NX + YAW])))
         if 0.5 * turn * turn * lever < tol:
@@ -448,7 +528,7 @@ def _start_state(k, org, yaw0, v0, ysd, vsd, om0, sa, cnt, amax, ommax):
     """Start / re-initialisation state (6,) and diagonal covariance (reference
     ``FilterStart.offer`` / ``refit``)."""
     pvar = sa * sa / cnt[k]
-    x = np.array([org[k, 0], org[k, 1], _wrap(yaw0), v0, 0.0, om0])
+    x = _vec(org[k, 0], org[k, 1], _wrap(yaw0), v0, 0.0, om0)
     P = np.zeros((NX, NX))
     P[0, 0], P[1, 1], P[2, 2] = pvar, pvar, ysd ** 2
     P[3, 3], P[4, 4], P[5, 5] = vsd ** 2, amax ** 2, (0.5 * ommax) ** 2
@@ -526,7 +606,7 @@ def _flip(x, P):
     xn[YAW] = _wrap(x[YAW] + math.pi)
     xn[V] = -x[V]
     xn[A] = -x[A]
-    J = np.array([1.0, 1.0, 1.0, -1.0, -1.0, 1.0])
+    J = _vec(1.0, 1.0, 1.0, -1.0, -1.0, 1.0)
     Pn = np.empty((NX, NX))
     for i in range(NX):
         for j in range(NX):
@@ -564,7 +644,7 @@ def _project(x, par):
 @_jit
 def _hold(x, P, k, present, fyaw, cnt, spread, par):
     """Reference ``_standstill_hold`` (x, P changed in place when it holds)."""
-    if not present[k].any():
+    if not _anyrow(present, k):
         return False
     if not x[V] <= par[I_STAND_SIGMAS] * math.sqrt(_pmax(P[V, V], 0.0)):
         return False
@@ -572,8 +652,9 @@ def _hold(x, P, k, present, fyaw, cnt, spread, par):
         return False
     x[OMEGA] = 0.0
     var = P[OMEGA, OMEGA]
-    P[OMEGA, :] = 0.0
-    P[:, OMEGA] = 0.0
+    for i in range(NX):
+        P[OMEGA, i] = 0.0
+        P[i, OMEGA] = 0.0
     P[OMEGA, OMEGA] = _pmin(var, 1e-12)
     return True
 
@@ -599,12 +680,12 @@ def _measurements(k, present, obs, r_m, va, vs):
     var = np.empty(kk)
     for j in range(nf):
         i = ik[j]
-        rr[j] = r_m[i]
+        rr[j, 0], rr[j, 1] = r_m[i, 0], r_m[i, 1]
         z[j, 0], z[j, 1] = obs[k, i, 0], obs[k, i, 1]
         var[j] = va
     for j in range(nd):
         i = js[j]
-        rr[nf + j] = r_m[i]
+        rr[nf + j, 0], rr[nf + j, 1] = r_m[i, 0], r_m[i, 1]
         z[nf + j, 0] = obs[k, i, 0] - obs[k - 1, i, 0]
         z[nf + j, 1] = obs[k, i, 1] - obs[k - 1, i, 1]
         var[nf + j] = vs
@@ -695,7 +776,7 @@ def _stack(xp, Pp, FP, x, P):
     return y, Y
 
 
-@_jit
+@numba.njit(cache=True, nogil=True)
 def forward_kernel(tt, obs, present, r_m, org, fyaw, cnt, spread, r2, par, thr_table,
                    horner, cw, X, PP, XC, PC, PX_, seg, status, n_used, n_gated, n_steps,
                    nis, nis_dof):
@@ -732,12 +813,12 @@ def forward_kernel(tt, obs, present, r_m, org, fyaw, cnt, spread, r2, par, thr_t
             hold = _hold(x, P, k, present, fyaw, cnt, spread, par)
             xp, Pp, FP = _predict(x, P, dt, par[I_QA] * dt / dt_med,
                                   0.0 if hold else par[I_QY] * dt_med / dt, horner, cw)
-            if present[k].any():
+            if _anyrow(present, k):
                 spr = _pmax(Pp[PX, PX], Pp[PY, PY]) + par[I_LEVER] * par[I_LEVER] * Pp[YAW, YAW]
                 if not spr <= par[I_PRIOR_RATIO] * par[I_VARMIN]:
                     running, anchor, lost = False, -1, True
         if not running:
-            if not present[k].any():
+            if not _anyrow(present, k):
                 status[k] = S_NO_DATA
                 continue
             status[k] = S_WAITING
@@ -746,12 +827,13 @@ def forward_kernel(tt, obs, present, r_m, org, fyaw, cnt, spread, r2, par, thr_t
             if not got:
                 continue
             running = True
-            X[k], PP[k], seg[k] = x, P, True
+            _put(X, PP, k, x, P, 0)
+            seg[k] = True
             status[k] = S_RESET if lost else S_INIT
-            n_used[k] = present[k].sum()
+            n_used[k] = _count(present[k], 0, present.shape[1])
             rej_abs, rej_step, llr, back = 0, 0, 0.0, 0.0
             head = count = 0
-            counters[:] = 0
+            counters[0] = counters[1] = 0
             continue
         y, Y = _stack(xp, Pp, FP, x, P)
         st = S_PREDICTED
@@ -765,29 +847,37 @@ def forward_kernel(tt, obs, present, r_m, org, fyaw, cnt, spread, r2, par, thr_t
                 rej_abs = rej_step = max_rejects
             if math.isfinite(nis_k):
                 nis[k], nis_dof[k] = nis_k, 2 * (nf + nd)
-            n_used[k] = acc[:nf].sum()
+            n_used[k] = _count(acc, 0, nf)
             n_gated[k] = nf - n_used[k]
-            n_steps[k] = acc[nf:].sum()
+            n_steps[k] = _count(acc, nf, nf + nd)
             rej_abs = rej_abs + 1 if n_used[k] == 0 else 0
             rej_step = rej_step + 1 if (nd >= 2 and n_steps[k] == 0) else 0
             if max(rej_abs, rej_step) >= max_rejects:
                 running, anchor, lost = False, -1, True
                 status[k] = S_WAITING
                 continue
-            if acc.any():
+            if _count(acc, 0, nf + nd):
                 y, Y, st = y1, Y1, S_OK
                 y[YAW] = _wrap(y[YAW])
                 y[NX + YAW] = _wrap(y[NX + YAW])
-        x, P = y[:NX].copy(), Y[:NX, :NX].copy()
-        XC[k], PC[k], PX_[k] = y[NX:], Y[NX:, NX:], Y[:NX, NX:]
+        x = np.empty(NX)
+        P = np.empty((NX, NX))
+        for i in range(NX):
+            x[i] = y[i]
+            XC[k, i] = y[NX + i]
+            for j in range(NX):
+                P[i, j] = Y[i, j]
+                PC[k, i, j] = Y[NX + i, NX + j]
+                PX_[k, i, j] = Y[i, NX + j]
         bad, want, head, count = _monitor(buf, head, count, k, nis[k], nis_dof[k], x, P,
                                           n_gated[k], counters, thr_table, par, fyaw, cnt,
                                           spread)
         if want:
-            counters[:] = 0
+            counters[0] = counters[1] = 0
             x, P = _refit(k, x, tt, org, fyaw, cnt, spread, sa, amax, ommax, reverse)
-            X[k], PP[k], seg[k], status[k] = x, P, True, S_REINIT
-            XC[k], PC[k], PX_[k] = np.nan, np.nan, np.nan
+            _put(X, PP, k, x, P, 0)
+            seg[k], status[k] = True, S_REINIT
+            _nan_rows(XC, PC, PX_, k)
             rej_abs, rej_step, llr, back = 0, 0, 0.0, 0.0
             continue
         if bad and st == S_OK:
@@ -800,9 +890,10 @@ def forward_kernel(tt, obs, present, r_m, org, fyaw, cnt, spread, r2, par, thr_t
         if not (P[YAW, YAW] <= lost_var and _finite(x, P)):
             running, anchor, lost = False, -1, True
             status[k] = S_WAITING
-            XC[k], PC[k], PX_[k] = np.nan, np.nan, np.nan
+            _nan_rows(XC, PC, PX_, k)
             continue
         _project(x, par)
-        X[k], PP[k], status[k] = x, P, st
+        _put(X, PP, k, x, P, 0)
+        status[k] = st
         if st == S_FLIP:
             seg[k] = True
