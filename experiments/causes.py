@@ -236,11 +236,13 @@ def _sens_rows(cid: str, quantity: str, unit: str) -> list[tuple[str, str, pd.Da
     s, c = _sens("sensitivity"), _sens("comparisons")
     if s.empty or c.empty:
         return []
-    out = []
+    from experiments.sensitivity import shipped
+
+    ship, out = f"{shipped()[quantity]:g}{unit} (shipped)", []
     for r in s[(s["claim"] == cid) & s["quantity"].isin(["shipped", quantity])].itertuples():
         same = (c["claim"] == cid) & (c["quantity"] == r.quantity)
         same &= c["value"].isna() if r.quantity == "shipped" else np.isclose(c["value"], r.value)
-        out.append(("shipped" if r.quantity == "shipped" else f"{r.value:g}{unit}",
+        out.append((ship if r.quantity == "shipped" else f"{r.value:g}{unit}",
                     f"**{r.verdict}** ({r.supports}/{r.evaluated})", c[same]))
     return out
 
@@ -263,8 +265,9 @@ def _speed_text() -> str:
     parts = []
     for lab, vd, c in rows:
         o = c[c["comparison"].str.startswith("Path 1 w=10: trail")]
-        parts.append(f"{lab} {vd}" + (f", w=10 trail {-o['mean_a'].iloc[0]:.2f} m vs noise "
-                                      f"{-o['mean_b'].iloc[0]:.2f} m" if len(o) else ""))
+        parts.append(f"{lab} {vd}" + (f", w=10 along-track error {o['mean_a'].iloc[0]:+.2f} m "
+                                      f"vs noise level {-o['mean_b'].iloc[0]:.2f} m"
+                                      if len(o) else ""))
     return _sens_intro(rows, "slower and faster speeds") + "; ".join(parts) + "."
 
 
@@ -297,15 +300,15 @@ def _wide_text(cid: str) -> str:
     for lab, _, c in rows:
         small = c[(c["window"] > 0) & (c["window"] < 100)]
         k = int((small["result"] == "supports").sum())
-        tt = t[(t["window"] == 5) & (t["quantity"] == ("shipped" if lab == "shipped"
-                                                         else "turn_width"))]
-        if lab != "shipped":
+        base = "shipped" in lab
+        tt = t[(t["window"] == 5) & (t["quantity"] == ("shipped" if base else "turn_width"))]
+        if not base:
             tt = tt[np.isclose(tt["value"], float(lab.split()[0]))]
         share = f", {100 * tt['turn_share'].iloc[0]:.0f} % of the w=5 estimates" if len(tt) else ""
         parts.append(f"target radius {lab}{share}: {k}/{len(small)} supports")
     return ("." + _sens_intro(rows, "wider turns (larger target areas, so a wider turning "
                               "flag and no-turns mask)").rstrip(": ")
-            + " at windows 5, 10: " + "; ".join(parts))
+            + " below window 100: " + "; ".join(parts))
 
 
 # --------------------------------------------------------------------------- per claim
@@ -404,7 +407,7 @@ def _c8(ev: Evidence, r: ClaimResult) -> str | None:
     cf = (f" ({100 * model.common_fraction:.0f} % of the error variance here, "
           "common_fraction in the noise model)") if model else ""
     k, gains = len(_failing(r)), _fraction_gains()
-    moved = [(float(lab), g) for lab, _, g in gains if lab != "shipped"]
+    moved = [(float(lab), g) for lab, _, g in gains if "shipped" not in lab]
     g0 = min(moved)[1] if moved else math.nan          # at the smallest common fraction
     why = ("not the common part of the error: with none of it common the gain stays small "
            "(below), so it is the per-receiver part, spread over all receivers rather than "

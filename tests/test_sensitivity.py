@@ -126,7 +126,7 @@ def test_evaluate_variants_flags_the_flip_and_feeds_the_cause_line(tmp_path, mon
     monkeypatch.setattr(causes, "SENSITIVITY_DIR", tmp_path)
     text = causes._fraction_text(causes._fraction_gains())
     gain = "Huff lowers the w=1 mean |x| by "
-    assert f"common_fraction shipped **reproduced** (64/64), {gain}19." in text
+    assert f"common_fraction 0.5 (shipped) **reproduced** (64/64), {gain}19." in text
     assert f"common_fraction 0 **mixed** (32/64), {gain}0.0 %" in text
     main = _derived(_weighting_cells(0.8))
     r = next(x for x in evaluate_claims(main) if x.claim.cid == "C8")
