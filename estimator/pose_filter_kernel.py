@@ -897,3 +897,57 @@ def forward_kernel(tt, obs, present, r_m, org, fyaw, cnt, spread, r2, par, thr_t
         status[k] = st
         if st == S_FLIP:
             seg[k] = True
+
+
+# ----------------------------------------------------------------------------- RTS smoother
+@_jit
+def _wrap_angle(a):
+    """:func:`estimator.orientation.wrap_angle` of one angle (same operations: np.mod, the
+    -pi fix, angles in range returned unchanged)."""
+    if -math.pi < a <= math.pi:
+        return a
+    w = math.pi - np.mod(math.pi - a, TWO_PI)
+    if w <= -math.pi:
+        w += TWO_PI
+    return w
+
+
+@numba.njit(cache=True, nogil=True)
+def rts_kernel(rows, C, X, XC, PP, PC, Xs, Ps, covariances):
+    """The RTS recursion of :func:`estimator.pose_smoother.rts_smooth` over the rows with a
+    valid gain ``rows`` (descending): Xs (n, 6) and Ps (n, 6, 6) hold the filtered values
+    on entry and the smoothed ones on exit (Ps untouched unless ``covariances``). C (n, 6,
+    6) gains, X / XC / PP / PC the forward pass's states, clones and covariances."""
+    d = np.empty(NX)
+    D = np.empty((NX, NX))
+    CD = np.empty((NX, NX))
+    for k in rows:
+        for i in range(NX):
+            d[i] = Xs[k + 1, i] - X[k + 1, i]
+        d[YAW] = _wrap_angle(d[YAW])
+        for i in range(NX):
+            s = XC[k + 1, i]
+            for j in range(NX):
+                s += C[k, i, j] * d[j]
+            Xs[k, i] = s
+        Xs[k, YAW] = _wrap_angle(Xs[k, YAW])
+        if not covariances:
+            continue
+        for i in range(NX):
+            for j in range(NX):
+                D[i, j] = Ps[k + 1, i, j] - PP[k + 1, i, j]
+        for i in range(NX):
+            for j in range(NX):
+                s = 0.0
+                for p in range(NX):
+                    s += C[k, i, p] * D[p, j]
+                CD[i, j] = s
+        for i in range(NX):
+            for j in range(NX):
+                s = 0.0
+                for p in range(NX):
+                    s += CD[i, p] * C[k, j, p]
+                D[i, j] = PC[k + 1, i, j] + s
+        for i in range(NX):
+            for j in range(NX):
+                Ps[k, i, j] = 0.5 * (D[i, j] + D[j, i])

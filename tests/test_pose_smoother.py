@@ -170,11 +170,16 @@ def car_pass():
 
 
 def test_fixed_lag_limits_are_the_filter_and_the_rts_smoother(car_pass):
+    """Lag 0 is the filter; a lag beyond the recording is the RTS smoother, to 1e-10: the
+    fixed-lag smoother sums each 6-term product with numpy's einsum, the compiled RTS
+    recursion in a plain loop, and the rounding is carried back over ~300 epochs (measured
+    1.9e-12 on the acceleration, 1e-12 against the numpy RTS loop)."""
     truth, _, _, res, _ = car_pass
     t = truth.t[:300]
     np.testing.assert_array_equal(fixed_lag_smooth(res, t, 0.0).states, res.states)
-    np.testing.assert_allclose(fixed_lag_smooth(res, t, 1e6).states,
-                               rts_smooth(res).states, rtol=0, atol=1e-12)
+    for engine in ("numpy", "numba"):
+        np.testing.assert_allclose(fixed_lag_smooth(res, t, 1e6).states,
+                                   rts_smooth(res, engine=engine).states, rtol=0, atol=1e-10)
 
 
 def test_smoothing_improves_the_heading_on_the_car(car_pass):
