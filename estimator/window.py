@@ -53,14 +53,18 @@ Solvers (all return the proper-handed configuration, never its mirror image):
     narrowed by ``CCP_MARGIN`` = 1e-8 m so solver round-off cannot leave the true band.
 
 Single calls (issue 27): ``fit_window(..., solver="procrustes")`` takes a fast path that
-makes the same checks as whole-array reductions (one NaN mask, one magnitude and one weight
-min/max), forms the window sums in a handful of numpy calls and solves the d = 2 closed form
-in Python floats (d = 3: one 3x3 SVD): about 35 us instead of 240 us for a 10-epoch,
-8-antenna 2-D window on the reference machine (``python -m experiments.bench --only
-fit_window``). Any input it does not take as it is (a check that would fail, insufficient
-data, nearly collinear 3-D sensors, a total weight below 1e-250) goes to the general path,
-so every message and status is the general path's; the results agree with it to round-off
-(1e-12 m + 2 ulp of the coordinate; tests/test_window.py).
+makes the same checks as whole-array screens (missing samples NaN as a whole, present
+coordinates within range, weights in range), forms the window sums and solves the d = 2
+closed form: in 2-D one compiled call (:mod:`estimator.window_kernel`, numba; about 7 us
+instead of 35 us for the numpy fast path and 240 us for the general path on a 10-epoch,
+8-antenna window, ``python -m experiments.bench --only fit_window``; the first call of a
+process loads the compiled code, ~0.6 s, and the very first compiles it, ~8 s, cached on
+disk), in 3-D a handful of numpy calls and one 3x3 SVD (``FAST_2D_ENGINE = "numpy"`` runs
+2-D windows through those too: the reference the kernel is tested against). Any input it
+does not take as it is (a check that would fail, insufficient data, nearly collinear 3-D
+sensors, a total weight below 1e-250) goes to the general path, so every message and
+status is the general path's; the results agree with it to round-off (1e-12 m + 2 ulp of
+the coordinate, objectives 1e-12 relative; tests/test_window.py, test_window_kernel.py).
 
 Handedness: pairwise distances do not distinguish the configuration from its mirror image,
 and with metre-level noise on a metre-sized platform the mirror often fits the data better
@@ -536,16 +540,27 @@ def _rigid_3d(wy: np.ndarray, sw: np.ndarray, B1: np.ndarray):
     return T, 2.0 * det * float(S[2]), T_m, (math.pi if yaw <= -math.pi else yaw)
 
 
+#: engine of the 2-D fast path: "numba" (:func:`estimator.window_kernel.fit_2d`, one
+#: compiled call) or "numpy" (the ~30 numpy calls below, the reference the tests compare)
+FAST_2D_ENGINE = "numba"
+#: the weights argument of the kernel when there are none (never read)
+_NO_WEIGHTS = np.zeros((1, 1, 1))
+
+
 def _fast_procrustes(obs: Any, config: SensorConfig, weights: Any | None, eps: Any,
                      x0: Any, maxiter: Any) -> WindowFit | None:
     """fit_window(obs, config, weights, eps, "procrustes", x0, maxiter=maxiter) for a window
-    that passes every check and has enough data, in ~30 numpy calls (d = 2); None sends the
-    call to the general path (which checks again and names the field, or fits)."""
+    that passes every check and has enough data: one compiled call (d = 2,
+    :data:`FAST_2D_ENGINE`) or ~30 numpy calls; None sends the call to the general path
+    (which checks again and names the field, or fits)."""
     g = config.pair_geometry
     if type(eps) not in _FAST_REALS or not 0.0 < eps < g.min_distance / 2.0:
         return None
     if type(maxiter) is not int or maxiter < 1:
         return None
+    if config.d == 2 and FAST_2D_ENGINE == "numba":
+        return None if x0 is not None and not _x0_ok(x0, config) else \
+            _compiled_2d(obs, config, weights)
     got = _fast_obs(obs, config)
     if got is None:
         return None
@@ -569,6 +584,35 @@ def _fast_procrustes(obs: Any, config: SensorConfig, weights: Any | None, eps: A
     else:
         mirror = _objective(obs0, wa, g.body1 @ np.asarray(T_m))
     return _fast_result(p_c, centre, g, obj, mirror, yaw)
+
+
+def _compiled_2d(obs: Any, config: SensorConfig, weights: Any | None) -> WindowFit | None:
+    """The 2-D fast path as one call of :func:`estimator.window_kernel.fit_2d` (imported on
+    first use: numba); None where the kernel (or an argument's shape or type) declines."""
+    try:
+        arr = np.asarray(obs, dtype=float)
+        w = _NO_WEIGHTS if weights is None else np.asarray(weights, dtype=float)
+    except (TypeError, ValueError):
+        return None
+    if arr.ndim != 3 or arr.shape[1:] != (config.m, 2):
+        return None
+    mode = 0 if weights is None else 1 if w.shape == arr.shape[:2] else 2
+    if mode == 1:
+        w = w[..., None]
+    elif mode == 2 and w.shape != arr.shape:
+        return None
+    from estimator.window_kernel import fit_2d
+
+    g = config.pair_geometry
+    pos, cg, out = np.empty((config.m, 2)), np.empty(2), np.empty(4)
+    if not fit_2d(np.ascontiguousarray(arr), np.ascontiguousarray(w), mode, g.body1, g.I,
+                  g.J, g.a, g.cg_mask, MAX_COORD_M, MAX_WEIGHT, FAST_MIN_WEIGHT, pos, cg, out):
+        return None
+    yaw, obj, mirror, viol = out.tolist()
+    fit = object.__new__(WindowFit)  # the frozen dataclass's fields, without 9 setattr calls
+    fit.__dict__.update(positions=pos, cg=cg, yaw=yaw, objective=obj, mirror_objective=mirror,
+                        max_violation=viol, solver="procrustes", iterations=0, status="ok")
+    return fit
 
 
 def _fast_result(p_c: np.ndarray, centre: np.ndarray, g: Any, obj: float, mirror: float,
