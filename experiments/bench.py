@@ -762,19 +762,24 @@ def _bench_kernel_load(ref: Reference) -> list[dict]:
             "[3.0, 3.0], [0.0], [[0.0, 0.0, 0.0]]); rr.smooth(r)")
     repo = Path(__file__).resolve().parents[1]
 
-    def once(env: dict) -> float:
+    def once(env: dict) -> tuple[float, float]:
+        """Wall and CPU seconds of the child process."""
+        import resource
+
+        c0 = resource.getrusage(resource.RUSAGE_CHILDREN)
         t0 = time.perf_counter()
         subprocess.run([sys.executable, "-c", code], cwd=repo, env={**os.environ, **env},
                        check=True, capture_output=True)
-        return time.perf_counter() - t0
+        c1 = resource.getrusage(resource.RUSAGE_CHILDREN)
+        return time.perf_counter() - t0, c1.ru_utime + c1.ru_stime - c0.ru_utime - c0.ru_stime
 
     with tempfile.TemporaryDirectory() as cache:
         base = once({"NUMBA_DISABLE_JIT": "1"})
         first, cached = once({"NUMBA_CACHE_DIR": cache}), once({"NUMBA_CACHE_DIR": cache})
-    return [{"what": what, "per unit": _fmt(sec - base), "cpu per unit": "-", "unit": "process",
-             "total": _fmt(sec), "x probe": ref.ratio(sec - base)}
-            for what, sec in (("range kernels: compile (empty cache)", first),
-                              ("range kernels: cached load", cached))]
+    return [{"what": what, "per unit": _fmt(w - base[0]), "cpu per unit": _fmt(c - base[1]),
+             "unit": "process", "total": _fmt(w), "x probe": ref.ratio(w - base[0])}
+            for what, (w, c) in (("range kernels: compile (empty cache)", first),
+                                 ("range kernels: cached load", cached))]
 
 
 # ----------------------------------------------------------------------------- car (issue 25)
@@ -954,6 +959,119 @@ def _peak_rss_bytes() -> int:
     import resource
 
     return int(resource.getrusage(resource.RUSAGE_SELF).ru_maxrss) * 1024
+
+
+# ---------------------------------------------------------------- pose filter (issue 27)
+def _pose_scenes() -> list[tuple]:
+    """(name, t, obs, offsets, params): Path 1 of the thesis preset (square100, rover_gps8,
+    replayed stationary GPS error, seed 1, the controller's limits) driven by the ideal
+    unicycle, as tests/pose_scenes.py; the issue-25 car (seed 0, network RTK, limits from
+    the data)."""
+    from estimator.configuration import SensorConfig
+    from estimator.pose_filter import PoseFilterParams
+    from sim.controllers import PurePursuitParams, simulate_unicycle
+    from sim.gps import observe
+    from sim.paths import load_path
+    from sim.truth import Truth
+    from sim.vehicle_case import simulate_vehicle_case, vehicle_observations
+
+    path, cfg = load_path("square100"), SensorConfig.load("rover_gps8").planar()
+    pp = PurePursuitParams.from_path(path)
+    t, xy, yaw = (a[::100] for a in simulate_unicycle(path, pp, dt=0.01))    # 1 Hz
+    c, s, off = np.cos(yaw)[:, None], np.sin(yaw)[:, None], cfg.body_positions - cfg.cg_body
+    pos = np.stack([xy[:, :1] + c * off[:, 0] - s * off[:, 1],
+                    xy[:, 1:] + s * off[:, 0] + c * off[:, 1], np.zeros((t.size, cfg.m))], -1)
+    truth = Truth(t=t - t[0], sensor_positions=pos, sensor_names=cfg.names,
+                  cg=np.c_[xy, np.zeros(t.size)], yaw=np.angle(np.exp(1j * yaw)),
+                  speed=np.zeros(t.size), yaw_rate=np.zeros(t.size),
+                  turning=np.zeros(t.size, bool), meta={})
+    obs = np.array(observe(truth, cfg, "gps_stationary", rng=np.random.default_rng(1),
+                           session_s=4000.0))
+    lim = {k: getattr(pp, k) for k in ("max_accel_mps2", "max_yaw_accel_radps2",
+                                       "max_turn_rate_radps", "max_lateral_accel_mps2")}
+    case = simulate_vehicle_case(np.random.default_rng(0))
+    cobs = vehicle_observations(case, "rtk", np.random.default_rng(1000))
+    return [("square100 (thesis Path 1)", truth.t, obs, off, PoseFilterParams.from_limits(lim)),
+            ("issue-25 car (RTK)", case.truth.t, cobs,
+             case.config.body_positions - case.config.cg_body, PoseFilterParams())]
+
+
+def _cpu_per(fn: Callable[[], object], n: int, reps: int) -> float:
+    """Median CPU seconds of ``fn`` over ``reps`` runs, per one of ``n`` epochs (CPU time:
+    the 2-core machine is shared, wall time counts the others' load)."""
+    ts = []
+    for _ in range(reps):
+        c0 = time.process_time()
+        fn()
+        ts.append(time.process_time() - c0)
+    return float(np.median(ts)) / n
+
+
+@section("pose_filter")
+def bench_pose_filter(quick: bool = False) -> list[dict]:
+    """The pose filter family per epoch (issue 27): the forward pass compiled (numba, the
+    default) and the numpy reference, the RTS smoother (with covariances) and the fixed-lag
+    smoother on the compiled pass, and the GTSAM peer (``update_s``) in the same run, each
+    as CPU time per epoch, x probe and GTSAM / figure; then the kernel's first-call compile
+    and its cached load in fresh processes (not with ``--quick``). Targets: forward
+    <= 15 us and >= 100x below GTSAM, RTS and fixed-lag <= 2x the forward pass."""
+    from estimator.gtsam_peer import gtsam_available, run_gtsam_peer
+    from estimator.pose_filter import run_pose_filter
+    from estimator.pose_smoother import fixed_lag_smooth, rts_smooth
+
+    ref, reps, rows = Reference(3 if quick else 5), 3 if quick else 7, []
+    for name, t, obs, off, p in _pose_scenes():
+        p, n = p.resolve(t, obs, off), t.size
+        res = run_pose_filter(t, obs, off, p)            # warm: compiled or cache loaded
+
+        def fwd(engine: str, t=t, obs=obs, off=off, p=p) -> object:
+            return run_pose_filter(t, obs, off, p, engine=engine)
+
+        figs = {"forward (numba)": _cpu_per(lambda f=fwd: f("numba"), n, reps),
+                "forward (numpy reference)": _cpu_per(lambda f=fwd: f("numpy"), n, 1),
+                "RTS (numba)": _cpu_per(lambda r=res: rts_smooth(r), n, reps),
+                "fixed-lag": _cpu_per(lambda r=res, t=t, lag=p.lag_s: fixed_lag_smooth(
+                    r, t, lag), n, reps)}
+        gt = run_gtsam_peer(t, obs, off, p).update_s / n if gtsam_available() else np.nan
+        figs["GTSAM peer (update_s)"] = gt
+        for what, sec in figs.items():
+            rows.append({"scene": name, "what": what, "CPU per epoch": _fmt(sec),
+                         "x probe": ref.ratio(sec), "GTSAM / this": f"{gt / sec:.3g}",
+                         "/ forward": f"{sec / figs['forward (numba)']:.2f}"})
+    if not quick:
+        rows += _pose_kernel_load(ref)
+    print("### Pose filter family per epoch (CPU time, median; issue 27 targets: forward "
+          "<= 15 us and GTSAM / forward >= 100, RTS and fixed-lag <= 2x forward)\n")
+    print(ref.line() + "\n")
+    print_table(rows, ["scene", "what", "CPU per epoch", "x probe", "GTSAM / this", "/ forward"])
+    print()
+    return rows
+
+
+def _pose_kernel_load(ref: Reference) -> list[dict]:
+    """CPU time of a fresh process's first pose-filter call (20 epochs) with an empty numba
+    cache (compilation of the forward and RTS kernels) and with the cache it left (load)."""
+    import subprocess
+    import sys
+    import tempfile
+
+    code = ("import time, numpy as np; from estimator.pose_filter import run_pose_filter as f, "
+            "PoseFilterParams as P; from estimator.pose_smoother import rts_smooth; "
+            "o = np.array([[0.75, 0.5], [0.75, 0.0], [-0.75, 0.5], [-0.75, -0.5]]); "
+            "t = np.arange(20.0); z = np.c_[t, 0 * t][:, None] + o + np.random.default_rng(0)"
+            ".normal(0, 0.01, (20, 4, 2)); c = time.process_time(); "
+            "rts_smooth(f(t, z, o, P(sigma_abs_m=0.01, sigma_step_m=0.014))); "
+            "print(time.process_time() - c)")
+    repo, rows = Path(__file__).resolve().parents[1], []
+    with tempfile.TemporaryDirectory() as cache:
+        for what in ("first call, empty numba cache (compile)", "first call, cached (load)"):
+            out = subprocess.run([sys.executable, "-c", code], cwd=repo, check=True, text=True,
+                                 env={**os.environ, "NUMBA_CACHE_DIR": cache},
+                                 capture_output=True).stdout
+            rows.append({"scene": "fresh process", "what": what,
+                         "CPU per epoch": f"{float(out.split()[-1]):.2f} s (per process)",
+                         "x probe": "-", "GTSAM / this": "-", "/ forward": "-"})
+    return rows
 
 
 # ----------------------------------------------------------------------------- CLI
