@@ -290,6 +290,18 @@ def _fraction_text(gains: list[tuple[str, str, float]]) -> str:
                         f"{100 * g:.1f} %" for lab, vd, g in gains) + ".")
 
 
+def _mask_text() -> str:
+    """C14 under a widened no-turns mask (sensitivity study, mask.csv)."""
+    m = _sens("mask")
+    if m.empty:
+        return ""
+    return ("; with the no-turns mask widened instead (every estimate dropped whose window, "
+            "widened on both sides, holds a turning epoch): " + "; ".join(
+                f"{r.dilate_s:g} s, {100 * r.dropped_w5:.0f} % of the w=5 estimates dropped: "
+                f"{r.small_supports}/{r.small_evaluated} supports (w=5 std |x| full minus no "
+                f"turns {r.diff_w5_x:+.3f} m)" for r in m.itertuples()))
+
+
 def _wide_text(cid: str) -> str:
     """Small-window comparisons of a turn claim with wider turns (larger target areas)."""
     rows = _sens_rows(cid, "turn_width", " m")
@@ -308,7 +320,7 @@ def _wide_text(cid: str) -> str:
         parts.append(f"target radius {lab}{share}: {k}/{len(small)} supports")
     return ("." + _sens_intro(rows, "wider turns (larger target areas, so a wider turning "
                               "flag and no-turns mask)").rstrip(": ")
-            + " below window 100: " + "; ".join(parts))
+            + " below window 100: " + "; ".join(parts) + (_mask_text() if cid == "C14" else ""))
 
 
 # --------------------------------------------------------------------------- per claim

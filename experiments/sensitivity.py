@@ -37,7 +37,8 @@ from experiments.spec import PRESETS_DIR, RESULTS_ROOT, Spec, load_spec
 from experiments.tables import THESIS_TABLES, faithful, numpy_strings
 from sim.atomic import atomic_write, atomic_write_text
 
-__all__ = ["CAUSE_CLAIMS", "GRIDS", "QUANTITIES", "Quantity", "evaluate_variants", "main",
+__all__ = ["CAUSE_CLAIMS", "DILATE_S", "GRIDS", "QUANTITIES", "Quantity", "evaluate_mask",
+           "evaluate_variants", "main", "mask_cells", "mask_spec", "wide_mask",
            "sensitivity_spec", "speed_bound", "tau_bounds", "variants"]
 
 #: The thesis preset's grid blocks the claims read (the beyond, oracle and side-study rows
@@ -178,6 +179,68 @@ def evaluate_variants(cells: pd.DataFrame, quantities=QUANTITIES
     return pd.DataFrame(rows), pd.DataFrame(comps), pd.DataFrame(turns)
 
 
+# --------------------------------------------------------------------------- wider mask
+#: Widenings (s) of the no-turns mask for C14: each estimate is dropped whose window,
+#: widened by this much on both sides, holds a turning epoch (the "wider mask", issue 28).
+DILATE_S = (0.0, 10.0, 30.0, 60.0)
+
+
+def mask_spec(seeds: int) -> Spec:
+    """LC on Path 1 (Huff, windows 5/10/100) with every seed's per-epoch errors kept."""
+    raw = load_spec("thesis").raw
+    grid = [{"name": "lc", "path": P1, "window": [5, 10, 100], "weighting": "huff",
+             "technique": "lc"}]
+    data = {"name": "sensitivity-mask", "seed": raw["seed"], "seeds": int(seeds),
+            "masks": ["full", "no_turns_window"], "session_s": raw.get("session_s", 4000.0),
+            "defaults": raw["defaults"], "grid": grid, "epochs": {"seeds": "all"}}
+    return Spec.from_dict(data, source="sensitivity (wider no-turns mask)", base_dir=PRESETS_DIR)
+
+
+def wide_mask(turning: np.ndarray, window: np.ndarray, d: int) -> np.ndarray:
+    """(n,) bool: estimates (one per epoch, in order) whose window of ``window`` epochs
+    ending at them, widened by ``d`` epochs on both sides, holds no turning epoch."""
+    c = np.concatenate([[0], np.cumsum(np.asarray(turning, dtype=int))])
+    k, n = np.arange(len(c) - 1), len(c) - 1
+    return c[np.clip(k + d + 1, 0, n)] - c[np.clip(k - np.asarray(window) + 1 - d, 0, n)] == 0
+
+
+def mask_cells(cells: pd.DataFrame, out: Path, rate_hz: float = 1.0) -> pd.DataFrame:
+    """Per seed and widening: std of |x|, |y| of LC on the full path and under the widened
+    no-turns mask (ddof 1, as estimator.metrics), as claim-table rows with ``dilate_s``."""
+    rows = []
+    for r in cells[cells["mask"] == "full"].itertuples():
+        e = pd.read_parquet(out / "epochs" / f"{r.key}.parquet")
+        ok = np.isfinite(e["err_x"].to_numpy())
+        for d in DILATE_S:
+            keep = ok & wide_mask(e["truth_turning"].to_numpy(bool), e["window"].to_numpy(int),
+                                  int(round(d * rate_hz)))
+            for mask, mk in (("full", ok), ("no_turns_window", keep)):
+                rows.append({"path": P1, "window": r.window, "weighting": "huff",
+                             "technique": "lc", "mask": mask, "seed": r.seed, "dilate_s": d,
+                             "dropped": 1 - mk.sum() / ok.sum(), **{
+                                 f"e{a}_std": float(np.abs(e[f"err_{a}"][mk]).std(ddof=1))
+                                 for a in "xy"}})
+    return pd.DataFrame(rows)
+
+
+def evaluate_mask(rows: pd.DataFrame) -> pd.DataFrame:
+    """C14 (LC full path std > LC no turns std) per widening: verdict, supports below
+    window 100, and the share of the w=5 estimates the widened mask drops."""
+    c14 = next(c for c in CLAIMS if c.cid == "C14")
+    out = []
+    for d, g in rows.groupby("dilate_s"):
+        res = evaluate_claims(g.drop(columns="dilate_s"), [c14])[0]
+        outs = [o for o in res.outcomes if o.result != "missing"]
+        small = [o for o in outs if o.comparison.a["window"] < 100]
+        drop5 = g[(g["window"] == 5) & (g["mask"] == "no_turns_window")]["dropped"].mean()
+        out.append({"dilate_s": d, "verdict": res.verdict, "supports": sum(
+            o.result == "supports" for o in outs), "evaluated": len(outs),
+            "small_supports": sum(o.result == "supports" for o in small),
+            "small_evaluated": len(small), "dropped_w5": drop5,
+            "diff_w5_x": small[0].diff if small else math.nan})
+    return pd.DataFrame(out)
+
+
 # --------------------------------------------------------------------------- bounds
 def speed_bound(rate_hz: float = 1.0, window: int = 100) -> tuple[float, float]:
     """(low, high) cruise speed (m/s) the published Path 1 "None" rows allow: on a straight
@@ -266,7 +329,8 @@ def _cell(r: pd.Series) -> str:
 
 
 def write_report(sens: pd.DataFrame, turns: pd.DataFrame, out: Path, bounds: dict[str, str],
-                 ship: dict[str, float], seeds: int, wall_s: float) -> Path:
+                 ship: dict[str, float], seeds: int, wall_s: float,
+                 mask: pd.DataFrame | None = None) -> Path:
     """REPORT.md: ranges and their derivation, the flips table, the full verdict matrix."""
     lines = ["# Sensitivity of the thesis claims' verdicts (issue 28)", "",
              (f"Every claim of the thesis REPORT.md (experiments/claims.py, the same rule) "
@@ -299,7 +363,7 @@ def write_report(sens: pd.DataFrame, turns: pd.DataFrame, out: Path, bounds: dic
     lines += ["", f"No flip anywhere: {', '.join(steady) or 'none'}.", "",
               "Flips per quantity: " + ", ".join(
                   f"{q.name} {int((flips.quantity == q.name).sum())}" for q in QUANTITIES), ""]
-    lines += _seed_check(sens, seeds) + _matrix(sens) + _turns_md(turns)
+    lines += _seed_check(sens, seeds) + _mask_md(mask) + _matrix(sens) + _turns_md(turns)
     path = out / "REPORT.md"
     atomic_write_text(path, "\n".join(lines))
     return path
@@ -324,6 +388,21 @@ def _seed_check(sens: pd.DataFrame, seeds: int) -> list[str]:
             + (f"{len(diff)} verdicts differ: {'; '.join(diff)}. A flip of these claims "
                "above may be seed noise as much as the quantity." if diff
                else "every verdict is the same.")), ""]
+
+
+def _mask_md(mask: pd.DataFrame | None) -> list[str]:
+    if mask is None or mask.empty:
+        return []
+    lines = ["## C14 under a wider no-turns mask", "",
+             ("LC Full Path std > LC No Turns std (Path 1, Huff), with every estimate dropped "
+              "whose window, widened by the given time on both sides, holds a turning epoch "
+              "(per-epoch errors of the shipped setting; widening 0 = the sweep's mask)."), "",
+             md_row(["Widening (s)", "w=5 estimates dropped", "Verdict", "supports below w=100",
+                     "w=5 std |x| full - no turns (m)"]), md_separator(5)]
+    for r in mask.itertuples():
+        lines.append(md_row([f"{r.dilate_s:g}", f"{100 * r.dropped_w5:.1f} %", r.verdict,
+                             f"{r.small_supports}/{r.small_evaluated}", f"{r.diff_w5_x:+.4f}"]))
+    return lines + [""]
 
 
 def _matrix(sens: pd.DataFrame) -> list[str]:
@@ -378,17 +457,25 @@ def main(argv: list[str] | None = None) -> int:
         print(f"error: {res.n_failed} cells failed (see {res.out_dir}/errors.json)",
               file=sys.stderr)
         return 1
+    print("sensitivity: C14 under a widened no-turns mask", file=sys.stderr)
+    mres = run(mask_spec(a.seeds), out=LOCAL / "mask", jobs=a.jobs, outputs=False)
+    if mres.n_failed:
+        print(f"error: {mres.n_failed} cells failed (see {mres.out_dir}/errors.json)",
+              file=sys.stderr)
+        return 1
+    mask = evaluate_mask(mask_cells(numpy_strings(mres.cells), mres.out_dir))
     print("sensitivity: evaluating the claims per variant", file=sys.stderr)
     sens, comps, turns = evaluate_variants(res.cells)
     ship = shipped()
     main_cells = _derived(faithful(_subset(numpy_strings(res.cells), None, {})))
     bounds = _bounds_text(main_cells, ship, n_session=_session_samples(spec))
     out.mkdir(parents=True, exist_ok=True)
-    for name, df in (("sensitivity", sens), ("comparisons", comps), ("turns", turns)):
+    for name, df in (("sensitivity", sens), ("comparisons", comps), ("turns", turns),
+                     ("mask", mask)):
         atomic_write(out / f"{name}.csv",
                      lambda f, df=df: df.to_csv(f, index=False, float_format="%.6g"))
     wall = time.perf_counter() - t0
-    print(write_report(sens, turns, out, bounds, ship, a.seeds, wall))
+    print(write_report(sens, turns, out, bounds, ship, a.seeds, wall, mask))
     atomic_write_text(out / "run.local.json", json.dumps(
         {"wall_s": wall, "run": res.summary(), "seeds": a.seeds}, indent=1))
     print(f"sensitivity: done in {wall:.1f} s", file=sys.stderr)

@@ -147,3 +147,35 @@ def test_cli_rejects_out_with_reference(capsys):
     with pytest.raises(SystemExit) as e:
         sensitivity.main(["--reference", "--out", "/tmp/x"])
     assert e.value.code == 2 and "--out" in capsys.readouterr().err
+
+
+def test_wide_mask_widens_the_window_on_both_sides():
+    turning = np.array([0, 0, 0, 1, 0, 0, 0, 0], bool)
+    w = np.full(8, 2)
+    assert sensitivity.wide_mask(turning, w, 0).tolist() == [1, 1, 1, 0, 0, 1, 1, 1]
+    assert sensitivity.wide_mask(turning, w, 1).tolist() == [1, 1, 0, 0, 0, 0, 1, 1]
+    assert sensitivity.wide_mask(turning, np.full(8, 1), 0).tolist() == [1, 1, 1, 0, 1, 1, 1, 1]
+
+
+def test_mask_table_feeds_c14_per_widening(tmp_path):
+    """Two seeds of an LC cell whose |x| error is large on the turn and 10 epochs around
+    it: the plain mask keeps the large errors beside the turn (C14's comparison stays
+    inconclusive or worse), a 10 s widening drops them (full-path std > no-turns std)."""
+    rng = np.random.default_rng(3)
+    n, rows = 200, []
+    turning = np.zeros(n, bool)
+    turning[100:103] = True
+    (tmp_path / "epochs").mkdir()
+    for s in range(3):
+        err = 0.1 * rng.normal(size=n)
+        err[92:112] += 5.0
+        key = f"k{s}"
+        pd.DataFrame({"err_x": err, "err_y": err, "truth_turning": turning,
+                      "window": np.full(n, 5)}).to_parquet(tmp_path / "epochs" / f"{key}.parquet")
+        rows.append({"key": key, "mask": "full", "window": 5, "seed": s})
+    m = sensitivity.evaluate_mask(sensitivity.mask_cells(pd.DataFrame(rows), tmp_path))
+    m = m.set_index("dilate_s")
+    assert m.loc[0.0, "small_evaluated"] == 2       # w=5 only, |x| and |y|
+    assert m.loc[10.0, "small_supports"] == 2 and m.loc[10.0, "diff_w5_x"] > 1.0
+    assert m.loc[0.0, "diff_w5_x"] < m.loc[10.0, "diff_w5_x"]
+    assert m.loc[60.0, "dropped_w5"] > m.loc[0.0, "dropped_w5"]
