@@ -426,10 +426,12 @@ def _kalman_update(y, Y, nu, H, var, gate, acc, gated, want_nis):
     k = var.shape[0]
     nis = math.nan
     finite_gate = gate != math.inf
+    have_all = False            # Pa, dx hold the update with every measurement
     if want_nis:
         Pa, dx, byb, ok = _posterior(Y, H, nu, var, np.ones(k, dtype=np.bool_))
         if not ok:
             return y, Y, acc, nis, False
+        have_all = True
         s = 0.0
         for i in range(k):
             s += (nu[i, 0] * nu[i, 0] + nu[i, 1] * nu[i, 1]) / var[i]
@@ -444,9 +446,10 @@ def _kalman_update(y, Y, nu, H, var, gate, acc, gated, want_nis):
                 acc[i] = True
     deletions = MAX_DELETED if finite_gate else 0
     while _count(acc, 0, k):
-        Pa, dx, byb, ok = _posterior(Y, H, nu, var, acc)
-        if not ok:
-            return y, Y, acc, nis, False
+        if not (have_all and _count(acc, 0, k) == k):   # else: the NIS pass's update
+            Pa, dx, byb, ok = _posterior(Y, H, nu, var, acc)
+            if not ok:
+                return y, Y, acc, nis, False
         if deletions and _count(acc, 0, k) >= 2:
             worst, wstat = _worst(Pa, dx, H, nu, var, acc)
             if wstat > gate:
