@@ -565,13 +565,12 @@ def velocity_gate_run(rr, tt, ref, t_ref, thesis, fixed, margin, vmax, cap, relo
 
 # ------------------------------------------------------- damped range least squares (LM)
 @njit(cache=True)
-def _lm_eval(G, dzm, has_dz, rm, wm, p, A, g):
-    """Residuals' cost, J'J (into A) and J'f (into g) of one row at p (d,)."""
+def _lm_eval(G, dzm, has_dz, rm, wm, p, A, g, J):
+    """Residuals' cost, J'J (into A) and J'f (into g) of one row at p (d,); J (d,) scratch."""
     k, d = G.shape
     A[:, :] = 0.0
     g[:] = 0.0
     cost = 0.0
-    J = np.empty(d)
     for i in range(k):
         d2 = 0.0
         for c in range(d):
@@ -609,10 +608,10 @@ def lm_rows(G, dz, has_dz, r, w, p0, radius, tol, max_iter, scale):
     AA = np.zeros((m, d, d))
     A, g = np.zeros((d, d)), np.zeros(d)
     An, gn = np.zeros((d, d)), np.zeros(d)
-    pn, h, M = np.zeros(d), np.zeros(d), np.zeros((d, d))
+    pn, h, M, J = np.zeros(d), np.zeros(d), np.zeros((d, d)), np.zeros(d)
     for row in range(m):
         p = P[row]
-        cost = _lm_eval(G, dz[row], has_dz, r[row], w[row], p, A, g)
+        cost = _lm_eval(G, dz[row], has_dz, r[row], w[row], p, A, g, J)
         eps1 = tol * scale[row]
         mu = 0.0
         for a in range(d):
@@ -638,7 +637,7 @@ def lm_rows(G, dz, has_dz, r, w, p0, radius, tol, max_iter, scale):
                 sc = radius[row] / (nrm if nrm > 0 else 1.0)
                 for a in range(d):
                     pn[a] *= sc
-            cost_new = _lm_eval(G, dz[row], has_dz, r[row], w[row], pn, An, gn)
+            cost_new = _lm_eval(G, dz[row], has_dz, r[row], w[row], pn, An, gn, J)
             pred = 0.0
             for a in range(d):
                 pred += h[a] * (mu * h[a] - g[a])
