@@ -148,6 +148,7 @@ import math
 from contextlib import suppress
 from dataclasses import dataclass, field, replace
 from statistics import NormalDist
+from typing import Any
 
 import numpy as np
 from scipy.linalg.lapack import dgetrf as _dgetrf
@@ -360,7 +361,7 @@ class PoseFilterParams:
             sa, ss = estimate_noise(obs, off)
             kw["sigma_abs_m"] = self.sigma_abs_m if self.sigma_abs_m is not None else sa
             kw["sigma_step_m"] = self.sigma_step_m if self.sigma_step_m is not None else ss
-        sigma = kw.get("sigma_abs_m", self.sigma_abs_m)
+        sigma = kw["sigma_abs_m"] if "sigma_abs_m" in kw else self._limit("sigma_abs_m")
         if any(getattr(self, k) is None for k in LIMIT_FIELDS):
             lim = estimate_limits(t, obs, off, sigma).to_dict()
             kw.update({k: lim[k] for k in LIMIT_FIELDS if getattr(self, k) is None})
@@ -375,7 +376,7 @@ class PoseFilterParams:
         return replace(self, **kw)
 
     @classmethod
-    def from_platform(cls, limits: object, **overrides: object) -> PoseFilterParams:
+    def from_platform(cls, limits: object, **overrides: Any) -> PoseFilterParams:
         """Parameters from a :class:`estimator.platform.PlatformLimits` (a ``[platform]``
         block) or None (= estimated from the data); ``overrides`` set any field."""
 
@@ -387,7 +388,7 @@ class PoseFilterParams:
         return cls.from_limits(limits.to_dict(), **overrides)
 
     @classmethod
-    def from_limits(cls, limits: dict, **overrides: object) -> PoseFilterParams:
+    def from_limits(cls, limits: dict, **overrides: Any) -> PoseFilterParams:
         """Parameters from a platform's limits, e.g. a path file's fields plus the
         controller's: keys ``max_accel_mps2``, ``max_yaw_accel_radps2``,
         ``max_turn_rate_radps``, ``max_lateral_accel_mps2``, ``max_speed_mps`` (absent or
@@ -791,7 +792,7 @@ def _kalman_update(x: np.ndarray, P: np.ndarray, nu: np.ndarray, H: np.ndarray,
             rows[0::2], rows[1::2] = 2 * ia, 2 * ia + 1
             Sa = S[np.ix_(rows, rows)]
         else:
-            rows, Sa = slice(None), S
+            rows, Sa = slice(None), S  # type: ignore[assignment]  # all rows
         Sinv = _inv(Sa)
         u = Sinv @ nuf[rows]
         if deletions and ia.size >= 2:
@@ -914,15 +915,16 @@ class FilterStart:
         fit, speed from the previous epoch's fit when there is one (else the state's
         ``x[V]``), zero acceleration, the state's yaw rate; covariance as at a start."""
         p, sa = self.params, self.sigma_abs
+        amax = p._limit("max_accel_mps2")
         yaw0, ysd = self.fit_heading(k)
-        v0, vsd = float(x[V]), max(abs(float(x[V])), p.max_accel_mps2)
+        v0, vsd = float(x[V]), max(abs(float(x[V])), amax)
         if k > 0 and self.cnt[k - 1] >= 2:
             v0, vsd = self._fit_speed(k, yaw0)
         pvar = sa * sa / self.cnt[k]
         xn = np.array([self.origin[k, 0], self.origin[k, 1], _wrap(yaw0), v0, 0.0,
                        float(x[OMEGA])])
-        P = np.diag([pvar, pvar, ysd ** 2, vsd ** 2, p.max_accel_mps2 ** 2,
-                     (0.5 * p.max_turn_rate_radps) ** 2])
+        P = np.diag(np.array([pvar, pvar, ysd ** 2, vsd ** 2, amax ** 2,
+                              (0.5 * p._limit("max_turn_rate_radps")) ** 2]))
         return xn, P
 
     def _fit_speed(self, k: int, yaw0: float) -> tuple[float, float]:
@@ -983,8 +985,8 @@ class FilterStart:
         self.anchor = -1
         pvar = sa * sa / self.cnt[k]
         x = np.array([self.origin[k, 0], self.origin[k, 1], _wrap(yaw0), v0, 0.0, 0.0])
-        P = np.diag([pvar, pvar, ysd ** 2, vsd ** 2, p.max_accel_mps2 ** 2,
-                     (0.5 * p.max_turn_rate_radps) ** 2])
+        P = np.diag(np.array([pvar, pvar, ysd ** 2, vsd ** 2, p._limit("max_accel_mps2") ** 2,
+                              (0.5 * p._limit("max_turn_rate_radps")) ** 2]))
         return x, P
 
 
@@ -1224,13 +1226,13 @@ def run_pose_filter(t: np.ndarray, obs: np.ndarray, offsets: np.ndarray,
     params = params.resolve(tt, obs, off)
     n, m = obs.shape[:2]
     ns = np.asarray(params.no_slip_point_m, dtype=float)
-    delta = float(params.travel_offset_rad)
+    delta = float(params._limit("travel_offset_rad"))
     # the filter runs in the travel frame (x along the no-slip point's velocity): antenna
     # offsets from the no-slip point rotated by -delta, heading = layout heading + delta
     r_m = _rotate(off - ns, -delta)
     cg_offset = -ns                        # CG relative to the no-slip point (layout frame)
-    sigma_abs, sigma_step = params.sigma_abs_m, params.sigma_step_m
-    v_max = params.max_speed_mps
+    sigma_abs, sigma_step = params._limit("sigma_abs_m"), params._limit("sigma_step_m")
+    v_max = params._limit("max_speed_mps")
     va, vs = sigma_abs ** 2, sigma_step ** 2
     dt_med = float(np.median(np.diff(tt))) if n > 1 else 1.0
     gate = chi2_ppf(params.gate_prob, 2) if params.gate_prob < 1 else math.inf
@@ -1240,10 +1242,10 @@ def run_pose_filter(t: np.ndarray, obs: np.ndarray, offsets: np.ndarray,
     # jerk is measured over ~1 s (estimator.platform), so it bounds no shorter interval
     jerk_step = (params.max_jerk_mps3 * max(dt_med, JERK_SCALE_S)
                  if params.max_jerk_mps3 is not None else math.inf)
-    qa = (0.5 * min(params.max_accel_mps2, jerk_step)) ** 2
+    qa = (0.5 * min(params._limit("max_accel_mps2"), jerk_step)) ** 2
     qy = params.sigma_yaw_accel ** 2
-    om_max, alat = params.max_turn_rate_radps, params.max_lateral_accel_mps2
-    a_max = params.max_accel_mps2
+    om_max, alat = params._limit("max_turn_rate_radps"), params._limit("max_lateral_accel_mps2")
+    a_max = params._limit("max_accel_mps2")
     lever = float(np.sqrt((r_m ** 2).sum(1).max())) if m else 0.0
 
     X = np.full((n, NX), np.nan)
@@ -1276,7 +1278,8 @@ def run_pose_filter(t: np.ndarray, obs: np.ndarray, offsets: np.ndarray,
         status = _run_kernel(tt, obs, present, r_m, starter, monitor, par, out)
         return _result(out, status, delta, params, cg_offset)
 
-    x = P = None
+    x: np.ndarray | None = None
+    P: np.ndarray | None = None
     lost = False          # the next start is a restart
     rej_abs = rej_step = 0
     llr = 0.0             # reverse mode: log-likelihood ratio for the flipped heading
@@ -1289,6 +1292,7 @@ def run_pose_filter(t: np.ndarray, obs: np.ndarray, offsets: np.ndarray,
     var_min = min(va, vs)
     for k in range(n):
         if x is not None:
+            assert P is not None
             # stochastic cloning: predict x_k and keep x_{k-1} beside it, jointly Gaussian
             dt = dts[k - 1]
             # continuous noise of constant density: the variances of the rates' changes
@@ -1467,8 +1471,8 @@ def _result(out: tuple, status: np.ndarray, delta: float, params: PoseFilterPara
     return PoseFilterResult(states=X, covariances=PP, prev_states=XC, prev_covariances=PC,
                             cross_covariances=PX_, segment_start=seg,
                             status=status.astype(str), n_used=n_used, n_gated=n_gated,
-                            n_steps=n_steps, sigma_abs_m=float(params.sigma_abs_m),
-                            sigma_step_m=float(params.sigma_step_m), cg_offset=cg_offset,
+                            n_steps=n_steps, sigma_abs_m=float(params._limit("sigma_abs_m")),
+                            sigma_step_m=float(params._limit("sigma_step_m")), cg_offset=cg_offset,
                             nis=nis, nis_dof=nis_dof, params=params)
 
 

@@ -50,7 +50,7 @@ S_NO_DATA, S_WAITING, S_INIT, S_RESET, S_OK, S_PREDICTED, S_FLIP, S_REINIT, S_IN
 N_PAR = 29
 
 #: internal helpers: called from compiled code only (no CPython wrapper: less to compile)
-_jit = numba.njit(cache=True, nogil=True, no_cpython_wrapper=True)
+_jit = numba.njit(cache=True, nogil=True, no_cpython_wrapper=True)  # type: ignore[call-overload]
 
 
 @_jit

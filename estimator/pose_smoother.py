@@ -153,7 +153,7 @@ def rts_smooth(res: PoseFilterResult, reverse: bool = False, covariances: bool =
         xs = res.prev_states[k + 1] + C[k] @ d
         xs[YAW] = _wrap1(xs[YAW])
         Xs[k] = xs
-        if covariances:
+        if Ps is not None:
             Pk = res.prev_covariances[k + 1] + C[k] @ (Ps[k + 1] - res.covariances[k + 1]) @ C[k].T
             Ps[k] = 0.5 * (Pk + Pk.T)
     return SmoothedStates(states=_constrain(Xs, reverse), covariances=Ps)
@@ -223,14 +223,15 @@ def memo_smoothed_states(t: np.ndarray, obs: np.ndarray, offsets: np.ndarray,
         raise ValueError(f"covariances: only the RTS smoother (lag_s None) has them, got "
                          f"lag_s={lag_s!r}")
 
-    def compute():
+    def compute() -> np.ndarray | tuple[np.ndarray, np.ndarray]:
         res = memo_pose_filter(t, obs, offsets, params, cache)
+        rev = res.params.reverse if res.params is not None else params.reverse
         if lag is None:
-            sm = rts_smooth(res, res.params.reverse, covariances=covariances)
-            if covariances:
+            sm = rts_smooth(res, rev, covariances=covariances)
+            if sm.covariances is not None:
                 return freeze(sm.states), freeze(sm.covariances)
         else:
-            sm = fixed_lag_smooth(res, np.asarray(t, dtype=float), lag, res.params.reverse)
+            sm = fixed_lag_smooth(res, np.asarray(t, dtype=float), lag, rev)
         return freeze(sm.states)
 
     return memo_get(cache, "smoothed",
@@ -258,4 +259,5 @@ def smoothed_heading(t: np.ndarray, obs: np.ndarray, config: SensorConfig,
     cfg = config.planar()
     p = params if params is not None else PoseFilterParams()
     states = memo_smoothed_states(t, obs, cfg.body_positions - cfg.cg_body, p, lag_s, cache)
+    assert isinstance(states, np.ndarray)            # covariances=False: the states alone
     return states[:, YAW].copy()

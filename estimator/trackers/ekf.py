@@ -51,10 +51,17 @@ class FilterOptions(TrackerOptions, abc.ABC):
                             f"{type(fp).__name__}")
         object.__setattr__(self, "filter_params", fp or PoseFilterParams())
 
+    @property
+    def params(self) -> PoseFilterParams:
+        """The filter parameters (``filter_params``, never None after construction)."""
+        fp = self.filter_params
+        assert fp is not None                      # __post_init__ fills the default
+        return fp
+
     @abc.abstractmethod
     def _states(self, tt: np.ndarray, o: np.ndarray, offsets: np.ndarray,
-                cache: TrackCache | None) -> tuple[np.ndarray, np.ndarray, PoseFilterResult,
-                                                   np.ndarray]:
+                cache: TrackCache | None
+                ) -> tuple[np.ndarray, np.ndarray, PoseFilterResult | dict[str, Any]]:
         """States (n, 6) [x, y, yaw, v, a, yaw rate], their heading sd (n,) rad, and the
         forward pass (status, counts, NIS, the parameters it used); or (states, status (n,),
         extra columns dict) for a tracker without a pose-filter pass. Each tracker of the
@@ -73,10 +80,10 @@ class FilterOptions(TrackerOptions, abc.ABC):
             # (states, status, extra columns): a tracker of the family without a forward
             # pass of its own (the GTSAM peer); "_no_slip_point_m" in extra: the point it used
             extra = dict(res)
-            ns = extra.pop("_no_slip_point_m", self.filter_params.no_slip_point_m)
+            ns = extra.pop("_no_slip_point_m", self.params.no_slip_point_m)
             status = second
         else:
-            ns = res.params.no_slip_point_m           # as the pass resolved it
+            ns = (res.params or self.params).no_slip_point_m    # as the pass resolved it
             status = res.status
             extra = {**_filter_counts(res), "yaw_sd": second}
         r_m = offsets - np.asarray(ns if ns is not None else (0.0, 0.0), dtype=float)
@@ -94,7 +101,7 @@ class FilterOptions(TrackerOptions, abc.ABC):
                      layout_check=self.layout_check)
 
 
-def _filter_counts(res: PoseFilterResult) -> dict[str, np.ndarray]:
+def _filter_counts(res: PoseFilterResult) -> dict[str, Any]:
     """Fixes accepted / rejected and displacements accepted per epoch (n,), the NIS and
     its degrees of freedom."""
     return {"n_used": res.n_used, "n_gated": res.n_gated, "n_steps": res.n_steps,
@@ -119,7 +126,7 @@ class PoseFilterTracker(FilterOptions):
         # one forward pass per (observations, params) and cache, shared by the rows at every
         # window, the smoothers and the smoothed heading of the lag correction; the cached
         # arrays are read-only, the rows copy
-        res = memo_pose_filter(tt, o, offsets, self.filter_params, cache)
+        res = memo_pose_filter(tt, o, offsets, self.params, cache)
         return res.states, _yaw_sd(res.covariances, tt.size), res
 
 
@@ -132,7 +139,7 @@ class FixedLagSmootherTracker(FilterOptions):
     name: ClassVar[str] = "ekf_fixed_lag"
 
     def _states(self, tt, o, offsets, cache):
-        p = self.filter_params
+        p = self.params
         res = memo_pose_filter(tt, o, offsets, p, cache)
         X = memo_smoothed_states(tt, o, offsets, p, p.lag_s, cache)
         return X, _yaw_sd(None, tt.size), res
@@ -147,7 +154,7 @@ class RtsSmootherTracker(FilterOptions):
     name: ClassVar[str] = "ekf_smoother"
 
     def _states(self, tt, o, offsets, cache):
-        p = self.filter_params
+        p = self.params
         res = memo_pose_filter(tt, o, offsets, p, cache)
         X, P = memo_smoothed_states(tt, o, offsets, p, None, cache, covariances=True)
         return X, _yaw_sd(P, tt.size), res
