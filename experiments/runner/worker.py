@@ -161,7 +161,14 @@ def _warm_up_imports(outputs: bool) -> None:
 
 
 def started() -> int:
-    """A worker's first task: the imports of a simulation (its likely next task)."""
+    """A worker's first task: the imports of a simulation (its likely next task) and of the
+    cells (~150 MB). loky takes a worker's reference memory size after its first task and
+    replaces a worker that grows 300 MB beyond it as "leaking": measured after the
+    simulation's imports alone (~60 MB), the cells' imports, numba and the per-run memos
+    crossed that mid-run (thesis preset: a worker replaced, with its memos and warm-up lost,
+    and a UserWarning "A worker stopped while some jobs were given to the executor")."""
+    import estimator.tracking  # noqa: F401
+    import sim.gps
     import sim.rover  # noqa: F401
 
     return os.getpid()
