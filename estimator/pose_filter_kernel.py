@@ -365,10 +365,10 @@ def _solve_inplace(Mm, B):
 @_jit
 def _posterior(Y, H, nu, var, acc):
     """The joint update over the accepted measurements in the measured columns (module
-    docstring): with ``N = H^T R^-1 H``, ``b = H^T R^-1 nu`` (6 columns) and
-    ``M = I + N Y_cc``, returns P+ = Y - Y_:c M^-1 N Y_c: (12, 12, unsymmetrised), the
-    step dx = Y_:c M^-1 b (12,), ``b^T Y_cc M^-1 b`` (for the NIS) and ok (False on a zero
-    pivot)."""
+    docstring), solved: with ``N = H^T R^-1 H``, ``b = H^T R^-1 nu`` (6 columns) and
+    ``M = I + N Y_cc``, returns Z = M^-1 [N Y_c: | b] (6, 13), ``b^T Y_cc M^-1 b`` (for
+    the NIS) and ok (False on a zero pivot). P+ = Y - Y_:c Z[:, :12] (:func:`_cov_full`,
+    :func:`_cov_cc`), the step dx = Y_:c Z[:, 12] (:func:`_step`)."""
     n = Y.shape[0]
     nc = H.shape[1]
     k = var.shape[0]
@@ -391,31 +391,69 @@ def _posterior(Y, H, nu, var, acc):
                     N[p, q] += hw * H[r, q]
     Yr, Yc = _sub(Y)
     Mm = _matmul(N, Yc)
-    NYr = _matmul(N, Yr)
-    rhs = np.empty((nc, n + 1))
+    Z = np.empty((nc, n + 1))
     for p in range(nc):
         Mm[p, p] += 1.0
         for j in range(n):
-            rhs[p, j] = NYr[p, j]
-        rhs[p, n] = b[p]
-    ok = _solve_inplace(Mm, rhs)
-    Pa = Y.copy()
-    dx = np.zeros(n)
-    for i in range(n):
-        for p in range(nc):
-            yip = Y[i, _col(p)]
-            if yip == 0.0:
-                continue
-            dx[i] += yip * rhs[p, n]
-            for j in range(n):
-                Pa[i, j] -= yip * rhs[p, j]
+            s = 0.0
+            for q in range(nc):
+                s += N[p, q] * Yr[q, j]
+            Z[p, j] = s
+        Z[p, n] = b[p]
+    ok = _solve_inplace(Mm, Z)
     byb = 0.0
     for p in range(nc):
         s = 0.0
         for q in range(nc):
-            s += Yc[p, q] * rhs[q, n]
+            s += Yc[p, q] * Z[q, n]
         byb += b[p] * s
-    return Pa, dx, byb, ok
+    return Z, byb, ok
+
+
+@_jit
+def _step(Y, Z):
+    """dx = Y_:c Z[:, -1] (12,): the update's step of the stacked state."""
+    n = Y.shape[0]
+    dx = np.zeros(n)
+    for i in range(n):
+        for p in range(NC):
+            yip = Y[i, _col(p)]
+            if yip != 0.0:
+                dx[i] += yip * Z[p, n]
+    return dx
+
+
+@_jit
+def _cov_cc(Y, Z):
+    """P+ over the measured columns (6, 6): Y_cc - Y_cc Z[:, c]."""
+    Pc = np.empty((NC, NC))
+    for a in range(NC):
+        for b in range(NC):
+            s = Y[_col(a), _col(b)]
+            for p in range(NC):
+                yip = Y[_col(a), _col(p)]
+                if yip != 0.0:
+                    s -= yip * Z[p, _col(b)]
+            Pc[a, b] = s
+    return Pc
+
+
+@_jit
+def _cov_full(Y, Z):
+    """P+ = Y - Y_:c Z[:, :12] (12, 12), symmetrised."""
+    n = Y.shape[0]
+    Pa = Y.copy()
+    for i in range(n):
+        for p in range(NC):
+            yip = Y[i, _col(p)]
+            if yip != 0.0:
+                for j in range(n):
+                    Pa[i, j] -= yip * Z[p, j]
+    Pn = np.empty((n, n))
+    for i in range(n):
+        for j in range(n):
+            Pn[i, j] = 0.5 * (Pa[i, j] + Pa[j, i])
+    return Pn
 
 
 @_jit
@@ -426,9 +464,9 @@ def _kalman_update(y, Y, nu, H, var, gate, acc, gated, want_nis):
     k = var.shape[0]
     nis = math.nan
     finite_gate = gate != math.inf
-    have_all = False            # Pa, dx hold the update with every measurement
+    have_all = False            # Z holds the update with every measurement
     if want_nis:
-        Pa, dx, byb, ok = _posterior(Y, H, nu, var, np.ones(k, dtype=np.bool_))
+        Z, byb, ok = _posterior(Y, H, nu, var, np.ones(k, dtype=np.bool_))
         if not ok:
             return y, Y, acc, nis, False
         have_all = True
@@ -447,30 +485,26 @@ def _kalman_update(y, Y, nu, H, var, gate, acc, gated, want_nis):
     deletions = MAX_DELETED if finite_gate else 0
     while _count(acc, 0, k):
         if not (have_all and _count(acc, 0, k) == k):   # else: the NIS pass's update
-            Pa, dx, byb, ok = _posterior(Y, H, nu, var, acc)
+            Z, byb, ok = _posterior(Y, H, nu, var, acc)
             if not ok:
                 return y, Y, acc, nis, False
+        dx = _step(Y, Z)
         if deletions and _count(acc, 0, k) >= 2:
-            worst, wstat = _worst(Pa, dx, H, nu, var, acc)
+            worst, wstat = _worst(_cov_cc(Y, Z), dx, H, nu, var, acc)
             if wstat > gate:
                 acc[worst] = False
                 deletions -= 1
                 continue
-        n = Pa.shape[0]
-        Pn = np.empty((n, n))
-        for i in range(n):
-            for j in range(n):
-                Pn[i, j] = 0.5 * (Pa[i, j] + Pa[j, i])
-        return _axpy(1.0, dx, y), Pn, acc, nis, True
+        return _axpy(1.0, dx, y), _cov_full(Y, Z), acc, nis, True
     return y, Y, acc, nis, True
 
 
 @_jit
-def _worst(Pa, dx, H, nu, var, acc):
+def _worst(Pc, dx, H, nu, var, acc):
     """The deleted-residual test (reference test 2): the accepted measurement with the
     largest ``u_i^T ((S^-1)_ii)^-1 u_i``, with ``u_i = (nu_i - H_i dx) / r_i`` and
-    ``(S^-1)_ii = (I - H_i P+ H_i^T / r_i) / r_i``; returns (index, statistic)."""
-    Pc = _sub(Pa)[1]
+    ``(S^-1)_ii = (I - H_i P+ H_i^T / r_i) / r_i`` (Pc: P+ over the measured columns);
+    returns (index, statistic)."""
     worst, wstat = -1, -math.inf
     for i in range(var.shape[0]):
         if not acc[i]:
