@@ -1053,7 +1053,7 @@ class RangeFilter:
                 and type(transmitter) in _INTS and self.t <= t <= _MAX_T
                 and 0.0 <= r <= tri.MAX_ABS_M and 0 <= receiver < self.rec.shape[0]
                 and 0 <= transmitter < self._ntx):
-            return self._update(t, receiver, transmitter, r)
+            return self._update(float(t), receiver, transmitter, float(r))
         t = self._check_time(t)
         check_int(receiver, "receiver", lo=0, hi=self.rec.shape[0] - 1)
         ntx = 1 if self.levers is None else self.levers.shape[0]
