@@ -49,6 +49,11 @@ batch. Per iteration and window:
   within about ``RTOL`` (1e-7, relative) of the local optimum, ten times inside the agreement
   with slsqp the issue asks for (1e-6); 1e-8 costs 7 % more iterations.
 
+Engines: the iteration runs compiled, one window after the other
+(:mod:`estimator.elastic_kernel`, ``engine="numba"``, the default), or batched in numpy
+(:func:`_barrier_solve`, ``engine="numpy"``, the reference the kernel is tested against);
+the same steps, fits equal to rounding (tests/test_elastic_kernel.py).
+
 Why not the slsqp warm-start chain or a CCP: see ../shared/notes/window-solvers.md; both are
 one window at a time. The result is checked like slsqp's (feasible by construction,
 objective not worse than the start, proper-handed) and every window gets a status.
@@ -63,6 +68,7 @@ import numpy as np
 
 from estimator._checks import check_array, check_int
 from estimator.configuration import SensorConfig
+from estimator.elastic_kernel import N_PAR, barrier_kernel
 from estimator.orientation import wrap_angle
 from estimator.rigid_fit import (
     PROX_WEIGHT,
@@ -72,7 +78,10 @@ from estimator.rigid_fit import (
     procrustes_batch,
 )
 
-__all__ = ["ELASTIC_STATUSES", "ElasticFit", "elastic_batch"]
+__all__ = ["ELASTIC_STATUSES", "ENGINES", "ElasticFit", "elastic_batch"]
+
+#: The iteration's engines (:func:`elastic_batch`): compiled per window, batched numpy.
+ENGINES = ("numba", "numpy")
 
 #: Per-window status of :class:`ElasticFit` (all of them in estimator.window.STATUSES).
 ELASTIC_STATUSES = {
@@ -467,8 +476,38 @@ def _to_last(x: np.ndarray) -> np.ndarray:
     return np.ascontiguousarray(x.transpose(2, 1, 0))
 
 
+def _kernel_constants() -> np.ndarray:
+    """The tuning constants in the order of :mod:`estimator.elastic_kernel`'s ``par``
+    (read at each call, so the kernel and the reference share one definition)."""
+    par = np.array([RTOL, ATOL, TAU0_FACTOR, FRACTION_TO_BOUNDARY, KAPPA_EPS, KAPPA_MU,
+                    THETA_MU, KAPPA_SIGMA, DELTA0, DELTA_GROW, DELTA_SHRINK, DELTA_MIN, ARMIJO,
+                    HALVINGS], dtype=float)
+    assert par.size == N_PAR
+    return par
+
+
+def _solve(Tg: np.ndarray, Wn: np.ndarray, Z0: np.ndarray, a: np.ndarray, eps: float,
+           maxiter: int, engine: str) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The iteration on (N, m, d) targets, weights, starts -> (Z (N, m, d), iterations (N,),
+    converged (N,)): the compiled per-window loop or the batched numpy reference."""
+    if engine == "numpy":
+        Zt, it, conv = _barrier_solve(_to_last(Tg), _to_last(Wn), _to_last(Z0), a, eps,
+                                      maxiter)
+        return Zt.transpose(2, 1, 0), it, conv
+    N, m, d = Tg.shape
+
+    def flat(x: np.ndarray) -> np.ndarray:   # (N, m, d) -> (N, d m), coordinate-major
+        return np.ascontiguousarray(x.transpose(0, 2, 1)).reshape(N, d * m)
+
+    Z = flat(Z0)
+    it, conv = barrier_kernel(flat(Tg), flat(Wn), Z, np.ascontiguousarray(a, dtype=float),
+                              float(eps), int(maxiter), _kernel_constants(), d, m)
+    return Z.reshape(N, d, m).transpose(0, 2, 1), it.astype(int), conv
+
+
 def elastic_batch(means: Any, axis_weight: Any, config: SensorConfig, eps: float = 0.01, *,
-                  start: Any | None = None, maxiter: int = MAXITER) -> ElasticFit:
+                  start: Any | None = None, maxiter: int = MAXITER,
+                  engine: str = "numba") -> ElasticFit:
     """Eq. 3.9 with the eps-elastic distance constraints of Eq. 3.6 for N windows at once.
 
     means : (N, m, d) metres, per-axis weighted window means (NaN where the axis weight is 0);
@@ -478,6 +517,9 @@ def elastic_batch(means: Any, axis_weight: Any, config: SensorConfig, eps: float
     start : optional (N, m, d) starting positions; a window starts there when every distance
         is strictly inside its band, otherwise (and by default) from the procrustes fit.
     maxiter : iteration limit (the batch iterates until every window converged or reached it).
+    engine : "numba" (default: the compiled per-window loop of :mod:`estimator.elastic_kernel`)
+        or "numpy" (the batched reference, :func:`_barrier_solve`); the same iteration, fits
+        equal to rounding (tests/test_elastic_kernel.py).
 
     Returns :class:`ElasticFit`. Method and tolerances: module docstring. Sensors (axes)
     without data stay in the problem with the proximal weight of slsqp; after the fit they
@@ -489,6 +531,8 @@ def elastic_batch(means: Any, axis_weight: Any, config: SensorConfig, eps: float
     Y, W = check_window_means(means, axis_weight, config, "axis_weight", per_axis=True)
     e = _check_eps(eps, config)
     check_int(maxiter, "maxiter", lo=1)
+    if engine not in ENGINES:
+        raise ValueError(f"engine: must be one of {ENGINES}, got {engine!r}")
     N, m, d = Y.shape
     if start is not None:
         X0 = check_array(start, "start", allow_nan=True)
@@ -521,9 +565,7 @@ def elastic_batch(means: Any, axis_weight: Any, config: SensorConfig, eps: float
         # normalized weights; axes without data: proximal term towards the start (window.py)
         Wn = np.where(has, Wi / Wi.sum(axis=(1, 2), keepdims=True), PROX_WEIGHT)
         Tg = np.where(has, Yc, Z0)
-        Zt, it, conv = _barrier_solve(_to_last(Tg), _to_last(Wn), _to_last(Z0), geo.a, e,
-                                      maxiter)
-        Z = Zt.transpose(2, 1, 0)
+        Z, it, conv = _solve(Tg, Wn, Z0, geo.a, e, maxiter, engine)
         # sensors without data back at the start when every band still holds (as slsqp)
         none = ~np.any(has, axis=-1)
         if none.any():
