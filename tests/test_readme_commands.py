@@ -169,6 +169,21 @@ MAPPED: dict[str, tuple[str, str]] = {
          "--out results/local/rigid_ranging"),
         ("every static run and the dynamic one take over 5 min here: one static run (~16 s), "
          "same output folder")),
+    "python -m experiments.sensitivity": (
+        "python -m experiments.sensitivity --quantity sigma --seeds 1",
+        ("the full study (18 variants, 5 seeds: 4860 cells) takes ~300 s (~600 s with the path "
+         "variants' truths to simulate): one quantity at 1 seed (270 cells, ~12 s), into the "
+         "same default folder (results/local/sensitivity)")),
+    "python -m experiments.sensitivity --seeds 3 --out /tmp/sens": (
+        "python -m experiments.sensitivity --quantity sigma --seeds 1 --out {tmp}/sens",
+        "as the default run: one quantity at 1 seed, into the custom folder"),
+    "python -m experiments.sensitivity --reference --seeds 5": (
+        ("rc=0; python -m experiments.sensitivity --reference --quantity sigma || rc=$?; "
+         "test $rc -eq 2 && python -m experiments.sensitivity --quantity sigma --seeds 1 "
+         "--out {tmp}/sens_reference"),
+        ("the reference run takes ~320 s and rewrites results/sensitivity/ (the coordinator's "
+         "reference regeneration runs it): here, that --reference refuses a partial study "
+         "(exit 2), and the same pipeline as a non-reference quick run into a scratch folder")),
     "python -m experiments.ranging DIR [DIR ...]": (
         "python -m experiments.ranging ../shared/realdata/uwb_hanyang/LOS/Trajectory_A/Case_1",
         "DIR stands for recordings: the shared LOS case (default output, results/local/ranging)"),
@@ -209,6 +224,8 @@ AS_WRITTEN: set[str] = {
     ("python -m experiments.export results/thesis --where path=square100 window=100 "
     "technique=lc+dyn weighting=huff dyn_growth=refill noise_overrides={} seed=0 --out /tmp/tum"),
     "python -m experiments.figures results/thesis",
+    # README and --help: one quantity at 1 seed, ~12 s
+    "python -m experiments.sensitivity --quantity sigma --seeds 1 --out /tmp/sens_sigma",
 }
 
 #: The shared real data beside the checkout (../shared/realdata); commands that read it skip,
