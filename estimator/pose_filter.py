@@ -178,7 +178,6 @@ __all__ = [
     "nis_summary",
     "pass_key",
     "run_pose_filter",
-    "warm_kernels",
 ]
 
 #: Heading sd (rad) from the configuration alone below which the filter starts at once.
@@ -1429,20 +1428,6 @@ def run_pose_filter(t: np.ndarray, obs: np.ndarray, offsets: np.ndarray,
 ENGINES = ("numba", "numpy")
 
 
-def warm_kernels() -> None:
-    """Compile the compiled engines' kernels (forward pass and RTS recursion; first use
-    after a checkout, ~20 s CPU on the 2-core machine) or load them from numba's cache
-    (~0.5 s), on a 6-epoch recording. A sweep's workers call it while warming up one at a
-    time, so the first compiles and writes the cache and the others load it."""
-    from estimator.pose_smoother import rts_smooth
-
-    off = np.array([[0.5, 0.25], [0.5, -0.25], [-0.5, 0.0]])
-    t = np.arange(6.0)
-    obs = np.c_[t, np.zeros(6)][:, None, :] + off[None]
-    rts_smooth(run_pose_filter(t, obs, off, PoseFilterParams(
-        sigma_abs_m=0.01, sigma_step_m=0.014, max_accel_mps2=1.0, max_yaw_accel_radps2=1.0,
-        max_turn_rate_radps=1.0, max_lateral_accel_mps2=1.0, max_speed_mps=10.0,
-        no_slip_point_m=(0.0, 0.0), travel_offset_rad=0.0)))
 #: Largest table of chi-square quantiles the compiled loop takes (entries, 8 bytes each);
 #: beyond it (an NIS window of thousands of epochs) the numpy loop runs.
 MAX_THR_TABLE = 1 << 20

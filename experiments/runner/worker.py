@@ -144,7 +144,7 @@ def _exclusive(lock_path: str | None) -> Iterator[None]:
 def _warm_up_imports(outputs: bool) -> None:
     import estimator.tracking  # noqa: F401
     import sim.gps  # noqa: F401
-    from estimator.pose_filter import warm_kernels
+    from estimator.pose_smoother import warm_kernels
 
     warm_kernels()      # compiled once (first worker, under the lock), then cache loads
 
