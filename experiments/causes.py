@@ -33,7 +33,8 @@ from __future__ import annotations
 import json
 import math
 from collections.abc import Callable
-from dataclasses import dataclass
+from dataclasses import dataclass, field
+from pathlib import Path
 
 import numpy as np
 import pandas as pd
@@ -49,7 +50,7 @@ from experiments.claims import (
     swap_techniques,
 )
 from experiments.markdown import md_row, md_separator
-from experiments.spec import RESULTS_ROOT
+from experiments.spec import REPO, sensitivity_folder
 from experiments.tables import (
     THESIS_TABLES,
     THESIS_WINDOWS,
@@ -59,16 +60,78 @@ from experiments.tables import (
 )
 from experiments.techniques import oracle_pairs
 
-__all__ = ["ORACLE_SWAP", "Evidence", "cause_line", "evidence", "observability_section",
-           "seed_spread_section"]
+__all__ = ["ORACLE_SWAP", "SENSITIVITY_TABLES", "Evidence", "Sensitivity", "cause_line",
+           "declared_sensitivity", "evidence", "observability_section", "seed_spread_section"]
 
 #: The estimated-heading lag correction -> its oracle (the simulator's heading).
 ORACLE_SWAP = oracle_pairs()
 #: Below this median heading error (deg) the estimated orientation "matches" (claim C9).
 MATCH_DEG = 10.0
-#: The sensitivity study's committed outputs (``python -m experiments.sensitivity
-#: --reference``): C2, C8 and the small-window claims quote its re-measurements.
-SENSITIVITY_DIR = RESULTS_ROOT / "sensitivity"
+#: The sensitivity study's tables (``python -m experiments.sensitivity``) a declared folder
+#: must hold for C2, C8 and the small-window claims to quote its re-measurements (mask.csv
+#: and turns.csv are optional: without them their sentences are left out).
+SENSITIVITY_TABLES = ("sensitivity", "comparisons", "shipped")
+
+
+@dataclass(frozen=True)
+class Sensitivity:
+    """The sensitivity study the run's spec declared (``[report] sensitivity``): ``value`` as
+    written (None: none declared), ``path`` its folder resolved (None: not declared or no
+    sensitivity.csv there, :func:`experiments.spec.sensitivity_folder`)."""
+
+    value: str | None = None
+    path: Path | None = None
+
+    @property
+    def folder(self) -> Path | None:
+        """``path`` when it holds every one of :data:`SENSITIVITY_TABLES`, else None."""
+        ok = self.path is not None and all((self.path / f"{n}.csv").is_file()
+                                           for n in SENSITIVITY_TABLES)
+        return self.path if ok else None
+
+    def table(self, name: str) -> pd.DataFrame:
+        """``<folder>/<name>.csv``, empty when there is no folder or no such file."""
+        f = None if self.folder is None else self.folder / f"{name}.csv"
+        return pd.read_csv(f) if f is not None and f.is_file() else pd.DataFrame()
+
+    def shipped(self, quantity: str) -> float:
+        """The shipped value of ``quantity`` (SI units, the study's shipped.csv)."""
+        t = self.table("shipped")
+        return float(t.loc[t["quantity"] == quantity, "value"].iloc[0])
+
+    def missing(self, what: str = "") -> str:
+        """The sentence that stands where the study's numbers would (``what``: with what)."""
+        if self.value is None:
+            return (f" Not re-measured{what}: the spec declares no sensitivity study "
+                    "([report] sensitivity).")
+        return (f" Not re-measured{what}: {self.value} ([report] sensitivity) lacks the "
+                f"sensitivity study's {', '.join(f'{n}.csv' for n in SENSITIVITY_TABLES)} "
+                "(python -m experiments.sensitivity writes them).")
+
+
+def declared_sensitivity(results: str | Path, spec=None) -> Sensitivity:
+    """The sensitivity study of a run: ``spec``'s ``[report] sensitivity`` or, without a
+    spec, what the run's manifest.json recorded, resolved against the spec's folder by
+    :func:`experiments.spec.sensitivity_folder`. A bad value raises SpecError naming the
+    field; a missing or damaged manifest declares none."""
+    if spec is not None:
+        value = (spec.report or {}).get("sensitivity")
+        base, where = (None if spec.direct_paths else spec.base_dir), \
+            f"{spec.source}: report.sensitivity"
+    else:
+        try:
+            man = json.loads((Path(results) / "manifest.json").read_text())
+        except (OSError, ValueError):
+            man = {}
+        sp = man.get("spec") if isinstance(man, dict) else None
+        tab = sp.get("report") if isinstance(sp, dict) else None
+        value = tab.get("sensitivity") if isinstance(tab, dict) else None
+        b = Path(str(man.get("spec_base_dir", "."))) if isinstance(man, dict) else Path(".")
+        base = b if b.is_absolute() else REPO / b
+        where = "manifest.json: spec.report.sensitivity"
+    if value is None:
+        return Sensitivity()
+    return Sensitivity(value, sensitivity_folder(value, base, where))
 
 
 @dataclass
@@ -78,12 +141,14 @@ class Evidence:
     cells : one variant's cells with every reading and oracle row (pseudo-conditions of
     :func:`experiments.claims._derived` added). main : the cells the claims were evaluated
     on (the faithful readings). studies : the side studies of the whole sweep
-    (:func:`experiments.tables.side_studies`).
+    (:func:`experiments.tables.side_studies`). sensitivity : the sensitivity study the
+    spec declared (:func:`declared_sensitivity`; default none).
     """
 
     cells: pd.DataFrame
     main: pd.DataFrame
     studies: pd.DataFrame
+    sensitivity: Sensitivity = field(default_factory=Sensitivity)
 
 
 # --------------------------------------------------------------------------- helpers
@@ -224,21 +289,14 @@ def _deg(rad: float) -> float:
 
 
 # --------------------------------------------------------------------------- sensitivity
-def _sens(name: str) -> pd.DataFrame:
-    """A table of the sensitivity study (empty when it has not been written)."""
-    f = SENSITIVITY_DIR / f"{name}.csv"
-    return pd.read_csv(f) if f.exists() else pd.DataFrame()
-
-
-def _sens_rows(cid: str, quantity: str, unit: str) -> list[tuple[str, str, pd.DataFrame]]:
+def _sens_rows(sens: Sensitivity, cid: str, quantity: str, unit: str
+               ) -> list[tuple[str, str, pd.DataFrame]]:
     """[(label, "**verdict** (k/n)", comparisons)] of claim ``cid`` in the sensitivity
     study: the shipped setting, then each value of ``quantity``."""
-    s, c = _sens("sensitivity"), _sens("comparisons")
+    s, c = sens.table("sensitivity"), sens.table("comparisons")
     if s.empty or c.empty:
         return []
-    from experiments.sensitivity import shipped
-
-    ship, out = f"{shipped()[quantity]:g}{unit} (shipped)", []
+    ship, out = f"{sens.shipped(quantity):g}{unit} (shipped)", []
     for r in s[(s["claim"] == cid) & s["quantity"].isin(["shipped", quantity])].itertuples():
         same = (c["claim"] == cid) & (c["quantity"] == r.quantity)
         same &= c["value"].isna() if r.quantity == "shipped" else np.isclose(c["value"], r.value)
@@ -247,52 +305,49 @@ def _sens_rows(cid: str, quantity: str, unit: str) -> list[tuple[str, str, pd.Da
     return out
 
 
-def _sens_intro(rows: list, what: str) -> str:
+def _sens_intro(sens: Sensitivity, rows: list, what: str) -> str:
     n = int(max(int(c["n_seeds"].max()) for _, _, c in rows if not c.empty))
-    return (f" Re-measured with {what} (sensitivity study, results/sensitivity/, {n} seeds, "
-            "its own shipped run beside): ")
+    return (f" Re-measured with {what} (sensitivity study, {str(sens.value).rstrip('/')}/, "
+            f"{n} seeds, its own shipped run beside): ")
 
 
-_NO_SENS = (" Not re-measured: results/sensitivity/ is missing (python -m "
-            "experiments.sensitivity --reference).")
-
-
-def _speed_text() -> str:
+def _speed_text(sens: Sensitivity) -> str:
     """C2 at other speeds: verdict and the Path 1 window-10 trail against the noise level."""
-    rows = _sens_rows("C2", "speed", " m/s")
+    rows = _sens_rows(sens, "C2", "speed", " m/s")
     if not rows:
-        return _NO_SENS
+        return sens.missing()
     parts = []
     for lab, vd, c in rows:
         o = c[c["comparison"].str.startswith("Path 1 w=10: trail")]
         parts.append(f"{lab} {vd}" + (f", w=10 along-track error {o['mean_a'].iloc[0]:+.2f} m "
                                       f"vs noise level {-o['mean_b'].iloc[0]:.2f} m"
                                       if len(o) else ""))
-    return _sens_intro(rows, "slower and faster speeds") + "; ".join(parts) + "."
+    return _sens_intro(sens, rows, "slower and faster speeds") + "; ".join(parts) + "."
 
 
-def _fraction_gains() -> list[tuple[str, str, float]]:
+def _fraction_gains(sens: Sensitivity) -> list[tuple[str, str, float]]:
     """[(common fraction, "**verdict** (k/n)", Huff's gain in the Path 1 w=1 mean |x|)] of
     C8 in the sensitivity study (gain NaN where the comparison is absent)."""
     out = []
-    for lab, vd, c in _sens_rows("C8", "common_fraction", ""):
+    for lab, vd, c in _sens_rows(sens, "C8", "common_fraction", ""):
         o = c[c["comparison"] == "Path 1 w=1 mean |x|: huff < none"]
         out.append((lab, vd, 1 - o["mean_a"].iloc[0] / o["mean_b"].iloc[0] if len(o)
                     else math.nan))
     return out
 
 
-def _fraction_text(gains: list[tuple[str, str, float]]) -> str:
+def _fraction_text(sens: Sensitivity, gains: list[tuple[str, str, float]]) -> str:
     if not gains:
-        return _NO_SENS
-    return (_sens_intro(_sens_rows("C8", "common_fraction", ""), "the common fraction varied")
+        return sens.missing()
+    return (_sens_intro(sens, _sens_rows(sens, "C8", "common_fraction", ""),
+                        "the common fraction varied")
             + "; ".join(f"common_fraction {lab} {vd}, Huff lowers the w=1 mean |x| by "
                         f"{100 * g:.1f} %" for lab, vd, g in gains) + ".")
 
 
-def _mask_text() -> str:
+def _mask_text(sens: Sensitivity) -> str:
     """C14 under a widened no-turns mask (sensitivity study, mask.csv)."""
-    m = _sens("mask")
+    m = sens.table("mask")
     if m.empty:
         return ""
     return ("; with the no-turns mask widened instead (every estimate dropped whose window, "
@@ -302,12 +357,12 @@ def _mask_text() -> str:
                 f"turns {r.diff_w5_x:+.3f} m)" for r in m.itertuples()))
 
 
-def _wide_text(cid: str) -> str:
+def _wide_text(sens: Sensitivity, cid: str) -> str:
     """Small-window comparisons of a turn claim with wider turns (larger target areas)."""
-    rows = _sens_rows(cid, "turn_width", " m")
-    t = _sens("turns")
+    rows = _sens_rows(sens, cid, "turn_width", " m")
+    t = sens.table("turns")
     if not rows or t.empty:
-        return ""
+        return "." + sens.missing(" with wider turns").rstrip(".")
     parts = []
     for lab, _, c in rows:
         small = c[(c["window"] > 0) & (c["window"] < 100)]
@@ -318,9 +373,10 @@ def _wide_text(cid: str) -> str:
             tt = tt[np.isclose(tt["value"], float(lab.split()[0]))]
         share = f", {100 * tt['turn_share'].iloc[0]:.0f} % of the w=5 estimates" if len(tt) else ""
         parts.append(f"target radius {lab}{share}: {k}/{len(small)} supports")
-    return ("." + _sens_intro(rows, "wider turns (larger target areas, so a wider turning "
-                              "flag and no-turns mask)").rstrip(": ")
-            + " below window 100: " + "; ".join(parts) + (_mask_text() if cid == "C14" else ""))
+    return ("." + _sens_intro(sens, rows, "wider turns (larger target areas, so a wider "
+                              "turning flag and no-turns mask)").rstrip(": ")
+            + " below window 100: " + "; ".join(parts)
+            + (_mask_text(sens) if cid == "C14" else ""))
 
 
 # --------------------------------------------------------------------------- per claim
@@ -367,8 +423,8 @@ def _c2(ev: Evidence, r: ClaimResult) -> str | None:
                      f"{noise:.2f} m, paired difference [{o.lo:.2f}, {o.hi:.2f}]")
     return ("speed. How apparent a trail is depends on the platform's speed, which the "
             "dissertation does not state (Set-up): " + "; ".join(parts) + "."
-            + _speed_text() + " `experiments/presets/speed.toml` re-checks the claims at 0.5 "
-            "and 1.5 m/s.")
+            + _speed_text(ev.sensitivity) + " `experiments/presets/speed.toml` re-checks the "
+            "claims at 0.5 and 1.5 m/s.")
 
 
 def _c3(ev: Evidence, r: ClaimResult) -> str | None:
@@ -418,7 +474,7 @@ def _c8(ev: Evidence, r: ClaimResult) -> str | None:
     model = _noise_model(ev.main)
     cf = (f" ({100 * model.common_fraction:.0f} % of the error variance here, "
           "common_fraction in the noise model)") if model else ""
-    k, gains = len(_failing(r)), _fraction_gains()
+    k, gains = len(_failing(r)), _fraction_gains(ev.sensitivity)
     moved = [(float(lab), g) for lab, _, g in gains if "shipped" not in lab]
     g0 = min(moved)[1] if moved else math.nan          # at the smallest common fraction
     why = ("not the common part of the error: with none of it common the gain stays small "
@@ -433,7 +489,7 @@ def _c8(ev: Evidence, r: ClaimResult) -> str | None:
             f"lowers the mean |x| error "
             f"by {100 * (n - h) / n:.1f} % at window {w} on Path 1 ({h:.3f} vs {n:.3f} m), and "
             f"{k} of {len(r.outcomes)} comparisons are within seed noise (weighting table in "
-            "tables.md)." + _fraction_text(gains))
+            "tables.md)." + _fraction_text(ev.sensitivity, gains))
 
 
 def _heading_by_fraction(ev: Evidence, window: int) -> list[tuple[str, float]]:
@@ -572,7 +628,7 @@ def _turns_and_heading(what: str, heading: str
             lead = (f"{at} few turn estimates: {what} only on the estimates with a turn in "
                     f"their window ({share}), too few to move these statistics beyond the seed "
                     "noise")
-            m = _sens("mask") if r.claim.cid == "C14" else pd.DataFrame()
+            m = ev.sensitivity.table("mask") if r.claim.cid == "C14" else pd.DataFrame()
             if not m.empty and (m["small_supports"] == 0).all():
                 w = m.iloc[-1]
                 lead = (f"{at} not the few turn estimates ({share}) alone: with the no-turns "
@@ -580,7 +636,7 @@ def _turns_and_heading(what: str, heading: str
                         f"w=5 estimates dropped) the full path's spread still exceeds the "
                         f"straights' by only {w.diff_w5_x:+.3f} m (w=5, std |x|), so at small "
                         "windows the turns add no outliers to the lag-corrected error")
-            parts.append(lead + _wide_text(r.claim.cid))
+            parts.append(lead + _wide_text(ev.sensitivity, r.claim.cid))
         if large:
             o = _oracle_text(ev, r, large)
             if o is None:
@@ -880,7 +936,9 @@ def _implied_setting(res: list, pub: tuple[float, float]) -> str:
     return txt
 
 
-def evidence(cells: pd.DataFrame, main: pd.DataFrame, studies: pd.DataFrame) -> Evidence:
-    """The :class:`Evidence` of one variant (``main`` = the evaluated cells)."""
-    return Evidence(_derived(cells), main, studies)
+def evidence(cells: pd.DataFrame, main: pd.DataFrame, studies: pd.DataFrame,
+             sensitivity: Sensitivity | None = None) -> Evidence:
+    """The :class:`Evidence` of one variant (``main`` = the evaluated cells; ``sensitivity``:
+    the declared study, default none)."""
+    return Evidence(_derived(cells), main, studies, sensitivity or Sensitivity())
 

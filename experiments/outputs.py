@@ -8,7 +8,8 @@ The outputs fall into units, each with known inputs:
   4.1/4.2 chart drawn from the CSVs (``fig_tables.png``). Inputs: the cell table (every
   column, timings included: the heading table and timings.local.csv show them).
 - ``report``: REPORT.md and claims.csv (:mod:`experiments.report`). Inputs: the cell
-  table, the spec and manifest.json.
+  table, the spec, manifest.json and the CSVs of the sensitivity study the spec declared
+  (``[report] sensitivity``; the Cause lines quote them).
 - one unit per figure group of :mod:`experiments.figures` (box plots, orientation,
   overlays, ...). Inputs: the sweep's layout (the cell table's key, axis, seed and mask
   columns and which cells kept per-epoch estimates; not their statistics) and the
@@ -101,6 +102,23 @@ def _manifest_inputs(path: Path) -> str:
         return text
     man.pop("status", None)
     return json.dumps(man, sort_keys=True)
+
+
+def _sensitivity_inputs(out: Path, spec: Any) -> list | None:
+    """[declared value, {csv name: content digest}] of the sensitivity study the run declared
+    (:func:`experiments.causes.declared_sensitivity`), None when it declared none or the
+    value is bad (the report unit raises the error)."""
+    from experiments.causes import declared_sensitivity
+
+    try:
+        sens = declared_sensitivity(out, spec)
+    except ValueError:
+        return None
+    if sens.value is None:
+        return None
+    files = sorted(sens.path.glob("*.csv")) if sens.path is not None else []
+    return [sens.value, {f.name: hashlib.blake2b(f.read_bytes(), digest_size=16).hexdigest()
+                         for f in files}]
 
 
 def _stat(path: Path) -> list[int] | None:
@@ -247,7 +265,8 @@ def write_outputs(table: pd.DataFrame, out_dir: str | Path, *, spec: Any = None,
     # what needs writing
     todo: list[tuple] = []
     unit_in = {"tables": _digest(code, table_d, figures),
-               "report": _digest(code, table_d, spec_d, manifest)}
+               "report": _digest(code, table_d, spec_d, manifest,
+                                 _sensitivity_inputs(out, spec))}
     for name, args in (("tables", (table, out, figures)), ("report", (table, out, spec))):
         if unchanged(name, unit_in[name]):
             new[name] = units[name]

@@ -179,11 +179,12 @@ def write_report(cells: pd.DataFrame, out_dir: str | Path, spec=None) -> Path:
     cells = numpy_strings(cells)
     out = Path(out_dir)
     studies = side_studies(cells)
+    sens = causes.declared_sensitivity(out, spec)       # [report] sensitivity, if declared
     per_variant, evidence = [], {}
     for lab, sub in variants(cells):
         main = _derived(faithful(sub))
         per_variant.append((lab, evaluate_claims(main, CLAIMS + COURSE_CLAIMS)))
-        evidence[lab] = causes.evidence(sub, main, studies)
+        evidence[lab] = causes.evidence(sub, main, studies, sens)
     n_seeds = int(cells["seed"].nunique())
     solvers = sorted(set(cells["solver"]) - {"-"})
     lines = [f"# Claim-by-claim check of the GPS dissertation ({run_name(out, spec)})", "",

@@ -16,8 +16,9 @@ to rerun one; not with ``--reference``, which is always the full study). Writes 
 ``sensitivity.csv`` (claim x variant -> verdict, supports, key comparison),
 ``comparisons.csv`` (every comparison of :data:`CAUSE_CLAIMS`, read by the ``Cause:`` lines
 of :mod:`experiments.causes`), ``turns.csv`` (share of the estimates with a turn in their
-window), ``mask.csv`` (C14 under a widened no-turns mask) and ``REPORT.md``. The cells
-themselves stay in results/local/sensitivity/sweep and .../mask (resumable).
+window), ``mask.csv`` (C14 under a widened no-turns mask), ``shipped.csv`` (the shipped
+value of every quantity, which the ``Cause:`` lines label "(shipped)") and ``REPORT.md``.
+The cells themselves stay in results/local/sensitivity/sweep and .../mask (resumable).
 """
 
 from __future__ import annotations
@@ -43,7 +44,8 @@ from sim.atomic import atomic_write, atomic_write_text
 
 __all__ = ["CAUSE_CLAIMS", "DILATE_S", "GRIDS", "QUANTITIES", "Quantity", "evaluate_mask",
            "evaluate_variants", "main", "mask_cells", "mask_spec", "wide_mask",
-           "sensitivity_spec", "speed_bound", "tau_bounds", "variants"]
+           "sensitivity_spec", "shipped", "shipped_table", "speed_bound", "tau_bounds",
+           "variants", "write_tables"]
 
 #: The thesis preset's grid blocks the claims read (the beyond, oracle and side-study rows
 #: only feed the Cause lines); "LC, smoothed heading" is dropped (no claim reads it).
@@ -300,6 +302,20 @@ def shipped() -> dict[str, float]:
             for q in QUANTITIES}
 
 
+def shipped_table(ship: dict[str, float]) -> pd.DataFrame:
+    """``shipped.csv``: one row per :data:`QUANTITIES` entry (quantity, field, axis, unit,
+    value: the shipped value in SI units ``unit``, from :func:`shipped`)."""
+    return pd.DataFrame([{"quantity": q.name, "field": q.field, "axis": q.axis, "unit": q.unit,
+                          "value": ship[q.name]} for q in QUANTITIES])
+
+
+def write_tables(out: Path, tables: dict[str, pd.DataFrame]) -> None:
+    """Write each table as ``out/<name>.csv`` (6 significant digits, atomically)."""
+    for name, df in tables.items():
+        atomic_write(out / f"{name}.csv",
+                     lambda f, df=df: df.to_csv(f, index=False, float_format="%.6g"))
+
+
 # --------------------------------------------------------------------------- report
 def _bounds_text(main: pd.DataFrame, ship: dict[str, float], n_session: int) -> dict[str, str]:
     s_lo, s_hi = sigma_bound(main, ship["sigma"])
@@ -512,10 +528,8 @@ def main(argv: list[str] | None = None) -> int:
     main_cells = _derived(faithful(_subset(numpy_strings(res.cells), None, {})))
     bounds = _bounds_text(main_cells, ship, n_session=_session_samples(spec))
     out.mkdir(parents=True, exist_ok=True)
-    for name, df in (("sensitivity", sens), ("comparisons", comps), ("turns", turns),
-                     ("mask", mask)):
-        atomic_write(out / f"{name}.csv",
-                     lambda f, df=df: df.to_csv(f, index=False, float_format="%.6g"))
+    write_tables(out, {"sensitivity": sens, "comparisons": comps, "turns": turns, "mask": mask,
+                       "shipped": shipped_table(ship)})
     wall = time.perf_counter() - t0
     print(write_report(sens, turns, out, bounds, ship, a.seeds, mask, qs, _command(a)))
     atomic_write_text(out / "run.local.json", json.dumps(

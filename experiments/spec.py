@@ -1,14 +1,14 @@
 """Declarative experiment specs: TOML files validated on load, expanded into a grid of cells.
 
 A spec names *what* to run (paths, sensor configurations, noise models, seeds, window sizes,
-weighting schemes, techniques, solvers, evaluation masks, the page's extra replay); the
-sweep (:mod:`experiments.sweep`) runs it. The format, every axis and the path rule for the
-files a spec names are in ``docs/spec-format.md``. Every key is validated: unknown keys and
-bad values raise :class:`SpecError` naming the field (``grid[1].window[2]: must be a
-positive integer, got 0``). One declaration per axis (:data:`AXIS_SCHEMA`) gives the Cell
-type, the validation and the expansion; a cell's key hashes its axes, seeds and the
-contents of the files it names (GPS dissertation 000_8f82f8df647bf685.txt, Sections
-4.9-4.12: the axes of its moving-platform study).
+weighting schemes, techniques, solvers, evaluation masks, the page's extra replay, the
+report's sensitivity study); the sweep (:mod:`experiments.sweep`) runs it. The format, every
+axis and the path rule for the files a spec names are in ``docs/spec-format.md``. Every key
+is validated: unknown keys and bad values raise :class:`SpecError` naming the field
+(``grid[1].window[2]: must be a positive integer, got 0``). One declaration per axis
+(:data:`AXIS_SCHEMA`) gives the Cell type, the validation and the expansion; a cell's key
+hashes its axes, seeds and the contents of the files it names (GPS dissertation
+000_8f82f8df647bf685.txt, Sections 4.9-4.12: the axes of its moving-platform study).
 """
 
 from __future__ import annotations
@@ -50,7 +50,7 @@ from experiments.techniques import technique as _technique
 __all__ = ["AXES", "DEFAULT_MASKS", "DYN_GROWTH", "FILTER_TECHNIQUES", "FLIGHT_FILE", "MASKS",
            "NO_SOLVER", "NO_WEIGHTS", "ORACLE_TECHNIQUES", "PRESETS_DIR", "SOLVERS", "TECHNIQUES",
            "WEIGHTINGS", "Cell", "Spec", "SpecError", "available_presets", "axis_help",
-           "flight_folder", "load_spec"]
+           "flight_folder", "load_spec", "sensitivity_folder"]
 
 REPO = Path(__file__).resolve().parents[1]
 #: Where results/ lives: the checkout's, or the working directory's for an installed wheel.
@@ -79,9 +79,12 @@ MAX_SESSION_S = 7 * 86400.0
 MAX_SEEDS = 10_000
 MAX_CELLS = 200_000
 _TOP = {"name", "description", "seed", "seeds", "masks", "sim_seed", "session_s", "defaults",
-        "grid", "epochs", "techniques", "page"}
+        "grid", "epochs", "techniques", "page", "report"}
 #: The file of a flight replay source (``[page] flight``; ``python -m experiments.ultrasonic``).
 FLIGHT_FILE = "flight_series.csv"
+#: The file that marks a sensitivity study's folder (``[report] sensitivity``; ``python -m
+#: experiments.sensitivity``).
+SENSITIVITY_FILE = "sensitivity.csv"
 
 
 class SpecError(ValueError):
@@ -412,6 +415,9 @@ class Spec:
     plugin_files: dict = field(default_factory=dict, repr=False)
     #: The ``[page]`` table (``flight``: the flight replay's source folder), or None.
     page: dict | None = None
+    #: The ``[report]`` table (``sensitivity``: the sensitivity study's folder the Cause
+    #: lines quote), or None.
+    report: dict | None = None
 
     @property
     def _base(self) -> Path | None:
@@ -515,6 +521,9 @@ class Spec:
         page = data.get("page")
         if page is not None:
             page = _check_page(page, f"{src}: page", rbase)
+        report = data.get("report")
+        if report is not None:
+            report = _check_report(report, f"{src}: report", rbase)
         n_grid = sum(math.prod(len(b[k]) for k in b if k != "name") for b in grid)
         if n_grid * len(seeds) > MAX_CELLS:
             raise SpecError(f"{src}: grid: {n_grid} axis combinations x {len(seeds)} seeds = "
@@ -523,7 +532,7 @@ class Spec:
                    sim_seed=int(sim_seed), defaults=defaults, grid=tuple(grid), epochs=epochs,
                    session_s=float(session_s), source=src, base_dir=base, raw=data,
                    direct_paths=base_dir is None, plugins=plugins, plugin_files=plugin_files,
-                   page=page)
+                   page=page, report=report)
         spec.expand()   # resolve and check every file now, so bad names fail at load time
         return spec
 
@@ -714,7 +723,8 @@ class Spec:
                 "defaults": self.defaults, "grid": [dict(b) for b in self.grid],
                 "epochs": self.epochs, "source": self.source,
                 **({"techniques": self.raw.get("techniques", {})} if self.plugins else {}),
-                **({"page": self.page} if self.page else {})}
+                **({"page": self.page} if self.page else {}),
+                **({"report": self.report} if self.report else {})}
 
 
 # --------------------------------------------------------------------------- validation
@@ -830,16 +840,45 @@ def _check_page(p: object, where: str, base: Path | None) -> dict:
 
 def flight_folder(value: object, base: Path | None, where: str) -> Path | None:
     """The folder ``[page] flight`` names, or None while it holds no :data:`FLIGHT_FILE`
-    (the page says so; ``python -m experiments.ultrasonic`` writes it). Its file resolves by
-    the one rule of :func:`_resolve` (relative to the spec's folder, then the project, never
-    outside them); a folder without the file must still be named inside them."""
+    (the page says so; ``python -m experiments.ultrasonic`` writes it): :func:`_study_folder`."""
+    return _study_folder(value, base, where, FLIGHT_FILE, "results/ultrasonic")
+
+
+def _check_report(p: object, where: str, base: Path | None) -> dict:
+    """The ``[report]`` table: ``sensitivity``, the folder of the sensitivity study whose
+    tables the ``Cause:`` lines quote (:func:`sensitivity_folder`); without it they say the
+    causes were not re-measured."""
+    if not isinstance(p, dict):
+        raise SpecError(f"{where}: must be a table, e.g. [report] sensitivity = "
+                        "\"results/sensitivity\"")
+    unknown = sorted(set(p) - {"sensitivity"})
+    if unknown:
+        raise SpecError(f"{where}: unknown key(s) {unknown}; allowed: ['sensitivity']")
+    if "sensitivity" in p:
+        sensitivity_folder(p["sensitivity"], base, f"{where}.sensitivity")
+    return dict(p)
+
+
+def sensitivity_folder(value: object, base: Path | None, where: str) -> Path | None:
+    """The folder ``[report] sensitivity`` names, or None while it holds no
+    :data:`SENSITIVITY_FILE` (``python -m experiments.sensitivity`` writes it):
+    :func:`_study_folder`."""
+    return _study_folder(value, base, where, SENSITIVITY_FILE, "results/sensitivity")
+
+
+def _study_folder(value: object, base: Path | None, where: str, marker: str,
+                  example: str) -> Path | None:
+    """The folder of another study a spec declares (``[page] flight``, ``[report]
+    sensitivity``), or None while it holds no ``marker`` file. The file resolves by the one
+    rule of :func:`_resolve` (relative to the spec's folder, then the project, never outside
+    them); a folder without the file must still be named inside them."""
     if not isinstance(value, str) or not value.strip():
         raise SpecError(f"{where}: must be a folder path (string), e.g. "
-                        f"\"results/ultrasonic\", got {value!r}")
+                        f"\"{example}\", got {value!r}")
     p = Path(value)
     cands = [p, PROJECT_DIR / p] if base is None else [base / p, PROJECT_DIR / p]
-    if any((c / FLIGHT_FILE).is_file() for c in cands):
-        return _resolve(None, str(p / FLIGHT_FILE), base, where).parent
+    if any((c / marker).is_file() for c in cands):
+        return _resolve(None, str(p / marker), base, where).parent
     if base is not None and (p.is_absolute() or ".." in p.parts):
         raise SpecError(f"{where}: {value!r} must be named relative to the spec's folder or "
                         "the project, inside them (no '..', not absolute)")

@@ -112,7 +112,7 @@ def _weighting_cells(huff: float, over: str = "{}") -> pd.DataFrame:
     return pd.DataFrame(rows)
 
 
-def test_evaluate_variants_flags_the_flip_and_feeds_the_cause_line(tmp_path, monkeypatch):
+def test_evaluate_variants_flags_the_flip_and_feeds_the_cause_line(tmp_path):
     q = (sensitivity.Quantity("common_fraction", "common_fraction", "noise", "-", (0.0,), "a"),)
     cells = pd.concat([_weighting_cells(0.8), _weighting_cells(1.0, '{"common_fraction":0.0}')])
     sens, comps, _ = sensitivity.evaluate_variants(cells, q)
@@ -121,20 +121,38 @@ def test_evaluate_variants_flags_the_flip_and_feeds_the_cause_line(tmp_path, mon
     assert c8.loc["common_fraction", "verdict"] == "mixed"      # still below random
     assert c8.loc["common_fraction", "flipped"]
     assert not sens.loc[sens["claim"] == "C7", "flipped"].any()
-    for name, df in (("sensitivity", sens), ("comparisons", comps)):
-        df.to_csv(tmp_path / f"{name}.csv", index=False)
-    monkeypatch.setattr(causes, "SENSITIVITY_DIR", tmp_path)
-    text = causes._fraction_text(causes._fraction_gains())
+    sensitivity.write_tables(tmp_path, {"sensitivity": sens, "comparisons": comps,
+                                        "shipped": sensitivity.shipped_table(
+                                            sensitivity.shipped())})
+    study = causes.Sensitivity(str(tmp_path), tmp_path)
+    text = causes._fraction_text(study, causes._fraction_gains(study))
     gain = "Huff lowers the w=1 mean |x| by "
     assert f"common_fraction 0.5 (shipped) **reproduced** (64/64), {gain}19." in text
     assert f"common_fraction 0 **mixed** (32/64), {gain}0.0 %" in text
     main = _derived(_weighting_cells(0.8))
     r = next(x for x in evaluate_claims(main) if x.claim.cid == "C8")
-    ev = causes.Evidence(main, main, main.iloc[:0])
+    ev = causes.Evidence(main, main, main.iloc[:0], study)
     assert "not the common part of the error" in causes._c8(ev, r)   # cf 0 gains 0 %
-    monkeypatch.setattr(causes, "SENSITIVITY_DIR", tmp_path / "absent")
-    assert "Not re-measured" in causes._fraction_text(causes._fraction_gains())
+    ev = causes.Evidence(main, main, main.iloc[:0])                   # none declared
+    assert "Not re-measured: the spec declares no sensitivity study" in causes._c8(ev, r)
     assert "the error common to all receivers moves them alike" in causes._c8(ev, r)
+
+
+def test_shipped_csv_holds_every_quantity_as_shipped(tmp_path):
+    """shipped.csv (what the Cause lines label "(shipped)") has one row per quantity with the
+    value of its model / path file, exact through the 6-digit writer."""
+    ship = sensitivity.shipped()
+    sensitivity.write_tables(tmp_path, {"shipped": sensitivity.shipped_table(ship)})
+    t = pd.read_csv(tmp_path / "shipped.csv").set_index("quantity")
+    assert list(t.index) == [q.name for q in sensitivity.QUANTITIES]
+    assert t["value"].to_dict() == ship
+    assert t.loc["speed", "field"] == "cruise_speed_mps" and t.loc["speed", "unit"] == "m/s"
+
+
+def test_the_committed_study_holds_the_shipped_values():
+    """results/sensitivity/shipped.csv matches the model files (it was added from them)."""
+    t = pd.read_csv(sensitivity.REFERENCE / "shipped.csv").set_index("quantity")
+    assert t["value"].to_dict() == sensitivity.shipped()
 
 
 def test_evaluate_variants_names_a_missing_variant():
