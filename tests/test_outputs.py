@@ -148,3 +148,35 @@ def test_frame_digest():
     assert outputs.frame_digest(b) != outputs.frame_digest(b.astype({"x": "float32"}))
     assert outputs.frame_digest(a, ["s"]) == outputs.frame_digest(a.assign(x=0.0), ["s"])
     assert outputs.frame_digest(a.iloc[:0]) != outputs.frame_digest(a)
+
+
+def test_a_changed_sensitivity_study_redraws_the_report_only(folder):
+    """The report's inputs cover the CSVs of the study the spec declared (``[report]
+    sensitivity``, recorded in manifest.json): a changed table redraws REPORT.md (and the
+    page that shows it), the same bytes rewritten do not, and an undeclared folder is not
+    watched."""
+    out = folder[0]
+    study = out / "study"
+    study.mkdir()
+    for name in ("sensitivity", "comparisons", "shipped"):
+        (study / f"{name}.csv").write_text(f"{name}\n1\n")
+    (out / "manifest.json").write_text(json.dumps(
+        {"spec": {"report": {"sensitivity": "study"}}, "spec_base_dir": str(out)}))
+    _write(folder)
+    f = study / "comparisons.csv"
+    f.write_text(f.read_text())                 # same contents, new modification time
+    st = f.stat()
+    os.utime(f, ns=(st.st_atime_ns, st.st_mtime_ns + 10**9))
+    calls, _ = _write(folder)
+    assert calls == []
+    f.write_text("comparisons\n2\n")            # the study re-measured
+    calls, _ = _write(folder)
+    assert calls == ["page", "report"]
+    (study / "mask.csv").write_text("dilate_s\n0\n")    # a new table of the study
+    calls, _ = _write(folder)
+    assert calls == ["page", "report"]
+    (out / "manifest.json").write_text(json.dumps({"spec": {}, "spec_base_dir": str(out)}))
+    _write(folder)
+    f.write_text("comparisons\n3\n")            # no longer declared: not an input
+    calls, _ = _write(folder)
+    assert calls == []
