@@ -104,9 +104,10 @@ def _accumulate(x, I, J, d, m, out):
 
 
 @_jit
-def _cholesky(A, L, n):
-    """Lower Cholesky factor of A (lower triangle read) into L; False where A is not
-    positive definite (a pivot <= 0 or NaN, LAPACK's test)."""
+def _cholesky(A, L, rd, n):
+    """Lower Cholesky factor of A (lower triangle read) into L, the reciprocals of its
+    diagonal into rd; False where A is not positive definite (a pivot <= 0 or NaN, LAPACK's
+    test)."""
     for j in range(n):
         s = A[j, j]
         for k in range(j):
@@ -116,6 +117,7 @@ def _cholesky(A, L, n):
         ljj = math.sqrt(s)
         L[j, j] = ljj
         r = 1.0 / ljj    # scaled by the reciprocal, as LAPACK's dpotf2
+        rd[j] = r
         for i in range(j + 1, n):
             s = A[i, j]
             for k in range(j):
@@ -125,11 +127,11 @@ def _cholesky(A, L, n):
 
 
 @_jit
-def _inertia_cholesky(H, A, L, n, last, par):
+def _inertia_cholesky(H, A, L, rd, n, last, par):
     """Factor H + delta I with delta = 0 when H is positive definite, else the smallest of
     DELTA0 (or last / 3) x 8^k that factors (the reference's _inertia_cholesky). Returns
     delta; NaN in L when no finite shift factors."""
-    if _cholesky(H, L, n):
+    if _cholesky(H, L, rd, n):
         return 0.0
     dd = max(par[P_DMIN], last * par[P_DSHRINK]) if last > 0.0 else par[P_D0]
     while dd < INF:
@@ -137,26 +139,27 @@ def _inertia_cholesky(H, A, L, n, last, par):
             for j in range(i + 1):
                 A[i, j] = H[i, j]
             A[i, i] += dd
-        if _cholesky(A, L, n):
+        if _cholesky(A, L, rd, n):
             return dd
         dd *= par[P_DGROW]
     L[:, :] = NAN
+    rd[:] = NAN
     return dd
 
 
 @_jit
-def _cho_solve(L, b, x, n):
-    """x = -(L L^T)^-1 b (the Newton direction for the gradient b)."""
+def _cho_solve(L, rd, b, x, n):
+    """x = -(L L^T)^-1 b (the Newton direction for the gradient b); rd = 1 / diag(L)."""
     for i in range(n):
         s = b[i]
         for k in range(i):
             s -= L[i, k] * x[k]
-        x[i] = s / L[i, i]
+        x[i] = s * rd[i]
     for i in range(n - 1, -1, -1):
         s = x[i]
         for k in range(i + 1, n):
             s -= L[k, i] * x[k]
-        x[i] = s / L[i, i]
+        x[i] = s * rd[i]
     for i in range(n):
         x[i] = -x[i]
 
@@ -168,8 +171,8 @@ def _primal_step(su, sl, dq, c, frac):
     t = 1.0
     for p in range(su.size):
         ts = frac * su[p]
-        tu = _div(2.0 * ts, dq[p] + _sqrt(dq[p] * dq[p] + 4.0 * c[p] * ts))
-        t = _min(t, tu)
+        if not ts - dq[p] >= c[p]:   # else the root is >= 1 (ts > 0): it cannot bind
+            t = _min(t, _div(2.0 * ts, dq[p] + _sqrt(dq[p] * dq[p] + 4.0 * c[p] * ts)))
         if dq[p] < 0.0:   # else frac sl / 0 = inf: never binds (a NaN dq makes tu NaN)
             t = _min(t, _div(frac * sl[p], -dq[p]))
     return t
@@ -274,10 +277,10 @@ def _trial(z, dz, t, y, W, I, J, d, m, hi2, lo2, ta, bound, zt, Vt, sut, slt):
 @_jit
 def _soc(L, V, sig, cq, dz, I, J, d, m, su, sl, frac, ws_v, ws_n, ws_p):
     """Second-order correction (reference): re-solve with the curvature |dv|^2 moved into
-    the constraint residual; returns (tp2, dq2) with dz2 in ws_n[1] (dz2 = dz - H^-1 S^T
-    (2 sig cq v))."""
+    the constraint residual; returns its step length tp2, with dz2 = dz - H^-1 S^T (2 sig cq v)
+    in ws_n[1] and its dq in ws_p[0] (ws_n[2]: 1 / diag(L))."""
     tmp, dv2 = ws_v[0], ws_v[1]
-    g, dz2 = ws_n[0], ws_n[1]
+    g, dz2, wn_rd = ws_n[0], ws_n[1], ws_n[2]
     dq2, cq2 = ws_p[0], ws_p[1]
     n = d * m
     for ca in range(d):
@@ -285,7 +288,7 @@ def _soc(L, V, sig, cq, dz, I, J, d, m, su, sl, frac, ws_v, ws_n, ws_p):
             tmp[ca, p] = 2.0 * sig[p] * cq[p] * V[ca, p]
     g[:] = 0.0
     _accumulate(tmp, I, J, d, m, g)
-    _cho_solve(L, g, dz2, n)
+    _cho_solve(L, wn_rd, g, dz2, n)
     for k in range(n):
         dz2[k] = dz[k] + dz2[k]
     _pairs(dz2, I, J, d, m, dv2)
@@ -312,7 +315,7 @@ def _window(y, W, z, a, eps, maxiter, par, I, J, d, m, wm, wv, wn, wp):
     distances. wm, wv, wn, wp: work arrays. Returns (iterations, converged)."""
     H, A, L = wm[0], wm[1], wm[2]
     V, Vn, tmp = wv[0], wv[1], wv[2]
-    zn, G, g, dz = wn[0], wn[1], wn[2], wn[3]
+    zn, G, g, dz, rd = wn[0], wn[1], wn[2], wn[3], wn[6]
     hi2, lo2, su, sl, sun, sln, lu, ll = wp[0], wp[1], wp[2], wp[3], wp[4], wp[5], wp[6], wp[7]
     mu, sig, isu, isl, dq, cq, dqa, cqa = wp[8], wp[9], wp[10], wp[11], wp[12], wp[13], wp[14], \
         wp[15]
@@ -386,10 +389,10 @@ def _window(y, W, z, a, eps, maxiter, par, I, J, d, m, wm, wv, wn, wp):
             cor_u[p] = 0.0
             cor_l[p] = 0.0
         _hessian(V, sig, mu, W, I, J, d, m, H)
-        dl = _inertia_cholesky(H, A, L, n, dprev, par)
+        dl = _inertia_cholesky(H, A, L, rd, n, dprev, par)
         md = md and dl == 0.0
         if md:   # Mehrotra predictor: affine step (tau = 0)
-            _cho_solve(L, G, dz, n)
+            _cho_solve(L, rd, G, dz, n)
             _pairs(dz, I, J, d, m, tmp)
             _dq(V, tmp, d, dqa, cqa)
             for p in range(P):
@@ -412,7 +415,7 @@ def _window(y, W, z, a, eps, maxiter, par, I, J, d, m, wm, wv, wn, wp):
         for p in range(P):
             coef[p] = ta * (isu[p] - isl[p]) - cor_u[p] * isu[p] + cor_l[p] * isl[p]
         _newton_rhs(G, coef, V, I, J, d, m, tmp, g)
-        _cho_solve(L, g, dz, n)
+        _cho_solve(L, rd, g, dz, n)
         _pairs(dz, I, J, d, m, tmp)
         _dq(V, tmp, d, dq, cq)
         tp = _primal_step(su, sl, dq, cq, frac)
@@ -501,6 +504,6 @@ def barrier_kernel(Y: np.ndarray, Wn: np.ndarray, Z: np.ndarray, a: np.ndarray, 
     conv = np.zeros(N, np.bool_)
     _windows(Y, Wn, Z, np.ascontiguousarray(a, dtype=float), float(eps), int(maxiter),
              np.ascontiguousarray(par, dtype=float), int(d), int(m), I, J,
-             np.zeros((3, n, n)), np.zeros((5, d, P)), np.zeros((6, n)), np.zeros((27, P)),
+             np.zeros((3, n, n)), np.zeros((5, d, P)), np.zeros((7, n)), np.zeros((27, P)),
              iters, conv)
     return iters, conv

@@ -2,17 +2,17 @@
 numpy reference (``elastic_batch(..., engine="numpy")``), on the thesis preset's windows.
 
 Tolerance: the kernel runs the reference's steps window by window; only the order of the
-floating-point sums differs (Cholesky, pair-difference products), so the two follow the same
-iterates to rounding and stop at the same iteration. Converged fits: positions within
-1e-6 m (one micrometre against GPS errors of metres; measured <= 3e-8 m on 27,500 thesis
-windows, the largest on the dead antenna's position, which only the tiny proximal weight
-holds; 1e-4 m for a sensor with an axis or both without data, held by the constraints and
-that weight alone, where the objective is flat: measured 2.1e-6 m with the objectives equal
-to 1e-15), objectives within 1e-9 relative (the convergence test itself is RTOL = 1e-7), yaw
-within 1e-6 rad. Windows stopped by the iteration limit are the last iterate of a slow crawl
-along curved bands, where rounding differences accumulate over 100 iterations: 1e-3 m
-(measured 3.5e-5 m). Statuses identical; iteration counts identical on the thesis windows,
-one iteration apart in at most 1 % of the windows where antennas drop out at random.
+floating-point sums differs (Cholesky, pair-difference products), so almost every window
+follows the same iterates to rounding and stops at the same iteration: positions within
+1e-6 m (one micrometre against GPS errors of metres; measured <= 3e-8 m on 27,525 of 27,527
+thesis windows), yaw within 1e-6 rad. What the stopping rule itself guarantees is weaker: the
+objective within RTOL = 1e-7 (relative) of the local optimum, which for these windows (f ~ 1
+m^2 per unit weight, weights ~ 1/16 per coordinate) leaves the positions free within about
+sqrt(16 x 1e-7) ~ 1e-3 m of it. Where the two roundings take different paths the fits differ
+within that: measured 1.5e-4 m on an observed antenna (yaw 4.3e-6 rad, CG 2.7e-5 m) and
+5.2e-4 m on two antennas without data (yaw 3.7e-5 rad, one iteration apart) in the two other
+windows. Bounds: at most MAX_PATHS_DIFFER of the windows beyond 1e-6 m, none beyond 2e-3 m,
+objectives within RTOL relative, yaw within 1e-4 rad, statuses identical.
 """
 
 from __future__ import annotations
@@ -28,17 +28,18 @@ import pytest
 from pose_scenes import kinematic_truth, noisy
 
 from estimator.configuration import SensorConfig
-from estimator.elastic import ENGINES, elastic_batch
+from estimator.elastic import ENGINES, RTOL, elastic_batch
 from estimator.trackers._windows import elastic_moments
 
 REPO = Path(__file__).resolve().parents[1]
-TOL_POS_M = 1e-6          # converged windows (module docstring)
-TOL_POS_MAXITER_M = 1e-3  # windows at the iteration limit
-TOL_POS_FREE_M = 1e-4     # converged, sensors (axes) without data (module docstring)
-TOL_OBJ_REL = 1e-9
+TOL_POS_M = 1e-6          # windows on the same path (module docstring)
 TOL_YAW = 1e-6
-#: share of windows whose iteration count may differ (by rounding, the convergence test
-#: passes one iteration apart on a slow window: 1 of 800 in the drop-out case)
+TOL_PATH_M = 2e-3         # every window: within the stopping rule's guarantee
+TOL_PATH_YAW = 1e-4
+TOL_OBJ_REL = RTOL
+#: share of windows that may take another path (2 of 27,527 measured) or stop one
+#: iteration apart (1 of 800 in the drop-out case)
+MAX_PATHS_DIFFER = 0.005
 MAX_ITER_DIFFER = 0.01
 
 
@@ -56,31 +57,25 @@ def thesis_windows(path: str, seed: int, w: int, weighting: str, n_rows: int | N
 
 
 def assert_engines_agree(means, wax, cfg, strict=True, **kw):
-    """Both engines on the same windows: statuses and iterations identical, numbers within
-    the module's tolerances. Returns the reference fit."""
+    """Both engines on the same windows: statuses identical, iterations identical (strict) or
+    in all but MAX_ITER_DIFFER of the windows, numbers within the module's tolerances.
+    Returns the reference fit."""
     a = elastic_batch(means, wax, cfg, 0.01, engine="numpy", **kw)
     b = elastic_batch(means, wax, cfg, 0.01, engine="numba", **kw)
     np.testing.assert_array_equal(b.status, a.status)
-    if strict:
-        np.testing.assert_array_equal(b.iterations, a.iterations)
     differ = b.iterations != a.iterations
-    assert differ.mean() <= MAX_ITER_DIFFER, f"iterations differ in {differ.sum()} windows"
+    assert differ.mean() <= (0.0 if strict else MAX_ITER_DIFFER), \
+        f"iterations differ in {differ.sum()} windows"
     np.testing.assert_array_equal(np.isnan(b.positions), np.isnan(a.positions))
-    conv = a.status == "ok"
-    dps = np.nan_to_num(np.abs(b.positions - a.positions)).max(axis=2)     # (N, m)
-    full = (np.asarray(wax) > 0).all(axis=2)
-    worst = np.where(full, dps, 0.0)[conv].max(initial=0)
-    assert worst <= TOL_POS_M, f"converged: {worst:.3g} m apart"
-    worst = dps[conv].max(initial=0)
-    assert worst <= TOL_POS_FREE_M, f"converged, sensors without data: {worst:.3g} m apart"
-    dp = dps.max(axis=1)
-    worst = dp[~conv].max(initial=0)
-    assert worst <= TOL_POS_MAXITER_M, f"at the limit: {worst:.3g} m apart"
+    dp = np.nan_to_num(np.abs(b.positions - a.positions)).max(axis=(1, 2))
+    dyaw = np.nan_to_num(np.abs(np.angle(np.exp(1j * (b.yaw - a.yaw)))))
+    same = (dp <= TOL_POS_M) & (dyaw <= TOL_YAW)
+    assert (~same).mean() <= MAX_PATHS_DIFFER, f"{(~same).sum()} windows beyond 1e-6"
+    assert dp.max(initial=0) <= TOL_PATH_M, f"{dp.max():.3g} m apart"
+    assert dyaw.max(initial=0) <= TOL_PATH_YAW
     fin = np.isfinite(a.objective)
     rel = np.abs(b.objective[fin] - a.objective[fin]) / np.maximum(a.objective[fin], 1e-300)
-    assert rel[conv[fin]].max(initial=0) <= TOL_OBJ_REL
-    dyaw = np.abs(np.angle(np.exp(1j * (b.yaw - a.yaw))))
-    assert np.nan_to_num(dyaw[conv]).max(initial=0) <= TOL_YAW
+    assert rel.max(initial=0) <= TOL_OBJ_REL
     return a
 
 
