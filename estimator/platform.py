@@ -27,7 +27,8 @@ import numpy as np
 
 from estimator.epoch_fit import epoch_rigid_fits
 
-__all__ = ["FALLBACK_TURN_RATE_RADPS", "FLOORS", "PlatformLimits", "TravelAxis",
+__all__ = ["CURVATURE_FLOOR_1PM", "FALLBACK_TURN_RATE_RADPS", "FLOORS", "PlatformLimits",
+           "TravelAxis",
            "estimate_limits", "estimate_travel_axis"]
 
 #: Closed ranges of the limits (SI): a creeping platform to ~1000 g.
@@ -59,8 +60,17 @@ AXIS_BLOCKS = 10
 #: mounted along the axis must not get a noise-made offset).
 AXIS_SIGMAS = 3.0
 
+#: Floor of an estimated curvature limit, 1/m (a 20 m turning radius: wider than any road
+#: vehicle's turning circle, so a recording that never turned sharply still allows a turn).
+CURVATURE_FLOOR_1PM = 0.05
+#: Course changes count for the curvature only over intervals whose travel exceeds this many
+#: sd of a displacement (course sd below 1/10 rad).
+CURVATURE_MIN_SIGMAS = 10.0
+
 _NAMES = ("max_speed_mps", "max_accel_mps2", "max_turn_rate_radps", "max_yaw_accel_radps2",
-          "max_lateral_accel_mps2", "max_jerk_mps3")
+          "max_lateral_accel_mps2", "max_jerk_mps3", "max_curvature_1pm")
+#: Limits that may be None (unbounded).
+_OPTIONAL = ("max_jerk_mps3", "max_curvature_1pm")
 
 
 @dataclass(frozen=True)
@@ -78,6 +88,7 @@ class PlatformLimits:
     max_yaw_accel_radps2: float | None = None
     max_lateral_accel_mps2: float | None = None
     max_jerk_mps3: float | None = None
+    max_curvature_1pm: float | None = None
     source: str = "given"
 
     def __post_init__(self) -> None:
@@ -87,7 +98,7 @@ class PlatformLimits:
             object.__setattr__(self, "max_lateral_accel_mps2", self.max_accel_mps2)
         for name in _NAMES:
             v = getattr(self, name)
-            if v is None and name == "max_jerk_mps3":
+            if v is None and name in _OPTIONAL:
                 continue
             if isinstance(v, bool) or not isinstance(v, (int, float, np.floating, np.integer)):
                 raise ValueError(  # noqa: TRY004 (project contract: bad input is ValueError)
@@ -165,8 +176,42 @@ def _fits(obs: np.ndarray, offsets: np.ndarray, sigma_abs: float):
     return origin, yaw, yaw_sd <= MAX_FIT_YAW_SD
 
 
-def estimate_limits(t: np.ndarray, obs: np.ndarray, offsets: np.ndarray, sigma_abs: float
-                    ) -> PlatformLimits:
+#: Cap of an estimated curvature, 1/m (a 0.1 m turning radius: beyond it, on the spot).
+CURVATURE_CAP_1PM = 10.0
+
+
+def _curvature(tt: np.ndarray, origin: np.ndarray, yaw: np.ndarray, ok_yaw: np.ndarray,
+               present: np.ndarray, sigma_d: float) -> float | None:
+    """Curvature limit, 1/m: ``MARGIN x p99`` of the course change between consecutive ~1 s
+    intervals over their mean travel, both travelling more than :data:`CURVATURE_MIN_SIGMAS`
+    x ``sigma_d`` (m, sd of an interval's displacement) with the same antennas (``present``
+    (n, m)) at both ends (a fit of another subset moves by the antennas' own errors), clipped to
+    [:data:`CURVATURE_FLOOR_1PM`, :data:`CURVATURE_CAP_1PM`]. None (unbounded) when more
+    than ``100 - PERCENTILE`` % of the precise-heading intervals turn at the turn-rate floor
+    or faster without that travel (a platform turning on the spot), or too few intervals."""
+    k, j, dt, d, dyaw, _ = _intervals(tt, origin, yaw, ok_yaw)
+    dist = np.hypot(d[:, 0], d[:, 1])
+    same = (present[k] == present[j]).all(axis=1)
+    travelled = dist >= CURVATURE_MIN_SIGMAS * sigma_d
+    moving = travelled & same
+    turns = np.isfinite(dyaw)
+    pivot = turns & ~travelled & (np.abs(dyaw) >= FLOORS[2] * dt)
+    if turns.any() and pivot.sum() > (1.0 - PERCENTILE / 100.0) * turns.sum():
+        return None
+    course = np.full(tt.size, np.nan)
+    dist_full = np.full(tt.size, np.nan)
+    course[k[moving]] = np.arctan2(d[moving, 1], d[moving, 0])
+    dist_full[k] = dist
+    kk, jj, _, _, dcourse, _ = _intervals(tt, np.c_[dist_full, dist_full], course,
+                                          np.isfinite(course))
+    mean_dist = 0.5 * (dist_full[kk] + dist_full[jj])
+    with np.errstate(invalid="ignore", divide="ignore"):
+        kappa = np.abs(dcourse) / mean_dist
+    return _robust_max(kappa, CURVATURE_FLOOR_1PM, CURVATURE_CAP_1PM)
+
+
+def estimate_limits(t: np.ndarray, obs: np.ndarray, offsets: np.ndarray, sigma_abs: float,
+                    sigma_step: float | None = None) -> PlatformLimits:
     """Limits from the recording (module docstring): t (n,) s, obs (n, m, 2) m (NaN
     missing), offsets (m, 2) m, sigma_abs the per-axis fix noise (m; e.g.
     :func:`estimator.pose_filter.estimate_noise`). Over intervals of ~1 s between fitted
@@ -175,7 +220,10 @@ def estimate_limits(t: np.ndarray, obs: np.ndarray, offsets: np.ndarray, sigma_a
     (lateral); each limit is
     ``MARGIN x p99`` clipped to [:data:`FLOORS`, :data:`CAPS`]. Without precise headings the
     turn rate is :data:`FALLBACK_TURN_RATE_RADPS`, yaw acceleration = turn rate / 1 s,
-    lateral acceleration = the longitudinal limit. Returns ``source="data"`` limits."""
+    lateral acceleration = the longitudinal limit. The curvature from the course changes
+    (:func:`_curvature`; ``sigma_step``, m, the per-axis sd of a fix's change over one sample,
+    default ``sigma_abs sqrt(2)``, sets which intervals travelled). Returns ``source="data"``
+    limits."""
     tt = np.asarray(t, dtype=float)
     origin, yaw, ok_yaw = _fits(obs, offsets, sigma_abs)
     k, _, dt, d, dyaw, _ = _intervals(tt, origin, yaw, ok_yaw)
@@ -195,13 +243,17 @@ def estimate_limits(t: np.ndarray, obs: np.ndarray, offsets: np.ndarray, sigma_a
     jerk = (ac_full[j3] - ac_full[k3]) / dt3
     vals = (speed, accel, omega, yacc, speed * omega, jerk)
     est = [_robust_max(v, lo, hi) for v, lo, hi in zip(vals, FLOORS, CAPS, strict=True)]
+    dt_med = float(np.median(np.diff(tt))) if tt.size > 1 else 1.0
+    ss = sigma_step if sigma_step is not None else sigma_abs * math.sqrt(2.0)
+    lag = max(1, round(1.0 / dt_med))
+    kappa = _curvature(tt, origin, yaw, ok_yaw, np.isfinite(obs[..., 0]), ss * math.sqrt(lag))
     v_max = est[0] if est[0] is not None else FLOORS[0]
     a_max = est[1] if est[1] is not None else FLOORS[1]
     w_max = est[2] if est[2] is not None else FALLBACK_TURN_RATE_RADPS
     return PlatformLimits(max_speed_mps=v_max, max_accel_mps2=a_max, max_turn_rate_radps=w_max,
                           max_yaw_accel_radps2=est[3] if est[3] is not None else w_max,
                           max_lateral_accel_mps2=est[4] if est[4] is not None else a_max,
-                          max_jerk_mps3=est[5], source="data")
+                          max_jerk_mps3=est[5], max_curvature_1pm=kappa, source="data")
 
 
 @dataclass(frozen=True)

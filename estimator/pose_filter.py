@@ -258,6 +258,9 @@ class PoseFilterParams:
     :data:`LIMIT_RANGE`; None (the default) = estimated from the recording
     (:func:`estimator.platform.estimate_limits`: robust percentiles of the per-epoch rigid
     fits' motion, with floors), so a car is not filtered with a rover's limits (issue 25).
+    ``max_curvature_1pm`` (1/m): the yaw rate is at most ``|v|`` times it (no-slip
+    kinematics of a steered platform: at rest it cannot turn); None = unbounded, or, when
+    the turn rate too is None, estimated from the data's course changes.
     A caller who knows the platform passes them (:meth:`from_platform`, :meth:`from_limits`).
     ``sigma_abs_m`` / ``sigma_step_m``: per-axis sd of an antenna fix and of its displacement
     over one sample interval, in :data:`SIGMA_RANGE_M`; None = :func:`estimate_noise` on the
@@ -291,14 +294,15 @@ class PoseFilterParams:
     max_speed_mps: float | None = None
     travel_offset_rad: float | None = None
     max_jerk_mps3: float | None = None
+    max_curvature_1pm: float | None = None
 
     def __post_init__(self) -> None:
         for name in LIMIT_FIELDS:
             if getattr(self, name) is not None:
                 check_real(getattr(self, name), name, lo=LIMIT_RANGE[0], hi=LIMIT_RANGE[1])
-        if self.max_jerk_mps3 is not None:
-            check_real(self.max_jerk_mps3, "max_jerk_mps3", lo=LIMIT_RANGE[0],
-                       hi=LIMIT_RANGE[1])
+        for name in ("max_jerk_mps3", "max_curvature_1pm"):
+            if getattr(self, name) is not None:
+                check_real(getattr(self, name), name, lo=LIMIT_RANGE[0], hi=LIMIT_RANGE[1])
         if self.travel_offset_rad is not None:
             check_real(self.travel_offset_rad, "travel_offset_rad", lo=-math.pi / 4,
                        hi=math.pi / 4)
@@ -363,10 +367,13 @@ class PoseFilterParams:
             kw["sigma_step_m"] = self.sigma_step_m if self.sigma_step_m is not None else ss
         sigma = kw["sigma_abs_m"] if "sigma_abs_m" in kw else self._limit("sigma_abs_m")
         if any(getattr(self, k) is None for k in LIMIT_FIELDS):
-            lim = estimate_limits(t, obs, off, sigma).to_dict()
+            step = kw.get("sigma_step_m", self.sigma_step_m)
+            lim = estimate_limits(t, obs, off, sigma, step).to_dict()
             kw.update({k: lim[k] for k in LIMIT_FIELDS if getattr(self, k) is None})
             if self.max_accel_mps2 is None and self.max_jerk_mps3 is None:
                 kw["max_jerk_mps3"] = lim["max_jerk_mps3"]
+            if self.max_turn_rate_radps is None and self.max_curvature_1pm is None:
+                kw["max_curvature_1pm"] = lim["max_curvature_1pm"]
         if self.travel_offset_rad is None or self.no_slip_point_m is None:
             ax = estimate_travel_axis(t, obs, off, sigma)
             if self.travel_offset_rad is None:
@@ -394,7 +401,7 @@ class PoseFilterParams:
         ``max_turn_rate_radps``, ``max_lateral_accel_mps2``, ``max_speed_mps`` (absent or
         None: estimated from the data);
         other keys are ignored. ``overrides`` set any field."""
-        kw = {k: limits[k] for k in (*LIMIT_FIELDS, "max_jerk_mps3")
+        kw = {k: limits[k] for k in (*LIMIT_FIELDS, "max_jerk_mps3", "max_curvature_1pm")
               if limits.get(k) is not None}
         kw.update(overrides)
         return cls(**kw)
@@ -882,6 +889,7 @@ class FilterStart:
     def __init__(self, t: np.ndarray, obs: np.ndarray, r: np.ndarray, sigma_abs: float,
                  params: PoseFilterParams) -> None:
         self.t = t
+        self.obs = obs
         self.origin, self.yaw, self.cnt, _ = epoch_rigid_fits(obs, r)   # origin = no-slip point
         self.present = np.isfinite(obs[..., 0])
         self.r2 = (r ** 2).sum(1)
@@ -890,6 +898,32 @@ class FilterStart:
         self.anchor = -1
         self.r = r
         self._spread: np.ndarray | None = None
+        self.memory = (-1, 0.0, 0.0)      # (epoch, heading, its variance) of the last update
+
+    def remember(self, k: int, x: np.ndarray, P: np.ndarray) -> None:
+        """Epoch k's updated heading and its variance: a lost track's last word, from which
+        a platform that stood since restarts (:meth:`_standstill_start`)."""
+        self.memory = (k, float(x[YAW]), float(P[YAW, YAW]))
+
+    def _standstill_start(self, k: int) -> tuple[float, float, float, float] | None:
+        """(yaw0, yaw sd, v0, v sd) when the platform stood since the remembered epoch j: every
+        antenna present at both moved by at most ``INIT_MOTION_SIGMAS sigma_step sqrt(k -
+        j)`` (the start's motion test, the displacement noise growing as a random walk), so
+        its heading turned by at most the curvature limit times that travel (issue 25: a
+        car cannot turn at rest). None without a memory, a common antenna or a curvature
+        limit, or when that bound leaves the heading sd above :data:`LOST_YAW_SD`."""
+        j, yaw, var = self.memory
+        kappa = self.params.max_curvature_1pm
+        both = self.present[k] & self.present[j] if j >= 0 else None
+        if both is None or kappa is None or not both.any():
+            return None
+        d = self.obs[k, both] - self.obs[j, both]
+        thr = INIT_MOTION_SIGMAS * self.params._limit("sigma_step_m") * math.sqrt(k - j)
+        ysd = math.sqrt(var + (kappa * thr) ** 2)
+        if not (float(np.sqrt((d * d).sum(1)).max()) <= thr and ysd <= LOST_YAW_SD):
+            return None
+        dt = self.t[k] - self.t[j]
+        return yaw, ysd, 0.0, math.hypot(self.params._limit("max_accel_mps2") * dt, thr / dt)
 
     def reset(self) -> None:
         """Forget the anchor (after a lost track)."""
@@ -964,6 +998,8 @@ class FilterStart:
                 return None
             yaw0, ysd = float(self.yaw[k]), yaw_sd
             v0, vsd = self._fit_speed(k, yaw0)
+        elif (still := self._standstill_start(k)) is not None:
+            yaw0, ysd, v0, vsd = still
         elif self.anchor < 0:
             self.anchor = k
             return None
@@ -1043,6 +1079,34 @@ class _Monitor:
             self.clear()
             return bad, self.starter.refit(k, x)
         return bad, None
+
+
+def _bound_yaw_rate(x: np.ndarray, P: np.ndarray, dt: float, kappa: float, om_max: float,
+                    qy: float) -> float:
+    """Keep the yaw rate within the no-slip kinematics over the next step (issue 25): it is
+    at most ``b = kappa |v|`` (kappa the curvature limit, 1/m) where that is below the turn
+    -rate limit om_max (there, e.g. near a standstill, it binds; above, om_max bounds the
+    state's mean only, as the projection does, and nothing changes here), with ``v^2``
+    taken as the speed's second moment at the step's end, ``v^2 + P_vv + dt^2 (a^2 +
+    P_aa)``. So ``|omega| <= b`` (clipped in place) and its variance, that of a variable
+    within [-b, b], at most ``b^2``: beyond it omega's row and column of P (6, 6) are scaled
+    in place by ``b / sqrt(P_ww)`` (a congruence: P stays PSD), and the yaw-rate noise qy
+    (its change's variance over the step / dt^2) is cut to what the bound leaves. A car at
+    rest with a 1 m/s speed sd and kappa 0.2 1/m: yaw-rate sd <= 11 deg/s. Returns the
+    yaw-rate noise to use."""
+    v2 = x[V] * x[V] + P[V, V] + dt * dt * (x[A] * x[A] + P[A, A])
+    b2 = kappa * kappa * v2 if kappa < math.inf else math.inf
+    if not b2 < om_max * om_max:
+        return qy
+    if x[OMEGA] * x[OMEGA] > b2:
+        x[OMEGA] = math.copysign(math.sqrt(b2), x[OMEGA])
+    var = P[OMEGA, OMEGA]
+    if var > b2:
+        s = math.sqrt(b2 / var)
+        P[OMEGA, :] *= s
+        P[:, OMEGA] *= s
+        var = b2
+    return min(qy, max(b2 - var, 0.0) / (dt * dt))
 
 
 def _standstill_hold(x: np.ndarray, P: np.ndarray, starter: FilterStart, k: int) -> bool:
@@ -1246,6 +1310,7 @@ def run_pose_filter(t: np.ndarray, obs: np.ndarray, offsets: np.ndarray,
     qy = params.sigma_yaw_accel ** 2
     om_max, alat = params._limit("max_turn_rate_radps"), params._limit("max_lateral_accel_mps2")
     a_max = params._limit("max_accel_mps2")
+    kappa = params.max_curvature_1pm if params.max_curvature_1pm is not None else math.inf
     lever = float(np.sqrt((r_m ** 2).sum(1).max())) if m else 0.0
 
     X = np.full((n, NX), np.nan)
@@ -1274,7 +1339,7 @@ def run_pose_filter(t: np.ndarray, obs: np.ndarray, offsets: np.ndarray,
                         monitor.thr1, float(params.reverse), float(params.max_rejects),
                         float(monitor.window), INIT_MAX_YAW_SD, INIT_MOTION_SIGMAS,
                         LOST_YAW_SD, MAX_FIT_YAW_SD, STANDSTILL_SIGMAS, REINIT_EPOCHS,
-                        REINIT_MIN_YAW_RAD, MAX_ITERATIONS, MAX_PRIOR_RATIO])
+                        REINIT_MIN_YAW_RAD, MAX_ITERATIONS, MAX_PRIOR_RATIO, kappa])
         status = _run_kernel(tt, obs, present, r_m, starter, monitor, par, out)
         return _result(out, status, delta, params, cg_offset)
 
@@ -1298,8 +1363,8 @@ def run_pose_filter(t: np.ndarray, obs: np.ndarray, offsets: np.ndarray,
             # continuous noise of constant density: the variances of the rates' changes
             # given per median step, scaled to this step (longer gaps: larger)
             hold = _standstill_hold(x, P, starter, k)
-            xp, Pp, FP = _predict(x, P, dt, qa * dt / dt_med,
-                                  0.0 if hold else qy * dt_med / dt)
+            qy_k = _bound_yaw_rate(x, P, dt, kappa, om_max, 0.0 if hold else qy * dt_med / dt)
+            xp, Pp, FP = _predict(x, P, dt, qa * dt / dt_med, qy_k)
             if present[k].any() and _prior_lost(Pp, lever, var_min):
                 # the prediction means nothing (e.g. after an hour's gap in t): the track
                 # is lost; this epoch's data start it again (reported as "reset")
@@ -1419,6 +1484,8 @@ def run_pose_filter(t: np.ndarray, obs: np.ndarray, offsets: np.ndarray,
         if abs(x[A]) > a_max:
             x[A] = math.copysign(a_max, x[A])
         X[k], PP[k], status[k] = x, P, st
+        if st != "predicted":
+            starter.remember(k, x, P)
         if st == "flip_corrected":
             seg[k] = True
     return _result(out, status, delta, params, cg_offset)

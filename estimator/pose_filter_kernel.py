@@ -46,8 +46,8 @@ S_NO_DATA, S_WAITING, S_INIT, S_RESET, S_OK, S_PREDICTED, S_FLIP, S_REINIT, S_IN
 (I_SA, I_VA, I_VS, I_DTMED, I_GATE, I_FLIPTHR, I_QA, I_QY, I_OMMAX, I_ALAT, I_AMAX,
  I_VMAX, I_LEVER, I_FLIPDIST, I_VARMIN, I_FLIPMEM, I_THR1, I_REVERSE, I_MAXREJ,
  I_WINDOW, I_INIT_YAW_SD, I_INIT_SIGMAS, I_LOST_SD, I_FIT_SD, I_STAND_SIGMAS, I_REINIT_N,
- I_REINIT_YAW, I_MAXIT, I_PRIOR_RATIO) = range(29)
-N_PAR = 29
+ I_REINIT_YAW, I_MAXIT, I_PRIOR_RATIO, I_KAPPA) = range(30)
+N_PAR = 30
 
 #: internal helpers: called from compiled code only (no CPython wrapper: less to compile)
 _jit = numba.njit(cache=True, nogil=True, no_cpython_wrapper=True)  # type: ignore[call-overload]
@@ -594,18 +594,46 @@ def _fit_heading(k, fyaw, cnt, spread, sa):
 
 
 @_jit
-def _offer(k, anchor, tt, org, fyaw, cnt, r2, sa, amax, ommax, reverse, par):
+def _standstill_start(k, mem, tt, obs, present, par):
+    """Reference ``FilterStart._standstill_start``: (ok, yaw0, ysd, v0, vsd)."""
+    j = int(mem[0])
+    kappa = par[I_KAPPA]
+    if j < 0 or not kappa < math.inf:
+        return False, 0.0, 0.0, 0.0, 0.0
+    thr = par[I_INIT_SIGMAS] * math.sqrt(par[I_VS]) * math.sqrt(k - j)
+    ysd = math.sqrt(mem[2] + (kappa * thr) ** 2)
+    dmax = -1.0
+    for i in range(present.shape[1]):
+        if present[k, i] and present[j, i]:
+            d0, d1 = obs[k, i, 0] - obs[j, i, 0], obs[k, i, 1] - obs[j, i, 1]
+            dmax = _pmax(dmax, math.sqrt(d0 * d0 + d1 * d1))
+    if dmax < 0.0 or not (dmax <= thr and ysd <= par[I_LOST_SD]):
+        return False, 0.0, 0.0, 0.0, 0.0
+    dt = tt[k] - tt[j]
+    return True, mem[1], ysd, 0.0, math.hypot(par[I_AMAX] * dt, thr / dt)
+
+
+@_jit
+def _offer(k, anchor, tt, org, fyaw, cnt, r2, sa, amax, ommax, reverse, par, mem, obs,
+           present):
     """Reference ``FilterStart.offer``: (started, x0, P0, new anchor)."""
     x0 = np.zeros(NX)
     P0 = np.zeros((NX, NX))
     if cnt[k] < 2:
         return False, x0, P0, anchor
     yaw_sd = sa / math.sqrt(r2[k]) if r2[k] > 0 else math.inf
-    if yaw_sd < par[I_INIT_YAW_SD]:
+    fixed = yaw_sd < par[I_INIT_YAW_SD]
+    still = False
+    yaw0 = ysd = v0 = vsd = 0.0
+    if fixed:
         if k == 0 or cnt[k - 1] < 2:
             return False, x0, P0, anchor
         yaw0, ysd = fyaw[k], yaw_sd
         v0, vsd = _fit_speed(k, yaw0, tt, org, cnt, sa, amax, reverse)
+    else:
+        still, yaw0, ysd, v0, vsd = _standstill_start(k, mem, tt, obs, present, par)
+    if fixed or still:
+        pass
     elif anchor < 0:
         return False, x0, P0, k
     else:
@@ -676,6 +704,27 @@ def _project(x, par):
         x[OMEGA] = math.copysign(lim, x[OMEGA])
     if abs(x[A]) > par[I_AMAX]:
         x[A] = math.copysign(par[I_AMAX], x[A])
+
+
+@_jit
+def _bound_yaw_rate(x, P, dt, par, qy):
+    """Reference ``_bound_yaw_rate`` (x, P changed in place); returns the yaw-rate noise."""
+    kappa, om_max = par[I_KAPPA], par[I_OMMAX]
+    v2 = x[V] * x[V] + P[V, V] + dt * dt * (x[A] * x[A] + P[A, A])
+    b2 = kappa * kappa * v2 if kappa < math.inf else math.inf
+    if not b2 < om_max * om_max:
+        return qy
+    if x[OMEGA] * x[OMEGA] > b2:
+        x[OMEGA] = math.copysign(math.sqrt(b2), x[OMEGA])
+    var = P[OMEGA, OMEGA]
+    if var > b2:
+        s = math.sqrt(b2 / var)
+        for i in range(NX):
+            P[OMEGA, i] *= s
+        for i in range(NX):
+            P[i, OMEGA] *= s
+        var = b2
+    return _pmin(qy, _pmax(b2 - var, 0.0) / (dt * dt))
 
 
 @_jit
@@ -840,6 +889,7 @@ def forward_kernel(tt, obs, present, r_m, org, fyaw, cnt, spread, r2, par, thr_t
     P = np.zeros((NX, NX))
     running = lost = False
     anchor = -1
+    mem = np.array([-1.0, 0.0, 0.0])     # the last update's (epoch, heading, variance)
     rej_abs = rej_step = 0
     llr = back = 0.0
     dt = 0.0
@@ -848,8 +898,8 @@ def forward_kernel(tt, obs, present, r_m, org, fyaw, cnt, spread, r2, par, thr_t
         if running:
             dt = tt[k] - tt[k - 1]
             hold = _hold(x, P, k, present, fyaw, cnt, spread, par)
-            xp, Pp, FP = _predict(x, P, dt, par[I_QA] * dt / dt_med,
-                                  0.0 if hold else par[I_QY] * dt_med / dt, horner, cw)
+            qy_k = _bound_yaw_rate(x, P, dt, par, 0.0 if hold else par[I_QY] * dt_med / dt)
+            xp, Pp, FP = _predict(x, P, dt, par[I_QA] * dt / dt_med, qy_k, horner, cw)
             if _anyrow(present, k):
                 spr = _pmax(Pp[PX, PX], Pp[PY, PY]) + par[I_LEVER] * par[I_LEVER] * Pp[YAW, YAW]
                 if not spr <= par[I_PRIOR_RATIO] * par[I_VARMIN]:
@@ -860,7 +910,7 @@ def forward_kernel(tt, obs, present, r_m, org, fyaw, cnt, spread, r2, par, thr_t
                 continue
             status[k] = S_WAITING
             got, x, P, anchor = _offer(k, anchor, tt, org, fyaw, cnt, r2, sa, amax, ommax,
-                                       reverse, par)
+                                       reverse, par, mem, obs, present)
             if not got:
                 continue
             running = True
@@ -932,6 +982,8 @@ def forward_kernel(tt, obs, present, r_m, org, fyaw, cnt, spread, r2, par, thr_t
         _project(x, par)
         _put(X, PP, k, x, P, 0)
         status[k] = st
+        if st != S_PREDICTED:
+            mem[0], mem[1], mem[2] = k, x[YAW], P[YAW, YAW]
         if st == S_FLIP:
             seg[k] = True
 
