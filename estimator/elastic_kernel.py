@@ -309,6 +309,63 @@ def _newton_rhs(G, coef, V, I, J, d, m, tmp, g):
 
 
 @_jit
+def _monotone_tau(cu, cl, err_d, ta, tm, tr, par):
+    """Monotone (Fiacco-McCormick) rule: lower tau, up to 4 times, while the barrier
+    problem is solved to KAPPA_EPS tau (cu, cl: the complementarities lambda s)."""
+    for _ in range(4):
+        err_c = 0.0
+        for p in range(cu.size):
+            err_c = _max(err_c, _max(abs(cu[p] - ta), abs(cl[p] - ta)))
+        if not (_max(err_d, err_c) <= par[P_KEPS] * ta and ta > tm):
+            break
+        ta = _max(tm, _min(par[P_KMU] * ta, tr * (ta / tr) ** par[P_THMU]))
+    return ta
+
+
+@_jit
+def _predictor(su, sl, lu, ll, isu, isl, dqa, cqa, dlu, dll, gap, tm, cor_u, cor_l):
+    """Mehrotra's rule from the affine step (dqa, cqa: its dq and |dv|^2 per pair): returns
+    tau = (mu_aff / mu)^3 mu (at least tm); cor_u, cor_l = the second-order terms
+    ds_aff dlam_aff of the upper / lower complementarity."""
+    P = su.size
+    for p in range(P):
+        dlu[p] = -lu[p] * (1.0 - dqa[p] * isu[p])
+        dll[p] = -ll[p] * (1.0 + dqa[p] * isl[p])
+    tp = _primal_step(su, sl, dqa, cqa, 1.0)
+    td = _min(_dual_step(lu, dlu, 1.0), _dual_step(ll, dll, 1.0))
+    s = 0.0
+    for p in range(P):
+        s += ((su[p] - tp * dqa[p]) * (lu[p] + td * dlu[p])
+              + (sl[p] + tp * dqa[p]) * (ll[p] + td * dll[p]))
+    mu_aff = s / (2 * P)
+    mu_cur = gap / (2 * P)
+    sigma = _min(_max(_div(mu_aff, mu_cur), 0.0), 1.0) ** 3
+    for p in range(P):
+        cor_u[p] = -dqa[p] * dlu[p]
+        cor_l[p] = dqa[p] * dll[p]
+    return _max(sigma * mu_cur, tm)
+
+
+@_jit
+def _line_search(z, dz, tp, phi0, slope, y, W, I, J, d, m, hi2, lo2, ta, par, zn, Vn, sun,
+                 sln):
+    """Armijo test on the barrier function for the step tp, then 2^-1 .. 2^-HALVINGS of it;
+    the accepted trial in (zn, Vn, sun, sln). Returns (the full step passed, some step
+    passed, its sum log slacks)."""
+    slack = 1e-14 * abs(phi0)
+    ok, ls = _trial(z, dz, tp, y, W, I, J, d, m, hi2, lo2, ta,
+                    phi0 + par[P_ARMIJO] * tp * slope + slack, zn, Vn, sun, sln)
+    full = ok
+    h = 0
+    while not ok and h < par[P_HALVINGS]:
+        h += 1
+        t = tp * 0.5 ** h
+        ok, ls = _trial(z, dz, t, y, W, I, J, d, m, hi2, lo2, ta,
+                        phi0 + par[P_ARMIJO] * t * slope + slack, zn, Vn, sun, sln)
+    return full, ok, ls
+
+
+@_jit
 def _window(y, W, z, a, eps, maxiter, par, I, J, d, m, wm, wv, wn, wp):
     """The reference iteration for one window: y, W, z (d m,) targets, normalized weights,
     start (strictly inside every band; overwritten with the last iterate); a (P,) pair
@@ -371,14 +428,8 @@ def _window(y, W, z, a, eps, maxiter, par, I, J, d, m, wm, wv, wn, wp):
         tol = rtol * f + atol * sc
         if gap <= tol and err_d <= tol:
             return iters, True
-        if not md:   # monotone rule: lower tau once the barrier problem is solved
-            for _ in range(4):
-                err_c = 0.0
-                for p in range(P):
-                    err_c = _max(err_c, _max(abs(cu[p] - ta), abs(cl[p] - ta)))
-                if not (_max(err_d, err_c) <= par[P_KEPS] * ta and ta > tm):
-                    break
-                ta = _max(tm, _min(par[P_KMU] * ta, tr * (ta / tr) ** par[P_THMU]))
+        if not md:
+            ta = _monotone_tau(cu, cl, err_d, ta, tm, tr, par)
         if it == maxiter:
             return iters, False
         iters += 1
@@ -395,22 +446,8 @@ def _window(y, W, z, a, eps, maxiter, par, I, J, d, m, wm, wv, wn, wp):
             _cho_solve(L, rd, G, dz, n)
             _pairs(dz, I, J, d, m, tmp)
             _dq(V, tmp, d, dqa, cqa)
-            for p in range(P):
-                dlu[p] = -lu[p] * (1.0 - dqa[p] * isu[p])
-                dll[p] = -ll[p] * (1.0 + dqa[p] * isl[p])
-            tp = _primal_step(su, sl, dqa, cqa, 1.0)
-            td = _min(_dual_step(lu, dlu, 1.0), _dual_step(ll, dll, 1.0))
-            s = 0.0
-            for p in range(P):
-                s += ((su[p] - tp * dqa[p]) * (lu[p] + td * dlu[p])
-                      + (sl[p] + tp * dqa[p]) * (ll[p] + td * dll[p]))
-            mu_aff = s / (2 * P)
-            mu_cur = gap / (2 * P)
-            sigma = _min(_max(_div(mu_aff, mu_cur), 0.0), 1.0) ** 3
-            ta = _max(sigma * mu_cur, tm)
-            for p in range(P):   # ds_aff * dlam_aff of the upper / lower slack
-                cor_u[p] = -dqa[p] * dlu[p]
-                cor_l[p] = dqa[p] * dll[p]
+            ta = _predictor(su, sl, lu, ll, isu, isl, dqa, cqa, dlu, dll, gap, tm, cor_u,
+                            cor_l)
         # centring (+ corrector) step: complementarity targets lam s + corr = tau
         for p in range(P):
             coef[p] = ta * (isu[p] - isl[p]) - cor_u[p] * isu[p] + cor_l[p] * isl[p]
@@ -445,18 +482,9 @@ def _window(y, W, z, a, eps, maxiter, par, I, J, d, m, wm, wv, wn, wp):
             slope += g[k] * dz[k]
         md = md and slope < 0.0
         slope = _min(slope, 0.0)
-        phi0 = f - ta * logs
-        slack = 1e-14 * abs(phi0)
-        t = tp
-        ok, ls = _trial(z, dz, t, y, W, I, J, d, m, hi2, lo2, ta,
-                        phi0 + par[P_ARMIJO] * t * slope + slack, zn, Vn, sun, sln)
-        md = md and ok
-        h = 0
-        while not ok and h < par[P_HALVINGS]:
-            h += 1
-            t = tp * 0.5 ** h
-            ok, ls = _trial(z, dz, t, y, W, I, J, d, m, hi2, lo2, ta,
-                            phi0 + par[P_ARMIJO] * t * slope + slack, zn, Vn, sun, sln)
+        full, ok, ls = _line_search(z, dz, tp, f - ta * logs, slope, y, W, I, J, d, m, hi2,
+                                    lo2, ta, par, zn, Vn, sun, sln)
+        md = md and full
         if ok:
             logs = ls
             _copy(zn, z)
