@@ -141,3 +141,14 @@ def test_engine_is_checked():
     assert ENGINES == ("numba", "numpy")
     with pytest.raises(ValueError, match="engine.*'fortran'"):
         elastic_batch(means, wax, cfg, 0.01, engine="fortran")
+
+
+def test_warm_kernel_runs_the_kernel(monkeypatch):
+    """warm_kernel goes through the compiled iteration (what a worker pool calls once)."""
+    import estimator.elastic as el
+
+    seen = []
+    real = el.barrier_kernel
+    monkeypatch.setattr(el, "barrier_kernel", lambda *a: seen.append(a[0].shape) or real(*a))
+    el.warm_kernel()
+    assert seen and seen[0][1] == 6          # 3 antennas x 2 axes
