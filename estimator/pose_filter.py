@@ -890,7 +890,14 @@ class FilterStart:
                  params: PoseFilterParams) -> None:
         self.t = t
         self.obs = obs
-        self.origin, self.yaw, self.cnt, _ = epoch_rigid_fits(obs, r)   # origin = no-slip point
+        self.origin, self.yaw, self.cnt, res = epoch_rigid_fits(obs, r)  # origin = no-slip point
+        # the epoch's fixes agree with the layout: chi-square of the fit's residuals (2 m - 3
+        # dof) within the gate probability (:meth:`motion_miss`)
+        pg = params.gate_prob if params.gate_prob < 1 else 0.999
+        dof = np.maximum(2 * self.cnt - 3, 1)
+        with np.errstate(invalid="ignore"):
+            ssr = np.nansum(res * res, axis=(1, 2)) / (sigma_abs * sigma_abs)
+            self.fit_ok = (self.cnt >= 2) & (ssr <= _chdtri(dof, 1.0 - pg))
         self.present = np.isfinite(obs[..., 0])
         self.r2 = (r ** 2).sum(1)
         self.sigma_abs = sigma_abs
@@ -944,22 +951,51 @@ class FilterStart:
         sp = self._spread[k]
         return float(self.yaw[k]), (self.sigma_abs / math.sqrt(sp) if sp > 0 else math.inf)
 
+    def motion_miss(self, k: int) -> bool:
+        """Epoch k can re-initialise the filter when all its fixes fail their gates together
+        (issue 25: a motion-model miss at a hard acceleration, not bad fixes): its fixes
+        agree with the layout (``fit_ok``), the layout gives the heading to
+        :data:`MAX_FIT_YAW_SD` and epoch k-1 has a fit (the speed)."""
+        return bool(k > 0 and self.fit_ok[k] and self.cnt[k - 1] >= 2
+                    and self.fit_heading(k)[1] <= MAX_FIT_YAW_SD)
+
     def refit(self, k: int, x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """A re-initialised state at epoch k from its rigid fit: position and heading of the
         fit, speed from the previous epoch's fit when there is one (else the state's
-        ``x[V]``), zero acceleration, the state's yaw rate; covariance as at a start."""
+        ``x[V]``), zero acceleration, the yaw rate of :meth:`_fit_rate`; covariance as at a
+        start."""
         p, sa = self.params, self.sigma_abs
         amax = p._limit("max_accel_mps2")
         yaw0, ysd = self.fit_heading(k)
         v0, vsd = float(x[V]), max(abs(float(x[V])), amax)
         if k > 0 and self.cnt[k - 1] >= 2:
             v0, vsd = self._fit_speed(k, yaw0)
+        om0, omsd = self._fit_rate(k, float(x[OMEGA]), v0, vsd)
         pvar = sa * sa / self.cnt[k]
-        xn = np.array([self.origin[k, 0], self.origin[k, 1], _wrap(yaw0), v0, 0.0,
-                       float(x[OMEGA])])
-        P = np.diag(np.array([pvar, pvar, ysd ** 2, vsd ** 2, amax ** 2,
-                              (0.5 * p._limit("max_turn_rate_radps")) ** 2]))
+        xn = np.array([self.origin[k, 0], self.origin[k, 1], _wrap(yaw0), v0, 0.0, om0])
+        P = np.diag(np.array([pvar, pvar, ysd ** 2, vsd ** 2, amax ** 2, omsd ** 2]))
         return xn, P
+
+    def _fit_rate(self, k: int, om: float, v0: float, vsd: float) -> tuple[float, float]:
+        """A re-initialisation's yaw rate (rad/s) and sd, consistent with the fits it uses
+        and the platform (issue 25: a state's 90 deg/s carried into a refit): the rate of
+        the fits of k-1 and k when both give the heading (sd: theirs over dt and the
+        yaw-acceleration limit over dt), else ``om`` with sd half the turn-rate limit;
+        clipped to the turn-rate limit, ``max_lateral_accel / |v0|`` and ``kappa (|v0| +
+        vsd)``."""
+        p = self.params
+        om_max = p._limit("max_turn_rate_radps")
+        lim = om_max if v0 == 0 else min(om_max, p._limit("max_lateral_accel_mps2") / abs(v0))
+        if p.max_curvature_1pm is not None:
+            lim = min(lim, p.max_curvature_1pm * (abs(v0) + vsd))
+        omsd = 0.5 * om_max
+        y1, s1 = self.fit_heading(k)
+        y0, s0 = self.fit_heading(k - 1) if k > 0 else (math.nan, math.inf)
+        if s1 <= MAX_FIT_YAW_SD and s0 <= MAX_FIT_YAW_SD:
+            dt = self.t[k] - self.t[k - 1]
+            om = _wrap(y1 - y0) / dt
+            omsd = math.hypot(math.hypot(s0, s1) / dt, p._limit("max_yaw_accel_radps2") * dt)
+        return max(-lim, min(lim, om)), omsd
 
     def _fit_speed(self, k: int, yaw0: float) -> tuple[float, float]:
         """Speed along ``yaw0`` (m/s) from the rigid fits of epochs k-1 and k (both with >= 2
@@ -1339,7 +1375,8 @@ def run_pose_filter(t: np.ndarray, obs: np.ndarray, offsets: np.ndarray,
                         monitor.thr1, float(params.reverse), float(params.max_rejects),
                         float(monitor.window), INIT_MAX_YAW_SD, INIT_MOTION_SIGMAS,
                         LOST_YAW_SD, MAX_FIT_YAW_SD, STANDSTILL_SIGMAS, REINIT_EPOCHS,
-                        REINIT_MIN_YAW_RAD, MAX_ITERATIONS, MAX_PRIOR_RATIO, kappa])
+                        REINIT_MIN_YAW_RAD, MAX_ITERATIONS, MAX_PRIOR_RATIO, kappa,
+                        params._limit("max_yaw_accel_radps2")])
         status = _run_kernel(tt, obs, present, r_m, starter, monitor, par, out)
         return _result(out, status, delta, params, cg_offset)
 
@@ -1408,6 +1445,16 @@ def run_pose_filter(t: np.ndarray, obs: np.ndarray, offsets: np.ndarray,
             n_used[k] = np.count_nonzero(acc_abs)
             n_gated[k] = ik.size - n_used[k]
             n_steps[k] = np.count_nonzero(acc_step)
+            if ik.size >= 2 and n_used[k] == 0 and starter.motion_miss(k):
+                # every fix gated while the epoch's own fit agrees with the layout: the
+                # motion model missed (a hard acceleration), the data did not; re-initialise
+                # from the fit at once instead of coasting on a wrong prediction
+                x, P = starter.refit(k, x)
+                monitor.clear()
+                X[k], PP[k], seg[k], status[k] = x, P, True, "reinit"
+                rej_abs, rej_step, llr, back = 0, 0, 0.0, 0.0
+                starter.remember(k, x, P)
+                continue
             rej_abs = rej_abs + 1 if n_used[k] == 0 else 0
             rej_step = rej_step + 1 if (js.size >= 2 and n_steps[k] == 0) else 0
             if max(rej_abs, rej_step) >= params.max_rejects:
@@ -1524,7 +1571,8 @@ def _run_kernel(tt: np.ndarray, obs: np.ndarray, present: np.ndarray, r_m: np.nd
     code = np.zeros(n, dtype=np.int64)
     X, PP, XC, PC, PX_, seg, n_used, n_gated, n_steps, nis, nis_dof = out
     kern.forward_kernel(tt, obs, present, np.ascontiguousarray(r_m), starter.origin,
-                        starter.yaw, starter.cnt.astype(float), spread, r2, par, thr,
+                        starter.yaw, starter.cnt.astype(float), spread, r2, starter.fit_ok, par,
+                        thr,
                         _HORNER_ARRAY, _CW, X, PP, XC, PC, PX_, seg, code, n_used, n_gated,
                         n_steps, nis, nis_dof)
     return np.asarray(STATUSES, dtype=object)[code]

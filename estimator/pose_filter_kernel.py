@@ -46,8 +46,8 @@ S_NO_DATA, S_WAITING, S_INIT, S_RESET, S_OK, S_PREDICTED, S_FLIP, S_REINIT, S_IN
 (I_SA, I_VA, I_VS, I_DTMED, I_GATE, I_FLIPTHR, I_QA, I_QY, I_OMMAX, I_ALAT, I_AMAX,
  I_VMAX, I_LEVER, I_FLIPDIST, I_VARMIN, I_FLIPMEM, I_THR1, I_REVERSE, I_MAXREJ,
  I_WINDOW, I_INIT_YAW_SD, I_INIT_SIGMAS, I_LOST_SD, I_FIT_SD, I_STAND_SIGMAS, I_REINIT_N,
- I_REINIT_YAW, I_MAXIT, I_PRIOR_RATIO, I_KAPPA) = range(30)
-N_PAR = 30
+ I_REINIT_YAW, I_MAXIT, I_PRIOR_RATIO, I_KAPPA, I_YACC) = range(31)
+N_PAR = 31
 
 #: internal helpers: called from compiled code only (no CPython wrapper: less to compile)
 _jit = numba.njit(cache=True, nogil=True, no_cpython_wrapper=True)  # type: ignore[call-overload]
@@ -561,14 +561,14 @@ def _iterated_update(y, Y, z, rr, nfix, var, gate, lever, tol, maxit):
 
 
 @_jit
-def _start_state(k, org, yaw0, v0, ysd, vsd, om0, sa, cnt, amax, ommax):
+def _start_state(k, org, yaw0, v0, ysd, vsd, om0, sa, cnt, amax, omsd):
     """Start / re-initialisation state (6,) and diagonal covariance (reference
     ``FilterStart.offer`` / ``refit``)."""
     pvar = sa * sa / cnt[k]
     x = _vec(org[k, 0], org[k, 1], _wrap(yaw0), v0, 0.0, om0)
     P = np.zeros((NX, NX))
     P[0, 0], P[1, 1], P[2, 2] = pvar, pvar, ysd ** 2
-    P[3, 3], P[4, 4], P[5, 5] = vsd ** 2, amax ** 2, (0.5 * ommax) ** 2
+    P[3, 3], P[4, 4], P[5, 5] = vsd ** 2, amax ** 2, omsd ** 2
     return x, P
 
 
@@ -650,18 +650,38 @@ def _offer(k, anchor, tt, org, fyaw, cnt, r2, sa, amax, ommax, reverse, par, mem
             yaw0, v0 = course + math.pi, -sp
         else:
             yaw0, v0 = course, sp
-    x0, P0 = _start_state(k, org, yaw0, v0, ysd, vsd, 0.0, sa, cnt, amax, ommax)
+    x0, P0 = _start_state(k, org, yaw0, v0, ysd, vsd, 0.0, sa, cnt, amax, 0.5 * ommax)
     return True, x0, P0, -1
 
 
 @_jit
-def _refit(k, x, tt, org, fyaw, cnt, spread, sa, amax, ommax, reverse):
+def _fit_rate(k, om, v0, vsd, tt, fyaw, cnt, spread, par):
+    """Reference ``FilterStart._fit_rate``: (yaw rate, sd)."""
+    om_max = par[I_OMMAX]
+    lim = om_max if v0 == 0 else _pmin(om_max, par[I_ALAT] / abs(v0))
+    if par[I_KAPPA] < math.inf:
+        lim = _pmin(lim, par[I_KAPPA] * (abs(v0) + vsd))
+    omsd = 0.5 * om_max
+    y1, s1 = _fit_heading(k, fyaw, cnt, spread, par[I_SA])
+    y0, s0 = math.nan, math.inf
+    if k > 0:
+        y0, s0 = _fit_heading(k - 1, fyaw, cnt, spread, par[I_SA])
+    if s1 <= par[I_FIT_SD] and s0 <= par[I_FIT_SD]:
+        dt = tt[k] - tt[k - 1]
+        om = _wrap(y1 - y0) / dt
+        omsd = math.hypot(math.hypot(s0, s1) / dt, par[I_YACC] * dt)
+    return _pmax(-lim, _pmin(lim, om)), omsd
+
+
+@_jit
+def _refit(k, x, tt, org, fyaw, cnt, spread, sa, amax, reverse, par):
     """Reference ``FilterStart.refit``."""
     yaw0, ysd = _fit_heading(k, fyaw, cnt, spread, sa)
     v0, vsd = x[V], _pmax(abs(x[V]), amax)
     if k > 0 and cnt[k - 1] >= 2:
         v0, vsd = _fit_speed(k, yaw0, tt, org, cnt, sa, amax, reverse)
-    return _start_state(k, org, yaw0, v0, ysd, vsd, x[OMEGA], sa, cnt, amax, ommax)
+    om0, omsd = _fit_rate(k, x[OMEGA], v0, vsd, tt, fyaw, cnt, spread, par)
+    return _start_state(k, org, yaw0, v0, ysd, vsd, om0, sa, cnt, amax, omsd)
 
 
 @_jit
@@ -863,7 +883,7 @@ def _stack(xp, Pp, FP, x, P):
 
 
 @numba.njit(cache=True, nogil=True)
-def forward_kernel(tt, obs, present, r_m, org, fyaw, cnt, spread, r2, par, thr_table,
+def forward_kernel(tt, obs, present, r_m, org, fyaw, cnt, spread, r2, fit_ok, par, thr_table,
                    horner, cw, X, PP, XC, PC, PX_, seg, status, n_used, n_gated, n_steps,
                    nis, nis_dof):
     """The forward pass (reference loop of ``run_pose_filter``) over prepared arrays.
@@ -937,6 +957,17 @@ def forward_kernel(tt, obs, present, r_m, org, fyaw, cnt, spread, r2, par, thr_t
             n_used[k] = _count(acc, 0, nf)
             n_gated[k] = nf - n_used[k]
             n_steps[k] = _count(acc, nf, nf + nd)
+            if (nf >= 2 and n_used[k] == 0 and fit_ok[k] and cnt[k - 1] >= 2
+                    and _fit_heading(k, fyaw, cnt, spread, sa)[1] <= par[I_FIT_SD]):
+                # reference: FilterStart.motion_miss, then a re-initialisation
+                x, P = _refit(k, x, tt, org, fyaw, cnt, spread, sa, amax, reverse, par)
+                _put(X, PP, k, x, P, 0)
+                seg[k], status[k] = True, S_REINIT
+                head = count = 0
+                counters[0] = counters[1] = 0
+                rej_abs, rej_step, llr, back = 0, 0, 0.0, 0.0
+                mem[0], mem[1], mem[2] = k, x[YAW], P[YAW, YAW]
+                continue
             rej_abs = rej_abs + 1 if n_used[k] == 0 else 0
             rej_step = rej_step + 1 if (nd >= 2 and n_steps[k] == 0) else 0
             if max(rej_abs, rej_step) >= max_rejects:
@@ -961,7 +992,7 @@ def forward_kernel(tt, obs, present, r_m, org, fyaw, cnt, spread, r2, par, thr_t
                                           spread)
         if want:
             counters[0] = counters[1] = 0
-            x, P = _refit(k, x, tt, org, fyaw, cnt, spread, sa, amax, ommax, reverse)
+            x, P = _refit(k, x, tt, org, fyaw, cnt, spread, sa, amax, reverse, par)
             _put(X, PP, k, x, P, 0)
             seg[k], status[k] = True, S_REINIT
             _nan_rows(XC, PC, PX_, k)
