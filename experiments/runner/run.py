@@ -302,9 +302,12 @@ class _Run:
         loky = Loky(jobs)
         lock = os.path.join(tempfile.gettempdir(), f"configpose-warm-up-{self.run_id}.lock")
 
+        elastic = any(c.solver == "elastic" for c in todo)
+
         def queue_warm_up() -> None:
             outputs = self.o.outputs and self.o.figures
-            warm.append(loky.map_unordered(warm_up, ((outputs, lock) for _ in range(jobs))))
+            warm.append(loky.map_unordered(warm_up, ((outputs, lock, elastic)
+                                                     for _ in range(jobs))))
 
         try:
             for key, tr in iter_truths(todo, spec, jobs, self.o.truth_fn, self.o.cache_dir,

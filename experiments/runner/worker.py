@@ -101,7 +101,7 @@ def _one_cell(fn: CellFn, cell: Cell, truth: Any, ctx: CellContext) -> dict:
                 "traceback": traceback.format_exc(limit=20)}
 
 
-def warm_up(outputs: bool, lock_path: str | None = None) -> int:
+def warm_up(outputs: bool, lock_path: str | None = None, elastic: bool = False) -> int:
     """A worker's first task beside the simulations: import what the cells (and, with
     ``outputs``, the tables, report and figures) need and load matplotlib's fonts, so
     that start-up cost is paid while a simulation runs, not on the critical path.
@@ -109,9 +109,15 @@ def warm_up(outputs: bool, lock_path: str | None = None) -> int:
     ``lock_path``: the workers warm up one at a time (an exclusive lock on that file), so
     that beside a simulation running in the main process they take the one spare core
     instead of competing with the simulation for both (two workers warming up at once
-    beside it made a 3.0 s simulation take 3.7 s). Returns the worker's process id."""
+    beside it made a 3.0 s simulation take 3.7 s). ``elastic``: the run has elastic-solver
+    cells, so the elastic fit's compiled kernel is loaded (or, on a fresh checkout, compiled
+    by the first worker under the lock) too. Returns the worker's process id."""
     with _exclusive(lock_path):
         _warm_up_imports(outputs)
+        if elastic:
+            from estimator.elastic import warm_kernel
+
+            warm_kernel()
     return os.getpid()
 
 
