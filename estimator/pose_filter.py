@@ -55,11 +55,17 @@ vehicle spending most of its time below its limits:
 
 The limits also bound the state, by projection after each update: ``|a| <= max_accel_mps2``
 and ``|omega| <= min(max_turn_rate_radps, max_lateral_accel_mps2 / |v|)`` (the lateral
-acceleration ``v omega``). Gates are chi-square tests on the innovation covariance, which
-carries that process noise, so they widen with the platform's agility and the time since
-the last update. The limits come from the vehicle: the path file's ``max_accel_mps2``,
-``max_turn_rate_radps``, ``max_lateral_accel_mps2`` and the controller's yaw-acceleration
-limit (the sweep reads them from the simulated vehicle; :meth:`PoseFilterParams.from_limits`).
+acceleration ``v omega``). With a curvature limit (``max_curvature_1pm``: a steered car,
+not a platform that turns on the spot) the no-slip kinematics also bound the yaw rate by
+``kappa |v|`` (:func:`_bound_yaw_rate`, before each prediction: where that is below the
+turn-rate limit the yaw rate, its variance and its process noise are kept within it, ``v``
+taken by its second moment over the step), so at rest the predicted heading sd grows only
+as far as the speed's uncertainty lets the car move. Gates are chi-square tests on the
+innovation covariance, which carries that process noise, so they widen with the platform's
+agility and the time since the last update. The limits come from the vehicle: the path
+file's ``max_accel_mps2``, ``max_turn_rate_radps``, ``max_lateral_accel_mps2`` and the
+controller's yaw-acceleration limit (the sweep reads them from the simulated vehicle;
+:meth:`PoseFilterParams.from_limits`).
 
 Measurements and stochastic cloning
 -----------------------------------
@@ -135,6 +141,17 @@ If every fix (or every displacement) is rejected for ``max_rejects`` consecutive
 heading's sd has grown beyond :data:`LOST_YAW_SD` (a few seconds without any fix: the
 prediction, acceleration included, means nothing any more), the track is lost: the filter
 returns to waiting and restarts from the data (status ``"reset"`` on the restart epoch).
+Two rules keep a lost or missed track short (issue 25). A motion-model miss: when every fix
+of an epoch fails its gate together while the epoch's own rigid fit agrees with the layout
+(chi-square of its residuals) and gives the heading to :data:`MAX_FIT_YAW_SD`, the data are
+right and the prediction wrong (a hard acceleration beyond the limits): the filter
+re-initialises from the fit at once (status ``"reinit"``, :meth:`FilterStart.refit`, whose
+yaw rate comes from the fits of that epoch and the one before, clipped to the platform's
+limits) instead of coasting. A standstill restart: a lost track whose fixes, when they
+return, show the platform where it stood at the last update (every common antenna within
+:data:`INIT_MOTION_SIGMAS` sd of its displacement noise) restarts from its last heading, its
+variance grown by ``(kappa x that travel)^2`` (:meth:`FilterStart._standstill_start`): a car
+at rest cannot turn, so a short all-antenna gap at a stop no longer costs the stop's output.
 So is a prediction too wide for an update in double precision (after an hour's gap in
 ``t``: its spread at the antennas beyond :data:`MAX_PRIOR_RATIO` times the fixes'
 variance); the epoch's own data then restart it. A lost row is NaN and carries no clone,
