@@ -1217,7 +1217,7 @@ class _Pattern:
         self.H0 = _jacobian_template(self.ik.size, self.js.size)
 
 
-def _iterated_update(y, Y, z, pat, gate, lever, tol, nis_out=None):
+def _iterated_update(y, Y, z, pat, gate, lever, tol, nis_out=None, hold=False):
     """One epoch's update of the stacked state ``y = (x, x_prev)`` (12,), covariance Y,
     with the measurements z of the epoch's :class:`_Pattern` ``pat``: iterated EKF
     (Gauss-Newton on the same cost; Bell and Cathey 1993) with robust acceptance.
@@ -1229,13 +1229,21 @@ def _iterated_update(y, Y, z, pat, gate, lever, tol, nis_out=None):
     estimate; each pass also re-admits the measurements the prior gate had rejected if they
     agree with the current posterior (a prior far off, e.g. at the onset of a sharp turn
     sampled at 1 Hz, must not discard centimetre fixes that agree with each other), and the
-    deleted-residual test removes the ones that contradict the rest.
+    deleted-residual test removes the ones that contradict the rest. ``hold`` (a standstill
+    hold, :func:`_standstill_hold`): the fixes do not measure the heading (their Jacobian's
+    heading column is 0; the displacements still measure its change). A standing platform
+    repeats one geometry, and the fixes' errors are correlated in time (module docstring),
+    so the same biased layout heading, epoch after epoch, is one measurement, not N: taken
+    as N it walked the heading by 60 deg over a 150 s stop while its sd shrank to 2 deg
+    (issue 25).
     """
     yl = y
     acc = y1 = Y1 = None
     var = pat.var
     for _ in range(MAX_ITERATIONS):
         h, H = _fill_measurements(yl, pat.ax, pat.ay, pat.dx, pat.dy, pat.H0.copy())
+        if hold:
+            H[:pat.ik.size, :, YAW] = 0.0
         nu = z - h if yl is y else z - h - H @ (y - yl)
         if acc is not None and not acc.all():
             out = np.flatnonzero(~acc)
@@ -1452,7 +1460,8 @@ def run_pose_filter(t: np.ndarray, obs: np.ndarray, offsets: np.ndarray,
             z = np.concatenate((zk, obs[k, js] - obs[k - 1, js])) if js.size else zk
             box: list[float] = []           # the prior NIS, from the first pass's S
             try:
-                y1, Y1, acc = _iterated_update(y, Y, z, pat, gate, lever, 0.1 * sigma_abs, box)
+                y1, Y1, acc = _iterated_update(y, Y, z, pat, gate, lever, 0.1 * sigma_abs, box,
+                                               hold)
             except np.linalg.LinAlgError:   # numerically singular: nothing to trust
                 y1, Y1, acc = y, Y, np.zeros(ik.size + js.size, dtype=bool)
                 rej_abs = rej_step = params.max_rejects

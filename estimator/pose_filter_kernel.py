@@ -520,7 +520,7 @@ def _worst(Pc, dx, H, nu, var, acc):
 
 
 @_jit
-def _iterated_update(y, Y, z, rr, nfix, var, gate, lever, tol, maxit):
+def _iterated_update(y, Y, z, rr, nfix, var, gate, lever, tol, maxit, hold):
     """Reference ``_iterated_update``: (y+, Y+, acc, prior NIS, ok)."""
     k = var.shape[0]
     yl = y
@@ -529,6 +529,10 @@ def _iterated_update(y, Y, z, rr, nfix, var, gate, lever, tol, maxit):
     nis = math.nan
     for it in range(maxit):
         h, H = _measure(yl, rr, nfix)
+        if hold:
+            for i in range(nfix):
+                H[2 * i, 2] = 0.0
+                H[2 * i + 1, 2] = 0.0
         nu = np.empty((k, 2))
         for i in range(k):
             nu[i, 0], nu[i, 1] = z[i, 0] - h[i, 0], z[i, 1] - h[i, 1]
@@ -913,6 +917,7 @@ def forward_kernel(tt, obs, present, r_m, org, fyaw, cnt, spread, r2, fit_ok, pa
     rej_abs = rej_step = 0
     llr = back = 0.0
     dt = 0.0
+    hold = False
     xp, Pp, FP = x, P, P
     for k in range(n):
         if running:
@@ -949,7 +954,7 @@ def forward_kernel(tt, obs, present, r_m, org, fyaw, cnt, spread, r2, fit_ok, pa
         acc = np.zeros(nf + nd, dtype=np.bool_)
         if nf:
             y1, Y1, acc, nis_k, ok = _iterated_update(y, Y, z, rr, nf, var, par[I_GATE],
-                                                      par[I_LEVER], 0.1 * sa, maxit)
+                                                      par[I_LEVER], 0.1 * sa, maxit, hold)
             if not ok:
                 rej_abs = rej_step = max_rejects
             if math.isfinite(nis_k):

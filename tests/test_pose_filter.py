@@ -1074,3 +1074,22 @@ def test_all_fixes_gated_at_a_hard_braking_is_a_motion_model_miss(engine):
     assert miss.size and res.n_used[miss[0]] == 0 and 40 <= miss[0] <= 41
     e = np.degrees(np.abs(heading_error(res.states[2:, 2], yaw[2:])))
     assert np.isfinite(e).all() and e.max() < 1.0
+
+
+@pytest.mark.parametrize("engine", ["numba", "numpy"])
+def test_standstill_heading_does_not_walk_to_the_biased_layout(engine):
+    """Issue 25 defect 2: standing for 115 s with 1 m antenna biases (constant: the layout's
+    own heading is tens of degrees off and stays there), the fixes repeat one biased
+    geometry; taken as independent epochs they walked the heading from 1 to 12 deg by the
+    end of the stop (the 4 s gap reset its sd to 2.6 deg) while its sd shrank to 2.0 deg.
+    Held (the fixes do not measure the heading during a standstill hold), it stays within
+    2 deg of the truth (measured 0.4-0.8 deg) and within 3 reported sd on every epoch of
+    the stop."""
+    t, obs, off, yaw = _drive_stop_gap()
+    res = run_pose_filter(t, obs, off, CAR_LIMITS, engine=engine)
+    stop = np.arange(90, 200)
+    stop = stop[np.isfinite(res.states[stop, 2])]
+    e = np.abs(heading_error(res.states[stop, 2], yaw[stop]))
+    assert stop.size >= 100
+    assert e.max() < math.radians(2.0)
+    assert (e <= 3.0 * np.sqrt(res.covariances[stop, 2, 2])).all()
