@@ -43,7 +43,7 @@ from typing import Any
 
 import pandas as pd
 
-from sim.atomic import atomic_write_text
+from sim.atomic import atomic_write_text, file_stat
 
 __all__ = ["STATE_FILE", "code_digest", "frame_digest", "n_steps", "write_outputs"]
 
@@ -121,17 +121,8 @@ def _sensitivity_inputs(out: Path, spec: Any) -> list | None:
                          for f in files}]
 
 
-def _stat(path: Path) -> list[int] | None:
-    """[size, modification time in ns] of a file, None when it does not exist."""
-    try:
-        st = path.stat()
-    except OSError:
-        return None
-    return [st.st_size, st.st_mtime_ns]
-
-
 def _stats(out: Path, names: list[str]) -> dict[str, list[int] | None]:
-    return {n: _stat(out / n) for n in names}
+    return {n: file_stat(out / n) for n in names}
 
 
 def _layout_columns(table: pd.DataFrame) -> list[str]:
@@ -160,7 +151,7 @@ def _tables_unit(table: pd.DataFrame, out: Path, figures: bool) -> dict:
     from experiments import tables
 
     def snapshot() -> dict[str, list[int] | None]:
-        return {p.name: _stat(p) for p in (*out.glob("*.md"), *out.glob("*.csv"))
+        return {p.name: file_stat(p) for p in (*out.glob("*.md"), *out.glob("*.csv"))
                 if p.name not in _REPORT_FILES}
 
     t0 = time.perf_counter()
@@ -260,7 +251,7 @@ def write_outputs(table: pd.DataFrame, out_dir: str | Path, *, spec: Any = None,
         rec = units.get(name)
         return bool(rec and extra_ok and rec.get("inputs") == inputs
                     and rec.get("files") is not None
-                    and all(_stat(out / f) == s for f, s in rec["files"].items()))
+                    and all(file_stat(out / f) == s for f, s in rec["files"].items()))
 
     # what needs writing
     todo: list[tuple] = []

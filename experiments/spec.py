@@ -825,17 +825,26 @@ def _check_epochs(e: object, where: str, base: Path, plugins: dict | None = None
     return out
 
 
+def _check_study_table(p: object, where: str, base: Path | None, key: str,
+                       folder: Callable[[object, Path | None, str], Path | None],
+                       example: str) -> dict:
+    """A table that declares another study's folder under one ``key`` (``[page] flight``,
+    ``[report] sensitivity``), checked by ``folder`` (:func:`_study_folder`'s path rule)."""
+    if not isinstance(p, dict):
+        raise SpecError(f"{where}: must be a table, e.g. {example}")
+    unknown = sorted(set(p) - {key})
+    if unknown:
+        raise SpecError(f"{where}: unknown key(s) {unknown}; allowed: ['{key}']")
+    if key in p:
+        folder(p[key], base, f"{where}.{key}")
+    return dict(p)
+
+
 def _check_page(p: object, where: str, base: Path | None) -> dict:
     """The ``[page]`` table: ``flight``, the folder whose ``flight_series.csv`` the page
     replays (:func:`flight_folder`); without it the page shows the run's own cells only."""
-    if not isinstance(p, dict):
-        raise SpecError(f"{where}: must be a table, e.g. [page] flight = \"results/ultrasonic\"")
-    unknown = sorted(set(p) - {"flight"})
-    if unknown:
-        raise SpecError(f"{where}: unknown key(s) {unknown}; allowed: ['flight']")
-    if "flight" in p:
-        flight_folder(p["flight"], base, f"{where}.flight")
-    return dict(p)
+    return _check_study_table(p, where, base, "flight", flight_folder,
+                              '[page] flight = "results/ultrasonic"')
 
 
 def flight_folder(value: object, base: Path | None, where: str) -> Path | None:
@@ -848,15 +857,8 @@ def _check_report(p: object, where: str, base: Path | None) -> dict:
     """The ``[report]`` table: ``sensitivity``, the folder of the sensitivity study whose
     tables the ``Cause:`` lines quote (:func:`sensitivity_folder`); without it they say the
     causes were not re-measured."""
-    if not isinstance(p, dict):
-        raise SpecError(f"{where}: must be a table, e.g. [report] sensitivity = "
-                        "\"results/sensitivity\"")
-    unknown = sorted(set(p) - {"sensitivity"})
-    if unknown:
-        raise SpecError(f"{where}: unknown key(s) {unknown}; allowed: ['sensitivity']")
-    if "sensitivity" in p:
-        sensitivity_folder(p["sensitivity"], base, f"{where}.sensitivity")
-    return dict(p)
+    return _check_study_table(p, where, base, "sensitivity", sensitivity_folder,
+                              '[report] sensitivity = "results/sensitivity"')
 
 
 def sensitivity_folder(value: object, base: Path | None, where: str) -> Path | None:

@@ -22,7 +22,7 @@ from typing import TYPE_CHECKING, Any
 
 from experiments.runner.cell import cell_code_digest
 from experiments.spec import Cell
-from sim.atomic import atomic_write, atomic_write_text
+from sim.atomic import atomic_write, atomic_write_text, file_stat
 
 if TYPE_CHECKING:
     import pandas as pd
@@ -90,7 +90,8 @@ class CellStore:
     # ------------------------------------------------------------ index
     def _file_stats(self, key: str) -> list:
         """[cell file, per-epoch parquet] of ``key`` as [size, mtime ns] (None: absent)."""
-        return [_stat(self.cells_dir / f"{key}.json"), _stat(self.epochs_dir / f"{key}.parquet")]
+        return [file_stat(self.cells_dir / f"{key}.json"),
+                file_stat(self.epochs_dir / f"{key}.parquet")]
 
     def _index(self) -> dict:
         try:
@@ -108,7 +109,7 @@ class CellStore:
         """Record the files of ``keys`` and ``cells.parquet`` (just assembled from them) as
         they are now; not written where the folder is read-only (the index only saves time)."""
         idx = {"code": code, "cells": {k: self._file_stats(k) for k in keys},
-               "table": _stat(self.out / "cells.parquet")}
+               "table": file_stat(self.out / "cells.parquet")}
         with suppress(OSError):
             write_json(self.out / INDEX_FILE, idx)
 
@@ -119,7 +120,7 @@ class CellStore:
         idx = self._index()
         cells = idx.get("cells", {})
         table = self.out / "cells.parquet"
-        if (idx.get("table") is not None and idx["table"] == _stat(table)
+        if (idx.get("table") is not None and idx["table"] == file_stat(table)
                 and list(cells) == keys and all(cells[k] == self._file_stats(k) for k in keys)):
             import pandas as pd
 
@@ -267,15 +268,6 @@ def _pid_alive(pid: int) -> bool:
 def unwritable(out_dir: Path, why: OSError) -> SweepError:
     return SweepError(f"cannot write {out_dir}: {why.strerror or why}; the run has cells or "
                       "outputs to write there (fix the permissions or give another --out)")
-
-
-def _stat(path: Path) -> list[int] | None:
-    """[size, modification time in ns] of a file, None when it does not exist."""
-    try:
-        st = path.stat()
-    except OSError:
-        return None
-    return [st.st_size, st.st_mtime_ns]
 
 
 def _parquet_readable(path: Path) -> bool:
