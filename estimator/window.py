@@ -824,7 +824,7 @@ def _solve_slsqp(yc: np.ndarray, Wa: np.ndarray, config: SensorConfig, eps: floa
         Jq[rows[:, None], colsJ] = -diff
         return np.concatenate([-Jq, Jq])
 
-    # (scipy-stubs' overloads of minimize do not cover jac=True with a (f, grad) function)
+    # (scipy's type annotations of minimize do not cover jac=True with a (f, grad) function)
     res = minimize(fun, start.ravel(), jac=True, method="SLSQP",  # type: ignore[call-overload]
                    constraints=[{"type": "ineq", "fun": cons, "jac": cons_jac}],
                    options={"maxiter": int(maxiter), "ftol": 1e-12})

@@ -85,16 +85,22 @@ def plot_range_change(series: pd.DataFrame, names: list[str], out: Path) -> list
                           "(cf. thesis Fig. 3.7); red: Filter 1 cut-off +-1000 mm")
         for ax, nm in zip(axes, names, strict=True):
             d = np.diff(series[f"range_raw_{side}_{nm}"].to_numpy()) * 1e3
-            d = np.clip(d[np.isfinite(d)], edges[0], edges[-1])
-            ax.hist(d, bins=edges, color="tab:blue")
-            ax.set_yscale("log")
-            for s in (-1, 1):
-                ax.axvline(s * FILTER1_MM, color="tab:red", lw=0.8)
-            ax.set_title(f"{tx}{nm}")
-            ax.set_xlabel("change in range (mm)")
-            ax.set_ylabel("count")
+            _log_hist(ax, np.clip(d[np.isfinite(d)], edges[0], edges[-1]), edges, "tab:blue",
+                      FILTER1_MM, f"{tx}{nm}", "change in range (mm)")
         files.append(_save(fig, out / f"fig3_07_range_change_{tx}.png", plt))
     return files
+
+
+def _log_hist(ax, d: np.ndarray, bins, color: str, limit_mm: float, title: str,
+              xlabel: str) -> None:
+    """One panel: a log-count histogram of ``d`` (mm) with a filter's +-limit in red."""
+    ax.hist(d, bins=bins, color=color)
+    ax.set_yscale("log")
+    for s in (-1, 1):
+        ax.axvline(s * limit_mm, color="tab:red", lw=0.8)
+    ax.set_title(title)
+    ax.set_xlabel(xlabel)
+    ax.set_ylabel("count")
 
 
 def plot_tx_difference(series: pd.DataFrame, names: list[str], out: Path) -> Path:
@@ -104,14 +110,8 @@ def plot_tx_difference(series: pd.DataFrame, names: list[str], out: Path) -> Pat
                       "(thesis Section 3.2.2); red: Filter 2 limit +-500 mm")
     for ax, nm in zip(axes, names, strict=True):
         d = (series[f"range_raw_front_{nm}"] - series[f"range_raw_rear_{nm}"]).to_numpy() * 1e3
-        d = d[np.isfinite(d)]
-        ax.hist(d, bins=20, color="tab:green")
-        ax.set_yscale("log")
-        for s in (-1, 1):
-            ax.axvline(s * FILTER2_MM, color="tab:red", lw=0.8)
-        ax.set_title(f"T20{nm} - T21{nm}")
-        ax.set_xlabel("difference (mm)")
-        ax.set_ylabel("count")
+        _log_hist(ax, d[np.isfinite(d)], 20, "tab:green", FILTER2_MM, f"T20{nm} - T21{nm}",
+                  "difference (mm)")
     return _save(fig, out / "fig3_2_2_tx_difference.png", plt)
 
 
