@@ -10,6 +10,7 @@ worker processes outlive a run, and files may change between runs.
 from __future__ import annotations
 
 import os
+import tempfile
 import time
 import traceback
 from collections import OrderedDict
@@ -24,7 +25,10 @@ from experiments.runner.cell import CellContext, CellFn, evaluate_cell
 from experiments.runner.store import CellStore
 from experiments.spec import Cell
 
-__all__ = ["CellJob", "run_batch", "started", "warm_up"]
+__all__ = ["KERNEL_LOCK", "CellJob", "run_batch", "started", "warm_up"]
+
+#: Lock file under which a worker compiles or loads the numba kernels (one at a time).
+KERNEL_LOCK = os.path.join(tempfile.gettempdir(), "configpose-kernels.lock")
 
 
 @dataclass(frozen=True)
@@ -175,10 +179,17 @@ def started() -> int:
     replaces a worker that grows 300 MB beyond it as "leaking": measured after the
     simulation's imports alone (~60 MB), the cells' imports, numba and the per-run memos
     crossed that mid-run (thesis preset: a worker replaced, with its memos and warm-up lost,
-    and a UserWarning "A worker stopped while some jobs were given to the executor")."""
+    and a UserWarning "A worker stopped while some jobs were given to the executor").
+    The pose filter's kernels are loaded here too, one worker at a time (:data:`KERNEL_LOCK`):
+    on a fresh checkout the first compiles them, which holds ~100 MB more of LLVM's memory,
+    and counted after the reference size that alone made a worker "leak" mid-run (thesis
+    preset with an empty numba cache: a worker replaced)."""
     import estimator.tracking  # noqa: F401
     import sim.gps
     import sim.rover  # noqa: F401
+    from estimator.pose_smoother import warm_kernels
 
+    with _exclusive(KERNEL_LOCK):
+        warm_kernels()      # the compile's memory (first use of a checkout) is in the reference
     return os.getpid()
 
