@@ -848,6 +848,32 @@ def seed_spread_section(cells: pd.DataFrame) -> list[str]:
     return lines
 
 
+def sensitivity_section(sens: Sensitivity) -> list[str]:
+    """REPORT.md's "Sensitivity of the verdicts": per claim, the values of each quantity at
+    which the declared sensitivity study's verdict differs from its shipped run's
+    (``sensitivity.csv``); nothing when the spec declares no study or its files are missing."""
+    s = sens.table("sensitivity")
+    if s.empty:
+        return []
+    moved = [q for q in dict.fromkeys(s["quantity"]) if q != "shipped"]
+    base = s[s["quantity"] == "shipped"].set_index("claim")
+    flips = s[s["flipped"].astype(bool) & (s["quantity"] != "shipped")]
+    n = int(flips["claim"].nunique())
+    lines = ["## Sensitivity of the verdicts", "",
+             (f"Each verdict re-judged with one quantity of the noise model or the path moved "
+              f"at a time (the declared sensitivity study, `{sens.value}`, its own seeds and "
+              f"shipped run; ranges and their bounds from the dissertation in its REPORT.md): "
+              f"{n} of {len(base)} verdicts flip somewhere. Values at which a verdict differs "
+              "from the shipped setting's (supports / comparisons):"), "",
+             md_row(["Claim", "Shipped", *moved]), md_separator(2 + len(moved))]
+    for cid in (c for c in base.index if c in set(flips["claim"])):
+        f, b = flips[flips["claim"] == cid], base.loc[cid]
+        lines.append(md_row([cid, f"{b.verdict} ({b.supports}/{b.evaluated})", *[
+            "; ".join(f"{r.value:g}: **{r.verdict}** ({r.supports}/{r.evaluated})"
+                      for r in f[f["quantity"] == q].itertuples()) or "-" for q in moved]]))
+    return [*lines, ""]
+
+
 def observability_section(main: pd.DataFrame, studies: pd.DataFrame) -> list[str]:
     """REPORT.md section of the heading-observability side study: per common fraction of the
     GPS error, the per-receiver error, the median heading error at windows 1 and 100, the lag

@@ -232,6 +232,7 @@ def write_report(cells: pd.DataFrame, out_dir: str | Path, spec=None) -> Path:
     first = per_variant[0][0]
     lines += causes.seed_spread_section(evidence[first].main)
     lines += causes.observability_section(evidence[first].main, studies)
+    lines += causes.sensitivity_section(sens)
     lines += plugin_section(cells, out, spec)      # the spec's plug-in trackers, if any
     rows: list[dict] = []
     for lab, res in per_variant:

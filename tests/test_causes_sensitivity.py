@@ -167,3 +167,39 @@ def test_a_bad_value_in_a_manifest_names_the_field(tmp_path):
         causes.declared_sensitivity(tmp_path)
     (tmp_path / "manifest.json").write_text("{damaged")
     assert causes.declared_sensitivity(tmp_path) == causes.Sensitivity()
+
+
+def _section(run_dir: Path) -> list[str]:
+    """The lines of REPORT.md's "Sensitivity of the verdicts" section (empty: none)."""
+    text = (run_dir / "REPORT.md").read_text().split("\n## ")
+    return next((s.splitlines() for s in text if s.startswith("Sensitivity of the verdicts")),
+                [])
+
+
+@needs_thesis
+def test_the_report_tables_the_declared_studys_flips(tmp_path):
+    """Declared: a row for every claim whose verdict flips in sensitivity.csv, none for the
+    others, and the flipped values with their verdicts; changing one verdict of the study
+    adds its claim; undeclared: no section."""
+    copy = tmp_path / "study"
+    shutil.copytree(STUDY, copy, ignore=shutil.ignore_patterns("*.md", "*.json"))
+    run_dir = _run(tmp_path / "run", str(copy.relative_to(tmp_path)))
+    man = json.loads((run_dir / "manifest.json").read_text())
+    man["spec_base_dir"] = str(tmp_path)
+    (run_dir / "manifest.json").write_text(json.dumps(man))
+    s = pd.read_csv(copy / "sensitivity.csv")
+    flipped = set(s[s["flipped"] & (s["quantity"] != "shipped")]["claim"])
+    steady = sorted(set(s["claim"]) - flipped)
+    report.write_report(pd.read_parquet(run_dir / "cells.parquet"), run_dir)
+    rows = {m.group(1) for r in _section(run_dir) if (m := re.match(r"\| (C\d+c?) \|", r))}
+    assert rows == flipped
+    at = (s["claim"] == steady[0]) & (s["quantity"] == "sigma") & (s["value"] == 1.5)
+    assert at.sum() == 1
+    s.loc[at, ["verdict", "supports", "flipped"]] = ["odd verdict", 0, True]
+    s.to_csv(copy / "sensitivity.csv", index=False)
+    report.write_report(pd.read_parquet(run_dir / "cells.parquet"), run_dir)
+    row = next(r for r in _section(run_dir) if r.startswith(f"| {steady[0]} |"))
+    assert "1.5: **odd verdict** (0/" in row
+    bare = _run(tmp_path / "bare", None)
+    report.write_report(pd.read_parquet(bare / "cells.parquet"), bare)
+    assert _section(bare) == []
