@@ -176,30 +176,40 @@ def _section(run_dir: Path) -> list[str]:
                 [])
 
 
-@needs_thesis
-def test_the_report_tables_the_declared_studys_flips(tmp_path):
-    """Declared: a row for every claim whose verdict flips in sensitivity.csv, none for the
-    others, and the flipped values with their verdicts; changing one verdict of the study
-    adds its claim; undeclared: no section."""
+def _flip_rows(lines: list[str]) -> set[str]:
+    return {m.group(1) for r in lines if (m := re.match(r"\| (C\d+c?) \|", r))}
+
+
+def test_the_sensitivity_section_tables_the_studys_flips(tmp_path):
+    """A row for every claim whose verdict flips in sensitivity.csv and none for the others,
+    with the flipped values and their verdicts; a verdict changed in a copy of the study adds
+    its claim; no declared study: no section (needs only the committed study's CSVs)."""
     copy = tmp_path / "study"
     shutil.copytree(STUDY, copy, ignore=shutil.ignore_patterns("*.md", "*.json"))
-    run_dir = _run(tmp_path / "run", str(copy.relative_to(tmp_path)))
-    man = json.loads((run_dir / "manifest.json").read_text())
-    man["spec_base_dir"] = str(tmp_path)
-    (run_dir / "manifest.json").write_text(json.dumps(man))
+    sens = causes.Sensitivity("study", copy)
     s = pd.read_csv(copy / "sensitivity.csv")
     flipped = set(s[s["flipped"] & (s["quantity"] != "shipped")]["claim"])
     steady = sorted(set(s["claim"]) - flipped)
-    report.write_report(pd.read_parquet(run_dir / "cells.parquet"), run_dir)
-    rows = {m.group(1) for r in _section(run_dir) if (m := re.match(r"\| (C\d+c?) \|", r))}
-    assert rows == flipped
+    lines = causes.sensitivity_section(sens)
+    assert lines[0] == "## Sensitivity of the verdicts" and _flip_rows(lines) == flipped
     at = (s["claim"] == steady[0]) & (s["quantity"] == "sigma") & (s["value"] == 1.5)
     assert at.sum() == 1
     s.loc[at, ["verdict", "supports", "flipped"]] = ["odd verdict", 0, True]
     s.to_csv(copy / "sensitivity.csv", index=False)
-    report.write_report(pd.read_parquet(run_dir / "cells.parquet"), run_dir)
-    row = next(r for r in _section(run_dir) if r.startswith(f"| {steady[0]} |"))
+    row = next(r for r in causes.sensitivity_section(sens) if r.startswith(f"| {steady[0]} |"))
     assert "1.5: **odd verdict** (0/" in row
+    assert causes.sensitivity_section(causes.Sensitivity()) == []
+
+
+@needs_thesis
+def test_the_report_carries_the_sensitivity_section(tmp_path):
+    """REPORT.md of a run whose spec declares the study has the section; without: none."""
+    run_dir = _run(tmp_path / "run", "results/sensitivity")
+    man = json.loads((run_dir / "manifest.json").read_text())
+    man["spec_base_dir"] = str(REPO)
+    (run_dir / "manifest.json").write_text(json.dumps(man))
+    report.write_report(pd.read_parquet(run_dir / "cells.parquet"), run_dir)
+    assert _flip_rows(_section(run_dir))
     bare = _run(tmp_path / "bare", None)
     report.write_report(pd.read_parquet(bare / "cells.parquet"), bare)
     assert _section(bare) == []
