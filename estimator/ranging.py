@@ -701,17 +701,67 @@ def _merge_info(info, sub, rows: np.ndarray):
     return type(info)(**fields)
 
 
-def _bounded_fix(ru, rj, p, info, good, config, lo, hi, lz):
-    """Hold the free-height damped fixes of one transmitter (lever z ``lz``) in [lo, hi]
+def _take_info(info, idx: np.ndarray):
+    """``info`` restricted to the rows ``idx`` (every per-row field)."""
+    return type(info)(**{name: np.asarray(getattr(info, name))[idx]
+                         for name in info.__dataclass_fields__})
+
+
+def _damped(reuse: dict | None, key: tuple, ru: np.ndarray, r: np.ndarray, h, prior,
+            config: RangingConfig, rows: np.ndarray | None = None):
+    """``tri.damped_ls(ru, r, height_m=h, prior=prior, return_info=True)`` (side and sigma
+    from ``config``) for the epoch rows ``rows`` (default all) of r (m, k) m, h None, a scalar
+    or (m,) m, prior None or (m, 3) m.
+
+    ``reuse`` (a dict, or None: solve everything): the previous call's rows under ``key``
+    whose inputs (ranges, height, prior) are bitwise equal are taken from it, the rest solved;
+    then this call's rows are stored under ``key``. Bit-identical to solving all: damped_ls
+    solves each row on its own (tested). The raw and the gated epoch ranges of
+    :func:`localize` differ in a few rows (0.3 % of the bench's epochs), so the second
+    trilateration costs only those rows.
+    """
+    def solve(sel):
+        hs = h if h is None or np.ndim(h) == 0 else h[sel]
+        return tri.damped_ls(ru, r[sel], height_m=hs, prior=None if prior is None else
+                             prior[sel], side=config.side, sigma_m=config.sigma_range_m,
+                             return_info=True)
+    m = r.shape[0]
+    if reuse is None:
+        return solve(slice(None))
+    rows = np.arange(m) if rows is None else rows
+    hz = np.broadcast_to(np.nan if h is None else np.asarray(h, dtype=float), (m,))
+    inp = np.column_stack([r, hz, np.full((m, 3), np.nan) if prior is None else prior])
+    same, at = np.zeros(m, dtype=bool), np.zeros(m, dtype=np.intp)
+    old = reuse.get(key)
+    if old is not None and old[0].size:
+        o_rows, o_inp, o_p, o_info = old
+        at = np.minimum(np.searchsorted(o_rows, rows), o_rows.size - 1)
+        same = (o_rows[at] == rows) & np.all(o_inp[at].view(np.int64) == inp.view(np.int64),
+                                              axis=1)
+    todo = np.flatnonzero(~same)
+    if todo.size == m:
+        p, info = solve(slice(None))
+    else:
+        p, info = o_p[at], _take_info(o_info, at)
+        if todo.size:
+            ps, infs = solve(todo)
+            p[todo] = ps
+            info = _merge_info(info, infs, todo)
+    reuse[key] = (rows, inp, p, info)
+    return p.copy(), info
+
+
+def _bounded_fix(ru, rj, p, info, good, config, lo, hi, lz, reuse=None, j=0):
+    """Hold the free-height damped fixes of one transmitter j (lever z ``lz``) in [lo, hi]
     (body origin): re-solve the rows :func:`_held_heights` names in known-height mode, the
-    free fix as the mirror prior. Returns (positions, info, held (n,) bool)."""
+    free fix as the mirror prior (``reuse``: see :func:`_damped`). Returns (positions, info,
+    held (n,) bool)."""
     mid = 0.5 * (lo + hi) if config.fallback_height_m is None else config.fallback_height_m
     h = _held_heights(ru, p, rj, good, config.sigma_range_m, lo + lz, hi + lz, mid + lz)
     rows = np.flatnonzero(np.isfinite(h))
     if rows.size == 0:
         return p, info, np.zeros(p.shape[0], dtype=bool)
-    pk, ik = tri.damped_ls(ru, rj[rows], height_m=h[rows], prior=p[rows], side=config.side,
-                           sigma_m=config.sigma_range_m, return_info=True)
+    pk, ik = _damped(reuse, ("held", j), ru, rj[rows], h[rows], p[rows], config, rows)
     out = p.copy()
     out[rows] = pk
     held = np.zeros(p.shape[0], dtype=bool)
@@ -720,9 +770,15 @@ def _bounded_fix(ru, rj, p, info, good, config, lo, hi, lz):
 
 
 def trilaterate_epochs(ranges: np.ndarray, receivers: np.ndarray,
-                       config: RangingConfig) -> Fixes:
+                       config: RangingConfig, *, reuse: dict | None = None) -> Fixes:
     """One fix per epoch and transmitter from epoch ranges (n, T, k) m (Appendix C: CMD per
-    transmitter; default here: ``damped_ls``). Returns :class:`Fixes`."""
+    transmitter; default here: ``damped_ls``). Returns :class:`Fixes`.
+
+    reuse : a dict shared by calls on the same epochs (:func:`localize` passes one to its raw
+    and gated fixes): ``damped_ls`` rows whose inputs equal the previous call's are taken
+    from it, not solved again (bit-identical; :func:`_damped`). It is cleared when the
+    receivers or the config differ from the call that filled it.
+    """
     rec = check_array(receivers, "receivers", max_abs=tri.MAX_ABS_M)
     rr = check_array(ranges, "ranges", allow_nan=True, max_abs=tri.MAX_ABS_M)
     if rr.ndim != 3 or rec.ndim != 2 or rr.shape[2] != rec.shape[0]:
@@ -736,6 +792,9 @@ def trilaterate_epochs(ranges: np.ndarray, receivers: np.ndarray,
     if max(idx) >= rec.shape[0]:
         raise ValueError(f"receivers_used: index {max(idx)} for {rec.shape[0]} receivers")
     ru = rec[list(idx)]
+    if reuse is not None and reuse.get("context") != (config, ru.tobytes(), n):
+        reuse.clear()
+        reuse["context"] = (config, ru.tobytes(), n)
     levers = config.levers(nt)
     fn: Callable[..., Any] = tri.METHODS[config.method]
     pos = np.full((n, nt, 3), np.nan)
@@ -749,15 +808,14 @@ def trilaterate_epochs(ranges: np.ndarray, receivers: np.ndarray,
         rj = rr[:, j, list(idx)]
         if config.method == "damped_ls":
             h = None if not known else config.height_m + levers[j, 2]
-            p, info = fn(ru, rj, height_m=h, side=config.side, sigma_m=config.sigma_range_m,
-                         return_info=True)
+            p, info = _damped(reuse, ("free", j), ru, rj, h, None, config)
             if config.mirror == "continuity":
                 p = _continuity(p, info)
             good = ~(info.missing | info.bounded | info.degenerate) & info.converged
             if bounds is not None:
                 good &= np.all(np.isfinite(p), axis=1)
                 p, info, held[:, j] = _bounded_fix(ru, rj, p, info, good, config, *bounds,
-                                                   levers[j, 2])
+                                                   levers[j, 2], reuse, j)
                 good = ~(info.missing | info.bounded | info.degenerate) & info.converged
         else:
             p, info = fn(ru, rj, side=config.side, return_info=True)
@@ -1466,9 +1524,10 @@ def localize(streams: RangeStreams, receivers: np.ndarray, config: RangingConfig
         a, b, sep_rej = separation_gate(g1[:, 0, :], g1[:, 1, :], config.tx_separation_m,
                                         mode=config.gate_mode, return_mask=True)
         g2 = np.stack([a, b], axis=1)
-    fixes_raw = trilaterate_epochs(raw, rec, config)
-    fixes_g1 = trilaterate_epochs(g1, rec, config)
-    fixes = fixes_g1 if g2 is g1 else trilaterate_epochs(g2, rec, config)   # no Filter 2
+    solved: dict = {}          # the gates change few epochs: solve only those again
+    fixes_raw = trilaterate_epochs(raw, rec, config, reuse=solved)
+    fixes_g1 = trilaterate_epochs(g1, rec, config, reuse=solved)
+    fixes = fixes_g1 if g2 is g1 else trilaterate_epochs(g2, rec, config, reuse=solved)
     kal = filter_fixes(te, fixes, config)
     if nt == 2:
         yaw_fix = transmitter_heading(fixes.position[:, 0], fixes.position[:, 1], levers)

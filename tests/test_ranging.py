@@ -25,6 +25,7 @@ from estimator.ranging import (
     epoch_ranges,
     localize,
     tight_filter,
+    trilaterate_epochs,
 )
 from experiments import ranging as cli
 
@@ -801,3 +802,81 @@ def test_height_bounds_validation_names_the_field():
     # known-height mode: no bounds (the height is given)
     assert UWB(height_m=1.0).height_interval(UWB_ANCHORS) is None
     assert UWB().height_interval(UWB_ANCHORS) == pytest.approx((-1.5, 3.97))
+
+
+# ---------------------------------------------------------------------------------------------
+# speed (issue 27): the gated fixes re-solve only the epochs the gates changed
+# ---------------------------------------------------------------------------------------------
+
+
+def _assert_fixes_identical(got, want):
+    """Every field of two Fixes bitwise equal (NaN where NaN)."""
+    for name in ("position", "sigma", "ok", "height_held"):
+        np.testing.assert_array_equal(getattr(got, name), getattr(want, name), err_msg=name)
+    assert got.receivers == want.receivers and got.height_bounds == want.height_bounds
+    for gi, wi in zip(got.info, want.info, strict=True):
+        for name in gi.__dataclass_fields__:
+            np.testing.assert_array_equal(getattr(gi, name), getattr(wi, name), err_msg=name)
+
+
+def _two_transmitter_case():
+    """Two transmitters 0.5 m apart (Filter 2 on) over six receivers, damped fixes, spikes
+    on receiver 3 and a slowly growing bias on receiver 4: the raw, Filter 1 and Filter 2
+    epoch ranges all differ somewhere."""
+    rng = np.random.default_rng(5)
+    rec = np.array([[0.0, 0, 0], [1.3, 0, 0], [0.65, 1.13, 0.4], [0.65, 0.4, -0.3],
+                    [0.0, 1.13, 0.0], [1.3, 1.13, 0.5]])
+    t = np.arange(0.0, 20.0, 0.05)
+    centre = np.stack([0.65 + 2 * np.cos(0.2 * t), 0.56 + 2 * np.sin(0.2 * t),
+                       np.full_like(t, 2.5)], 1)
+    tx = centre[:, None, :] + np.array([[0.25, 0, 0], [-0.25, 0, 0]])[None]
+    ranges = np.linalg.norm(tx[:, :, None, :] - rec[None, None], axis=3) \
+        + rng.normal(0, 0.005, (t.size, 2, 6))
+    ranges[rng.choice(t.size, 12, replace=False), 0, 3] += 3.0        # Filter 1 takes these
+    ranges[:, 0, 4] += np.clip(0.3 * (t - 10.0), 0.0, 1.5)   # a slow bias: Filter 2 takes it
+    cfg = RangingConfig.appendix_c(method="damped_ls", mirror="continuity",
+                                   lever_arms_m=((0.25, 0, 0), (-0.25, 0, 0)))
+    return RangeStreams.from_synchronous(t, ranges), rec, cfg
+
+
+@pytest.mark.parametrize("case", ["known height", "free z", "flat array, held z",
+                                  "two transmitters"])
+def test_localize_fixes_equal_unshared_trilateration_bitwise(everything, case, monkeypatch):
+    """localize shares the damped rows of its raw / Filter 1 / Filter 2 fixes (rows whose
+    ranges the gates left alone are not solved again): every Fixes field is bitwise the
+    one of trilaterate_epochs alone, and the second call solves only the changed rows."""
+    if case in ("known height", "free z"):
+        sc, res = everything
+        streams, rec, cfg = sc.streams, sc.anchors, UWB(height_m=1.0 if case == "known height"
+                                                        else None)
+        r = res[cfg.height_m]
+    elif case == "flat array, held z":
+        sc = scenario(0, anchors=FLAT_ANCHORS, height_m=0.0, x_max_m=50.0, sigma_m=0.1,
+                      nlos=None)
+        streams, rec, cfg = sc.streams, sc.anchors, UWB()
+        r = localize(streams, rec, cfg, tight=False)
+        assert r.fixes.height_held.mean() > 0.3                # the held re-solve is exercised
+    else:
+        streams, rec, cfg = _two_transmitter_case()
+        r = localize(streams, rec, cfg, tight=False)
+        assert not np.array_equal(r.ranges, r.ranges_gate1, equal_nan=True)
+    pairs = [(r.fixes_raw, r.ranges_raw), (r.fixes_gate1, r.ranges_gate1), (r.fixes, r.ranges)]
+    for got, ranges in pairs:
+        _assert_fixes_identical(got, trilaterate_epochs(ranges, rec, cfg))
+    rows: list[int] = []
+    real = tri.damped_ls
+
+    def counted(receivers, ranges, **kw):
+        rows.append(np.shape(ranges)[0])
+        return real(receivers, ranges, **kw)
+
+    monkeypatch.setattr(tri, "damped_ls", counted)
+    solved: dict = {}
+    trilaterate_epochs(r.ranges_raw, rec, cfg, reuse=solved)
+    n_raw, rows[:] = sum(rows), []
+    trilaterate_epochs(r.ranges_gate1, rec, cfg, reuse=solved)
+    changed = ~np.all((r.ranges_raw == r.ranges_gate1)
+                      | (np.isnan(r.ranges_raw) & np.isnan(r.ranges_gate1)), axis=2)
+    assert n_raw >= r.epochs.size * streams.n_transmitters
+    # the free (or known-height) solve: the changed rows only; the held re-solve: a few more
+    assert changed.sum() <= sum(rows) <= changed.sum() + 0.2 * n_raw
