@@ -94,7 +94,6 @@ import numpy as np
 
 from estimator._checks import check_array, check_int
 from estimator.configuration import SensorConfig
-from estimator.elastic import elastic_batch
 from estimator.rigid_fit import (
     MAX_COORD_M,
     MAX_WEIGHT,
@@ -704,6 +703,8 @@ def fit_window(obs: Any, config: SensorConfig, weights: Any | None = None, eps: 
     start = p_proc if x0a is None else x0a - centre
     yc = np.where(Wa > 0, means, 0.0)
     if solver == "elastic":
+        from estimator.elastic import elastic_batch  # numba: imported when used (issue 27)
+
         ef = elastic_batch(np.where(Wa > 0, means, np.nan)[None], Wa[None], config, e,
                            start=start[None], maxiter=maxiter)
         st = str(ef.status[0])
