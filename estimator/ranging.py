@@ -676,12 +676,12 @@ def _continuity(pos: np.ndarray, info) -> np.ndarray:
     return out
 
 
-def _held_heights(rec: np.ndarray, p: np.ndarray, r: np.ndarray, usable: np.ndarray,
-                  sigma: float, lo: float, hi: float, fallback: float) -> np.ndarray:
+def _held_heights(p: np.ndarray, sz: np.ndarray, usable: np.ndarray, lo: float, hi: float,
+                  fallback: float) -> np.ndarray:
     """Known heights (n,) m for the free-height fixes p (n, 3) m that leave [lo, hi] (the
-    nearest bound) or whose z the geometry cannot resolve (geometric z std > (hi - lo) / 2,
-    or J'J singular: ``fallback``); NaN where the free fix stands or is not usable."""
-    sz = _fix_sigma(rec, p, r, sigma, False)[:, 2]
+    nearest bound) or whose z the geometry cannot resolve (geometric z std sz (n,) m >
+    (hi - lo) / 2, or NaN: J'J singular; ``fallback``); NaN where the free fix stands or is
+    not usable."""
     z = p[:, 2]
     out = np.full(z.shape, np.nan)
     unresolved = usable & ~(sz <= 0.5 * (hi - lo))
@@ -701,72 +701,93 @@ def _merge_info(info, sub, rows: np.ndarray):
     return type(info)(**fields)
 
 
-def _take_info(info, idx: np.ndarray):
-    """``info`` restricted to the rows ``idx`` (every per-row field)."""
-    return type(info)(**{name: np.asarray(getattr(info, name))[idx]
-                         for name in info.__dataclass_fields__})
+def _memo_rows(reuse: dict | None, key: tuple, inp: Callable[[], np.ndarray],
+               rows: np.ndarray, compute: Callable) -> tuple:
+    """``compute(sel)`` (a tuple of per-row arrays for the rows ``sel`` of this call) for
+    every row, reusing the previous call's rows under ``key`` whose epoch (``rows`` (m,),
+    increasing) and inputs (``inp()`` (m, c) float) are bitwise equal; this call is then
+    stored under ``key``. ``reuse`` None: compute everything. Bit-identical to computing all
+    when ``compute`` treats each row on its own (damped_ls and :func:`_fix_sigma` do, tested).
+    """
+    if reuse is None:
+        return compute(slice(None))
+    x = np.ascontiguousarray(inp(), dtype=float)
+    m = x.shape[0]
+    same, at = np.zeros(m, dtype=bool), np.zeros(m, dtype=np.intp)
+    old = reuse.get(key)
+    if old is not None and old[0].size:
+        o_rows, o_x, o_out = old
+        at = np.minimum(np.searchsorted(o_rows, rows), o_rows.size - 1)
+        same = (o_rows[at] == rows) & np.all(o_x[at].view(np.int64) == x.view(np.int64), axis=1)
+    todo = np.flatnonzero(~same)
+    if todo.size == m:
+        out = tuple(compute(slice(None)))
+    else:
+        out = tuple(a[at] for a in o_out)
+        if todo.size:
+            for a, b in zip(out, compute(todo), strict=True):
+                a[todo] = b
+    reuse[key] = (rows, x, out)
+    return tuple(a.copy() for a in out)
 
 
 def _damped(reuse: dict | None, key: tuple, ru: np.ndarray, r: np.ndarray, h, prior,
             config: RangingConfig, rows: np.ndarray | None = None):
     """``tri.damped_ls(ru, r, height_m=h, prior=prior, return_info=True)`` (side and sigma
-    from ``config``) for the epoch rows ``rows`` (default all) of r (m, k) m, h None, a scalar
-    or (m,) m, prior None or (m, 3) m.
+    from ``config``) for the epoch rows ``rows`` (default all) of r (m, k) m; h None, a scalar
+    or (m,) m; prior None or (m, 3) m. ``reuse``: :func:`_memo_rows` (the raw and the gated
+    epoch ranges of :func:`localize` differ in a few rows, 0.3 % of the bench's epochs, so
+    the second trilateration solves only those)."""
+    m = r.shape[0]
+    names = tuple(tri.TrilaterationInfo.__dataclass_fields__)
 
-    ``reuse`` (a dict, or None: solve everything): the previous call's rows under ``key``
-    whose inputs (ranges, height, prior) are bitwise equal are taken from it, the rest solved;
-    then this call's rows are stored under ``key``. Bit-identical to solving all: damped_ls
-    solves each row on its own (tested). The raw and the gated epoch ranges of
-    :func:`localize` differ in a few rows (0.3 % of the bench's epochs), so the second
-    trilateration costs only those rows.
-    """
     def solve(sel):
         hs = h if h is None or np.ndim(h) == 0 else h[sel]
-        return tri.damped_ls(ru, r[sel], height_m=hs, prior=None if prior is None else
-                             prior[sel], side=config.side, sigma_m=config.sigma_range_m,
-                             return_info=True)
-    m = r.shape[0]
-    if reuse is None:
-        return solve(slice(None))
-    rows = np.arange(m) if rows is None else rows
-    hz = np.broadcast_to(np.nan if h is None else np.asarray(h, dtype=float), (m,))
-    inp = np.column_stack([r, hz, np.full((m, 3), np.nan) if prior is None else prior])
-    same, at = np.zeros(m, dtype=bool), np.zeros(m, dtype=np.intp)
-    old = reuse.get(key)
-    if old is not None and old[0].size:
-        o_rows, o_inp, o_p, o_info = old
-        at = np.minimum(np.searchsorted(o_rows, rows), o_rows.size - 1)
-        same = (o_rows[at] == rows) & np.all(o_inp[at].view(np.int64) == inp.view(np.int64),
-                                              axis=1)
-    todo = np.flatnonzero(~same)
-    if todo.size == m:
-        p, info = solve(slice(None))
-    else:
-        p, info = o_p[at], _take_info(o_info, at)
-        if todo.size:
-            ps, infs = solve(todo)
-            p[todo] = ps
-            info = _merge_info(info, infs, todo)
-    reuse[key] = (rows, inp, p, info)
-    return p.copy(), info
+        p, info = tri.damped_ls(ru, r[sel], height_m=hs, prior=None if prior is None else
+                                prior[sel], side=config.side, sigma_m=config.sigma_range_m,
+                                return_info=True)
+        return (p, *(getattr(info, f) for f in names))
+
+    def inputs():
+        hz = np.broadcast_to(np.nan if h is None else np.asarray(h, dtype=float), (m,))
+        return np.column_stack([r, hz, np.full((m, 3), np.nan) if prior is None else prior])
+    p, *info = _memo_rows(reuse, key, inputs, np.arange(m) if rows is None else rows, solve)
+    return p, tri.TrilaterationInfo(**dict(zip(names, info, strict=True)))
+
+
+def _sigma_rows(reuse: dict | None, key: tuple, ru: np.ndarray, p: np.ndarray, r: np.ndarray,
+                sigma: float, known_z: bool, rows: np.ndarray | None = None) -> np.ndarray:
+    """:func:`_fix_sigma` (n, 3) m through :func:`_memo_rows` (``reuse``, ``key``)."""
+    return _memo_rows(reuse, key, lambda: np.column_stack([p, r]),
+                      np.arange(p.shape[0]) if rows is None else rows,
+                      lambda sel: (_fix_sigma(ru, p[sel], r[sel], sigma, known_z),))[0]
 
 
 def _bounded_fix(ru, rj, p, info, good, config, lo, hi, lz, reuse=None, j=0):
     """Hold the free-height damped fixes of one transmitter j (lever z ``lz``) in [lo, hi]
     (body origin): re-solve the rows :func:`_held_heights` names in known-height mode, the
-    free fix as the mirror prior (``reuse``: see :func:`_damped`). Returns (positions, info,
-    held (n,) bool)."""
+    free fix as the mirror prior (``reuse``: :func:`_memo_rows`). Returns (positions, info,
+    held (n,) bool, the free fixes' geometric stds (n, 3) m)."""
     mid = 0.5 * (lo + hi) if config.fallback_height_m is None else config.fallback_height_m
-    h = _held_heights(ru, p, rj, good, config.sigma_range_m, lo + lz, hi + lz, mid + lz)
+    s_free = _sigma_rows(reuse, ("sigma free", j), ru, p, rj, config.sigma_range_m, False)
+    h = _held_heights(p, s_free[:, 2], good, lo + lz, hi + lz, mid + lz)
     rows = np.flatnonzero(np.isfinite(h))
+    held = np.zeros(p.shape[0], dtype=bool)
     if rows.size == 0:
-        return p, info, np.zeros(p.shape[0], dtype=bool)
+        return p, info, held, s_free
     pk, ik = _damped(reuse, ("held", j), ru, rj[rows], h[rows], p[rows], config, rows)
     out = p.copy()
     out[rows] = pk
-    held = np.zeros(p.shape[0], dtype=bool)
     held[rows] = True
-    return out, _merge_info(info, ik, rows), held
+    return out, _merge_info(info, ik, rows), held, s_free
+
+
+def _check_epoch_ranges(ranges: np.ndarray, rec: np.ndarray) -> np.ndarray:
+    rr = check_array(ranges, "ranges", allow_nan=True, max_abs=tri.MAX_ABS_M)
+    if rr.ndim != 3 or rec.ndim != 2 or rr.shape[2] != rec.shape[0]:
+        raise ValueError(f"ranges: expected shape (n, T, {rec.shape[0] if rec.ndim == 2 else 'k'})"
+                         f", got {rr.shape}")
+    return rr
 
 
 def trilaterate_epochs(ranges: np.ndarray, receivers: np.ndarray,
@@ -775,15 +796,12 @@ def trilaterate_epochs(ranges: np.ndarray, receivers: np.ndarray,
     transmitter; default here: ``damped_ls``). Returns :class:`Fixes`.
 
     reuse : a dict shared by calls on the same epochs (:func:`localize` passes one to its raw
-    and gated fixes): ``damped_ls`` rows whose inputs equal the previous call's are taken
-    from it, not solved again (bit-identical; :func:`_damped`). It is cleared when the
-    receivers or the config differ from the call that filled it.
+    and gated fixes): ``damped_ls`` rows and fix stds whose inputs equal the previous call's
+    are taken from it, not computed again (bit-identical; :func:`_memo_rows`). It is cleared
+    when the receivers, the config or the epoch count differ from the call that filled it.
     """
     rec = check_array(receivers, "receivers", max_abs=tri.MAX_ABS_M)
-    rr = check_array(ranges, "ranges", allow_nan=True, max_abs=tri.MAX_ABS_M)
-    if rr.ndim != 3 or rec.ndim != 2 or rr.shape[2] != rec.shape[0]:
-        raise ValueError(f"ranges: expected shape (n, T, {rec.shape[0] if rec.ndim == 2 else 'k'})"
-                         f", got {rr.shape}")
+    rr = _check_epoch_ranges(ranges, rec)
     n, nt, _ = rr.shape
     idx = config.receivers_used
     if idx is None and config.method in _THREE:
@@ -804,8 +822,10 @@ def trilaterate_epochs(ranges: np.ndarray, receivers: np.ndarray,
     known = config.height_m is not None and config.method == "damped_ls"
     bounds = config.height_interval(rec)
     held = np.zeros((n, nt), dtype=bool)
+    sm = config.sigma_range_m
     for j in range(nt):
         rj = rr[:, j, list(idx)]
+        s_free = None
         if config.method == "damped_ls":
             h = None if not known else config.height_m + levers[j, 2]
             p, info = _damped(reuse, ("free", j), ru, rj, h, None, config)
@@ -814,8 +834,8 @@ def trilaterate_epochs(ranges: np.ndarray, receivers: np.ndarray,
             good = ~(info.missing | info.bounded | info.degenerate) & info.converged
             if bounds is not None:
                 good &= np.all(np.isfinite(p), axis=1)
-                p, info, held[:, j] = _bounded_fix(ru, rj, p, info, good, config, *bounds,
-                                                   levers[j, 2], reuse, j)
+                p, info, held[:, j], s_free = _bounded_fix(ru, rj, p, info, good, config,
+                                                           *bounds, levers[j, 2], reuse, j)
                 good = ~(info.missing | info.bounded | info.degenerate) & info.converged
         else:
             p, info = fn(ru, rj, side=config.side, return_info=True)
@@ -823,11 +843,15 @@ def trilaterate_epochs(ranges: np.ndarray, receivers: np.ndarray,
         good &= np.all(np.isfinite(p), axis=1)
         pos[:, j] = p
         ok[:, j] = good
-        sig[:, j] = _fix_sigma(ru, p, rj, config.sigma_range_m, known)
-        if bounds is not None and held[:, j].any():   # z held: the bounds' uniform spread
-            sig[held[:, j], j] = _fix_sigma(ru, p[held[:, j]], rj[held[:, j]],
-                                            config.sigma_range_m, True)
-            sig[held[:, j], j, 2] = (bounds[1] - bounds[0]) / math.sqrt(12.0)
+        hj = held[:, j]
+        # a fix left free keeps the std computed for the bound test (same point and ranges)
+        sig[:, j] = s_free if s_free is not None else _sigma_rows(
+            reuse, ("sigma", j), ru, p, rj, sm, known)
+        if bounds is not None and hj.any():    # z held: the bounds' uniform spread
+            rows = np.flatnonzero(hj)
+            sig[rows, j] = _sigma_rows(reuse, ("sigma held", j), ru, p[rows], rj[rows], sm,
+                                       True, rows)
+            sig[rows, j, 2] = (bounds[1] - bounds[0]) / math.sqrt(12.0)
         infos.append(info)
     return Fixes(pos, sig, ok, tuple(infos), idx, bounds, held)
 

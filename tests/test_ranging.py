@@ -21,6 +21,7 @@ from estimator.ranging import (
     RangeFilter,
     RangeStreams,
     RangingConfig,
+    _fix_sigma,
     best_triple,
     epoch_ranges,
     localize,
@@ -863,6 +864,11 @@ def test_localize_fixes_equal_unshared_trilateration_bitwise(everything, case, m
     pairs = [(r.fixes_raw, r.ranges_raw), (r.fixes_gate1, r.ranges_gate1), (r.fixes, r.ranges)]
     for got, ranges in pairs:
         _assert_fixes_identical(got, trilaterate_epochs(ranges, rec, cfg))
+        for j in range(streams.n_transmitters):    # a free fix's std: the bound test's one
+            free = ~got.height_held[:, j]
+            np.testing.assert_array_equal(got.sigma[free, j], _fix_sigma(
+                rec, got.position[free, j], ranges[free, j], cfg.sigma_range_m,
+                cfg.height_m is not None))
     rows: list[int] = []
     real = tri.damped_ls
 
