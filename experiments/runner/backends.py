@@ -20,7 +20,7 @@ from typing import Any, Protocol
 
 from experiments.runner.cell import simulate_truth, technique_of
 from experiments.runner.store import SweepError
-from experiments.runner.worker import CellJob, run_batch, started
+from experiments.runner.worker import CellJob, run_batch, started, timeline
 from experiments.spec import Cell, Spec
 
 __all__ = ["PASS_COST_CELLS", "Dask", "Executor", "InProcess", "Loky", "batches",
@@ -184,7 +184,8 @@ def simulate_all(cells: list[Cell], spec: Spec, jobs: int, truth_fn, cache_dir,
 
 
 def _keyed_truth(fn: Callable, key: tuple, *args: Any) -> tuple[tuple, Any]:
-    return key, fn(*args)
+    with timeline(f"simulate {os.path.basename(str(key[0]))}"):
+        return key, fn(*args)
 
 
 def iter_truths(cells: list[Cell], spec: Spec, jobs: int, truth_fn, cache_dir,

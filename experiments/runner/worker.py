@@ -9,6 +9,7 @@ worker processes outlive a run, and files may change between runs.
 
 from __future__ import annotations
 
+import json
 import os
 import tempfile
 import time
@@ -25,10 +26,33 @@ from experiments.runner.cell import CellContext, CellFn, evaluate_cell
 from experiments.runner.store import CellStore
 from experiments.spec import Cell
 
-__all__ = ["KERNEL_LOCK", "CellJob", "run_batch", "started", "warm_up"]
+__all__ = ["KERNEL_LOCK", "TIMELINE_ENV", "CellJob", "run_batch", "started", "timeline",
+           "warm_up"]
 
 #: Lock file under which a worker compiles or loads the numba kernels (one at a time).
 KERNEL_LOCK = os.path.join(tempfile.gettempdir(), "configpose-kernels.lock")
+#: Environment variable naming a file to which every worker task (simulation, warm-up,
+#: batch of cells) appends one JSON line {what, pid, start, end (Unix s), cpu_s, n}: the
+#: sweep's timeline, for measuring the scheduling (unset: nothing is written).
+TIMELINE_ENV = "CONFIGPOSE_TIMELINE"
+
+
+@contextmanager
+def timeline(what: str, n: int = 0) -> Iterator[None]:
+    """Append this task's line to the file named by :data:`TIMELINE_ENV`, if set (one
+    ``write`` of one line in append mode: lines of several processes do not interleave)."""
+    path = os.environ.get(TIMELINE_ENV)
+    if not path:
+        yield
+        return
+    t0, c0 = time.time(), time.process_time()
+    try:
+        yield
+    finally:
+        line = json.dumps({"what": what, "pid": os.getpid(), "start": t0, "end": time.time(),
+                           "cpu_s": time.process_time() - c0, "n": n})
+        with open(path, "a", encoding="utf-8") as fh:
+            fh.write(line + "\n")
 
 
 @dataclass(frozen=True)
@@ -75,6 +99,11 @@ def run_batch(cells: list[Cell], truth: Any, want: list[bool], job: CellJob) -> 
     per-epoch table. Returns one record per cell: with ``job.store_dir`` each cell is
     persisted the moment it finishes and only its key and status come back; without it
     the whole result (the parent writes it)."""
+    with timeline(f"cells {Path(str(cells[0].path)).stem if cells else ''}", len(cells)):
+        return _run_batch(cells, truth, want, job)
+
+
+def _run_batch(cells: list[Cell], truth: Any, want: list[bool], job: CellJob) -> list[dict]:
     state = WORKER.for_run(job.run_id)
     store = CellStore(Path(job.store_dir)) if job.store_dir else None
     out = []
@@ -116,7 +145,7 @@ def warm_up(outputs: bool, lock_path: str | None = None, elastic: bool = False) 
     beside it made a 3.0 s simulation take 3.7 s). ``elastic``: the run has elastic-solver
     cells, so the elastic fit's compiled kernel is loaded (or, on a fresh checkout, compiled
     by the first worker under the lock) too. Returns the worker's process id."""
-    with _exclusive(lock_path):
+    with _exclusive(lock_path), timeline("warm-up"):
         _warm_up_imports(outputs)
         if elastic:
             from estimator.elastic import warm_kernel
