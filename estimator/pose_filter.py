@@ -1162,9 +1162,36 @@ def _bound_yaw_rate(x: np.ndarray, P: np.ndarray, dt: float, kappa: float, om_ma
     return min(qy, max(b2 - var, 0.0) / (dt * dt))
 
 
+def _after_gap(starter: FilterStart, k: int) -> bool:
+    """No antenna reported at both k-2 and k-1 (k < 2 included): the speed of the state at
+    k-1 came from no displacement, so its sd (3.3 m/s 1 s after a 1 s all-antenna outage,
+    issue 25) says nothing about rest."""
+    return k < 2 or not bool((starter.present[k - 1] & starter.present[k - 2]).any())
+
+
+def _moved(starter: FilterStart, k: int) -> bool:
+    """The displacements to epoch k show the platform moving: the median over the antennas
+    reporting at both k-1 and k of their displacement exceeds :data:`INIT_MOTION_SIGMAS`
+    ``sigma_step`` (the start's motion test on one displacement; the median, so one
+    antenna's spike does not count as motion). False without such an antenna. A speed
+    whose sd merely covers 0 is no evidence of rest (issue 25, cpm drive 7, epoch 872: 1 s
+    after an all-antenna outage the speed sd was 3.3 m/s while the car drove at 3.2 m/s,
+    turning at 17 deg/s; a hold froze its yaw rate at 0 and the heading went 90 deg off)."""
+    if k == 0:
+        return False
+    both = starter.present[k] & starter.present[k - 1]
+    if not both.any():
+        return False
+    d = starter.obs[k, both] - starter.obs[k - 1, both]
+    thr = INIT_MOTION_SIGMAS * starter.params._limit("sigma_step_m")
+    return bool(np.median((d * d).sum(1)) > thr * thr)
+
+
 def _standstill_hold(x: np.ndarray, P: np.ndarray, starter: FilterStart, k: int) -> bool:
     """Standing still where the layout cannot give the heading: epoch k has a fix, the
-    speed is within :data:`STANDSTILL_SIGMAS` sd of 0 and epoch k's rigid-fit heading sd above
+    speed is within :data:`STANDSTILL_SIGMAS` sd of 0 (right after a gap, where no
+    displacement measured that speed (:func:`_after_gap`), the displacements to epoch k must
+    also not show motion, :func:`_moved`) and epoch k's rigid-fit heading sd is above
     :data:`MAX_FIT_YAW_SD` (or fewer than two fixes). Then neither the motion nor the
     layout measures the heading, and metre-level errors wandering by centimetres per second
     would turn it at will (issue 25: 65 deg off after a 150 s stop with consumer errors):
@@ -1176,6 +1203,8 @@ def _standstill_hold(x: np.ndarray, P: np.ndarray, starter: FilterStart, k: int)
     if not x[V] <= STANDSTILL_SIGMAS * math.sqrt(max(P[V, V], 0.0)):
         return False
     if starter.fit_heading(k)[1] <= MAX_FIT_YAW_SD:
+        return False
+    if _after_gap(starter, k) and _moved(starter, k):
         return False
     x[OMEGA] = 0.0
     var = P[OMEGA, OMEGA]

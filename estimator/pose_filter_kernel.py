@@ -752,13 +752,46 @@ def _bound_yaw_rate(x, P, dt, par, qy):
 
 
 @_jit
-def _hold(x, P, k, present, fyaw, cnt, spread, par):
+def _after_gap(k, present):
+    """Reference ``_after_gap``: no antenna at both k-2 and k-1."""
+    if k < 2:
+        return True
+    for i in range(present.shape[1]):  # noqa: SIM110 (a generator does not compile)
+        if present[k - 1, i] and present[k - 2, i]:
+            return False
+    return True
+
+
+@_jit
+def _moved(k, present, obs, par):
+    """Reference ``_moved``: the median squared displacement to epoch k of the antennas at
+    both k-1 and k beyond (INIT_MOTION_SIGMAS sigma_step)^2 (False without one)."""
+    if k == 0:
+        return False
+    m = present.shape[1]
+    d2 = np.empty(m)
+    nb = 0
+    for i in range(m):
+        if present[k, i] and present[k - 1, i]:
+            d0, d1 = obs[k, i, 0] - obs[k - 1, i, 0], obs[k, i, 1] - obs[k - 1, i, 1]
+            d2[nb] = d0 * d0 + d1 * d1
+            nb += 1
+    if nb == 0:
+        return False
+    thr = par[I_INIT_SIGMAS] * math.sqrt(par[I_VS])
+    return np.median(d2[:nb]) > thr * thr
+
+
+@_jit
+def _hold(x, P, k, present, obs, fyaw, cnt, spread, par):
     """Reference ``_standstill_hold`` (x, P changed in place when it holds)."""
     if not _anyrow(present, k):
         return False
     if not x[V] <= par[I_STAND_SIGMAS] * math.sqrt(_pmax(P[V, V], 0.0)):
         return False
     if _fit_heading(k, fyaw, cnt, spread, par[I_SA])[1] <= par[I_FIT_SD]:
+        return False
+    if _after_gap(k, present) and _moved(k, present, obs, par):
         return False
     x[OMEGA] = 0.0
     var = P[OMEGA, OMEGA]
@@ -922,7 +955,7 @@ def forward_kernel(tt, obs, present, r_m, org, fyaw, cnt, spread, r2, fit_ok, pa
     for k in range(n):
         if running:
             dt = tt[k] - tt[k - 1]
-            hold = _hold(x, P, k, present, fyaw, cnt, spread, par)
+            hold = _hold(x, P, k, present, obs, fyaw, cnt, spread, par)
             qy_k = _bound_yaw_rate(x, P, dt, par, 0.0 if hold else par[I_QY] * dt_med / dt)
             xp, Pp, FP = _predict(x, P, dt, par[I_QA] * dt / dt_med, qy_k, horner, cw)
             if _anyrow(present, k):

@@ -1093,3 +1093,44 @@ def test_standstill_heading_does_not_walk_to_the_biased_layout(engine):
     assert stop.size >= 100
     assert e.max() < math.radians(2.0)
     assert (e <= 3.0 * np.sqrt(res.covariances[stop, 2, 2])).all()
+
+
+@pytest.mark.parametrize("engine", ["numba", "numpy"])
+def test_no_standstill_hold_on_a_speed_no_displacement_measured(engine):
+    """Issue 25, consumer error (`common_plus_model`), drive 7: after a 1 s all-antenna
+    outage (epoch 870) the speed sd was 3.3 m/s, so the hold's "speed within 2 sd of 0"
+    held while the car drove at 3.2 m/s turning at 17 deg/s; the hold froze the yaw rate at
+    0, the good displacements of epoch 872 failed their gates, a spiked one was taken, and
+    the heading went 40 -> 90 deg off until the track was lost (a flip). Right after a gap
+    the hold now also needs displacements that show no motion: the heading stays within
+    20 deg there (measured 2.6-16.9 deg; before the fix 40-91 deg at 872-876)."""
+    from pose_scenes import vehicle_scene
+
+    case, t, obs, off = vehicle_scene(7, "common_plus_model")
+    res = run_pose_filter(t, obs, off, PoseFilterParams(), engine=engine)
+    rows = np.arange(868, 884)
+    e = np.degrees(np.abs(heading_error(res.states[rows, 2], case.truth.yaw[rows])))
+    assert np.isfinite(e).all() and e.max() < 20.0
+
+
+def test_standstill_hold_after_a_gap_needs_displacements_at_rest():
+    """The rule itself (:func:`estimator.pose_filter._standstill_hold`): an uncertain speed
+    (2.4 +- 3.3 m/s) 1 s after a gap holds when the antennas did not move (a stop) and does
+    not when they moved 3 m (driving); without a gap the speed test alone decides, as
+    before (a shared one-epoch jump of every antenna at a stop must not end the hold)."""
+    from estimator.pose_filter import FilterStart, _standstill_hold
+
+    off = np.array([[0.4, 0.4], [0.4, -0.4], [-0.4, 0.4], [-0.4, -0.4]])
+    t = np.arange(4.0)
+    for gap, move, held in [(True, 0.0, True), (True, 3.0, False), (False, 3.0, True)]:
+        obs = np.repeat(off[None], 4, axis=0) + 0.0
+        obs[3] += [move, 0.0]
+        if gap:
+            obs[1] = np.nan                 # epoch 2's speed came from no displacement
+        p = PoseFilterParams(sigma_abs_m=2.0, sigma_step_m=0.06, max_accel_mps2=3.0,
+                             max_yaw_accel_radps2=1.0, max_turn_rate_radps=1.0,
+                             max_lateral_accel_mps2=5.0, max_speed_mps=20.0,
+                             no_slip_point_m=(0.0, 0.0), travel_offset_rad=0.0)
+        st = FilterStart(t, obs, off, 2.0, p)
+        x, P = np.array([0.0, 0.0, 0.0, 2.4, 0.0, 0.2]), np.diag([1.0, 1, 0.01, 3.3 ** 2, 1, 1])
+        assert _standstill_hold(x, P, st, 3) is held, (gap, move)

@@ -229,3 +229,11 @@ def test_rts_engines_agree(scene):
     np.testing.assert_array_equal(c.states, b.states)
     with pytest.raises(ValueError, match="engine: .*'gpu'"):
         rts_smooth(res, engine="gpu")
+
+
+def test_car_case_consumer_hold_after_gap_agrees():
+    """The cpm drive whose hold after an outage was fixed (issue 25, drive 7): the hold's
+    gap-and-motion rule as in the reference, every status and decision alike."""
+    _, t, obs, off = vehicle_scene(7, "common_plus_model")
+    a, _ = assert_engines_agree(t, obs, off, PoseFilterParams(), TOL_CAR)
+    assert {"predicted", "ok"} <= set(a.status)
