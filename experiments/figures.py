@@ -58,30 +58,57 @@ ORACLES = ORACLE_TECHNIQUES
 
 
 class _EpochColumns:
-    """The columns of one per-epoch file, each read on first use (``ep[name]``, a Series;
-    ``ep.columns``, the names): a figure draws a few of its ~90 columns, so reading only
-    those is what makes loading cheap."""
+    """The columns of one per-epoch file, each read on first use (``ep[name]``: a float
+    array (n,), flags 0/1 with NaN where unknown; ``ep.columns``, the names): a figure draws
+    a few of its ~70 columns, so reading only those is what makes loading cheap."""
 
     def __init__(self, path: Path):
         import pyarrow.parquet as pq
 
         self._file = pq.ParquetFile(path)
         self.columns = list(self._file.schema_arrow.names)
-        self._cols: dict[str, pd.Series] = {}
+        self._cols: dict[str, np.ndarray] = {}
 
     def prefetch(self, names: list[str]) -> None:
         """Read the unread ones of the columns ``names`` that exist, in one read."""
         todo = [n for n in names if n in self.columns and n not in self._cols]
         if todo:
             tab = self._file.read(columns=todo)
-            self._cols.update({n: tab.column(n).to_pandas() for n in todo})
+            self._cols.update({n: _as_array(tab.column(n)) for n in todo})
 
-    def __getitem__(self, name: str) -> pd.Series:
+    def __getitem__(self, name: str) -> np.ndarray:
         if name not in self._cols:
             if name not in self.columns:
                 raise KeyError(name)
-            self._cols[name] = self._file.read(columns=[name]).column(0).to_pandas()
+            self.prefetch([name])
         return self._cols[name]
+
+
+def _as_array(col) -> np.ndarray:
+    """A pyarrow column as a numpy array: numbers and flags as float (null: NaN; pandas
+    Series cost more than the drawing of them), anything else as pandas makes it."""
+    import pyarrow as pa
+
+    t = col.type
+    if pa.types.is_boolean(t) or pa.types.is_integer(t) or pa.types.is_floating(t):
+        return col.cast(pa.float64()).to_numpy()
+    return col.to_pandas().to_numpy()
+
+
+#: (per-epoch file, size, mtime) -> its columns read so far: the figure groups a worker
+#: draws share one reading of each file (cleared when another results folder is drawn).
+_FILE_CACHE: dict[tuple, _EpochColumns] = {}
+
+
+def _epoch_file(path: Path) -> _EpochColumns:
+    st = path.stat()
+    key = (str(path.resolve()), st.st_size, st.st_mtime_ns)
+    if key not in _FILE_CACHE:
+        folder = str(path.resolve().parent)
+        if any(k[0].rsplit("/", 1)[0] != folder for k in _FILE_CACHE):
+            _FILE_CACHE.clear()
+        _FILE_CACHE[key] = _EpochColumns(path)
+    return _FILE_CACHE[key]
 
 
 #: (cells.parquet path, size, mtime) -> (variant, index): the figure groups a worker draws
@@ -133,7 +160,7 @@ class _Epochs:
     def load(self, key: str) -> _EpochColumns:
         """The per-epoch table of cell ``key`` (its columns read on first use)."""
         if key not in self._cache:
-            self._cache[key] = _EpochColumns(self.out / "epochs" / f"{key}.parquet")
+            self._cache[key] = _epoch_file(self.out / "epochs" / f"{key}.parquet")
         return self._cache[key]
 
     def loaded(self) -> list[str]:
@@ -146,7 +173,8 @@ class _Epochs:
         vals, seeds = [], []
         for _, r in rows.iterrows():
             ep = self.load(r["key"])
-            v = np.abs(ep[column].to_numpy(dtype=float))
+            ep.prefetch([column, "truth_turning", "no_turns_window"])
+            v = np.abs(ep[column])
             if mask == "no_turns":
                 v = v[~_flag(ep["truth_turning"], True)]
             elif mask == "no_turns_window":
@@ -156,10 +184,13 @@ class _Epochs:
         return (np.concatenate(vals) if vals else np.array([])), sorted(set(seeds))
 
 
-def _flag(col: pd.Series, missing: bool) -> np.ndarray:
-    """A per-epoch flag column as bool (n,), ``missing`` where it is unknown (a gappy
-    reference: NaN or NA rows; a NaN would otherwise count as True)."""
-    return col.astype("boolean").fillna(missing).to_numpy(dtype=bool)
+def _flag(col: pd.Series | np.ndarray, missing: bool) -> np.ndarray:
+    """A per-epoch flag column (a Series, or floats 0/1 with NaN) as bool (n,), ``missing``
+    where it is unknown (a gappy reference: NaN or NA rows; a NaN would otherwise count as
+    True)."""
+    if isinstance(col, np.ndarray) and col.dtype.kind == "f":
+        return np.where(np.isnan(col), missing, col != 0)
+    return pd.Series(col).astype("boolean").fillna(missing).to_numpy(dtype=bool)
 
 
 def load_epochs(out_dir: str | Path, key: str) -> pd.DataFrame:
@@ -174,15 +205,41 @@ def _seeds_txt(seeds: list[int]) -> str:
 
 
 def _boxes(ax, groups: list[tuple[str, np.ndarray, str]], ylabel: str) -> None:
-    data = [g[1] if g[1].size else np.array([np.nan]) for g in groups]
-    bp = ax.boxplot(data, patch_artist=True, widths=0.6,
-                    flierprops={"marker": ".", "markersize": 2, "alpha": 0.4})
-    for patch, (label, _, color) in zip(bp["boxes"], groups):
-        patch.set_facecolor(color)
-        patch.set_alpha(0.55)
-        if "ORACLE" in label:  # truth-fed diagnostics: hatched, never mistaken for a result
-            patch.set_hatch("///")
-            patch.set_edgecolor("#d62728")
+    """Box plots of ``groups`` (label, values, colour) at x = 1, 2, ...: matplotlib's
+    statistics (``cbook.boxplot_stats``, whiskers at 1.5 IQR) drawn as a few collections
+    (boxes, whiskers and caps, medians, one line of fliers) instead of seven artists per box
+    (``ax.boxplot``), the same picture at a fraction of the cost; an empty group is a gap."""
+    from matplotlib.cbook import boxplot_stats
+    from matplotlib.collections import LineCollection, PolyCollection
+    from matplotlib.colors import to_rgba
+
+    boxes: dict[bool, list] = {False: [], True: []}
+    faces: dict[bool, list] = {False: [], True: []}
+    whisk, meds, fx, fy = [], [], [], []
+    for i, (label, v, color) in enumerate(groups, start=1):
+        if not v.size:
+            continue
+        st = boxplot_stats(v)[0]
+        lo, hi, q1, q3 = st["whislo"], st["whishi"], st["q1"], st["q3"]
+        oracle = "ORACLE" in label   # truth-fed diagnostics: hatched, never taken for a result
+        boxes[oracle].append([(i - 0.3, q1), (i + 0.3, q1), (i + 0.3, q3), (i - 0.3, q3)])
+        faces[oracle].append(to_rgba(color, 0.55))
+        whisk += [[(i, q1), (i, lo)], [(i, q3), (i, hi)], [(i - 0.15, lo), (i + 0.15, lo)],
+                  [(i - 0.15, hi), (i + 0.15, hi)]]
+        meds.append([(i - 0.3, st["med"]), (i + 0.3, st["med"])])
+        fx.append(np.full(st["fliers"].size, float(i)))
+        fy.append(st["fliers"])
+    for oracle, verts in boxes.items():
+        if verts:
+            ax.add_collection(PolyCollection(
+                verts, facecolors=faces[oracle], linewidths=1, hatch="///" if oracle else None,
+                edgecolors=to_rgba("#d62728" if oracle else "k", 0.55), zorder=2))
+    ax.add_collection(LineCollection(whisk, colors="k", linewidths=1, zorder=2))
+    ax.add_collection(LineCollection(meds, colors="C1", linewidths=1, zorder=2.1))
+    if fx:
+        ax.plot(np.concatenate(fx), np.concatenate(fy), ls="none", marker=".", ms=2, mfc="none",
+                mec="k", alpha=0.4)
+    ax.set_xlim(0.5, len(groups) + 0.5)
     ax.set_xticks(range(1, len(groups) + 1), [g[0] for g in groups], fontsize=8)
     ax.set_ylabel(ylabel)
     ax.grid(axis="y", alpha=0.3)
@@ -206,9 +263,28 @@ def _pyplot():
     return _PLT
 
 
-def _subplots(*args, **kw):
-    """plt.subplots with constrained layout (one layout pass at draw time)."""
-    return _pyplot().subplots(*args, layout="constrained", **kw)
+def _subplots(rows: int, cols: int, figsize: tuple[float, float], *, left: float = 0.75,
+              right: float = 0.15, bottom: float = 0.5, top: float = 0.6, hgap: float = 0.75,
+              wgap: float = 0.75, **kw):
+    """plt.subplots (``squeeze=False``) with fixed margins in inches around the axes
+    (``left`` ... ``top``) and between them (``hgap``, ``wgap``): no layout engine, whose
+    measuring of every tick label was up to half of a figure's drawing time."""
+    w, h = figsize
+    fig, axes = _pyplot().subplots(rows, cols, squeeze=False, figsize=figsize, **kw)
+    aw = (w - left - right - (cols - 1) * wgap) / cols
+    ah = (h - top - bottom - (rows - 1) * hgap) / rows
+    fig.subplots_adjust(left=left / w, right=1 - right / w, bottom=bottom / h, top=1 - top / h,
+                        wspace=wgap / aw, hspace=hgap / ah)
+    return fig, axes
+
+
+def _text_inches(text: str, size: float) -> float:
+    """Width (inches) of ``text`` at ``size`` points, as the Agg renderer draws it."""
+    from matplotlib.backends.backend_agg import RendererAgg
+    from matplotlib.font_manager import FontProperties
+
+    return RendererAgg(1, 1, 72).get_text_width_height_descent(
+        text, FontProperties(size=size), False)[0] / 72
 
 
 def _save(fig, path: Path, written: list[Path]) -> None:
@@ -225,8 +301,7 @@ def _weighting_figs(E: _Epochs, out: Path, written: list[Path]) -> None:
         if not weights or not windows:
             continue
         small = [w for w in windows if w <= 10]
-        fig, axes = _subplots(2, 2 if small and len(small) < len(windows) else 1,
-                                 figsize=(13, 8), squeeze=False)
+        fig, axes = _subplots(2, 2 if small and len(small) < len(windows) else 1, (13, 8))
         seeds_all: list[int] = []
         for r, axis in enumerate(("x", "y")):
             for c, wins in enumerate([windows, small][:axes.shape[1]]):
@@ -274,8 +349,9 @@ def _orientation_figs(E: _Epochs, out: Path, written: list[Path]) -> None:
     windows = sorted(E.find(path=path, technique="none", weighting=wt)["window"].unique())
     if not windows:
         return
-    fig, axes = _subplots(len(windows), 1, figsize=(12, 2.4 * len(windows)), sharex=True,
-                             squeeze=False)
+    # the labels beside each row (x = 1.005 of the axes) on the right, one title per row
+    fig, axes = _subplots(len(windows), 1, (12, 2.4 * len(windows)), sharex=True, right=1.0,
+                          bottom=0.55, top=0.65, hgap=0.3)
     for ax, w in zip(axes[:, 0], windows):
         r = _pick(E, path=path, technique="none", weighting=wt, window=w)
         ep = E.load(r["key"])
@@ -293,7 +369,8 @@ def _orientation_figs(E: _Epochs, out: Path, written: list[Path]) -> None:
                  f"{WEIGHT_LABELS.get(wt, wt)} weights, seed {int(r['seed'])}")
     _save(fig, out / "fig_4_118_orientation.png", written)
 
-    fig, ax = _subplots(figsize=(8, 4.5))
+    fig, axes = _subplots(1, 1, (8, 4.5), bottom=0.35, top=0.35)
+    ax = axes[0, 0]
     groups, seeds = [], []
     for w in windows:
         v, s = E.pooled("err_yaw", path=path, technique="none", weighting=wt, window=w)
@@ -331,7 +408,10 @@ def _technique_fig(E: _Epochs, out: Path, written: list[Path], name: str, title:
     pairs = [(w, t) for w in windows for t in present
              if not E.find(path=path, technique=t, window=w, weighting=[wt, "-"]).empty]
     width = max(6.5, 0.6 * len(pairs))
-    fig, axes = _subplots(2, len(masks), figsize=(width * len(masks) + 1.5, 8), squeeze=False)
+    oracle = any(t in ORACLES for t in present)     # a second line in the title
+    lines = 2 + max(_tech_style(t, plugins or {})[0].count("\n") for _, t in pairs)
+    fig, axes = _subplots(2, len(masks), (width * len(masks) + 1.5, 8), bottom=0.2 + 0.15 * lines,
+                          hgap=0.5 + 0.15 * lines, top=0.85 if oracle else 0.6)
     seeds: list[int] = []
     for r, axis in enumerate(("x", "y")):
         for c, mask in enumerate(masks):
@@ -346,7 +426,6 @@ def _technique_fig(E: _Epochs, out: Path, written: list[Path], name: str, title:
             where = {"full": "full path", "no_turns": "no turns (epochs not turning)",
                      "no_turns_window": "no turns (no turning epoch in the window)"}[mask]
             axes[r, c].set_title(f"|{axis}|, {where}", fontsize=10)
-    oracle = any(t in ORACLES for t in present)
     fig.suptitle(f"{PATH_LABELS.get(path, path)}: {title}, {WEIGHT_LABELS.get(wt, wt)} weights, "
                  f"{_seeds_txt(sorted(set(seeds)))}"
                  + ("\nhatched ORACLE boxes use the simulator's heading: diagnostics, not "
@@ -475,7 +554,13 @@ def _tables_fig(out: Path, written: list[Path]) -> None:
         return
     n = len(rows)
     ys = np.arange(n)[::-1]                  # first row at the top
-    fig, axes = _subplots(1, 2, figsize=(13, 1.6 + 0.3 * n), sharey=True)
+    oracle_any = any(("kind" in t and (t["kind"] == "oracle").any()) for t in tabs.values())
+    n_leg = 1 + oracle_any                   # legend rows (two entries each with the oracle)
+    # left: the row labels, 70 pt (0.97 in) left of the axes, the window names between
+    left = 1.3 + _text_inches(max((f"{t}   " for _, t in rows), key=len), 10)
+    fig, axes = _subplots(1, 2, (13, 1.35 + 0.3 * n + 0.25 * n_leg), sharey=True, left=left,
+                          right=0.25, bottom=0.6 + 0.25 * n_leg, top=0.85, wgap=0.2)
+    axes = axes[0]
     for ax_plot, axis in zip(axes, ("x", "y")):
         df = tabs[axis].reindex(rows)
         m = df["mean"].to_numpy(float)
@@ -519,11 +604,11 @@ def _tables_fig(out: Path, written: list[Path]) -> None:
                       "dissertation"),
                Line2D([], [], color="C3", marker="x", ls="none", ms=9, mew=2.2,
                       label="dissertation (one run)")]
-    if any(("kind" in t and (t["kind"] == "oracle").any()) for t in tabs.values()):
+    if oracle_any:
         handles.append(Line2D([], [], color="C1", marker="s", mfc="none", ls="-",
                               label="ORACLE (simulator heading): a diagnostic, not a result"))
-    fig.legend(handles=handles, loc="outside lower center", ncol=min(4, len(handles)),
-               fontsize=10, frameon=False)
+    fig.legend(handles=handles, loc="lower center", ncol=2 if n_leg == 2 else 3, fontsize=10,
+               frameon=False, bbox_to_anchor=(0.5, 0.05 / fig.get_figheight()))
     fig.suptitle("Tables 4.1/4.2 as a chart: Path 1, our mean over seeds beside the published "
                  "value")
     _save(fig, out / "fig_tables.png", written)

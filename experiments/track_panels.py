@@ -2,13 +2,12 @@
 (000_8f82f8df647bf685.txt), drawn by :mod:`experiments.figures`: a row of overlay tiles
 (every sensor's observed, fitted and true track, Figs 4.34-4.49 style) and a row of the
 sensor-1 lag figure (a coordinate against time, its steepest rise and fall magnified,
-Figs 4.50-4.53 style). ``ep`` is a cell's per-epoch columns (``ep[name]``: a Series).
+Figs 4.50-4.53 style). ``ep`` is a cell's per-epoch columns (``ep[name]``: a float array).
 """
 
 from __future__ import annotations
 
 import numpy as np
-import pandas as pd
 
 __all__ = ["CG", "EST", "OBS", "TRUE", "extent", "lag_row", "legend", "overlay_row",
            "rms_txt", "steepest_stretch"]
@@ -21,8 +20,8 @@ OBS, EST, CG, TRUE = "#9467bd", "C0", "C2", "C3"
 def rms_txt(ep, x: str, y: str, s: str) -> str:
     """RMS horizontal distance of columns (x, y) to sensor s's truth over the epochs where
     both are known, as text ("none" without such epochs: a dead receiver, a gappy truth)."""
-    d = np.hypot(ep[x].to_numpy(float) - ep[f"truth_{s}_x"].to_numpy(float),
-                 ep[y].to_numpy(float) - ep[f"truth_{s}_y"].to_numpy(float))
+    d = np.hypot(np.asarray(ep[x], float) - np.asarray(ep[f"truth_{s}_x"], float),
+                 np.asarray(ep[y], float) - np.asarray(ep[f"truth_{s}_y"], float))
     d = d[np.isfinite(d)]
     return f"{np.sqrt(np.mean(d ** 2)):.2f}" if d.size else "none"
 
@@ -41,9 +40,9 @@ def legend(fig, lc: bool | None = None) -> None:
                bbox_to_anchor=(0.995, 1 - 0.45 / fig.get_figheight()), frameon=False)
 
 
-def extent(*cols: pd.Series) -> tuple[float, float]:
+def extent(*cols: np.ndarray) -> tuple[float, float]:
     """(lo, hi) of the finite values of ``cols`` with a margin, (0, 1) without any."""
-    v = np.concatenate([c.to_numpy(float) for c in cols])
+    v = np.concatenate([np.asarray(c, float) for c in cols])
     v = v[np.isfinite(v)]
     pad = 0.04 * (v.max() - v.min()) + 1.0 if v.size else 0.0
     return (v.min() - pad, v.max() + pad) if v.size else (0.0, 1.0)
@@ -70,9 +69,9 @@ def overlay_row(ax, ep, sensors: list[str], top: bool) -> None:
         xs, ys = [], []
         for j, s in enumerate(sensors):       # a tile's track, then NaN: the line breaks
             cx, cy = cols.format(s, s).split()
-            x = ep[cx].to_numpy(float)
+            x = np.asarray(ep[cx], float)
             xs += [np.where((x >= x0) & (x <= x1), x, np.nan) + j * pitch, [np.nan]]
-            ys += [ep[cy].to_numpy(float), [np.nan]]
+            ys += [np.asarray(ep[cy], float), [np.nan]]
         ax.plot(np.concatenate(xs), np.concatenate(ys), **kw)
     for j, s in enumerate(sensors):
         ax.add_patch(Rectangle((x0 + j * pitch, y0), x1 - x0, y1 - y0, fill=False, lw=0.6,
@@ -113,14 +112,14 @@ def steepest_stretch(truth: np.ndarray, sign: int = 0) -> slice | None:
 def lag_row(axes, ep, lc, s: str, axis: str) -> None:
     """One row of the lag figure: sensor s's ``axis`` coordinate against time, (a) the
     whole run, (b)/(c) the steepest rising/falling stretch magnified (blank if none)."""
-    t = ep["t"].to_numpy(float)
-    truth = ep[f"truth_{s}_{axis}"].to_numpy(float)
-    series = [(t, ep[f"obs_{s}_{axis}"].to_numpy(float), {"ls": "none", "marker": ".",
+    t = np.asarray(ep["t"], float)
+    truth = np.asarray(ep[f"truth_{s}_{axis}"], float)
+    series = [(t, np.asarray(ep[f"obs_{s}_{axis}"], float), {"ls": "none", "marker": ".",
                                                           "ms": 2, "color": OBS}),
               (t, truth, {"color": TRUE, "lw": 1.5}),
-              (t, ep[f"{axis}_{s}"].to_numpy(float), {"color": EST, "lw": 1.0})]
+              (t, np.asarray(ep[f"{axis}_{s}"], float), {"color": EST, "lw": 1.0})]
     if lc is not None:
-        series.append((lc["t"].to_numpy(float), lc[f"{axis}_{s}"].to_numpy(float),
+        series.append((np.asarray(lc["t"], float), np.asarray(lc[f"{axis}_{s}"], float),
                        {"color": CG, "lw": 1.0, "ls": "--"}))
     spans = [(t[0], t[-1])] + [None if sl is None else (t[sl][0], t[sl][-1]) for sl in
                                (steepest_stretch(truth, 1), steepest_stretch(truth, -1))]
