@@ -38,6 +38,7 @@ def frozen_code(monkeypatch):
     for mod in (run_mod, store):
         monkeypatch.setattr(mod, "cell_code_digest", lambda: "cells-code")
     monkeypatch.setattr(outputs, "code_digest", lambda: "outputs-code")
+    monkeypatch.setattr(run_mod, "outputs_code_digest", lambda: "outputs-code")
     monkeypatch.setattr(run_mod, "code_version", lambda: {"git_describe": "frozen"})
 
 
@@ -112,3 +113,95 @@ def test_a_resume_reads_the_cell_table_not_the_cell_files(tmp_path, monkeypatch,
     f.write_text("{")
     r = _fake_run(spec, tmp_path, cell_fn=fake_cell)
     assert (r.n_computed, r.n_resumed) == (1, first.n_cells - 1)
+
+
+def _small_run(tmp_path, spec=None):
+    return run(spec or Spec.from_dict(SMALL, source="small"), out=tmp_path / "run", jobs=1,
+               progress=False, figures=False, cache_dir=tmp_path / "cache")
+
+
+def test_the_report_shows_the_code_of_the_run_that_wrote_it(tmp_path, monkeypatch,
+                                                            frozen_code):
+    """After a code change that recomputes no cell, the report is redrawn (its manifest
+    input changed) and must show the new code: it read manifest.json before the run wrote
+    it (the run wrote it only after the outputs), so it lagged one run behind."""
+    from experiments.runner import run as run_mod
+
+    _small_run(tmp_path)
+    report = tmp_path / "run" / "REPORT.md"
+    assert "code frozen (package" in report.read_text()
+    monkeypatch.setattr(run_mod, "code_version", lambda: {"git_describe": "abc1234-dirty"})
+    again = _small_run(tmp_path)
+    assert again.n_computed == 0 and "report" in again.timings["outputs"]["written"]
+    assert "code abc1234-dirty (package" in report.read_text()
+    assert json.loads((tmp_path / "run" / "manifest.json").read_text())["code"] == {
+        "git_describe": "abc1234-dirty"}
+
+
+def _spy_outputs(monkeypatch):
+    """Count the outputs phases and the reads of the cell table."""
+    from experiments.runner import store
+
+    calls = {"outputs": 0, "table": 0}
+    write_outputs, read_table = outputs.write_outputs, store.CellStore.read_table
+
+    def counted_outputs(*a, **k):
+        calls["outputs"] += 1
+        return write_outputs(*a, **k)
+
+    def counted_table(self, keys):
+        calls["table"] += 1
+        return read_table(self, keys)
+
+    monkeypatch.setattr(outputs, "write_outputs", counted_outputs)
+    monkeypatch.setattr(store.CellStore, "read_table", counted_table)
+    return calls
+
+
+def test_a_settled_resume_reads_no_table_and_runs_no_outputs_phase(tmp_path, monkeypatch,
+                                                                   frozen_code):
+    """Nothing changed since the last run finished (the store's index holds the digest of
+    its inputs and files): the resume neither reads the cell table (pandas) nor runs the
+    outputs phase; the table is read when asked for, and is the same."""
+    first = _small_run(tmp_path)
+    calls = _spy_outputs(monkeypatch)
+    before = _stamps(tmp_path / "run")
+    again = _small_run(tmp_path)
+    assert calls == {"outputs": 0, "table": 0}
+    assert again.timings["outputs"] == {"written": [], "seconds": {},
+                                        "unchanged": ["page", "report", "tables"]}
+    assert "0 of 3 rewritten" in again.summary()
+    assert _stamps(tmp_path / "run") == before
+    assert again.cells.equals(first.cells) and calls["table"] == 1
+
+
+@pytest.mark.parametrize("change", ["output", "outputs_code", "errors", "declared"])
+def test_a_resume_after_a_change_runs_the_outputs_phase(tmp_path, monkeypatch, frozen_code,
+                                                        change):
+    """Any change the settled digest covers sends the resume through the outputs phase,
+    which redraws what changed: a touched output, the code of experiments/, a file in
+    errors/, the folder of a declared study ([report] sensitivity)."""
+    from experiments.runner import run as run_mod
+
+    study = tmp_path / "study"
+    study.mkdir()
+    spec = Spec.from_dict({**SMALL, "report": {"sensitivity": str(study)}}, source="small")
+    _small_run(tmp_path, spec)
+    out = tmp_path / "run"
+    if change == "output":
+        (out / "tables.md").write_text("edited")
+    elif change == "outputs_code":
+        monkeypatch.setattr(run_mod, "outputs_code_digest", lambda: "other")
+    elif change == "errors":
+        (out / "errors" / "stray.json").write_text("{}")
+    else:
+        (study / "sensitivity.csv").write_text("a,b\n")
+    calls = _spy_outputs(monkeypatch)
+    again = _small_run(tmp_path, spec)
+    assert calls["outputs"] == 1
+    if change == "output":
+        assert again.timings["outputs"]["written"] == ["tables", "page"]
+        assert (out / "tables.md").read_text() != "edited"
+    calls["outputs"] = 0
+    _small_run(tmp_path, spec)                      # settled again
+    assert calls["outputs"] == 0

@@ -16,6 +16,8 @@ determines the numbers; what varies per run goes to the git-ignored ``run.local.
 
 from __future__ import annotations
 
+import hashlib
+import json
 import os
 import sys
 import tempfile
@@ -52,7 +54,8 @@ from experiments.runner.store import (
     write_text,
 )
 from experiments.runner.worker import CellJob, warm_up
-from experiments.spec import REPO, RESULTS_ROOT, Cell, Spec, load_spec
+from experiments.spec import PROJECT_DIR, REPO, RESULTS_ROOT, Cell, Spec, load_spec
+from sim.atomic import file_stat
 
 # pandas is imported where it is used: the main process simulates before it needs pandas
 # (0.4 s of imports off the critical path of a one-path sweep)
@@ -83,13 +86,21 @@ class Results:
 
     spec: Spec
     out_dir: Path
-    cells: pd.DataFrame               # one row per cell x mask
     errors: list[dict]                # one dict per failed cell: params, error, traceback
     n_cells: int
     n_computed: int
     n_resumed: int
     wall_s: float
     timings: dict = field(default_factory=dict)
+    #: the cell table, or what reads it (a settled resume reads cells.parquet when asked)
+    table: pd.DataFrame | Callable[[], pd.DataFrame] | None = field(default=None, repr=False)
+
+    @property
+    def cells(self) -> pd.DataFrame:
+        """The cell table, one row per cell x mask."""
+        if callable(self.table):
+            self.table = self.table()
+        return self.table
 
     @property
     def n_failed(self) -> int:
@@ -185,12 +196,16 @@ class _Run:
         self.cells = spec.expand()
         self.by_key = {c.key: c for c in self.cells}
         self.run_id = uuid.uuid4().hex
+        self.epochs_note = False        # the outputs phase's note on per-epoch estimates
         self.job = CellJob(spec_seed=spec.seed, masks=spec.masks, session_s=spec.session_s,
                            run_id=self.run_id, cell_fn=opts.cell_fn, store_dir=str(out_dir))
 
     def go(self, locked: OSError | None, t_start: float) -> Results:
         todo, done, n_stale, n_damaged = self._plan(locked)
         manifest, run_info = self._start(todo, n_stale, n_damaged)
+        settled = None if todo else self._settled(manifest, done)
+        if settled is not None:
+            return self._resumed(settled, t_start, manifest, run_info)
         try:
             n_now, t = self._compute(todo)
             res, out_info, t["outputs_s"] = self._finish(todo, done, n_now, manifest)
@@ -211,7 +226,56 @@ class _Run:
                          "n_failed": res.n_failed, "timings_s": res.timings})
         write_json(self.out_dir / "manifest.json", manifest)
         _write_run_info(self.out_dir, run_info, required=bool(todo))
+        self._settle(json_text(manifest), out_info, res.errors)
         return res
+
+    # ---------------------------------------------------------------- settled
+    def _settled(self, manifest: dict, done: set[str]) -> Results | None:
+        """A resume with nothing to do: when the cells, cells.parquet, the outputs and every
+        input of the outputs are as the last finished run left them (the store's index
+        records their digest, :func:`settled_digest`), the results without reading the cell
+        table (read when asked for) or running the outputs phase; else None."""
+        t0 = time.perf_counter()
+        keys = [c.key for c in self.cells]
+        rec = self.store.settled(keys, self.code)
+        if rec is None:
+            return None
+        errors = self.store.read_errors(keys)
+        final = json_text({**manifest, "status": _final_status(errors)})
+        if rec.get("digest") != settled_digest(self.out_dir, self.spec, self.o, self.code,
+                                               final):
+            return None
+        res = Results(spec=self.spec, out_dir=self.out_dir, errors=errors,
+                      n_cells=len(self.cells), n_computed=0, n_resumed=len(done), wall_s=0.0,
+                      table=lambda: self.store.read_table(keys))
+        res.timings = {"simulate_s": 0.0, "cells_s": 0.0, "outputs_s": time.perf_counter() - t0}
+        if self.o.outputs and rec.get("units"):
+            res.timings["outputs"] = {"written": [], "unchanged": rec["units"], "seconds": {}}
+        if rec.get("epochs_note"):
+            _epochs_note(self.spec.name)
+        return res
+
+    def _resumed(self, res: Results, t_start: float, manifest: dict, run_info: dict
+                 ) -> Results:
+        """Finish a settled resume: only run.local.json is written (where it can be)."""
+        res.wall_s = time.perf_counter() - t_start
+        res.timings["wall_s"] = res.wall_s
+        manifest["status"] = _final_status(res.errors)
+        run_info.update({"finished_utc": time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime()),
+                         "n_computed": 0, "n_resumed": res.n_resumed,
+                         "n_failed": res.n_failed, "timings_s": res.timings, "settled": True})
+        write_json(self.out_dir / "manifest.json", manifest)      # unchanged: not rewritten
+        _write_run_info(self.out_dir, run_info, required=False)
+        return res
+
+    def _settle(self, manifest_text: str, out_info: dict, errors: list) -> None:
+        """Record in the store's index the digest of the finished run (the next resume
+        compares it, :meth:`_settled`)."""
+        rec = {"digest": settled_digest(self.out_dir, self.spec, self.o, self.code,
+                                        manifest_text),
+               "units": sorted([*out_info.get("written", []), *out_info.get("skipped", [])]),
+               "epochs_note": self.epochs_note}
+        self.store.write_index([c.key for c in self.cells], self.code, settled=rec)
 
     # ---------------------------------------------------------------- plan
     def _plan(self, locked: OSError | None) -> tuple[list[Cell], set[str], int, int]:
@@ -369,9 +433,15 @@ class _Run:
             write_table(table, out_dir / "cells.parquet")
         self.store.write_index(keys, self.code)
         write_json(out_dir / "errors.json", errors)
-        res = Results(spec=self.spec, out_dir=out_dir, cells=table, errors=errors,
+        # the manifest of this run before the outputs (the report and the page show it):
+        # with nothing to compute it was not written yet, and the report showed the code
+        # line of the run before
+        write_text(out_dir / "manifest.json", final)
+        res = Results(spec=self.spec, out_dir=out_dir, table=table, errors=errors,
                       n_cells=len(self.cells), n_computed=n_now - len(errors),
                       n_resumed=len(done), wall_s=0.0)
+        self.epochs_note = bool(self.o.outputs and self.o.figures and not table.empty
+                                and ("has_epochs" not in table or not table["has_epochs"].any()))
         out_info = self._outputs(table) if self.o.outputs and not table.empty else {}
         return res, out_info, time.perf_counter() - t_out0
 
@@ -392,10 +462,7 @@ class _Run:
         finally:
             obar.close()
         if figures and ("has_epochs" not in table or not table["has_epochs"].any()):
-            print(f"{spec.name}: note: no cell kept per-epoch estimates (the spec has no "
-                  "[epochs] table), so the figures drawn from per-epoch errors were not "
-                  "written (box plots, orientation, overlays, sensor-1 lag): add "
-                  "'[epochs]' with 'seeds = [0]' to the spec", file=sys.stderr)
+            _epochs_note(spec.name)
         return out_info
 
     def _disk_error(self, exc: OSError, manifest: dict) -> SweepError:
@@ -436,6 +503,71 @@ def import_for_outputs() -> None:
 
     for name in OUTPUT_MODULES:
         importlib.import_module(name)
+
+
+def _epochs_note(name: str) -> None:
+    print(f"{name}: note: no cell kept per-epoch estimates (the spec has no [epochs] table), "
+          "so the figures drawn from per-epoch errors were not written (box plots, "
+          "orientation, overlays, sensor-1 lag): add '[epochs]' with 'seeds = [0]' to the "
+          "spec", file=sys.stderr)
+
+
+#: Files of a results folder that are not inputs of a settled resume: this run's sidecar,
+#: the lock, the store's index (which holds the digest).
+_VOLATILE = frozenset({"run.local.json", "lock.local.json", "cells.local.json"})
+_EXPERIMENTS = Path(__file__).resolve().parents[1]
+
+
+def outputs_code_digest() -> str:
+    """Digest of every module of ``experiments/`` and the page's assets (a superset of
+    :func:`experiments.outputs.code_digest`, without importing pandas)."""
+    h = hashlib.blake2b(digest_size=16)
+    files = [*_EXPERIMENTS.rglob("*.py"), *(_EXPERIMENTS / "page_assets").glob("*")]
+    for f in sorted(files):
+        if f.is_file() and "__pycache__" not in f.parts:
+            h.update(f.relative_to(_EXPERIMENTS).as_posix().encode() + b"\0")
+            h.update(f.read_bytes() + b"\0")
+    return h.hexdigest()
+
+
+def _folder_stats(folder: Path) -> dict[str, list[int] | None]:
+    """{name: [size, mtime ns]} of the files directly in ``folder`` ({} when absent)."""
+    try:
+        names = [e.name for e in os.scandir(folder) if e.is_file()]
+    except OSError:
+        return {}
+    return {n: file_stat(folder / n) for n in sorted(names) if n not in _VOLATILE}
+
+
+def _declared_folders(spec: Spec) -> dict[str, list]:
+    """The folders of the studies the spec declares ([report] sensitivity, [page] flight),
+    each as every place its value may resolve to (experiments.spec._study_folder: the
+    spec's folder, the project, the value itself), with their files' stats: what the
+    outputs phase reads outside the results folder."""
+    out: dict[str, list] = {}
+    for table, field_ in (("report", "sensitivity"), ("page", "flight")):
+        value = (spec.raw.get(table) or {}).get(field_)
+        if isinstance(value, str):
+            cands = {Path(value), Path(spec.base_dir) / value, PROJECT_DIR / value,
+                     REPO / value}
+            out[f"{table}.{field_}"] = [[str(c), _folder_stats(c)] for c in sorted(cands)]
+    return out
+
+
+def settled_digest(out_dir: Path, spec: Spec, opts: _Options, code: str,
+                   manifest_text: str) -> str:
+    """Digest of everything a finished run's outputs depend on and of what it left in
+    ``out_dir``: the cell code and the code of experiments/ (which holds every rule of the
+    outputs phase), the spec, the options that shape the outputs, this run's manifest,
+    the stats of the folder's files (cells.parquet, errors.json, every output and
+    outputs.local.json; the cell files are the index's) and of errors/, and the declared
+    studies' folders. Equal on a resume: the outputs are current, nothing needs doing."""
+    parts = {"cell_code": code, "outputs_code": outputs_code_digest(), "spec": spec.raw,
+             "outputs": opts.outputs, "figures": opts.figures, "manifest": manifest_text,
+             "folder": _folder_stats(out_dir), "errors": _folder_stats(out_dir / "errors"),
+             "declared": _declared_folders(spec)}
+    return hashlib.blake2b(json.dumps(parts, sort_keys=True, default=str).encode(),
+                           digest_size=16).hexdigest()
 
 
 def _final_status(errors: list) -> str:

@@ -54,6 +54,7 @@ class CellStore:
         self.errors_dir = self.out / "errors"
         for d in (self.cells_dir, self.epochs_dir, self.errors_dir):
             d.mkdir(parents=True, exist_ok=True)
+        self.matched: set[str] = set()      # keys :meth:`check` found as the index has them
 
     _atomic = staticmethod(atomic_write)
 
@@ -72,8 +73,10 @@ class CellStore:
         """
         stale, damaged = set(), set()
         known = self._indexed(code)
+        self.matched = set()
         for k in keys:
             if k in known and known[k] == self._file_stats(k):
+                self.matched.add(k)
                 continue                    # as read and assembled by the last run
             try:
                 rec = json.loads((self.cells_dir / f"{k}.json").read_text())
@@ -105,13 +108,29 @@ class CellStore:
         idx = self._index()
         return idx["cells"] if idx.get("code") == code else {}
 
-    def write_index(self, keys: Iterable[str], code: str) -> None:
+    def write_index(self, keys: Iterable[str], code: str, settled: dict | None = None
+                    ) -> None:
         """Record the files of ``keys`` and ``cells.parquet`` (just assembled from them) as
-        they are now; not written where the folder is read-only (the index only saves time)."""
+        they are now, and ``settled`` (the record of a finished run, see
+        :func:`experiments.runner.run.settled_digest`; None: keep the index's); not written
+        where the folder is read-only (the index only saves time)."""
         idx = {"code": code, "cells": {k: self._file_stats(k) for k in keys},
-               "table": file_stat(self.out / "cells.parquet")}
+               "table": file_stat(self.out / "cells.parquet"),
+               "settled": self._index().get("settled") if settled is None else settled}
         with suppress(OSError):
             write_json(self.out / INDEX_FILE, idx)
+
+    def settled(self, keys: list[str], code: str) -> dict | None:
+        """The index's record of the finished run when every cell of ``keys`` (in this
+        order) and ``cells.parquet`` are as the index has them for ``code`` (after
+        :meth:`check`, which compared the cell files), else None."""
+        idx = self._index()
+        rec = idx.get("settled")
+        if (not isinstance(rec, dict) or idx.get("code") != code or list(idx["cells"]) != keys
+                or not self.matched.issuperset(keys)
+                or idx.get("table") != file_stat(self.out / "cells.parquet")):
+            return None
+        return rec
 
     def read_table(self, keys: list[str]) -> pd.DataFrame:
         """The cell table of ``keys``: ``cells.parquet`` when it was assembled from exactly
