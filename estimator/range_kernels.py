@@ -598,7 +598,8 @@ def lm_rows(G, dz, has_dz, r, w, p0, radius, tol, max_iter, scale):
     """Algorithm 3.16 of Madsen, Nielsen and Tingleff (2004) per row, the loop of
     :func:`estimator.trilateration._levenberg_marquardt` (the batched numpy reference; same
     arguments, dz (M, k) zeros when not has_dz). Returns p (M, d), iterations, stopped by a
-    test, on the bound, cost (M,) and the final J'J (M, d, d)."""
+    test, on the bound, cost (M,) and the final J'J (M, d, d). The row's inputs are taken
+    once per row and an accepted step swaps the current and trial buffers (no copies)."""
     m, d = p0.shape
     P = p0.copy()
     iters = np.zeros(m, dtype=np.int64)
@@ -608,11 +609,14 @@ def lm_rows(G, dz, has_dz, r, w, p0, radius, tol, max_iter, scale):
     AA = np.zeros((m, d, d))
     A, g = np.zeros((d, d)), np.zeros(d)
     An, gn = np.zeros((d, d)), np.zeros(d)
-    pn, h, M, J = np.zeros(d), np.zeros(d), np.zeros((d, d)), np.zeros(d)
+    p, pn = np.zeros(d), np.zeros(d)
+    h, M, J = np.zeros(d), np.zeros((d, d)), np.zeros(d)
     for row in range(m):
-        p = P[row]
-        cost = _lm_eval(G, dz[row], has_dz, r[row], w[row], p, A, g, J)
-        eps1 = tol * scale[row]
+        dzr, rr, wr, rad, sc_row = dz[row], r[row], w[row], radius[row], scale[row]
+        for a in range(d):
+            p[a] = P[row, a]
+        cost = _lm_eval(G, dzr, has_dz, rr, wr, p, A, g, J)
+        eps1 = tol * sc_row
         mu = 0.0
         for a in range(d):
             mu = max(mu, A[a, a])
@@ -626,18 +630,18 @@ def lm_rows(G, dz, has_dz, r, w, p0, radius, tol, max_iter, scale):
                 break
             iters[row] += 1
             _damped_step(A, g, mu, M, h)
-            if _norm(h) <= tol * (_norm(p) + scale[row]):
+            if _norm(h) <= tol * (_norm(p) + sc_row):
                 stop = True
                 break
             for a in range(d):
                 pn[a] = p[a] + h[a]
             nrm = _norm(pn)
-            out = nrm > radius[row]
+            out = nrm > rad
             if out:
-                sc = radius[row] / (nrm if nrm > 0 else 1.0)
+                sc = rad / (nrm if nrm > 0 else 1.0)
                 for a in range(d):
                     pn[a] *= sc
-            cost_new = _lm_eval(G, dz[row], has_dz, r[row], w[row], pn, An, gn, J)
+            cost_new = _lm_eval(G, dzr, has_dz, rr, wr, pn, An, gn, J)
             pred = 0.0
             for a in range(d):
                 pred += h[a] * (mu * h[a] - g[a])
@@ -645,10 +649,10 @@ def lm_rows(G, dz, has_dz, r, w, p0, radius, tol, max_iter, scale):
             num = 0.5 * (cost - cost_new)
             rho = num / pred if pred != 0.0 else (math.inf * num if num != 0 else math.nan)
             if cost_new < cost and rho > 0:
-                p[:] = pn
+                p, pn = pn, p
+                A, An = An, A
+                g, gn = gn, g
                 cost = cost_new
-                A[:, :] = An
-                g[:] = gn
                 on_b = out
                 mu *= max(1.0 / 3.0, 1.0 - (2.0 * rho - 1.0) ** 3)
                 nu = 2.0
@@ -660,6 +664,8 @@ def lm_rows(G, dz, has_dz, r, w, p0, radius, tol, max_iter, scale):
             if not math.isfinite(mu) or mu > 1e300:
                 mu = 1e300
             nu = min(nu, 1e300)
+        for a in range(d):
+            P[row, a] = p[a]
         done[row] = stop
         bound[row] = on_b
         costs[row] = cost
