@@ -630,7 +630,8 @@ def bench_ranging(quick: bool = False) -> list[dict]:
     ranges it processed (initialisation, prediction, gating and update per range, epoch
     outputs included); ``RangeFilter.update`` alone; ``damped_ls`` and ``cayley_menger`` over
     all 1200 epochs at once, divided by the epochs; ``localize`` (the whole pipeline: gates,
-    fixes, Kalman, tight filter) per epoch. Wall and CPU (process) time: on a shared machine
+    fixes, Kalman, tight filter) per epoch, here and on the shared outdoor UWB runs
+    (:func:`_bench_uwb_runs`). Wall and CPU (process) time: on a shared machine
     the CPU time is the figure to compare with the 5 us / 50 us targets (issue 27). Beside
     each compiled figure its numpy/Python reference (``reference=True``). Then the rigid-body
     filter (issue 26, :func:`_bench_rigid`) and the kernels' compile and cached-load times
@@ -705,6 +706,7 @@ def bench_ranging(quick: bool = False) -> list[dict]:
         rows.append({"what": label, "per unit": _fmt(wall / epochs.size),
                      "cpu per unit": _fmt(cpu / epochs.size), "unit": "epoch",
                      "total": _fmt(wall), "x probe": ref.ratio(wall / epochs.size)})
+    rows += _bench_uwb_runs(timed, ref)
     rows += _bench_rigid(timed, ref)
     if not quick:
         rows += _bench_kernel_load(ref)
@@ -713,6 +715,27 @@ def bench_ranging(quick: bool = False) -> list[dict]:
     print(ref.line() + " (wall per unit)\n")
     print_table(rows, ["what", "per unit", "cpu per unit", "unit", "total", "x probe"])
     print()
+    return rows
+
+
+def _bench_uwb_runs(timed: Callable, ref: Reference) -> list[dict]:
+    """``localize`` (the whole pipeline) per epoch on the shared outdoor UWB runs that
+    ``python -m experiments.ranging --reference`` scores, known height and free z as it runs
+    them (skipped when ../shared is absent)."""
+    from estimator import ranging as rg
+    from experiments.ranging import REFERENCE_RUNS, TAG_HEIGHT_M, load_recording
+
+    rows = []
+    for d in (d for d in REFERENCE_RUNS if d.is_dir()):
+        rec = load_recording(d)
+        for label, h in (("known height", TAG_HEIGHT_M), ("free z", None)):
+            cfg = rg.RangingConfig.uwb_ground_tag(height_m=h)
+            n = rg.localize(rec.streams, rec.anchor_positions, cfg).epochs.size
+            wall, cpu = timed(lambda cfg=cfg, rec=rec: rg.localize(rec.streams,
+                                                                   rec.anchor_positions, cfg))
+            rows.append({"what": f"localize, UWB run {d.parts[-3]}, {label} ({n} epochs)",
+                         "per unit": _fmt(wall / n), "cpu per unit": _fmt(cpu / n),
+                         "unit": "epoch", "total": _fmt(wall), "x probe": ref.ratio(wall / n)})
     return rows
 
 
