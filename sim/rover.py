@@ -80,14 +80,19 @@ from sim.controllers import (
 from sim.paths import Path, load_path, path_errors
 from sim.truth import Truth
 
-__all__ = ["MAX_TIMESTEP_S", "ROVER_XML", "SITE_PREFIX", "build_rover_model",
-           "default_control_steps", "simulate_rover"]
+__all__ = ["COARSE_TIMESTEP_S", "MAX_TIMESTEP_S", "ROVER_XML", "SITE_PREFIX",
+           "build_rover_model", "default_control_steps", "default_timestep_s", "simulate_rover"]
 
 ROVER_XML = MODELS_DIR / "rover.xml"
 SITE_PREFIX = "gps_"
-#: Largest physics step accepted: half the contacts' solref time constant (0.01 s in the XML).
-MAX_TIMESTEP_S = 0.005
-_SETTLE_S = 0.2
+#: Largest physics step accepted (contacts' solref time constants are raised to two steps,
+#: see :func:`build_rover_model`).
+MAX_TIMESTEP_S = 0.02
+#: Default physics step of slow routes (:func:`default_timestep_s`), s ...
+COARSE_TIMESTEP_S = 0.02
+#: ... used while the platform travels at most this far per step at cruise speed, m.
+_COARSE_TRAVEL_M = 0.006
+_SETTLE_S = 1.0
 #: Default control period: the platform moves at most this far between controller updates
 #: at cruise speed (3 cm = 50 Hz at 1.5 m/s), ...
 _CTRL_TRAVEL_M = 0.03
@@ -112,13 +117,37 @@ def default_control_steps(cruise_speed_mps: float, timestep_s: float) -> int:
     return max(1, min(by_travel, by_rate))
 
 
+def default_timestep_s(cruise_speed_mps: float) -> float | None:
+    """Physics step when ``simulate_rover`` is not given one: :data:`COARSE_TIMESTEP_S`
+    (20 ms) while the platform travels at most 6 mm per step at cruise speed (up to
+    0.3 m/s: Paths 1 and 2 drive at 0.2 m/s), else None (the XML's step, 10 ms for the
+    rover). See models/rover.xml for the measurements behind both.
+    """
+    cruise_speed_mps = check_real(cruise_speed_mps, "cruise_speed_mps", lo=0.0, lo_open=True)
+    if cruise_speed_mps * COARSE_TIMESTEP_S <= _COARSE_TRAVEL_M + 1e-12:
+        return COARSE_TIMESTEP_S
+    return None
+
+
+def _soften_to_two_steps(spec: mujoco.MjSpec, timestep_s: float) -> None:
+    """Raise every contact solref time constant below two steps to ``2 * timestep_s``.
+
+    MuJoCo does the same silently (its ``refsafe``); doing it here puts the value used in the
+    compiled XML (and so in the cache key). Direct (negative) solref values are left alone.
+    """
+    for item in (*spec.pairs, *spec.geoms):
+        if item.solref[0] > 0 and item.solref[0] < 2.0 * timestep_s:
+            item.solref = [2.0 * timestep_s, item.solref[1]]
+
+
 def build_rover_model(config: SensorConfig, xml_path: str | FsPath = ROVER_XML, *,
                       timestep_s: float | None = None) -> tuple[mujoco.MjModel, str]:
     """Compile the rover with one site per sensor of ``config`` (generated with MjSpec).
 
-    ``timestep_s`` overrides the physics step of the XML (``<option timestep>``, 5 ms in
-    models/rover.xml); it must be > 0 and at most :data:`MAX_TIMESTEP_S` (the contacts'
-    ``solref`` time constant 0.01 s needs at least two steps, or MuJoCo silently softens it).
+    ``timestep_s`` overrides the physics step of the XML (``<option timestep>``, 10 ms in
+    models/rover.xml, 5 ms in models/car.xml); it must be > 0 and at most
+    :data:`MAX_TIMESTEP_S`. Contacts whose ``solref`` time constant is shorter than two steps
+    get two steps (:func:`_soften_to_two_steps`; MuJoCo would soften them silently).
 
     Returns (model, xml) where ``xml`` is the full MJCF text of what was compiled (it enters
     the cache key, so the timestep does too). Raises ValueError if the model has no body
@@ -132,6 +161,7 @@ def build_rover_model(config: SensorConfig, xml_path: str | FsPath = ROVER_XML, 
             raise ValueError(f"timestep_s: must be a number in (0, {MAX_TIMESTEP_S}] s, "
                              f"got {timestep_s!r}")
         spec.option.timestep = float(timestep_s)
+        _soften_to_two_steps(spec, float(timestep_s))
     chassis = spec.body("chassis")
     if chassis is None:
         raise ValueError(f"xml_path: {xml_path} has no body named 'chassis'")
@@ -222,6 +252,8 @@ def simulate_rover(
         xml_path = ROVER_XML if path.vehicle is None else MODELS_DIR / f"{path.vehicle}.xml"
         if not FsPath(xml_path).is_file():
             raise ValueError(f"path: vehicle {path.vehicle!r} has no model {xml_path}")
+    if timestep_s is None:
+        timestep_s = default_timestep_s(params.cruise_speed_mps)
     model, xml = build_rover_model(config, xml_path, timestep_s=timestep_s)
     dt = float(model.opt.timestep)
     if control_rate_hz is None:

@@ -16,7 +16,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from estimator.configuration import SensorConfig
+from estimator.configuration import MODELS_DIR, SensorConfig
 from sim.controllers import (
     PurePursuitParams,
     diff_drive_wheel_speeds,
@@ -27,10 +27,12 @@ from sim.controllers import (
 )
 from sim.paths import Path, load_path, path_errors, project_to_polyline
 from sim.rover import (
+    COARSE_TIMESTEP_S,
     MAX_TIMESTEP_S,
     ROVER_XML,
     build_rover_model,
     default_control_steps,
+    default_timestep_s,
     simulate_rover,
 )
 
@@ -153,7 +155,7 @@ def test_deterministic_bit_for_bit(run1):
 # ---------------------------------------------------------------- timestep and control rate
 def test_timestep_is_a_model_parameter_and_enters_the_key(tmp_path):
     model, xml = build_rover_model(CONFIG)
-    assert model.opt.timestep == 0.005                   # models/rover.xml default
+    assert model.opt.timestep == 0.01                    # models/rover.xml default
     model2, xml2 = build_rover_model(CONFIG, timestep_s=0.002)
     assert model2.opt.timestep == 0.002 and xml2 != xml
     a = simulate_rover("square20", CONFIG, cache_dir=tmp_path, timestep_s=0.0025)
@@ -166,6 +168,32 @@ def test_timestep_is_a_model_parameter_and_enters_the_key(tmp_path):
     assert a.meta["hash"] != simulate_rover("square20", CONFIG, cache_dir=False).meta["hash"]
 
 
+def test_contacts_keep_two_steps_per_solref_time_constant():
+    # a step above half a contact's solref time constant raises it to two steps (what MuJoCo
+    # would do silently), in the compiled model and in the XML that is hashed; the rover's
+    # contacts (0.02 s) at its 10 ms, the car's (0.01 s) at 5 ms and finer steps stay as written
+    for xml_path, cases in ((ROVER_XML, ((0.02, 0.04), (0.01, 0.02), (0.002, 0.02))),
+                            (MODELS_DIR / "car.xml", ((0.01, 0.02), (0.0075, 0.015),
+                                                      (0.005, 0.01), (0.002, 0.01)))):
+        for ts, tc in cases:
+            model, xml = build_rover_model(CONFIG, xml_path, timestep_s=ts)
+            again = mujoco.MjModel.from_xml_string(xml)
+            for mdl in (model, again):
+                active = (mdl.geom_contype != 0) | (mdl.geom_conaffinity != 0)
+                tcs = np.concatenate((mdl.pair_solref[:, 0], mdl.geom_solref[active, 0]))
+                assert tcs.size >= 4 and np.all(tcs == tc), (xml_path.name, ts, tcs)
+
+
+def test_default_timestep_follows_the_speed():
+    # 20 ms while the platform travels <= 6 mm per step (0.3 m/s), else the XML's 10 ms
+    assert default_timestep_s(0.2) == default_timestep_s(0.3) == COARSE_TIMESTEP_S == 0.02
+    assert default_timestep_s(0.31) is None and default_timestep_s(1.5) is None
+    assert simulate_rover("square20", CONFIG, cache_dir=False).meta["params"][
+        "timestep_s"] == 0.01
+    with pytest.raises(ValueError, match="cruise_speed_mps"):
+        default_timestep_s(0.0)
+
+
 def test_default_control_rate_follows_the_speed():
     # at most 3 cm of travel per update, at least 20 Hz, whole steps
     assert default_control_steps(1.5, 0.005) == 4        # 50 Hz
@@ -175,21 +203,23 @@ def test_default_control_rate_follows_the_speed():
 
 
 @pytest.mark.parametrize("fixture, travel_m", [("run10", 0.03), ("slow_square", 0.01)])
-def test_5ms_step_tracks_like_a_2ms_step(fixture, travel_m, request):
-    # Independent reference: the same run with a 2.5x finer physics step. The corner geometry
+def test_default_step_tracks_like_a_2ms_step(fixture, travel_m, request):
+    # Independent reference: the same run with a 5x finer physics step. The corner geometry
     # depends on the control update at which the platform enters the target area; updates are
-    # v / rate apart (3 cm at 1.5 m/s and 50 Hz, 1 cm at 0.2 m/s and 20 Hz), and which one
-    # comes first shifts with the step. Measured spread of the cut-in over 1, 2, 2.5 and 5 ms
-    # steps: 2.1 cm at 1.5 m/s, 0.4 cm at 0.2 m/s, i.e. within one update's travel. So corners
-    # and the trajectory must agree to one update's travel, straights to 3 mm (the largest
-    # straight-line errors, at the final stop, measured 0.4-3.7 mm over those steps).
+    # v / rate apart (3 cm at 1.5 m/s and 50 Hz, 0.8 cm at 0.2 m/s and 25 Hz), and which one
+    # comes first shifts with the step. Measured spread of the cut-in over 2, 5 and 10 ms steps
+    # at 1.5 m/s: 1.4 cm; over 2, 5, 10 and 20 ms at 0.2 m/s: 0.34 cm, i.e. within one
+    # update's travel. So corners and the trajectory must agree to one update's travel. The
+    # largest straight-line error is at the final stop and shrinks with the step (at 0.2 m/s
+    # 4.1, 3.6, 2.7 and 0.9 mm at 2, 5, 10 and 20 ms): the default step's must not exceed the
+    # fine step's by more than 3 mm.
     got = request.getfixturevalue(fixture)
     p, tr = got if isinstance(got, tuple) else (load_path("square20"), got)
     fine = simulate_rover(p, CONFIG, sample_rate_hz=10.0, cache_dir=False, timestep_s=0.002)
     a, b = tr.meta["path_errors"], fine.meta["path_errors"]
     np.testing.assert_allclose(a["cut_in_m"], b["cut_in_m"], atol=travel_m)
     np.testing.assert_allclose(a["corner_max_m"], b["corner_max_m"], atol=travel_m)
-    assert abs(a["straight_max_m"] - b["straight_max_m"]) < 3e-3
+    assert a["straight_max_m"] < b["straight_max_m"] + 3e-3
     assert abs(tr.t[-1] - fine.t[-1]) <= 0.2 + 1e-9   # within two 10 Hz samples
     # the driven curves (not the timing along them) coincide: distance of every 4th 10 Hz
     # point to the fine run's 10 Hz polyline (15 cm chords on a >= 2.4 m radius sag < 1.2 mm)
@@ -201,7 +231,9 @@ def test_slow_speed_tracking_and_turning_flag(slow_square):
     # Path 1's 0.2 m/s on the short square: the corner turn rate peaks near 0.08 rad/s, so a
     # fixed 0.1 rad/s threshold would flag nothing; the speed-scaled one must mark each corner
     p, tr = slow_square
-    assert tr.meta["params"]["control_rate_hz"] == 20.0
+    # 20 ms physics steps (default_timestep_s), so the >= 20 Hz controller runs at 25 Hz
+    assert tr.meta["params"]["timestep_s"] == 0.02
+    assert tr.meta["params"]["control_rate_hz"] == 25.0
     e = tr.meta["path_errors"]
     assert e["straight_max_m"] < 0.1 and e["closure_m"] < 0.05
     assert np.all(np.array(e["cut_in_m"]) < p.target_radius_m)
