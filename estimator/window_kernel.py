@@ -1,5 +1,8 @@
 """The one-window procrustes fit in 2-D as one compiled loop (numba, ``@njit(cache=True)``):
-what :func:`estimator.window.fit_window` runs for a single 2-D procrustes call (issue 27).
+what :func:`estimator.window.fit_window` runs for a single 2-D procrustes call (issue 27);
+and the per-window weighted sums of randomly weighted windows (:func:`weighted_sums`, the
+loop of :func:`estimator.trackers._windows.weighted_window_means`, bit-identical to its numpy
+reference).
 
 :func:`fit_2d` makes the fast path's screens (a sample is missing only as a whole, present
 coordinates finite and within ``max_coord``, weights in [0, ``max_weight``]), forms the
@@ -21,7 +24,7 @@ import math
 import numpy as np
 from numba import njit
 
-__all__ = ["fit_2d"]
+__all__ = ["fit_2d", "weighted_sums"]
 
 
 @njit(cache=True, nogil=True)
@@ -194,3 +197,27 @@ def fit_2d(arr: np.ndarray, w: np.ndarray, wmode: int, B1: np.ndarray, I: np.nda
     cg[0], cg[1] = cg[0] / n_cg, cg[1] / n_cg
     out[0], out[1], out[2], out[3] = yaw, obj, mirror, viol
     return True
+
+
+@njit(cache=True, nogil=True)
+def weighted_sums(obs: np.ndarray, ends: np.ndarray, wts: np.ndarray, num: np.ndarray,
+                  W: np.ndarray) -> None:
+    """Per-window weighted sums of the windows ending at ``ends`` (N,) with per-window
+    weights ``wts`` (N, w, m): num (N, m, 2) += weight x obs and W (N, m) += weight over
+    the window's present samples (obs (n, m, 2) m, NaN = missing: weight 0), adding the
+    window offsets j = 0 .. w-1 in order, as the numpy reference
+    (``estimator.trackers._windows.weighted_sums_numpy``) does: the same floating-point
+    numbers. num and W must start at 0."""
+    N, w, m = wts.shape
+    for r in range(N):
+        a = ends[r] - (w - 1)
+        for j in range(w):
+            i = a + j
+            for k in range(m):
+                x = obs[i, k, 0]
+                if math.isnan(x):
+                    continue      # weight 0 and obs 0: adds +0.0, which changes no sum
+                wj = wts[r, j, k]
+                W[r, k] += wj
+                num[r, k, 0] += wj * x
+                num[r, k, 1] += wj * obs[i, k, 1]

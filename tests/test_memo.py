@@ -265,3 +265,28 @@ def test_clear_all_empties_every_memo():
     assert len(a) == 0 and len(b) == 0
     calls = []
     assert a.get("x", lambda: calls.append(1) or 5) == 5 and calls == [1]
+
+
+def test_digest_of_a_frozen_array_is_remembered_while_it_lives():
+    """A frozen array that owns its data is hashed once (the sweep keys every fit of a noise
+    key by its observations); the digest is the one of its bytes, a writeable or viewed
+    array is hashed every time, and the entry goes with the array."""
+    import gc
+
+    from estimator import memo
+
+    a = np.arange(12.0).reshape(3, 4).copy()          # owns its data
+    d = content_digest(a)
+    freeze(a)
+    assert content_digest(a) == d and id(a) in memo._FROZEN_DIGESTS
+    assert memo.array_digest(a) == memo._FROZEN_DIGESTS[id(a)][1]
+    view = a[1:]
+    assert content_digest(view) == content_digest(view.copy())
+    assert id(view) not in memo._FROZEN_DIGESTS       # a view: its base decides, not cached
+    b = np.zeros(3)
+    content_digest(b)
+    assert id(b) not in memo._FROZEN_DIGESTS          # writeable: hashed every time
+    key = id(a)
+    del a, view
+    gc.collect()
+    assert key not in memo._FROZEN_DIGESTS

@@ -264,9 +264,22 @@ def cumsum_means(obs: np.ndarray, ends: np.ndarray, w: int | np.ndarray,
 def weighted_window_means(obs: np.ndarray, ends: np.ndarray, w: int, wts: np.ndarray
                            ) -> tuple[np.ndarray, np.ndarray]:
     """:func:`estimator.window.window_means` of the windows ending at ``ends`` with
-    per-window weights ``wts`` (N, w, m), without the (N, w, m, 2) stack: one pass per
-    window offset j, adding in the order of window_means' reduction over the window axis
+    per-window weights ``wts`` (N, w, m), without the (N, w, m, 2) stack: the sums of
+    :func:`estimator.window_kernel.weighted_sums` (compiled; :func:`weighted_sums_numpy` is
+    its reference), adding in the order of window_means' reduction over the window axis
     (j = 0 .. w-1), so the sums are the same floating-point numbers."""
+    from estimator.window_kernel import weighted_sums
+
+    num = np.zeros((ends.size, obs.shape[1], 2))
+    W = np.zeros((ends.size, obs.shape[1]))
+    weighted_sums(obs, np.ascontiguousarray(ends, dtype=np.int64), wts, num, W)
+    return _ratio(num, W)
+
+
+def weighted_sums_numpy(obs: np.ndarray, ends: np.ndarray, w: int, wts: np.ndarray
+                        ) -> tuple[np.ndarray, np.ndarray]:
+    """The numpy reference of :func:`estimator.window_kernel.weighted_sums`: one pass per
+    window offset j; returns (num (N, m, 2), W (N, m))."""
     present = ~np.isnan(obs[..., 0])
     o = np.where(present[..., None], obs, 0.0)
     start = ends - (w - 1)
@@ -282,6 +295,11 @@ def weighted_window_means(obs: np.ndarray, ends: np.ndarray, w: int, wts: np.nda
         wj = np.where(present[rows], wts[:, j], 0.0)
         W += wj
         num += wj[..., None] * o[rows]
+    return num, W
+
+
+def _ratio(num: np.ndarray, W: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Weighted means num / W (NaN where W = 0) and the total weights (0 there)."""
     with np.errstate(invalid="ignore", divide="ignore"):
         means = num / W[..., None]
     full = W > 0
