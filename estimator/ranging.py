@@ -663,16 +663,13 @@ def _continuity(pos: np.ndarray, info) -> np.ndarray:
     if amb.size == 0:
         return out
     fin = np.all(np.isfinite(out), axis=1)
-    last = None
-    k = 0
-    for i in range(out.shape[0]):
-        if k < amb.size and amb[k] == i:
-            k += 1
-            if last is not None and (np.linalg.norm(alt[i] - last)
-                                     < np.linalg.norm(out[i] - last)):
-                out[i] = alt[i]
-        if fin[i]:
-            last = out[i]
+    # the previous usable fix of row i: the last finite row before it (as returned, or as
+    # swapped when it was ambiguous itself: rows are visited in order)
+    prev = np.maximum.accumulate(np.where(fin, np.arange(out.shape[0]), -1))
+    for i in amb.tolist():
+        j = int(prev[i - 1]) if i > 0 else -1
+        if j >= 0 and np.linalg.norm(alt[i] - out[j]) < np.linalg.norm(out[i] - out[j]):
+            out[i] = alt[i]
     return out
 
 

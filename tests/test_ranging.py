@@ -886,3 +886,37 @@ def test_localize_fixes_equal_unshared_trilateration_bitwise(everything, case, m
     assert n_raw >= r.epochs.size * streams.n_transmitters
     # the free (or known-height) solve: the changed rows only; the held re-solve: a few more
     assert changed.sum() <= sum(rows) <= changed.sum() + 0.2 * n_raw
+
+
+def _continuity_loop(pos, info):
+    """The mirror-continuity rule as a plain loop over every row (the former code)."""
+    out, last = pos.copy(), None
+    for i in range(out.shape[0]):
+        if info.ambiguous[i] and np.all(np.isfinite(info.alternative[i])) and last is not None \
+                and (np.linalg.norm(info.alternative[i] - last) < np.linalg.norm(out[i] - last)):
+            out[i] = info.alternative[i]
+        if np.all(np.isfinite(pos[i])):
+            last = out[i]
+    return out
+
+
+@pytest.mark.parametrize("seed", range(4))
+def test_continuity_visits_the_ambiguous_rows_only_with_the_same_choices(seed):
+    """_continuity loops over the ambiguous rows only (issue 27): the same mirror choices as
+    the loop over every row, with missing fixes, ambiguous rows in a row (each judged by the
+    one before as chosen) and no alternative."""
+    from estimator.ranging import _continuity
+
+    rng = np.random.default_rng(seed)
+    n = 300
+    walk = np.cumsum(rng.normal(0, 0.3, (n, 3)), axis=0)
+    mirror = walk * np.array([1.0, 1.0, -1.0]) + rng.normal(0, 0.05, (n, 3))
+    amb = rng.random(n) < 0.4
+    pos = np.where(rng.random(n)[:, None] < 0.5, walk, mirror)
+    alt = np.where(amb[:, None], walk + mirror - pos, np.nan)       # the other of the two
+    alt[rng.random(n) < 0.05] = np.nan
+    pos[rng.random(n) < 0.1] = np.nan
+    info = tri.TrilaterationInfo(*(np.zeros(n, bool),) * 6, amb, np.zeros(n), alt)
+    got = _continuity(pos, info)
+    np.testing.assert_array_equal(got, _continuity_loop(pos, info))
+    assert np.sum(np.any(got != pos, axis=1) & np.all(np.isfinite(pos), axis=1)) > 10
