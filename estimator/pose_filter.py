@@ -1377,220 +1377,336 @@ def run_pose_filter(t: np.ndarray, obs: np.ndarray, offsets: np.ndarray,
     tt, obs, off = _check_run_args(t, obs, offsets, params)
     if engine not in ENGINES:
         raise ValueError(f"engine: must be one of {ENGINES}, got {engine!r}")
-    params = params.resolve(tt, obs, off)
+    su = _setup(tt, obs, off, params.resolve(tt, obs, off))
+    n, m = obs.shape[:2]
+    out = _outputs(n)
+    if engine == "numba" and _thr_table_size(n, m, su.monitor.window) <= MAX_THR_TABLE:
+        status = _run_kernel(tt, obs, su.present, su.r_m, su.starter, su.monitor,
+                             _kernel_par(su), out)
+    else:
+        status = _ReferencePass(su, out).run()
+    return _result(out, status, su.delta, su.params, su.cg_offset)
+
+
+@dataclass(frozen=True, eq=False)
+class _Setup:
+    """The constants of one forward pass, from the resolved parameters (SI units; module
+    docstring): the travel frame (``delta``, lever arms ``r_m`` from the no-slip point,
+    ``cg_offset``), noise variances ``va`` / ``vs``, gates, process noise ``qa`` / ``qy``,
+    limits, the flip distance, the start and the consistency monitor."""
+
+    tt: np.ndarray
+    obs: np.ndarray
+    present: np.ndarray
+    params: PoseFilterParams
+    delta: float
+    r_m: np.ndarray
+    cg_offset: np.ndarray
+    sigma_abs: float
+    va: float
+    vs: float
+    v_max: float
+    dt_med: float
+    gate: float
+    flip_thr: float
+    qa: float
+    qy: float
+    om_max: float
+    alat: float
+    a_max: float
+    kappa: float
+    lever: float
+    flip_dist: float
+    starter: FilterStart
+    monitor: _Monitor
+
+
+def _setup(tt: np.ndarray, obs: np.ndarray, off: np.ndarray, params: PoseFilterParams
+           ) -> _Setup:
+    """:class:`_Setup` of a pass over t (n,), obs (n, m, 2), offsets (m, 2) with resolved
+    ``params``."""
     n, m = obs.shape[:2]
     ns = np.asarray(params.no_slip_point_m, dtype=float)
     delta = float(params._limit("travel_offset_rad"))
     # the filter runs in the travel frame (x along the no-slip point's velocity): antenna
     # offsets from the no-slip point rotated by -delta, heading = layout heading + delta
     r_m = _rotate(off - ns, -delta)
-    cg_offset = -ns                        # CG relative to the no-slip point (layout frame)
     sigma_abs, sigma_step = params._limit("sigma_abs_m"), params._limit("sigma_step_m")
-    v_max = params._limit("max_speed_mps")
-    va, vs = sigma_abs ** 2, sigma_step ** 2
     dt_med = float(np.median(np.diff(tt))) if n > 1 else 1.0
-    gate = chi2_ppf(params.gate_prob, 2) if params.gate_prob < 1 else math.inf
-    flip_thr = chi2_ppf(params.gate_prob, 1) if params.gate_prob < 1 else 10.83
     # the acceleration's increment per sample: half the limit, or half the jerk limit's
     # change over a sample when that is smaller (a car at 1 Hz: 4 m/s^2 but ~3 m/s^3); the
     # jerk is measured over ~1 s (estimator.platform), so it bounds no shorter interval
     jerk_step = (params.max_jerk_mps3 * max(dt_med, JERK_SCALE_S)
                  if params.max_jerk_mps3 is not None else math.inf)
-    qa = (0.5 * min(params._limit("max_accel_mps2"), jerk_step)) ** 2
-    qy = params.sigma_yaw_accel ** 2
-    om_max, alat = params._limit("max_turn_rate_radps"), params._limit("max_lateral_accel_mps2")
     a_max = params._limit("max_accel_mps2")
-    kappa = params.max_curvature_1pm if params.max_curvature_1pm is not None else math.inf
-    lever = float(np.sqrt((r_m ** 2).sum(1).max())) if m else 0.0
-
-    X = np.full((n, NX), np.nan)
-    PP = np.full((n, NX, NX), np.nan)
-    XC = np.full((n, NX), np.nan)
-    PC = np.full((n, NX, NX), np.nan)
-    PX_ = np.full((n, NX, NX), np.nan)
-    seg = np.zeros(n, dtype=bool)
-    status = np.full(n, "", dtype=object)
-    n_used = np.zeros(n, dtype=int)
-    n_gated = np.zeros(n, dtype=int)
-    n_steps = np.zeros(n, dtype=int)
-    nis = np.full(n, np.nan)
-    nis_dof = np.zeros(n, dtype=int)
-
     present = np.isfinite(obs[..., 0])
-    starter = FilterStart(tt, obs, r_m, sigma_abs, params)
-    monitor = _Monitor(starter, dt_med, params.gate_prob)
     n_alive = max(int(present.any(axis=0).sum()), 1)
-    flip_dist = max(INIT_MOTION_SIGMAS * sigma_abs * math.sqrt(2.0 / n_alive), _extent(off),
-                    a_max * dt_med * dt_med)
-    out = (X, PP, XC, PC, PX_, seg, n_used, n_gated, n_steps, nis, nis_dof)
-    if engine == "numba" and _thr_table_size(n, m, monitor.window) <= MAX_THR_TABLE:
-        par = np.array([sigma_abs, va, vs, dt_med, gate, flip_thr, qa, qy, om_max, alat, a_max,
-                        v_max, lever, flip_dist, min(va, vs), params.flip_memory_s,
-                        monitor.thr1, float(params.reverse), float(params.max_rejects),
-                        float(monitor.window), INIT_MAX_YAW_SD, INIT_MOTION_SIGMAS,
-                        LOST_YAW_SD, MAX_FIT_YAW_SD, STANDSTILL_SIGMAS, REINIT_EPOCHS,
-                        REINIT_MIN_YAW_RAD, MAX_ITERATIONS, MAX_PRIOR_RATIO, kappa,
-                        params._limit("max_yaw_accel_radps2")])
-        status = _run_kernel(tt, obs, present, r_m, starter, monitor, par, out)
-        return _result(out, status, delta, params, cg_offset)
+    starter = FilterStart(tt, obs, r_m, sigma_abs, params)
+    return _Setup(
+        tt=tt, obs=obs, present=present, params=params, delta=delta, r_m=r_m,
+        cg_offset=-ns,                     # CG relative to the no-slip point (layout frame)
+        sigma_abs=sigma_abs, va=sigma_abs ** 2, vs=sigma_step ** 2,
+        v_max=params._limit("max_speed_mps"), dt_med=dt_med,
+        gate=chi2_ppf(params.gate_prob, 2) if params.gate_prob < 1 else math.inf,
+        flip_thr=chi2_ppf(params.gate_prob, 1) if params.gate_prob < 1 else 10.83,
+        qa=(0.5 * min(a_max, jerk_step)) ** 2, qy=params.sigma_yaw_accel ** 2,
+        om_max=params._limit("max_turn_rate_radps"),
+        alat=params._limit("max_lateral_accel_mps2"), a_max=a_max,
+        kappa=params.max_curvature_1pm if params.max_curvature_1pm is not None else math.inf,
+        lever=float(np.sqrt((r_m ** 2).sum(1).max())) if m else 0.0,
+        flip_dist=max(INIT_MOTION_SIGMAS * sigma_abs * math.sqrt(2.0 / n_alive), _extent(off),
+                      a_max * dt_med * dt_med),
+        starter=starter, monitor=_Monitor(starter, dt_med, params.gate_prob))
 
-    x: np.ndarray | None = None
-    P: np.ndarray | None = None
-    lost = False          # the next start is a restart
-    rej_abs = rej_step = 0
-    llr = 0.0             # reverse mode: log-likelihood ratio for the flipped heading
-    back = 0.0            # forward mode: backward travel over consecutive epochs, m
-    # what each epoch measures depends only on which antennas reported at it and at the
-    # epoch before: built once per such pattern (_Pattern), the same numbers every time
-    rows = [row.tobytes() for row in present]
-    patterns: dict[tuple[bytes, bytes], _Pattern] = {}
-    dts = np.diff(tt).tolist()
-    var_min = min(va, vs)
-    for k in range(n):
-        if x is not None:
-            assert P is not None
-            # stochastic cloning: predict x_k and keep x_{k-1} beside it, jointly Gaussian
-            dt = dts[k - 1]
-            # continuous noise of constant density: the variances of the rates' changes
-            # given per median step, scaled to this step (longer gaps: larger)
-            hold = _standstill_hold(x, P, starter, k)
-            qy_k = _bound_yaw_rate(x, P, dt, kappa, om_max, 0.0 if hold else qy * dt_med / dt)
-            xp, Pp, FP = _predict(x, P, dt, qa * dt / dt_med, qy_k)
-            if present[k].any() and _prior_lost(Pp, lever, var_min):
-                # the prediction means nothing (e.g. after an hour's gap in t): the track
-                # is lost; this epoch's data start it again (reported as "reset")
-                x = P = None
-                starter.reset()
-                lost = True
-        if x is None:
-            # ---------------------------------------------------------------- waiting
-            status[k], got = starter.wait(k)
-            if got is None:
+
+def _outputs(n: int) -> tuple:
+    """The forward pass's output arrays for n epochs, NaN / 0 (see :func:`_run_kernel`):
+    X, PP, XC, PC, PX_, seg, n_used, n_gated, n_steps, nis, nis_dof."""
+    return (np.full((n, NX), np.nan), np.full((n, NX, NX), np.nan), np.full((n, NX), np.nan),
+            np.full((n, NX, NX), np.nan), np.full((n, NX, NX), np.nan),
+            np.zeros(n, dtype=bool), np.zeros(n, dtype=int), np.zeros(n, dtype=int),
+            np.zeros(n, dtype=int), np.full(n, np.nan), np.zeros(n, dtype=int))
+
+
+def _kernel_par(su: _Setup) -> np.ndarray:
+    """The compiled loop's scalars (:data:`estimator.pose_filter_kernel.N_PAR`, in the
+    order of its ``I_*`` indices)."""
+    p = su.params
+    return np.array([su.sigma_abs, su.va, su.vs, su.dt_med, su.gate, su.flip_thr, su.qa, su.qy,
+                     su.om_max, su.alat, su.a_max, su.v_max, su.lever, su.flip_dist,
+                     min(su.va, su.vs), p.flip_memory_s, su.monitor.thr1, float(p.reverse),
+                     float(p.max_rejects), float(su.monitor.window), INIT_MAX_YAW_SD,
+                     INIT_MOTION_SIGMAS, LOST_YAW_SD, MAX_FIT_YAW_SD, STANDSTILL_SIGMAS,
+                     REINIT_EPOCHS, REINIT_MIN_YAW_RAD, MAX_ITERATIONS, MAX_PRIOR_RATIO,
+                     su.kappa, p._limit("max_yaw_accel_radps2")])
+
+
+class _ReferencePass:
+    """The forward pass in numpy (``engine="numpy"``, the reference the compiled loop is
+    tested against), one method per step of an epoch: predict (:meth:`_predict`), wait /
+    start (:meth:`_wait`), update (:meth:`_update`), the monitor's re-initialisation
+    (:meth:`_refit`), direction of travel (:meth:`_direction`), lost track and limits
+    (:meth:`_finish`). ``out``: the arrays of :func:`_outputs`, filled in place."""
+
+    def __init__(self, su: _Setup, out: tuple) -> None:
+        self.su = su
+        (self.X, self.PP, self.XC, self.PC, self.PX_, self.seg, self.n_used, self.n_gated,
+         self.n_steps, self.nis, self.nis_dof) = out
+        n = su.tt.size
+        self.status = np.full(n, "", dtype=object)
+        self.x: np.ndarray | None = None
+        self.P: np.ndarray | None = None
+        self.lost = False          # the next start is a restart
+        self.rej_abs = self.rej_step = 0
+        self.llr = 0.0             # reverse mode: log-likelihood ratio for the flipped heading
+        self.back = 0.0            # forward mode: backward travel over consecutive epochs, m
+        # what each epoch measures depends only on which antennas reported at it and at the
+        # epoch before: built once per such pattern (_Pattern), the same numbers every time
+        self.rows = [row.tobytes() for row in su.present]
+        self.patterns: dict[tuple[bytes, bytes], _Pattern] = {}
+        self.dts = np.diff(su.tt).tolist()
+        self.var_min = min(su.va, su.vs)
+
+    def run(self) -> np.ndarray:
+        """Every epoch in turn; returns the status (n,) object array."""
+        for k in range(self.su.tt.size):
+            pred = self._predict(k) if self.x is not None else None
+            if self.x is None:
+                self._wait(k)
                 continue
-            x, P = got
-            X[k], PP[k], seg[k] = x, P, True
-            status[k] = "reset" if lost else "init"
-            n_used[k] = np.count_nonzero(present[k])
-            rej_abs, rej_step, llr, back = 0, 0, 0.0, 0.0
-            monitor.clear()
-            continue
-        # -------------------------------------------------------------------- running
-        y = np.concatenate((xp, x))
-        Y = np.empty((2 * NX, 2 * NX))
-        Y[:NX, :NX], Y[:NX, NX:], Y[NX:, :NX], Y[NX:, NX:] = Pp, FP, FP.T, P
-        st = "predicted"
-        pat = patterns.get((rows[k], rows[k - 1]))
+            assert pred is not None
+            self._epoch(k, *pred)
+        return self.status
+
+    def _lose(self) -> None:
+        """The track is lost: wait for data and restart (reported on the restart)."""
+        self.x = self.P = None
+        self.su.starter.reset()
+        self.lost = True
+
+    def _clear_flags(self) -> None:
+        self.rej_abs, self.rej_step, self.llr, self.back = 0, 0, 0.0, 0.0
+
+    def _predict(self, k: int) -> tuple | None:
+        """Stochastic cloning: predict x_k and keep x_{k-1} beside it, jointly Gaussian.
+        Returns (xp, Pp, FP, dt, hold), or None when the prediction means nothing (e.g.
+        after an hour's gap in t: the track is lost; this epoch's data start it again)."""
+        su, x, P = self.su, self.x, self.P
+        assert x is not None and P is not None
+        dt = self.dts[k - 1]
+        # continuous noise of constant density: the variances of the rates' changes
+        # given per median step, scaled to this step (longer gaps: larger)
+        hold = _standstill_hold(x, P, su.starter, k)
+        qy_k = _bound_yaw_rate(x, P, dt, su.kappa, su.om_max,
+                               0.0 if hold else su.qy * su.dt_med / dt)
+        xp, Pp, FP = _predict(x, P, dt, su.qa * dt / su.dt_med, qy_k)
+        if su.present[k].any() and _prior_lost(Pp, su.lever, self.var_min):
+            self._lose()
+            return None
+        return xp, Pp, FP, dt, hold
+
+    def _wait(self, k: int) -> None:
+        """A waiting epoch: start (or restart) here when the data allow."""
+        self.status[k], got = self.su.starter.wait(k)
+        if got is None:
+            return
+        self.x, self.P = got
+        self.X[k], self.PP[k], self.seg[k] = self.x, self.P, True
+        self.status[k] = "reset" if self.lost else "init"
+        self.n_used[k] = np.count_nonzero(self.su.present[k])
+        self._clear_flags()
+        self.su.monitor.clear()
+
+    def _pattern(self, k: int) -> _Pattern:
+        su = self.su
+        pat = self.patterns.get((self.rows[k], self.rows[k - 1]))
         if pat is None:
-            pat = patterns[rows[k], rows[k - 1]] = _Pattern(present[k], present[k - 1], r_m,
-                                                            va, vs)
-        ik, js = pat.ik, pat.js            # fixes; displacements since k-1
-        if ik.size:
-            zk = obs[k, ik]
-            z = np.concatenate((zk, obs[k, js] - obs[k - 1, js])) if js.size else zk
-            box: list[float] = []           # the prior NIS, from the first pass's S
-            try:
-                y1, Y1, acc = _iterated_update(y, Y, z, pat, gate, lever, 0.1 * sigma_abs, box,
-                                               hold)
-            except np.linalg.LinAlgError:   # numerically singular: nothing to trust
-                y1, Y1, acc = y, Y, np.zeros(ik.size + js.size, dtype=bool)
-                rej_abs = rej_step = params.max_rejects
-            if box:
-                nis[k], nis_dof[k] = box[0], 2 * z.shape[0]
-            acc_abs, acc_step = acc[:ik.size], acc[ik.size:]
-            n_used[k] = np.count_nonzero(acc_abs)
-            n_gated[k] = ik.size - n_used[k]
-            n_steps[k] = np.count_nonzero(acc_step)
-            if ik.size >= 2 and n_used[k] == 0 and starter.motion_miss(k):
-                # every fix gated while the epoch's own fit agrees with the layout: the
-                # motion model missed (a hard acceleration), the data did not; re-initialise
-                # from the fit at once instead of coasting on a wrong prediction
-                x, P = starter.refit(k, x)
-                monitor.clear()
-                X[k], PP[k], seg[k], status[k] = x, P, True, "reinit"
-                rej_abs, rej_step, llr, back = 0, 0, 0.0, 0.0
-                starter.remember(k, x, P)
-                continue
-            rej_abs = rej_abs + 1 if n_used[k] == 0 else 0
-            rej_step = rej_step + 1 if (js.size >= 2 and n_steps[k] == 0) else 0
-            if max(rej_abs, rej_step) >= params.max_rejects:
-                # lost: back to waiting, restart from the data (reported on the restart)
-                x = P = None
-                starter.reset()
-                lost = True
-                status[k] = "waiting"
-                continue
-            if acc.any():
-                y, Y, st = y1, Y1, "ok"
-                y[YAW] = _wrap(y[YAW])
-                y[NX + YAW] = _wrap(y[NX + YAW])
+            pat = self.patterns[self.rows[k], self.rows[k - 1]] = _Pattern(
+                su.present[k], su.present[k - 1], su.r_m, su.va, su.vs)
+        return pat
+
+    def _epoch(self, k: int, xp: np.ndarray, Pp: np.ndarray, FP: np.ndarray, dt: float,
+               hold: bool) -> None:
+        """A running epoch: update, monitor, direction, limits."""
+        assert self.x is not None and self.P is not None
+        y: np.ndarray = np.concatenate((xp, self.x))
+        Y = np.empty((2 * NX, 2 * NX))
+        Y[:NX, :NX], Y[:NX, NX:], Y[NX:, :NX], Y[NX:, NX:] = Pp, FP, FP.T, self.P
+        st = "predicted"
+        pat = self._pattern(k)
+        acc_abs = np.zeros(0, dtype=bool)
+        if pat.ik.size:
+            upd = self._update(k, y, Y, pat, hold)
+            if upd is None:
+                return
+            y, Y, st, acc_abs = upd
         x, P = y[:NX].copy(), Y[:NX, :NX].copy()
-        XC[k], PC[k], PX_[k] = y[NX:], Y[NX:, NX:], Y[:NX, NX:]
-        bad, refit = monitor.check(k, nis[k], nis_dof[k], x, P, n_gated[k])
+        self.XC[k], self.PC[k], self.PX_[k] = y[NX:], Y[NX:, NX:], Y[:NX, NX:]
+        bad, refit = self.su.monitor.check(k, self.nis[k], self.nis_dof[k], x, P,
+                                           self.n_gated[k])
         if refit is not None:
-            # the state contradicts the layout's own geometry (or its innovations stay
-            # inconsistent) for REINIT_EPOCHS epochs: re-initialised from the epoch's rigid
-            # fit; a new segment (no smoother links across it)
-            x, P = refit
-            X[k], PP[k], seg[k], status[k] = x, P, True, "reinit"
-            XC[k], PC[k], PX_[k] = np.nan, np.nan, np.nan
-            rej_abs, rej_step, llr, back = 0, 0, 0.0, 0.0
-            continue
+            self._refit(k, *refit)
+            return
         if bad and st == "ok":
             st = "inconsistent"
-        if ik.size:
-            # ------------------------------------------------------- direction of travel
-            if not params.reverse:
-                # backward travel of the no-slip point over consecutive intervals (its
-                # displacement from the previous pose, re-estimated with this epoch's data,
-                # along the mean heading: the speed itself may swing when only the mean
-                # over each interval is well measured); beyond the threshold: flip
-                mh = y[YAW] + 0.5 * _wrap(y[NX + YAW] - y[YAW])
-                step = ((y[PX] - y[NX + PX]) * math.cos(mh)
-                        + (y[PY] - y[NX + PY]) * math.sin(mh))
-                back = back - step if step < 0.0 else 0.0
-                if back > flip_dist:
-                    x, P = _flip(x, P)
-                    st, back = "flip_corrected", 0.0
-                elif x[V] < 0.0:
-                    x[V] = 0.0
-            elif np.count_nonzero(acc_abs) >= 2:
-                good = ik[acc_abs]
-                # configuration's evidence for yaw + pi: residuals of the accepted fixes
-                # with R(yaw) r and -R(yaw) r; LLR = (|e+|^2 - |e-|^2) / (2 var)
-                hz, _ = antenna_jacobians(x, r_m[good])
-                e_plus = obs[k, good] - hz
-                e_minus = e_plus + 2.0 * (hz - x[:2])
-                llr = llr * math.exp(-dt / params.flip_memory_s) + float(
-                    ((e_plus ** 2).sum() - (e_minus ** 2).sum()) / (2.0 * va))
-                if llr > flip_thr:
-                    x, P = _flip(x, P)
-                    st, llr = "flip_corrected", 0.0
+        if pat.ik.size:
+            x, P, st = self._direction(k, x, P, y, pat.ik, acc_abs, dt, st)
+        self._finish(k, x, P, st)
+
+    def _update(self, k: int, y: np.ndarray, Y: np.ndarray, pat: _Pattern, hold: bool
+                ) -> tuple | None:
+        """Epoch k's fixes and displacements (:func:`_iterated_update`), the motion-model
+        miss and the lost track; returns (y, Y, status, accepted fixes) or None when the
+        row is done (re-initialised or lost)."""
+        su, obs = self.su, self.su.obs
+        ik, js = pat.ik, pat.js            # fixes; displacements since k-1
+        zk = obs[k, ik]
+        z = np.concatenate((zk, obs[k, js] - obs[k - 1, js])) if js.size else zk
+        box: list[float] = []           # the prior NIS, from the first pass's S
+        try:
+            y1, Y1, acc = _iterated_update(y, Y, z, pat, su.gate, su.lever, 0.1 * su.sigma_abs,
+                                           box, hold)
+        except np.linalg.LinAlgError:   # numerically singular: nothing to trust
+            y1, Y1, acc = y, Y, np.zeros(ik.size + js.size, dtype=bool)
+            self.rej_abs = self.rej_step = su.params.max_rejects
+        if box:
+            self.nis[k], self.nis_dof[k] = box[0], 2 * z.shape[0]
+        acc_abs, acc_step = acc[:ik.size], acc[ik.size:]
+        self.n_used[k] = np.count_nonzero(acc_abs)
+        self.n_gated[k] = ik.size - self.n_used[k]
+        self.n_steps[k] = np.count_nonzero(acc_step)
+        if ik.size >= 2 and self.n_used[k] == 0 and su.starter.motion_miss(k):
+            # every fix gated while the epoch's own fit agrees with the layout: the motion
+            # model missed (a hard acceleration), the data did not; re-initialise from the
+            # fit at once instead of coasting on a wrong prediction
+            assert self.x is not None
+            self.x, self.P = su.starter.refit(k, self.x)
+            su.monitor.clear()
+            self.X[k], self.PP[k], self.seg[k], self.status[k] = self.x, self.P, True, "reinit"
+            self._clear_flags()
+            su.starter.remember(k, self.x, self.P)
+            return None
+        self.rej_abs = self.rej_abs + 1 if self.n_used[k] == 0 else 0
+        self.rej_step = self.rej_step + 1 if (js.size >= 2 and self.n_steps[k] == 0) else 0
+        if max(self.rej_abs, self.rej_step) >= su.params.max_rejects:
+            self._lose()
+            self.status[k] = "waiting"
+            return None
+        st = "predicted"
+        if acc.any():
+            y, Y, st = y1, Y1, "ok"
+            y[YAW] = _wrap(y[YAW])
+            y[NX + YAW] = _wrap(y[NX + YAW])
+        return y, Y, st, acc_abs
+
+    def _refit(self, k: int, x: np.ndarray, P: np.ndarray) -> None:
+        """The state contradicts the layout's own geometry (or its innovations stay
+        inconsistent) for REINIT_EPOCHS epochs: re-initialised from the epoch's rigid fit;
+        a new segment (no smoother links across it)."""
+        self.x, self.P = x, P
+        self.X[k], self.PP[k], self.seg[k], self.status[k] = x, P, True, "reinit"
+        self.XC[k], self.PC[k], self.PX_[k] = np.nan, np.nan, np.nan
+        self._clear_flags()
+
+    def _direction(self, k: int, x: np.ndarray, P: np.ndarray, y: np.ndarray, ik: np.ndarray,
+                   acc_abs: np.ndarray, dt: float, st: str) -> tuple[np.ndarray, np.ndarray, str]:
+        """Direction of travel (module docstring): the forward mode's backward-travel test
+        or the reverse mode's log-likelihood ratio; a flip is reported."""
+        su = self.su
+        if not su.params.reverse:
+            # backward travel of the no-slip point over consecutive intervals (its
+            # displacement from the previous pose, re-estimated with this epoch's data,
+            # along the mean heading: the speed itself may swing when only the mean
+            # over each interval is well measured); beyond the threshold: flip
+            mh = y[YAW] + 0.5 * _wrap(y[NX + YAW] - y[YAW])
+            step = ((y[PX] - y[NX + PX]) * math.cos(mh) + (y[PY] - y[NX + PY]) * math.sin(mh))
+            self.back = self.back - step if step < 0.0 else 0.0
+            if self.back > su.flip_dist:
+                x, P = _flip(x, P)
+                st, self.back = "flip_corrected", 0.0
+            elif x[V] < 0.0:
+                x[V] = 0.0
+        elif np.count_nonzero(acc_abs) >= 2:
+            good = ik[acc_abs]
+            # configuration's evidence for yaw + pi: residuals of the accepted fixes
+            # with R(yaw) r and -R(yaw) r; LLR = (|e+|^2 - |e-|^2) / (2 var)
+            hz, _ = antenna_jacobians(x, su.r_m[good])
+            e_plus = su.obs[k, good] - hz
+            e_minus = e_plus + 2.0 * (hz - x[:2])
+            self.llr = self.llr * math.exp(-dt / su.params.flip_memory_s) + float(
+                ((e_plus ** 2).sum() - (e_minus ** 2).sum()) / (2.0 * su.va))
+            if self.llr > su.flip_thr:
+                x, P = _flip(x, P)
+                st, self.llr = "flip_corrected", 0.0
+        return x, P, st
+
+    def _finish(self, k: int, x: np.ndarray, P: np.ndarray, st: str) -> None:
+        """A lost track (heading sd beyond LOST_YAW_SD, or an overflow), else the row with
+        the platform's limits (projection)."""
+        su = self.su
         if not (P[YAW, YAW] <= LOST_YAW_SD ** 2 and _finite(x, P)):
             # predicted so long without data that the heading means nothing (or a value
             # overflowed): lost; wait for data and restart (e.g. a long outage). The row
             # holds nothing, its clone neither (a smoother must not link across it).
-            x = P = None
-            starter.reset()
-            lost = True
-            status[k] = "waiting"
-            XC[k], PC[k], PX_[k] = np.nan, np.nan, np.nan
-            continue
-        if not params.reverse and x[V] < 0.0:
+            self._lose()
+            self.status[k] = "waiting"
+            self.XC[k], self.PC[k], self.PX_[k] = np.nan, np.nan, np.nan
+            return
+        if not su.params.reverse and x[V] < 0.0:
             x[V] = 0.0          # forward mode on every row: predicted ones and flips too
-        if abs(x[V]) > v_max:
-            x[V] = math.copysign(v_max, x[V])
-        # limits of the platform (projection)
-        lim = om_max if x[V] == 0 else min(om_max, alat / abs(x[V]))
+        if abs(x[V]) > su.v_max:
+            x[V] = math.copysign(su.v_max, x[V])
+        lim = su.om_max if x[V] == 0 else min(su.om_max, su.alat / abs(x[V]))
         if abs(x[OMEGA]) > lim:
             x[OMEGA] = math.copysign(lim, x[OMEGA])
-        if abs(x[A]) > a_max:
-            x[A] = math.copysign(a_max, x[A])
-        X[k], PP[k], status[k] = x, P, st
+        if abs(x[A]) > su.a_max:
+            x[A] = math.copysign(su.a_max, x[A])
+        self.x, self.P = x, P
+        self.X[k], self.PP[k], self.status[k] = x, P, st
         if st != "predicted":
-            starter.remember(k, x, P)
+            su.starter.remember(k, x, P)
         if st == "flip_corrected":
-            seg[k] = True
-    return _result(out, status, delta, params, cg_offset)
+            self.seg[k] = True
 
 
 #: The filter's engines (:func:`run_pose_filter`).
