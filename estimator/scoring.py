@@ -14,19 +14,25 @@ here: ``t`` (n,) s, ``cg`` (n, 2|3) m, ``yaw`` (n,) rad, ``turning`` (n,) bool,
 
 from __future__ import annotations
 
+import warnings
 from collections.abc import Iterable
+from dataclasses import dataclass
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
+from estimator._checks import check_increasing_times
 from estimator.metrics import (
     STATISTICS,
     TrackErrors,
-    evaluation_masks,
-    jitter_rms,
-    summarize,
+    error_steps,
+    errors_at,
+    index_rows,
+    jitter_of_steps,
+    nearest_samples,
+    summaries,
     track_cg,
-    track_errors,
+    travel_direction,
 )
 from estimator.orientation import wrap_angle
 
@@ -35,8 +41,8 @@ from estimator.orientation import wrap_angle
 if TYPE_CHECKING:
     import pandas as pd
 
-__all__ = ["CONSISTENCY_COLUMNS", "SERIES_COLUMNS", "consistency", "coverage_rows",
-           "score_track"]
+__all__ = ["CONSISTENCY_COLUMNS", "SERIES_COLUMNS", "ScoringReference", "consistency",
+           "coverage_rows", "score_track"]
 
 #: Column prefixes of the error series in cells.parquet (estimator.metrics.TrackErrors).
 SERIES_COLUMNS = {"ex": "x", "ey": "y", "eu": "euclid", "eh": "heading"}
@@ -48,18 +54,24 @@ SERIES_COLUMNS = {"ex": "x", "ey": "y", "eu": "euclid", "eh": "heading"}
 #: fixed-lag smoother none of their own: :mod:`estimator.trackers.ekf`).
 CONSISTENCY_COLUMNS = ("nees_mean", "nees_in_band", "nis_per_dof", "nis_in_band",
                        "status_not_ok", "status_inconsistent")
+#: The track columns the consistency columns are computed from (when present).
+_CONSISTENCY_INPUTS = ("yaw_sd", "nis", "nis_dof", "solver_status")
 #: Columns of a row beside the series statistics.
 _EXTRA = ("along_mean", "along_median", "jitter_rms", "obs_ex_mean", "obs_ey_mean",
           *CONSISTENCY_COLUMNS)
 
 
 def score_track(df: pd.DataFrame, truth: Any, obs: np.ndarray, config: Any,
-                masks: Iterable[str], epochs: bool = True
+                masks: Iterable[str], epochs: bool = True, *,
+                reference: ScoringReference | None = None
                 ) -> tuple[list[dict], pd.DataFrame | None]:
     """Eq. 4.1/4.2 errors of a track against the truth, summarised per evaluation mask.
 
     df : the track (columns t, cg_x, cg_y, yaw; ``window`` (int) if the tracker has one,
     else each estimate counts as its own epoch's). obs (n, m, 2) m : the observations.
+    reference : :meth:`ScoringReference.of` ``(truth, obs)``, for a caller that scores
+    several tracks of the same truth and observations (what does not depend on the track,
+    computed once); None: computed here.
     Returns one dict per mask with, for each error series (``ex`` = |x| CG error, ``ey`` =
     |y|, ``eu`` = Euclidean, ``eh`` = heading, rad), the statistics mean, median, std
     (ddof 1), rmse, p95, max and the box-plot outlier fraction; plus the signed along-track
@@ -69,55 +81,239 @@ def score_track(df: pd.DataFrame, truth: Any, obs: np.ndarray, config: Any,
     the "variation from one estimate to the next" of Section 4.10), the raw observations'
     own per-axis error for comparison, and counts. Also returns the per-epoch table (truth,
     errors, observations at the estimate times) when ``epochs`` is True, else None.
+
+    Each column of ``df`` is read once, and the statistics of all series and masks come
+    from :func:`estimator.metrics.summaries` (issue 27): the same numbers, bit for bit, as
+    one :func:`estimator.metrics.summarize` per series and mask
+    (``tests/test_scoring.py``).
     """
-    err = track_errors(df["t"].to_numpy(dtype=float), track_cg(df),
-                       df["yaw"].to_numpy(dtype=float), truth.t, truth.cg, truth.yaw)
+    cols = _TrackColumns.of(df)
+    ref = ScoringReference.of(truth) if reference is None else reference.check(truth, obs)
+    err = errors_at(nearest_samples(cols.t, ref.t, 1e-6), cols.cg, cols.yaw, ref.xy,
+                    ref.direction, ref.yaw)
     idx = err.index
-    win = np.zeros(truth.n, dtype=np.int64)
-    # a plug-in's table may have no window column: each estimate is its epoch's own
-    win[idx] = df["window"].to_numpy(dtype=np.int64) if "window" in df else 1
-    mk_all = {k: v[idx] for k, v in evaluation_masks(truth.turning.astype(bool),
-                                                      window=win).items()}
-    obs_e = _obs_errors(obs, truth, idx)
-    rows = [_mask_row(mname, mk_all[mname], err, obs_e) for mname in masks]
-    for row in rows:
-        row.update(consistency(df, err.heading, mk_all[row["mask"]]))
+    mk_all = _masks_at(ref, idx, cols.window)
+    masks = list(masks)
+    series = {q: getattr(err, attr) for q, attr in SERIES_COLUMNS.items()}
+    sums = summaries({**series, "along": err.along}, {m: mk_all[m] for m in masks},
+                     signed=("along",))
+    obs_e = ref.obs_errors_at(idx) if reference is not None else \
+        _obs_errors(obs, truth, index_rows(idx))
+    steps = error_steps(err.dxy)
+    cons = _ConsistencyInputs.of(cols.extra, err.heading)
+    rows = []
+    for mname in masks:
+        row = _mask_row(mname, mk_all[mname], sums[mname], obs_e, steps)
+        row.update(cons.at(mk_all[mname]))
+        rows.append(row)
     if not epochs:
         return rows, None
-    return rows, _epoch_table(df, truth, obs, err, mk_all["no_turns_window"])
+    return rows, _epoch_table(cols.yaw, truth, obs, err, mk_all["no_turns_window"])
 
 
-def _obs_errors(obs: np.ndarray, truth: Any, idx: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Mean |x| and |y| error of the raw observations at the estimate epochs (k,) m."""
-    ob = obs[idx] - truth.sensor_positions[idx, :, :2]            # (k, m, 2)
-    obs_ex = np.nanmean(np.abs(ob[..., 0]), axis=1) if ob.size else np.array([])
-    obs_ey = np.nanmean(np.abs(ob[..., 1]), axis=1) if ob.size else np.array([])
-    return obs_ex, obs_ey
+def _columns(df: pd.DataFrame, names: Iterable[str]) -> dict[str, Any]:
+    """The values (a numpy or pandas extension array) of each column of ``names`` that
+    ``df`` has, without building a Series: ``DataFrame.__getitem__`` costs 30-70 us a call
+    and ``name in df`` ~20 us (an Arrow-backed column index), ~1/3 of a cell's scoring;
+    the column list once and pandas' own accessor of a column's array
+    (``_get_column_array``, internal since pandas 1.3) ~2 us a column. Falls back to
+    ``df[name].array`` where that accessor is missing or a name is not one unique column."""
+    listed = df.columns.tolist()
+    pos = {c: i for i, c in enumerate(listed)}
+    get = getattr(df, "_get_column_array", None)
+    unique = len(pos) == len(listed)
+    return {c: get(pos[c]) if get is not None and unique else df[c].array
+            for c in names if c in pos}
 
 
-def _mask_row(mname: str, mk: np.ndarray, err: TrackErrors,
-              obs_e: tuple[np.ndarray, np.ndarray]) -> dict[str, Any]:
-    """The summary row of one mask (:func:`score_track`)."""
-    row: dict[str, Any] = {"mask": mname, "n_epochs": int(mk.sum())}
-    for sname, q in SERIES_COLUMNS.items():
-        sm = summarize(getattr(err, q), mk)
+@dataclass(frozen=True)
+class _TrackColumns:
+    """The columns of a track table :func:`score_track` reads, each read once: t (k,) s,
+    cg (k, 2) m, yaw (k,) rad, window (k,) int or None (no column), and ``extra``, the
+    consistency columns present (name -> array)."""
+
+    t: np.ndarray
+    cg: np.ndarray
+    yaw: np.ndarray
+    window: np.ndarray | None
+    extra: dict[str, Any]
+
+    @classmethod
+    def of(cls, df: pd.DataFrame) -> _TrackColumns:
+        got = _columns(df, ("t", "cg_x", "cg_y", "yaw", "window", *_CONSISTENCY_INPUTS))
+        for name in ("t", "cg_x", "cg_y", "yaw"):
+            if name not in got:
+                raise ValueError(f"df: the track has no column {name!r} (columns: "
+                                 f"{sorted(map(str, df.columns))})")
+
+        def num(name: str, dtype: type = float) -> np.ndarray:
+            return np.asarray(got[name], dtype=dtype)
+
+        return cls(t=_check_est_times(num("t")), cg=np.column_stack((num("cg_x"), num("cg_y"))),
+                   yaw=num("yaw"), window=num("window", np.int64) if "window" in got else None,
+                   extra={c: got[c] for c in _CONSISTENCY_INPUTS if c in got})
+
+
+def _check_est_times(t: np.ndarray) -> np.ndarray:
+    """``t`` (k,) s of the track, every time finite (:func:`estimator.metrics.align_to_truth`'s
+    check of the estimate times)."""
+    if t.ndim != 1:
+        raise ValueError(f"est_t: expected shape (k,) of seconds, got shape {t.shape}")
+    if not np.all(np.isfinite(t)):
+        k = int(np.argmax(~np.isfinite(t)))
+        raise ValueError(f"est_t: times must be finite; est_t[{k}] = {t[k]!r}")
+    return t
+
+
+@dataclass(frozen=True, eq=False)
+class ScoringReference:
+    """What :func:`score_track` needs of a reference and its observations that does not
+    depend on the track (n epochs): t (n,) s strictly increasing, xy (n, 2) m, yaw (n,) rad,
+    direction (n,) rad of travel (:func:`estimator.metrics.travel_direction`), turning (n,)
+    bool, turn_count (n + 1,) the cumulative count of turning epochs (the window mask);
+    obs_ex, obs_ey (n,) m the per-epoch mean |x| / |y| error of the observations over the
+    sensors that have one (None: built without observations). ``truth`` and ``obs`` are
+    the objects it was built from (:meth:`check`)."""
+
+    t: np.ndarray
+    xy: np.ndarray
+    yaw: np.ndarray
+    direction: np.ndarray
+    turning: np.ndarray
+    turn_count: np.ndarray
+    obs_ex: np.ndarray | None = None
+    obs_ey: np.ndarray | None = None
+    truth: Any = None
+    obs: Any = None
+
+    @classmethod
+    def of(cls, truth: Any, obs: np.ndarray | None = None) -> ScoringReference:
+        """The reference quantities of ``truth`` (the attributes of the module docstring)
+        and, with ``obs`` (n, m, 2) m, the observations' per-epoch errors."""
+        tt = check_increasing_times(truth.t, "truth_t", min_size=1)
+        xy = np.asarray(truth.cg, dtype=float)
+        if xy.ndim != 2 or xy.shape[1] < 2 or xy.shape[0] != tt.size:
+            raise ValueError(f"truth_xy: expected shape ({tt.size}, 2|3) (one row per truth "
+                             f"time), got {xy.shape}")
+        xy = xy[:, :2]
+        yaw = np.asarray(truth.yaw, dtype=float)
+        turning = np.asarray(truth.turning).astype(bool)
+        if turning.shape != tt.shape:
+            raise ValueError(f"turning: expected a 1-D bool array of shape {tt.shape}, got "
+                             f"{turning.dtype} {turning.shape}")
+        oe: tuple[np.ndarray | None, np.ndarray | None] = (None, None)
+        if obs is not None:
+            ob = np.asarray(obs)
+            if ob.ndim != 3 or ob.shape[0] != tt.size or ob.shape[2] != 2:
+                raise ValueError(f"obs: expected shape ({tt.size}, m, 2) (one row per truth "
+                                 f"time), got {ob.shape}")
+            oe = _obs_errors(ob, truth, slice(None))
+        return cls(t=tt, xy=xy, yaw=yaw, direction=travel_direction(tt, xy, yaw),
+                   turning=turning,
+                   turn_count=np.concatenate([[0], np.cumsum(turning, dtype=np.int64)]),
+                   obs_ex=oe[0], obs_ey=oe[1], truth=truth, obs=obs)
+
+    def check(self, truth: Any, obs: np.ndarray) -> ScoringReference:
+        """This reference, after checking it was built from ``truth`` and ``obs`` (the same
+        objects) with the observations; else ValueError."""
+        if self.truth is not truth or self.obs is not obs or self.obs_ex is None:
+            raise ValueError("reference: built from another truth or observations (or "
+                             "without observations); build it with "
+                             "ScoringReference.of(truth, obs) of the same objects")
+        return self
+
+    def obs_errors_at(self, idx: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """The observations' per-epoch errors (obs_ex, obs_ey) at the epochs ``idx`` (k,)."""
+        if self.obs_ex is None or self.obs_ey is None:
+            raise ValueError("reference: built without observations (obs=None)")
+        rows = index_rows(idx)
+        return self.obs_ex[rows], self.obs_ey[rows]
+
+
+def _masks_at(ref: ScoringReference, idx: np.ndarray, window: np.ndarray | None
+              ) -> dict[str, np.ndarray]:
+    """The :data:`estimator.metrics.MASKS` at the estimates ``idx`` (k,):
+    :func:`estimator.metrics.evaluation_masks` (no margin) of the reference's turning flags
+    with ``window`` (k,) int, or 1 per estimate without one, placed on the reference
+    epochs."""
+    n = ref.t.size
+    win = np.zeros(n, dtype=np.int64)
+    # a plug-in's table may have no window column: each estimate is its epoch's own
+    win[idx] = window if window is not None else 1
+    k = np.arange(n)
+    bad = (win < 0) | (win > k + 1)
+    if bad.any():
+        j = int(np.argmax(bad))
+        raise ValueError(f"window: window[{j}] = {win[j]} must be in [0, {j + 1}] (a "
+                         "window cannot reach before the first epoch)")
+    w = win[idx]
+    c = ref.turn_count
+    inside = c[idx + 1] - c[idx + 1 - w]
+    return {"full": np.ones(idx.size, dtype=bool), "no_turns": ~ref.turning[idx],
+            "no_turns_window": (w > 0) & (inside == 0)}
+
+
+def _obs_errors(obs: np.ndarray, truth: Any, rows: slice | np.ndarray
+                ) -> tuple[np.ndarray, np.ndarray]:
+    """Mean |x| and |y| error of the raw observations at the epochs ``rows`` (k,) m, over
+    the sensors with an observation (NaN where none has one)."""
+    sp = truth.sensor_positions
+    ex = np.abs(obs[rows, :, 0] - sp[rows, :, 0])                 # (k, m)
+    if not ex.size:
+        return np.array([]), np.array([])
+    return _nanmean_rows(ex), _nanmean_rows(np.abs(obs[rows, :, 1] - sp[rows, :, 1]))
+
+
+def _nanmean_rows(a: np.ndarray) -> np.ndarray:
+    """``np.nanmean(a, axis=1)`` of a C-contiguous (k, m) array the caller owns (changed in
+    place): numpy's own arithmetic (NaN set to 0, the pairwise row sums over the count of
+    values) without its copies; NaN for a row without a value, with no warning."""
+    nan = np.isnan(a)
+    if not nan.any():
+        return np.add.reduce(a, axis=1) / a.shape[1]
+    a[nan] = 0.0
+    cnt = np.add.reduce(~nan, axis=1, dtype=np.intp)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        return np.add.reduce(a, axis=1) / cnt
+
+
+def _nanmean_at(v: np.ndarray, mk: np.ndarray) -> float:
+    """``float(np.nanmean(v[mk]))`` (NaN without a value), without its copies when
+    ``v[mk]`` has no NaN (the same pairwise sum over the same count)."""
+    sel = v[mk]
+    if not sel.size:
+        return float("nan")
+    if np.isnan(sel).any():
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", RuntimeWarning)      # all NaN: mean of nothing
+            return float(np.nanmean(sel))
+    return float(np.add.reduce(sel) / sel.size)
+
+
+def _mask_row(mname: str, mk: np.ndarray, sums: dict[str, dict[str, float]],
+              obs_e: tuple[np.ndarray, np.ndarray], steps: np.ndarray) -> dict[str, Any]:
+    """The summary row of one mask (:func:`score_track`): sums the mask's summaries of
+    the series (:func:`estimator.metrics.summaries`), steps (k - 1,) m the error's
+    epoch-to-epoch steps (:func:`estimator.metrics.error_steps`)."""
+    row: dict[str, Any] = {"mask": mname, "n_epochs": int(np.count_nonzero(mk))}
+    for sname in SERIES_COLUMNS:
+        sm = sums[sname]
         for k in (*STATISTICS, "outliers"):
             row[f"{sname}_{k}"] = sm[k]
         if sname == "ex":
             row["n_valid"], row["n_nan"] = sm["n"], sm["n_nan"]
-    sa = summarize(err.along, mk, signed=True)
+    sa = sums["along"]
     row["along_mean"], row["along_median"] = sa["mean"], sa["median"]
-    row["jitter_rms"] = jitter_rms(err.dxy, mk)
-    obs_ex, obs_ey = obs_e
-    with np.errstate(all="ignore"):
-        row["obs_ex_mean"] = float(np.nanmean(obs_ex[mk])) if mk.any() else float("nan")
-        row["obs_ey_mean"] = float(np.nanmean(obs_ey[mk])) if mk.any() else float("nan")
+    row["jitter_rms"] = jitter_of_steps(steps, mk)
+    row["obs_ex_mean"] = _nanmean_at(obs_e[0], mk)
+    row["obs_ey_mean"] = _nanmean_at(obs_e[1], mk)
     return row
 
 
-def _epoch_table(df: pd.DataFrame, truth: Any, obs: np.ndarray, err: TrackErrors,
+def _epoch_table(yaw: np.ndarray, truth: Any, obs: np.ndarray, err: TrackErrors,
                  no_turns_window: np.ndarray) -> pd.DataFrame:
-    """The per-epoch table of :func:`score_track`: truth, errors, observations."""
+    """The per-epoch table of :func:`score_track`: truth, errors, observations (yaw (k,)
+    rad: the track's heading)."""
     import pandas as pd
 
     idx = err.index
@@ -125,7 +321,7 @@ def _epoch_table(df: pd.DataFrame, truth: Any, obs: np.ndarray, err: TrackErrors
     cols: dict[str, Any] = {
         "truth_cg_x": tru[:, 0], "truth_cg_y": tru[:, 1], "truth_yaw": truth.yaw[idx],
         "truth_turning": truth.turning[idx].astype(bool), "err_x": err.dx, "err_y": err.dy,
-        "err_yaw": wrap_angle(df["yaw"].to_numpy(float) - truth.yaw[idx]),
+        "err_yaw": wrap_angle(yaw - truth.yaw[idx]),
         "along": err.along, "cross": err.cross, "no_turns_window": no_turns_window}
     # per-antenna truth and observations for plots: float32 (1e-5 m resolution at 200 m)
     # halves the files; the estimates, CG truth and errors stay float64
@@ -163,21 +359,66 @@ def consistency(df: pd.DataFrame, heading_err: np.ndarray | None,
     :func:`estimator.pose_filter.nees`), NIS from ``nis`` / ``nis_dof``; both summarised by
     :func:`estimator.pose_filter.nis_summary` (rows without a value are left out; none: NaN).
     """
-    from estimator.pose_filter import nees, nis_summary
+    extra = _columns(df, _CONSISTENCY_INPUTS)
+    return _ConsistencyInputs.of(extra, heading_err).at(np.asarray(mk))
 
-    nan = float("nan")
-    out = dict.fromkeys(CONSISTENCY_COLUMNS, nan)
-    if "yaw_sd" in df and heading_err is not None:
-        sd = df["yaw_sd"].to_numpy(dtype=float)[mk]
-        e = np.asarray(heading_err, dtype=float)[mk]
-        s = nis_summary(nees(e[:, None], (sd ** 2)[:, None, None]), np.ones(e.size))
-        out["nees_mean"], out["nees_in_band"] = s["mean_nis_per_dof"], s["share_in_band"]
-    if "nis" in df and "nis_dof" in df:
-        s = nis_summary(df["nis"].to_numpy(dtype=float)[mk],
-                        df["nis_dof"].to_numpy(dtype=float)[mk])
-        out["nis_per_dof"], out["nis_in_band"] = s["mean_nis_per_dof"], s["share_in_band"]
-    if "solver_status" in df and mk.any():
-        st = df["solver_status"].to_numpy(dtype=object)[mk]
-        out["status_not_ok"] = float(np.mean(st != "ok"))
-        out["status_inconsistent"] = float(np.mean(st == "inconsistent"))
-    return out
+
+@dataclass(frozen=True)
+class _ConsistencyInputs:
+    """The per-row inputs of :func:`consistency`, computed once per track: nees (k,) per
+    row (None: no ``yaw_sd`` or no reference), nis and nis_dof (k,) (None: no columns),
+    not_ok and inconsistent (k,) bool of the status (None: no ``solver_status``)."""
+
+    nees: np.ndarray | None
+    nis: np.ndarray | None
+    nis_dof: np.ndarray | None
+    not_ok: np.ndarray | None
+    inconsistent: np.ndarray | None
+
+    @classmethod
+    def of(cls, extra: dict[str, Any], heading_err: np.ndarray | None) -> _ConsistencyInputs:
+        from estimator.pose_filter import nees
+
+        ne = nis = dof = not_ok = inc = None
+        if "yaw_sd" in extra and heading_err is not None:
+            sd = np.asarray(extra["yaw_sd"], dtype=float)
+            e = np.asarray(heading_err, dtype=float)
+            ne = nees(e[:, None], (sd ** 2)[:, None, None])   # row by row: mask after
+        if "nis" in extra and "nis_dof" in extra:
+            nis = np.asarray(extra["nis"], dtype=float)
+            dof = np.asarray(extra["nis_dof"], dtype=float)
+        if "solver_status" in extra:
+            not_ok, inc = _status_flags(extra["solver_status"])
+        return cls(nees=ne, nis=nis, nis_dof=dof, not_ok=not_ok, inconsistent=inc)
+
+    def at(self, mk: np.ndarray) -> dict[str, float]:
+        """The :data:`CONSISTENCY_COLUMNS` over the rows ``mk`` (k,) bool."""
+        from estimator.pose_filter import nis_summary
+
+        out = dict.fromkeys(CONSISTENCY_COLUMNS, float("nan"))
+        if self.nees is not None:
+            sel = self.nees[mk]
+            s = nis_summary(sel, np.ones(sel.size))
+            out["nees_mean"], out["nees_in_band"] = s["mean_nis_per_dof"], s["share_in_band"]
+        if self.nis is not None and self.nis_dof is not None:
+            s = nis_summary(self.nis[mk], self.nis_dof[mk])
+            out["nis_per_dof"], out["nis_in_band"] = s["mean_nis_per_dof"], s["share_in_band"]
+        n = int(np.count_nonzero(mk))
+        if self.not_ok is not None and self.inconsistent is not None and n:
+            # the shares as np.mean of the bools: an exact count over the same n
+            out["status_not_ok"] = int(np.count_nonzero(self.not_ok & mk)) / n
+            out["status_inconsistent"] = int(np.count_nonzero(self.inconsistent & mk)) / n
+        return out
+
+
+def _status_flags(status: Any) -> tuple[np.ndarray, np.ndarray]:
+    """``status != "ok"`` and ``status == "inconsistent"`` (k,) bool of a status column (a
+    numpy object array or a pandas string array; a missing status is not ok and not
+    inconsistent, as comparing its object array)."""
+    if isinstance(status, np.ndarray) and status.dtype != object:
+        status = status.astype(object)
+    ok, inc = status == "ok", status == "inconsistent"
+    if not isinstance(ok, np.ndarray):         # masked booleans (pd.NA semantics)
+        ok = ok.to_numpy(dtype=bool, na_value=False)
+        inc = inc.to_numpy(dtype=bool, na_value=False)
+    return ~np.asarray(ok, dtype=bool), np.asarray(inc, dtype=bool)
