@@ -206,25 +206,33 @@ class TrackCache:
     huff : per-sample Huff weights of a recording (Section 3.3.3), (n, m) floats;
     procrustes / elastic : window fits of one window size (positions, yaw, status), ~0.5 MB;
     filter_pass : pose-filter forward passes (:mod:`estimator.pose_filter`), ~3.8 MB;
-    smoothed : smoothed filter states (:mod:`estimator.pose_smoother`), (n, 6) floats.
+    smoothed : smoothed filter states (:mod:`estimator.pose_smoother`), (n, 6) floats;
+    poses : a track's rows before its lag correction (positions, CG, law-of-cosines
+        heading, ...: the rows the techniques of one fit or filter state share), ~0.6 MB;
+    lag : the lag correction's inputs that do not depend on its mode or heading (first
+        observations of each window, the velocity), (N, m) and (N, 2) floats.
 
-    Sizes: what the per-process memos they replace kept (8, 16, 16, 4, 8). A hit is an
-    identical request (keys digest the input arrays' bytes plus every option), so a cached
-    and an uncached call give the same numbers.
+    Sizes: what the per-process memos they replace kept (8, 16, 16, 4, 8; poses and lag
+    16). A hit is an identical request (keys digest the input arrays' bytes plus every
+    option), so a cached and an uncached call give the same numbers.
     """
 
     def __init__(self, *, huff: int = 8, procrustes: int = 16, elastic: int = 16,
-                 filter_pass: int = 4, smoothed: int = 8) -> None:
+                 filter_pass: int = 4, smoothed: int = 8, poses: int = 16, lag: int = 16
+                 ) -> None:
         self.huff = ContentMemo(huff)
         self.procrustes = ContentMemo(procrustes)
         self.elastic = ContentMemo(elastic)
         self.filter_pass = ContentMemo(filter_pass)
         self.smoothed = ContentMemo(smoothed)
+        self.poses = ContentMemo(poses)
+        self.lag = ContentMemo(lag)
 
     def memos(self) -> dict[str, ContentMemo]:
         """The memos by name."""
         return {"huff": self.huff, "procrustes": self.procrustes, "elastic": self.elastic,
-                "filter_pass": self.filter_pass, "smoothed": self.smoothed}
+                "filter_pass": self.filter_pass, "smoothed": self.smoothed,
+                "poses": self.poses, "lag": self.lag}
 
     def clear(self) -> None:
         """Forget every entry of every memo."""

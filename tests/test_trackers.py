@@ -117,6 +117,32 @@ def test_a_cache_changes_no_number_and_is_used(cls, kw):
     _assert_same(again, plain)
 
 
+def test_techniques_sharing_a_cache_share_its_rows_and_change_no_number():
+    """The sweep's order on one noise key (issue 27): the rows of one fit (CG, heading) and
+    the lag correction's inputs are computed once for None / LC / LC (course) / LC with the
+    truth's heading, and once for Dyn / LC + Dyn / LC (course) + Dyn; the filter's antenna
+    positions once for its windows; every table equals its uncached one, bit for bit."""
+    cfg, t, yaw, turning, obs = _noisy_corner()
+    dyn = {"dynamic_window": 1, "turning": turning}
+    runs = [(WindowTracker, {"weighting": "huff"}),
+            (WindowTracker, {"weighting": "huff", "lag_correction": "pose"}),
+            (WindowTracker, {"weighting": "huff", "lag_correction": "course"}),
+            (WindowTracker, {"weighting": "huff",
+                             "lag_correction": LagCorrection(mode="pose", heading=yaw)}),
+            (WindowTracker, {"weighting": "huff", **dyn}),
+            (WindowTracker, {"weighting": "huff", "lag_correction": "pose", **dyn}),
+            (WindowTracker, {"weighting": "huff", "lag_correction": "course", **dyn}),
+            (PoseFilterTracker, {}), (PoseFilterTracker, {"window": 1}),
+            (RtsSmootherTracker, {}), (RtsSmootherTracker, {"window": 1})]
+    cache = TrackCache()
+    for cls, kw in runs:
+        tracker = cls(**{"window": 6, **kw})
+        _assert_same(tracker.track(t, obs, cfg, cache=cache), tracker.track(t, obs, cfg))
+    # poses: the fixed and the dynamic rows' heading, the filter's and the smoother's
+    # positions; lag: the fixed rows' inputs and the dynamic rows'
+    assert (len(cache.poses), len(cache.lag)) == (4, 2)
+
+
 def test_a_tracker_is_frozen_with_keyword_only_options():
     tr = WindowTracker(window=5)
     with pytest.raises(dataclasses.FrozenInstanceError):

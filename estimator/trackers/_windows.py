@@ -516,20 +516,46 @@ def lag_correct(tt: np.ndarray, o: np.ndarray, cfg: SensorConfig, ends: np.ndarr
                 span: int, dynamic: bool, common: dict[str, Any], eps: float) -> Floats:
     """Section 3.4.2 shift for every row (see :mod:`estimator.lag`); ``heading`` (N,) rad
     is the orientation of step 5 (the law-of-cosines heading, or ``lag_heading``)."""
-    if dynamic:
-        # velocity from a uniform window-s series, so it is not polluted by the jump in lag
-        # between small- and large-window rows
-        # (procrustes, whatever the rows' solver: the series only feeds the velocity)
-        p, _, _, _ = fit_windows(o, cfg, ends, s, solver="procrustes", eps=eps,
-                                 warm_start=False, fit_kw={}, **common)
-        vel_cg = cfg.cg_from_positions(p)
-    else:
-        vel_cg = cg
-    # each window estimate is dated at its window's mean epoch time (see estimator.lag)
-    w_vel = np.full(ends.size, s) if dynamic else wsize
-    ct = np.concatenate([[0.0], np.cumsum(tt - tt[0])])
-    t_mid = (ct[ends + 1] - ct[ends + 1 - w_vel]) / w_vel + tt[0]
-    vel = _lag.estimate_velocity(t_mid, vel_cg, span)
-    first, fidx = _lag.first_observations(o, ends - wsize + 1, ends)
+    first, fidx, vel = lag_inputs(tt, o, cfg, ends, wsize, cg, s, span, dynamic, common, eps)
     return _lag.lag_shift(tt, pos, first, fidx, tt[ends], vel, heading, wsize, mode)
 
+
+def lag_inputs(tt: np.ndarray, o: np.ndarray, cfg: SensorConfig, ends: np.ndarray,
+               wsize: np.ndarray, cg: Floats, s: int, span: int, dynamic: bool,
+               common: dict[str, Any], eps: float) -> tuple[Floats, np.ndarray, Floats]:
+    """What the lag correction of every row needs besides its mode and heading: the first
+    observation (N, m, 2) m and its epoch (N, m) of each sensor in each window, and the
+    velocity (N, 2) m/s; through ``common["cache"].lag`` (read-only), so the corrections of
+    one fit (LC, LC (course), the smoothed and the oracle heading) share them. Random
+    weights are never cached (the dynamic window's velocity series consumes the
+    generator)."""
+    def compute() -> tuple[Floats, np.ndarray, Floats]:
+        if dynamic:
+            # velocity from a uniform window-s series, so it is not polluted by the jump in
+            # lag between small- and large-window rows
+            # (procrustes, whatever the rows' solver: the series only feeds the velocity)
+            p, _, _, _ = fit_windows(o, cfg, ends, s, solver="procrustes", eps=eps,
+                                     warm_start=False, fit_kw={}, **common)
+            vel_cg = cfg.cg_from_positions(p)
+        else:
+            vel_cg = cg
+        # each window estimate is dated at its window's mean epoch time (see estimator.lag)
+        w_vel = np.full(ends.size, s) if dynamic else wsize
+        ct = np.concatenate([[0.0], np.cumsum(tt - tt[0])])
+        t_mid = (ct[ends + 1] - ct[ends + 1 - w_vel]) / w_vel + tt[0]
+        vel = _lag.estimate_velocity(t_mid, vel_cg, span)
+        first, fidx = _lag.first_observations(o, ends - wsize + 1, ends)
+        return freeze(first), freeze(fidx), freeze(vel)
+
+    cache = common["cache"]
+    if cache is None or common["weighting"] == "random":
+        return compute()
+
+    def key() -> tuple:
+        src = (("series", cfg.names, tuple(cfg.dead), common["weighting"],
+                repr(common["huff_threshold"]), float(common["huber_c"]))
+               if dynamic else ("rows", content_digest(cg)))
+        return (content_digest(tt, o, ends, wsize, cfg.body_positions), int(s), int(span),
+                bool(dynamic), src)
+
+    return memo_get(cache, "lag", key, compute)

@@ -15,7 +15,8 @@ from typing import Any, ClassVar
 import numpy as np
 import pandas as pd
 
-from estimator.memo import TrackCache
+from estimator.configuration import SensorConfig
+from estimator.memo import TrackCache, content_digest, freeze, memo_get
 from estimator.pose_filter import PoseFilterParams, PoseFilterResult, memo_pose_filter
 from estimator.pose_smoother import memo_smoothed_states
 from estimator.trackers._common import Rows, TrackerOptions, cg_and_heading, frame, settings
@@ -87,18 +88,36 @@ class FilterOptions(TrackerOptions, abc.ABC):
             status = res.status
             extra = {**_filter_counts(res), "yaw_sd": second}
         r_m = offsets - np.asarray(ns if ns is not None else (0.0, 0.0), dtype=float)
+        pos_all, cg_all = state_poses(X, r_m, cfg, cache)
+        pos, cg = pos_all[k0:].copy(), cg_all[k0:].copy()
+        # the law-of-cosines heading is relative to the first row's side (Section 3.2), so
+        # it is not a suffix of the whole recording's: each window computes its own
+        yaw_loc = cg_and_heading(cfg, pos)[1]
         X = X[k0:]
-        c, sn = np.cos(X[:, 2]), np.sin(X[:, 2])
-        R = np.stack([np.stack([c, -sn], -1), np.stack([sn, c], -1)], -2)  # (N, 2, 2)
-        pos = X[:, None, :2] + np.einsum("nab,mb->nma", R, r_m)
         extra = {"speed": X[:, 3].copy(), "yaw_rate": X[:, 5].copy(),
                  **{k: v[k0:].copy() for k, v in extra.items()}}
         rows = Rows.fixed(tt.size, self.window)
-        cg, yaw_loc = cg_and_heading(cfg, pos)
         return frame(tt, o, cfg, rows, pos=pos, cg=cg, yaw=X[:, 2].copy(), yaw_loc=yaw_loc,
                      status=np.asarray(status[k0:], dtype=object), extra=extra,
                      settings=settings(self.name, self.window, cfg),
                      layout_check=self.layout_check)
+
+
+def state_poses(X: np.ndarray, r_m: np.ndarray, cfg: SensorConfig, cache: TrackCache | None
+                ) -> tuple[np.ndarray, np.ndarray]:
+    """Antenna positions (n, m, 2) m of the states X (n, 6) with lever arms r_m (m, 2) m
+    from the no-slip point and their CG (n, 2) m, through ``cache.poses`` (read-only). A
+    row depends on its state alone, so the rows of every window are a suffix of these: the
+    filter's rows at windows 1, 5, 10, 100 are computed once."""
+    def compute() -> tuple[np.ndarray, np.ndarray]:
+        c, sn = np.cos(X[:, 2]), np.sin(X[:, 2])
+        R = np.stack([np.stack([c, -sn], -1), np.stack([sn, c], -1)], -2)  # (n, 2, 2)
+        pos = X[:, None, :2] + np.einsum("nab,mb->nma", R, r_m)
+        return freeze(pos), freeze(cfg.cg_from_positions(pos))
+
+    return memo_get(cache, "poses", lambda: ("filter", content_digest(X, r_m,
+                                                                      cfg.body_positions),
+                                             cfg.names, tuple(cfg.dead)), compute)
 
 
 def _filter_counts(res: PoseFilterResult) -> dict[str, Any]:

@@ -15,7 +15,7 @@ import pandas as pd
 
 from estimator._checks import check_int
 from estimator.configuration import SensorConfig
-from estimator.memo import TrackCache
+from estimator.memo import TrackCache, content_digest, freeze, memo_get
 from estimator.track_options import FitOptions, LagCorrection
 from estimator.trackers._common import Rows, cg_and_heading, frame, settings
 from estimator.trackers._windows import WeightedOptions, fit_windows, lag_correct, runs
@@ -82,7 +82,7 @@ class WindowTracker(WeightedOptions):
         rows = self._rows(tt, o, cfg)
         common = self._common(cache)
         pos, yaw, status = self._fits(o, cfg, rows, common)
-        cg, yaw_loc = cg_and_heading(cfg, pos)
+        cg, yaw_loc = self._heading(o, cfg, rows, pos, cache)
         lag_dx = lag_dy = None
         if lag is not None:
             heading = yaw_loc if lag.heading is None else lag.heading[rows.ends]
@@ -101,6 +101,24 @@ class WindowTracker(WeightedOptions):
         return frame(tt, o, cfg, rows, pos=pos, cg=cg, yaw=yaw, yaw_loc=yaw_loc, status=status,
                      extra={}, settings=st, layout_check=self.layout_check, lag_dx=lag_dx,
                      lag_dy=lag_dy)
+
+    def _heading(self, o: np.ndarray, cfg: SensorConfig, rows: Rows, pos: np.ndarray,
+                 cache: TrackCache | None) -> tuple[np.ndarray, np.ndarray]:
+        """CG (N, 2) m and law-of-cosines heading (N,) rad of the fits ``pos`` (N, m, 2),
+        through ``cache.poses`` when the fits are a memoised request (no / Huff weights,
+        procrustes or elastic: the techniques of one fit share them, e.g. None, LC and LC
+        (course)); the heading is relative to the first row's side (Section 3.2), so the
+        key is the fits' own: the same observations, rows, solver and options."""
+        wt, fo = self._weighting, self._fit
+        if cache is None or self.solver not in ("procrustes", "elastic") \
+                or wt.scheme not in ("none", "huff") or wt.huff_threshold is not None:
+            return cg_and_heading(cfg, pos)
+        key = ("window", content_digest(o, rows.ends, rows.wsize, cfg.body_positions),
+               cfg.names, tuple(cfg.dead), self.solver, wt.scheme, float(fo.eps),
+               repr(sorted((fo.solver_kwargs() or {}).items())))
+        cg, yaw_loc = memo_get(cache, "poses", lambda: key,
+                               lambda: tuple(freeze(a) for a in cg_and_heading(cfg, pos)))
+        return cg.copy(), yaw_loc.copy()
 
     def _fits(self, o: np.ndarray, cfg: SensorConfig, rows: Rows, common: dict[str, Any]
               ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
