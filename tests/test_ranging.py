@@ -920,3 +920,16 @@ def test_continuity_visits_the_ambiguous_rows_only_with_the_same_choices(seed):
     got = _continuity(pos, info)
     np.testing.assert_array_equal(got, _continuity_loop(pos, info))
     assert np.sum(np.any(got != pos, axis=1) & np.all(np.isfinite(pos), axis=1)) > 10
+
+
+def test_shared_fix_rows_are_dropped_for_another_config_or_array(everything):
+    """A reuse dict filled under one config (or receiver set) is cleared by a call with
+    another: a different range sigma changes the mirror tie test and the fix stds, a shifted
+    array every fix; each call equals the same call without sharing."""
+    sc, res = everything
+    ranges = res[None].ranges_gate1
+    solved: dict = {}
+    trilaterate_epochs(ranges, sc.anchors, UWB(), reuse=solved)
+    for cfg, rec in ((UWB(sigma_range_m=0.3), sc.anchors), (UWB(), sc.anchors + 0.5)):
+        _assert_fixes_identical(trilaterate_epochs(ranges, rec, cfg, reuse=solved),
+                                trilaterate_epochs(ranges, rec, cfg))
