@@ -211,7 +211,7 @@ def test_summarize_outliers_and_signed_hand_values():
                 max_size=60),
        st.booleans())
 def test_summarize_equals_numpy_statistics(values, signed):
-    """One sort serves the median, p95 and quartiles: the same floats as numpy's median /
+    """One partition serves the median, p95 and quartiles: the same floats as numpy's median /
     percentile (linear) and the Tukey fraction by definition, for any values (1e300, signed
     zeros, NaN and inf counted as missing)."""
     e = np.array(values, dtype=float)
@@ -317,3 +317,59 @@ def test_sweep_and_evaluate_track_are_one_scorer():
     d = np.diff(e.dxy, axis=0)
     assert rows[0]["jitter_rms"] == pytest.approx(np.sqrt(np.mean(np.sum(d * d, axis=1))),
                                                   rel=1e-12)
+
+
+@settings(max_examples=120, deadline=None)
+@given(st.integers(0, 70), st.integers(0, 2**32 - 1), st.sampled_from(["none", "rows", "mixed"]))
+def test_summaries_equal_summarize_bit_for_bit(k, seed, nans):
+    """summaries (issue 27: every series of a mask at once, joint pairwise sums and one
+    partition) gives summarize's numbers exactly, and its types, for any size (0-3 values:
+    NaN std / outliers), NaN rows shared by the series or not, ties and infinities."""
+    from estimator.metrics import summaries
+
+    rng = np.random.default_rng(seed)
+    ser = {"x": np.abs(rng.normal(size=k)), "y": np.round(np.abs(rng.normal(size=k)), 1),
+           "h": np.abs(rng.standard_cauchy(size=k)), "a": rng.normal(size=k) * 3}
+    if nans != "none" and k:
+        gone = rng.random(k) < 0.2
+        for v in ser.values():
+            v[gone] = np.nan
+        if nans == "mixed":
+            ser["h"][rng.random(k) < 0.2] = np.nan
+            ser["y"][0] = np.inf
+    masks = {"all": None, "some": rng.random(k) < 0.6, "none": np.zeros(k, bool),
+             "every": np.ones(k, bool)}
+    got = summaries(ser, masks, signed={"a"})
+    for mname, mk in masks.items():
+        for name, e in ser.items():
+            want = summarize(e, mk, signed=name == "a")
+            have = got[mname][name]
+            assert list(have) == list(want)
+            for q, w in want.items():
+                assert type(have[q]) is type(w), (mname, name, q)
+                assert have[q] == w or (math.isnan(w) and math.isnan(have[q])), (mname, name, q)
+
+
+def test_summaries_rejects_bad_shapes_naming_the_argument():
+    from estimator.metrics import summaries
+
+    with pytest.raises(ValueError, match=r"series\['y'\]"):
+        summaries({"x": np.zeros(3), "y": np.zeros(4)}, {"all": None})
+    with pytest.raises(ValueError, match=r"masks\['m'\]"):
+        summaries({"x": np.zeros(3)}, {"m": np.array([1, 0, 1])})
+
+
+def test_index_rows_and_nearest_samples_fast_paths():
+    """A run of consecutive epochs becomes a slice (a view, the same values); estimates at
+    the truth's own times take the exact-match path, others the nearest sample as before."""
+    from estimator.metrics import index_rows, nearest_samples
+
+    assert index_rows(np.arange(3, 9)) == slice(3, 9)
+    for idx in (np.array([3, 5, 6]), np.array([4, 4, 5]), np.array([], dtype=int)):
+        assert index_rows(idx) is idx
+    tt = np.array([0.0, 0.1, 0.25, 0.4, 0.6])
+    assert nearest_samples(tt[1:4], tt, 1e-6).tolist() == [1, 2, 3]
+    assert nearest_samples(np.array([0.0999999, 0.6000001]), tt, 1e-6).tolist() == [1, 4]
+    assert align_to_truth([0.25, 0.25], tt).tolist() == [2, 2]
+    with pytest.raises(ValueError, match="est_t"):
+        nearest_samples(np.array([0.7]), tt, 1e-6)
