@@ -5,8 +5,9 @@ provided the "perfect" trajectory of the eight antennas while the platform drove
 Path 2 (Section 4.9).
 
 Model: ``models/rover.xml``, a 64 kg differential-drive platform (1.5 x 1.0 m roof, wheels
-r = 0.2 m on velocity servos, track 1.1 m, frictionless casters), 5 ms ``implicitfast`` steps
-(``timestep_s``; see the XML and :func:`simulate_rover` for the measured choice).
+r = 0.2 m on velocity servos, track 1.1 m, frictionless casters), ``implicitfast`` steps of
+20 ms up to 0.3 m/s (Paths 1 and 2), else the XML's 10 ms (:func:`default_timestep_s`;
+``timestep_s`` overrides it; see the XML for the measured choice).
 The wheels collide as spheres (one contact point each; see the XML for the measured reason),
 so the platform turns at the rate its wheel speeds imply and follows the same controller on
 an ideal unicycle (:func:`sim.controllers.simulate_unicycle`) to about 2 cm at the corners.
@@ -27,13 +28,14 @@ for estimators that model the non-holonomic constraint (estimator.pose_filter).
 
 Reference point ("CG" in the Truth): the chassis body origin, on the ground plane directly
 below the roof centre. For ``rover_gps8`` that is the mean of antennas 2, 3, 6, 7 (Eq. 3.8)
-projected to the ground (z ~ 0; the contacts sink the wheels by about 0.03 mm). The chassis
-tilts by < 1e-4 rad on the soft contacts while it accelerates (measured on square20), so the
-roof centre, 0.6 m up, is up to 0.05 mm horizontally from the body origin. The drive axle
+projected to the ground (z ~ 0; the contacts sink the wheels by 0.056 mm at 20 ms steps,
+0.014 mm at 10 ms). The chassis tilts by < 1e-4 rad on the soft contacts while it accelerates
+(measured on square20: 5e-5 rad at 0.2 m/s, 7e-6 at 1.5 m/s), so the roof centre, 0.6 m up,
+is up to 0.03 mm horizontally from the body origin. The drive axle
 passes under it, so it has no lateral slip and is the point the controller steers.
 
 Control: :mod:`sim.controllers` pure pursuit at ``control_rate_hz`` (default from the cruise speed,
-:func:`default_control_steps`: 20 Hz at 0.2 m/s, 50 Hz at 1.5 m/s); between
+:func:`default_control_steps`: 25 Hz at 0.2 m/s (20 ms steps), 50 Hz at 1.5 m/s); between
 updates ``mj_step(model, data, nstep)`` advances the physics. Sample times come from an
 integer step counter (``t = step * timestep``; sample k at step ``round(k / (rate *
 timestep))``), and positions are logged after ``mj_kinematics`` (site positions read after
@@ -41,20 +43,21 @@ timestep))``), and positions are logged after ``mj_kinematics`` (site positions 
 ``[t_{k-1}, t_k)`` had ``|omega_cmd| > turning_curvature_per_m * cruise_speed_mps`` (the
 controller's own "control information", Section 3.4.2.1).
 
-Speed (measured on this shared 2-core machine, loaded by other jobs, default settings):
-Path 1 (square100 at 0.2 m/s, 1984 s simulated) in 3.0-5.8 s wall, Path 2 (square200,
-3985 s) in 7.7-10.8 s (load average 3.7-4.0 on 2 cores; 2.7-2.8 s and 5.5-6.1 s of CPU),
-i.e. 340-660 simulated seconds per wall second. ``mj_step`` takes about 80 % of the time
-(cProfile) (a fixed ~6-15 us per step: the Newton solver converges in one
-iteration, and no solver option changed that measurably), so wall time scales with the
-number of physics steps; hence the 5 ms step (at 1 ms Path 1 took 31 s). The Python
-controller at 20 Hz and the 1 Hz logging are the rest.
+Speed (issue 27; CPU time, best of 3, on this shared 2-core machine at load average 7-8,
+default settings): Path 1 (square100 at 0.2 m/s, 1984 s simulated) 1.00 s, Path 2
+(square200, 3985 s) 1.90 s (before issue 27, 5 ms steps: 3.65 and 7.65 s at the same load;
+3.4 s for Path 1 at load 1.2). A step costs 6-8 us whatever its length (the Newton solver
+converges in one iteration; no solver option changed that measurably), so the time scales
+with the number of steps: hence the 20 ms step on slow routes. ``mj_step`` takes about
+65 % of the CPU time of Path 1 (0.8 of 1.27 s, timed around each call), the Python
+controller at 25 Hz and the 1 Hz logging the rest.
 
 Randomness: none. The run is deterministic (same inputs -> bit-identical arrays, tested); the
 ``seed`` is recorded and enters the cache key only, so seeded sweeps stay uniform.
 
-The run starts at rest on the path's start point facing the first segment (after a 0.2 s
-unlogged settle of the contacts) and ends at the first sample after the platform has reached
+The run starts at rest on the path's start point facing the first segment (after a 1 s
+unlogged settle of the contacts: at 20 ms steps they need about 0.9 s to come within 1 um
+of their rest depth) and ends at the first sample after the platform has reached
 the route's end point and stopped (speed < 1 mm/s).
 """
 
@@ -105,10 +108,11 @@ def default_control_steps(cruise_speed_mps: float, timestep_s: float) -> int:
 
     The largest whole number of steps in which the platform travels at most
     ``_CTRL_TRAVEL_M`` = 3 cm at cruise speed, capped so that the controller runs at
-    least ``_MIN_CTRL_RATE_HZ`` = 20 Hz, and at least one step. At 5 ms steps: 50 Hz at
-    1.5 m/s, 20 Hz at 0.2 m/s. Measured on square100 at 0.2 m/s, 5 ms: 10 Hz gave 4.0 mm
-    straight-line error (at the final stop) and 20 Hz 0.8 mm for the same wall time (the
-    controller is < 10 % of it), hence the 20 Hz floor.
+    least ``_MIN_CTRL_RATE_HZ`` = 20 Hz, and at least one step. At the default steps
+    (:func:`default_timestep_s`): 50 Hz at 1.5 m/s (10 ms), 25 Hz at 0.2 m/s (20 ms; 20 Hz
+    is not a whole number of steps). Measured on square100 at 0.2 m/s, 5 ms: 10 Hz gave
+    4.0 mm straight-line error (at the final stop) and 20 Hz 0.8 mm for the same wall time
+    (the controller was < 10 % of it), hence the 20 Hz floor.
     """
     cruise_speed_mps = check_real(cruise_speed_mps, "cruise_speed_mps", lo=0.0, lo_open=True)
     timestep_s = check_real(timestep_s, "timestep_s", lo=0.0, lo_open=True)
@@ -216,9 +220,11 @@ def simulate_rover(
     cache_dir : None = results/cache/truth, a directory, or False to disable caching.
     control_rate_hz : controller rate; the control period must be a whole number of physics
         steps. Default: from the cruise speed (:func:`default_control_steps`: at most 3 cm of
-        travel per update, at least 20 Hz; 20 Hz at 0.2 m/s, 50 Hz at 1.5 m/s).
-    timestep_s : physics step, default the XML's 5 ms (``implicitfast``); at most 5 ms. Both
-        rates enter the cache key (through the compiled XML and the run parameters).
+        travel per update, at least 20 Hz; 25 Hz at 0.2 m/s, 50 Hz at 1.5 m/s).
+    timestep_s : physics step, default :func:`default_timestep_s` (20 ms up to 0.3 m/s,
+        else the XML's: 10 ms for the rover, 5 ms for the car); at most
+        :data:`MAX_TIMESTEP_S` = 20 ms. Both rates enter the cache key (through the
+        compiled XML and the run parameters).
     controller : overrides of :class:`~sim.controllers.PurePursuitParams` fields
         (e.g. ``{"turning_curvature_per_m": 0.1}``); the rest comes from the path.
     xml_path : the MJCF model (default: ``models/<path.vehicle>.xml`` if the path names a
