@@ -54,6 +54,8 @@ SERIES_COLUMNS = {"ex": "x", "ey": "y", "eu": "euclid", "eh": "heading"}
 #: fixed-lag smoother none of their own: :mod:`estimator.trackers.ekf`).
 CONSISTENCY_COLUMNS = ("nees_mean", "nees_in_band", "nis_per_dof", "nis_in_band",
                        "status_not_ok", "status_inconsistent")
+#: The central chi-square band of the consistency shares (nis_summary's default).
+_BAND = 0.95
 #: The track columns the consistency columns are computed from (when present).
 _CONSISTENCY_INPUTS = ("yaw_sd", "nis", "nis_dof", "solver_status")
 #: Columns of a row beside the series statistics.
@@ -365,13 +367,12 @@ def consistency(df: pd.DataFrame, heading_err: np.ndarray | None,
 
 @dataclass(frozen=True)
 class _ConsistencyInputs:
-    """The per-row inputs of :func:`consistency`, computed once per track: nees (k,) per
-    row (None: no ``yaw_sd`` or no reference), nis and nis_dof (k,) (None: no columns),
+    """The per-row inputs of :func:`consistency`, computed once per track: the NEES band
+    (None: no ``yaw_sd`` or no reference), the NIS band (None: no ``nis`` / ``nis_dof``),
     not_ok and inconsistent (k,) bool of the status (None: no ``solver_status``)."""
 
-    nees: np.ndarray | None
-    nis: np.ndarray | None
-    nis_dof: np.ndarray | None
+    nees: _Band | None
+    nis: _Band | None
     not_ok: np.ndarray | None
     inconsistent: np.ndarray | None
 
@@ -379,36 +380,68 @@ class _ConsistencyInputs:
     def of(cls, extra: dict[str, Any], heading_err: np.ndarray | None) -> _ConsistencyInputs:
         from estimator.pose_filter import nees
 
-        ne = nis = dof = not_ok = inc = None
+        ne = nis = not_ok = inc = None
         if "yaw_sd" in extra and heading_err is not None:
             sd = np.asarray(extra["yaw_sd"], dtype=float)
             e = np.asarray(heading_err, dtype=float)
-            ne = nees(e[:, None], (sd ** 2)[:, None, None])   # row by row: mask after
+            v = nees(e[:, None], (sd ** 2)[:, None, None])      # row by row: mask after
+            ne = _Band.of(v, np.ones(v.size))
         if "nis" in extra and "nis_dof" in extra:
-            nis = np.asarray(extra["nis"], dtype=float)
-            dof = np.asarray(extra["nis_dof"], dtype=float)
+            nis = _Band.of(np.asarray(extra["nis"], dtype=float),
+                           np.asarray(extra["nis_dof"], dtype=float))
         if "solver_status" in extra:
             not_ok, inc = _status_flags(extra["solver_status"])
-        return cls(nees=ne, nis=nis, nis_dof=dof, not_ok=not_ok, inconsistent=inc)
+        return cls(nees=ne, nis=nis, not_ok=not_ok, inconsistent=inc)
 
     def at(self, mk: np.ndarray) -> dict[str, float]:
         """The :data:`CONSISTENCY_COLUMNS` over the rows ``mk`` (k,) bool."""
-        from estimator.pose_filter import nis_summary
-
         out = dict.fromkeys(CONSISTENCY_COLUMNS, float("nan"))
         if self.nees is not None:
-            sel = self.nees[mk]
-            s = nis_summary(sel, np.ones(sel.size))
-            out["nees_mean"], out["nees_in_band"] = s["mean_nis_per_dof"], s["share_in_band"]
-        if self.nis is not None and self.nis_dof is not None:
-            s = nis_summary(self.nis[mk], self.nis_dof[mk])
-            out["nis_per_dof"], out["nis_in_band"] = s["mean_nis_per_dof"], s["share_in_band"]
+            out["nees_mean"], out["nees_in_band"] = self.nees.at(mk)
+        if self.nis is not None:
+            out["nis_per_dof"], out["nis_in_band"] = self.nis.at(mk)
         n = int(np.count_nonzero(mk))
         if self.not_ok is not None and self.inconsistent is not None and n:
             # the shares as np.mean of the bools: an exact count over the same n
             out["status_not_ok"] = int(np.count_nonzero(self.not_ok & mk)) / n
             out["status_inconsistent"] = int(np.count_nonzero(self.inconsistent & mk)) / n
         return out
+
+
+@dataclass(frozen=True)
+class _Band:
+    """:func:`estimator.pose_filter.nis_summary` of a track's rows, the per-row part done
+    once: values v (k,) and their dof (k,), ok (k,) the rows with a value (finite, dof > 0)
+    and inside (k,) those inside the central 95 % chi-square band of their dof."""
+
+    v: np.ndarray
+    dof: np.ndarray
+    ok: np.ndarray
+    inside: np.ndarray
+
+    @classmethod
+    def of(cls, v: np.ndarray, dof: np.ndarray) -> _Band:
+        from estimator.pose_filter import _chdtri
+
+        ok = np.isfinite(v) & (dof > 0)
+        inside = np.zeros(v.size, dtype=bool)
+        if ok.any():
+            dof_u, row = np.unique(dof[ok], return_inverse=True)
+            # nis_summary's band (0.95) and the same expressions of its probabilities
+            lo = _chdtri(dof_u, 0.5 + 0.5 * _BAND)[row]
+            hi = _chdtri(dof_u, 0.5 - 0.5 * _BAND)[row]
+            inside[ok] = (v[ok] >= lo) & (v[ok] <= hi)
+        return cls(v=v, dof=dof, ok=ok, inside=inside)
+
+    def at(self, mk: np.ndarray) -> tuple[float, float]:
+        """(mean value per dof, share inside the band) of the rows ``mk``: nis_summary of
+        those rows (the same sums of the same values in the same order); NaN without one."""
+        ok = self.ok & mk
+        n = int(np.count_nonzero(ok))
+        if not n:
+            return float("nan"), float("nan")
+        return (float(self.v[ok].sum() / self.dof[ok].sum()),
+                int(np.count_nonzero(self.inside & ok)) / n)
 
 
 def _status_flags(status: Any) -> tuple[np.ndarray, np.ndarray]:

@@ -201,3 +201,24 @@ def test_consistency_columns_are_nan_without_their_inputs():
     rows, _ = score_track(df[["t", "cg_x", "cg_y", "yaw"]], truth, obs, None, MASKS,
                           epochs=False)
     assert all(np.isnan(r[c]) for r in rows for c in CONSISTENCY_COLUMNS)
+
+
+def test_band_equals_nis_summary_bit_for_bit():
+    """The consistency shares take nis_summary's per-row band once per track and mask the
+    rows after: the same two numbers, exactly, for any mask (values on the band's edges
+    included)."""
+    from estimator.pose_filter import _chdtri, nis_summary
+    from estimator.scoring import _Band
+
+    rng = np.random.default_rng(6)
+    dof = rng.choice([0.0, 1.0, 2.0, 3.0], 400)
+    v = rng.chisquare(np.maximum(dof, 1))
+    v[rng.random(400) < 0.1] = np.nan
+    v[:8] = _chdtri(np.maximum(dof[:8], 1), 0.5 + 0.5 * 0.95)          # on the edges
+    v[8:16] = _chdtri(np.maximum(dof[8:16], 1), 0.5 - 0.5 * 0.95)
+    band = _Band.of(v, dof)
+    for mk in (np.ones(400, bool), rng.random(400) < 0.3, np.zeros(400, bool)):
+        s = nis_summary(v[mk], dof[mk])
+        got = band.at(mk)
+        want = (s["mean_nis_per_dof"], s["share_in_band"])
+        assert got == want or (np.isnan(got).all() and np.isnan(want).all())
