@@ -41,6 +41,7 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
+from experiments.png import save_png
 from experiments.techniques import ORACLE_TECHNIQUES, REGISTRY, plugins_in_results
 from experiments.track_panels import lag_row, legend, overlay_row
 
@@ -288,7 +289,7 @@ def _text_inches(text: str, size: float) -> float:
 
 
 def _save(fig, path: Path, written: list[Path]) -> None:
-    fig.savefig(path, dpi=100)
+    save_png(fig, path, dpi=100)
     _pyplot().close(fig)
     written.append(path)
 
