@@ -287,10 +287,16 @@ def _joint_summaries(F: np.ndarray, signed: np.ndarray, size: int) -> list[dict[
     else:
         std = np.full(g, np.nan)
     rmse = np.sqrt(np.add.reduce(F * F, axis=1) / n)
-    P = np.partition(np.where(signed[:, None], np.abs(F), F), _order_positions(n), axis=1)
+    # one partition: the magnitudes of the signed rows (and the other rows as they are),
+    # then the signed rows' own values for their median
+    A = np.where(signed[:, None], np.abs(F), F)
+    if signed.any():
+        A = np.vstack((A, F[signed]))
+    A.partition(_order_positions(n), axis=1)
+    P = A[:g]
     med = _median_cols(P)
     if signed.any():
-        med[signed] = _median_cols(np.partition(F[signed], _median_positions(n), axis=1))
+        med[signed] = _median_cols(A[g:])
     p95, mx = _quantile_cols(P, 95), P[:, -1]
     if n < 4:
         outl = np.full(g, np.nan)
