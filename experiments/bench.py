@@ -447,7 +447,8 @@ def bench_sweep(quick: bool = False) -> list[dict]:
     Runs the CLI in fresh processes, exactly as a user would (imports, simulation, all
     cells, tables, REPORT.md, figures, index.html), with the default solver and ``--jobs`` =
     all cores, into temporary folders: the ``thesis`` preset from an empty truth cache, the
-    same command again (resumed: nothing to compute, every output unchanged), and the
+    same command again (resumed: nothing to compute, every output unchanged; the best of 3
+    runs, wall and CPU each), and the
     ``quick`` preset from an empty cache. ``--quick`` times the quick preset only (empty
     cache, then resumed). Reported per run: the wall time seen from outside, the run's own
     phases from its ``run.local.json`` (simulation; cells, with the part that ran beside
@@ -475,11 +476,18 @@ def bench_sweep(quick: bool = False) -> list[dict]:
                 for d in (out, cache):
                     shutil.rmtree(d, ignore_errors=True)
             load = os.getloadavg()[0]
-            ru0 = resource.getrusage(resource.RUSAGE_CHILDREN)
-            info = _sweep_cli(["--preset", preset, "--out", out, "--cache-dir", cache,
-                               "--quiet"], env)
-            ru1 = resource.getrusage(resource.RUSAGE_CHILDREN)
-            cpu = (ru1.ru_utime - ru0.ru_utime) + (ru1.ru_stime - ru0.ru_stime)
+            best: tuple | None = None
+            for _ in range(1 if fresh else 3):      # a resume: the best of 3 (~1 s each)
+                ru0 = resource.getrusage(resource.RUSAGE_CHILDREN)
+                info = _sweep_cli(["--preset", preset, "--out", out, "--cache-dir", cache,
+                                   "--quiet"], env)
+                ru1 = resource.getrusage(resource.RUSAGE_CHILDREN)
+                cpu = (ru1.ru_utime - ru0.ru_utime) + (ru1.ru_stime - ru0.ru_stime)
+                if best is None or info["outside_wall_s"] < best[0]["outside_wall_s"]:
+                    best = (info, min(cpu, best[1]) if best else cpu)
+                else:
+                    best = (best[0], min(cpu, best[1]))
+            info, cpu = best
             t = info["timings_s"]
             o = t.get("outputs", {})
             n_out = len(o.get("written", [])) + len(o.get("unchanged", []))
@@ -896,7 +904,7 @@ def car_run(noise: str, seed: int, gtsam: bool = True, platform: str | None = No
         try:
             peer = run_gtsam_peer(t, obs, off, par)
             rows["GTSAM peer"] = {**_car_scores(peer.fixed_lag[:, 2], None, yaw, two),
-                                  "s_epoch": peer.update_s / n}
+                                  "s_epoch": peer.update_cpu_s / n}
         except Exception as exc:  # noqa: BLE001 - the table reports a failing peer
             rows["GTSAM peer"] = {"error": f"{type(exc).__name__}: {exc}"}
     return rows
@@ -1054,7 +1062,7 @@ def _cpu_per(fn: Callable[[], object], n: int, reps: int) -> float:
 def bench_pose_filter(quick: bool = False) -> list[dict]:
     """The pose filter family per epoch (issue 27): the forward pass compiled (numba, the
     default) and the numpy reference, the RTS smoother (with covariances) and the fixed-lag
-    smoother on the compiled pass, and the GTSAM peer (``update_s``) in the same run, each
+    smoother on the compiled pass, and the GTSAM peer (``update_cpu_s``) in the same run, each
     as CPU time per epoch, x probe and GTSAM / figure; then the kernel's first-call compile
     and its cached load in fresh processes (not with ``--quick``). Targets: forward
     <= 15 us and >= 100x below GTSAM, RTS and fixed-lag <= 2x the forward pass."""
@@ -1075,8 +1083,10 @@ def bench_pose_filter(quick: bool = False) -> list[dict]:
                 "RTS (numba)": _cpu_per(lambda r=res: rts_smooth(r), n, reps),
                 "fixed-lag": _cpu_per(lambda r=res, t=t, lag=p.lag_s: fixed_lag_smooth(
                     r, t, lag), n, reps)}
-        gt = run_gtsam_peer(t, obs, off, p).update_s / n if gtsam_available() else np.nan
-        figs["GTSAM peer (update_s)"] = gt
+        # CPU time, as every other figure here (update_s is wall time, which grows with the
+        # others' load: car, load 5.5, wall 1.2-1.9 ms against CPU 0.74-0.85 ms per epoch)
+        gt = run_gtsam_peer(t, obs, off, p).update_cpu_s / n if gtsam_available() else np.nan
+        figs["GTSAM peer (update_cpu_s)"] = gt
         for what, sec in figs.items():
             rows.append({"scene": name, "what": what, "CPU per epoch": _fmt(sec),
                          "x probe": ref.ratio(sec), "GTSAM / this": f"{gt / sec:.3g}",
