@@ -143,6 +143,34 @@ def test_techniques_sharing_a_cache_share_its_rows_and_change_no_number():
     assert (len(cache.poses), len(cache.lag)) == (4, 2)
 
 
+def test_a_dynamic_elastic_track_reuses_the_fixed_windows_fits(monkeypatch):
+    """With the fixed window-s elastic fit memoised, a dynamic-window track solves only its
+    rows of other sizes (each window is solved on its own, so the others are the fixed
+    fit's rows): the same table as uncached, bit for bit, with fewer windows solved."""
+    import estimator.trackers._windows as tw
+
+    cfg, t, _yaw, turning, obs = _noisy_corner()
+    solved = []
+    real = tw.elastic_batch
+
+    def counting(means, *a, **kw):
+        solved.append(len(means))
+        return real(means, *a, **kw)
+
+    monkeypatch.setattr(tw, "elastic_batch", counting)
+    fixed = WindowTracker(window=6, solver="elastic", weighting="huff")
+    dyn = WindowTracker(window=6, solver="elastic", weighting="huff", dynamic_window=1,
+                        turning=turning)
+    plain = dyn.track(t, obs, cfg)
+    n_rows = solved[-1]
+    cache = TrackCache()
+    fixed.track(t, obs, cfg, cache=cache)
+    solved.clear()
+    _assert_same(dyn.track(t, obs, cfg, cache=cache), plain)
+    n_small = int((plain["window"] < 6).sum())
+    assert solved == [n_small] and 0 < n_small < n_rows
+
+
 def test_a_tracker_is_frozen_with_keyword_only_options():
     tr = WindowTracker(window=5)
     with pytest.raises(dataclasses.FrozenInstanceError):

@@ -408,8 +408,10 @@ def elastic_fits(obs: np.ndarray, cfg: SensorConfig, ends: np.ndarray, w: int | 
     another's). A hit is an identical request (the same observations, configuration, windows
     and options), so it returns exactly what the call would. Random weights are never
     cached (they consume the generator)."""
-    def fits() -> Fits:
-        means, wax = elastic_moments(obs, cfg, ends, w, weighting=weighting, rng=rng,
+    def fits(rows: np.ndarray | slice = slice(None)) -> Fits:
+        means, wax = elastic_moments(obs, cfg, ends[rows],
+                                     w[rows] if isinstance(w, np.ndarray) else w,
+                                     weighting=weighting, rng=rng,
                                      huff_threshold=huff_threshold, huber_c=huber_c,
                                      cache=cache)
         ef = elastic_batch(means, wax, cfg, eps, **fit_kw)
@@ -417,9 +419,30 @@ def elastic_fits(obs: np.ndarray, cfg: SensorConfig, ends: np.ndarray, w: int | 
 
     if weighting == "random" or cache is None:
         return fits()
-    key = (content_digest(obs, ends, np.asarray(w), cfg.body_positions), weighting,
-           repr(huff_threshold), float(huber_c), float(eps), repr(sorted(fit_kw.items())))
-    pos, yaw, status = memo_get(cache, "elastic", lambda: key, fits)
+
+    def key(size: int | np.ndarray) -> tuple:
+        return (content_digest(obs, ends, np.asarray(size), cfg.body_positions), weighting,
+                repr(huff_threshold), float(huber_c), float(eps), repr(sorted(fit_kw.items())))
+
+    def composed() -> Fits:
+        # per-row sizes (a dynamic window): the rows of the full size s are those of the
+        # fixed window-s fit when it is memoised (its cell came first), since each window is
+        # solved on its own (the kernel's loop, the per-row start): fit only the others
+        assert isinstance(w, np.ndarray)
+        s = int(w.max()) if w.size else 0
+        full_key = key(np.full(w.shape, s, dtype=w.dtype))     # as the fixed rows' request
+        if not w.size or (w == s).all() or full_key not in cache.elastic:
+            return fits()
+        full = w == s
+        fp, fy, fs = cache.elastic.get(full_key, fits)
+        pos, yaw, status = fp.copy(), fy.copy(), fs.copy()
+        rest = np.flatnonzero(~full)
+        if rest.size:
+            pos[rest], yaw[rest], status[rest] = fits(rest)
+        return pos, yaw, status
+
+    compute = composed if isinstance(w, np.ndarray) else fits
+    pos, yaw, status = memo_get(cache, "elastic", lambda: key(w), compute)
     return pos.copy(), yaw.copy(), status.copy()
 
 
