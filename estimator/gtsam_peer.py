@@ -104,8 +104,10 @@ class GtsamPeerResult:
     """causal (n, 6) and fixed_lag (n, 6) states ``(px, py, yaw, v, a, omega)`` of the
     no-slip point, the EKF's layout (a is NaN: the peer's motion prior has no acceleration;
     NaN before the start); status (n,) str ("waiting"/"no_data" before the start,
-    then "ok" or "predicted"); update_s: wall time of the smoother updates, s; cg_offset (2,)
-    as in :class:`estimator.pose_filter.PoseFilterResult`."""
+    then "ok" or "predicted"); update_s: wall time of the smoother updates, s; update_cpu_s:
+    their CPU time (``time.process_time``, every thread of the process), s, the figure to
+    compare with the EKF's CPU time on a shared machine (wall time grows with the others'
+    load); cg_offset (2,) as in :class:`estimator.pose_filter.PoseFilterResult`."""
 
     causal: np.ndarray
     fixed_lag: np.ndarray
@@ -114,6 +116,7 @@ class GtsamPeerResult:
     cg_offset: np.ndarray
     segments: int = 1
     notes: tuple[str, ...] = ()
+    update_cpu_s: float = 0.0
 
 
 class GtsamPeerError(RuntimeError):
@@ -191,7 +194,7 @@ def run_gtsam_peer(t: np.ndarray, obs: np.ndarray, offsets: np.ndarray,
     fixed[:, 2] = wrap_angle(fixed[:, 2])
     return GtsamPeerResult(causal=causal, fixed_lag=fixed, status=run.status.astype(str),
                            update_s=run.spent, cg_offset=-run.ns, segments=run.segments,
-                           notes=tuple(run.notes))
+                           notes=tuple(run.notes), update_cpu_s=run.spent_cpu)
 
 
 class _PeerRun:
@@ -230,6 +233,7 @@ class _PeerRun:
         self.start = self.last = self.last_fix = -1
         self.pending: list[int] = []     # epochs whose fixed-lag estimate is not final yet
         self.spent = 0.0
+        self.spent_cpu = 0.0
         self.segments = 0
         self.notes: list[str] = []
 
@@ -283,12 +287,13 @@ class _PeerRun:
         values.insert(self.V(k), self.twist)
         stamps.insert((self.X(k), tt[k]))
         stamps.insert((self.V(k), tt[k]))
-        t0 = time.perf_counter()
+        t0, c0 = time.perf_counter(), time.process_time()
         try:
             self.smoother.update(graph, values, stamps)
             est = self.smoother.calculateEstimate()
         except RuntimeError as exc:
             self.spent += time.perf_counter() - t0
+            self.spent_cpu += time.process_time() - c0
             if k == self.start:
                 raise GtsamPeerError(f"gtsam_peer: GTSAM failed to start at t = {tt[k]:.6g} s "
                                      f"(epoch {k}): {_one_line(exc)}") from None
@@ -296,6 +301,7 @@ class _PeerRun:
             self.status[k] = "reset"
             return
         self.spent += time.perf_counter() - t0
+        self.spent_cpu += time.process_time() - c0
         self.est = est
         self.causal[k] = self.state_of(k)
         self.pose, self.twist = est.atPose2(self.X(k)), est.atVector(self.V(k))
