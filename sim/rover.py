@@ -30,8 +30,8 @@ Reference point ("CG" in the Truth): the chassis body origin, on the ground plan
 below the roof centre. For ``rover_gps8`` that is the mean of antennas 2, 3, 6, 7 (Eq. 3.8)
 projected to the ground (z ~ 0; the contacts sink the wheels by 0.056 mm at 20 ms steps,
 0.014 mm at 10 ms). The chassis tilts by < 1e-4 rad on the soft contacts while it accelerates
-(measured on square20: 5e-5 rad at 0.2 m/s, 7e-6 at 1.5 m/s), so the roof centre, 0.6 m up,
-is up to 0.03 mm horizontally from the body origin. The drive axle
+(measured on square20: 3e-5 rad at 0.2 m/s, 5e-6 at 1.5 m/s), so the roof centre, 0.6 m up,
+is up to 0.02 mm horizontally from the body origin. The drive axle
 passes under it, so it has no lateral slip and is the point the controller steers.
 
 Control: :mod:`sim.controllers` pure pursuit at ``control_rate_hz`` (default from the cruise speed,
