@@ -122,8 +122,11 @@ def along_cross_errors(est_xy: object, true_xy: object, direction: object
     if e.shape != g.shape or th.shape != (e.shape[0],):
         raise ValueError(f"est_xy/true_xy/direction: shapes {e.shape}, {g.shape}, {th.shape} "
                          f"do not match")
-    d = e - g
-    c, s = np.cos(th), np.sin(th)
+    return _along_cross(e - g, np.cos(th), np.sin(th))
+
+
+def _along_cross(d: np.ndarray, c: np.ndarray, s: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The (k, 2) error ``d`` rotated into the direction whose cosines / sines are c, s."""
     return d[:, 0] * c + d[:, 1] * s, -d[:, 0] * s + d[:, 1] * c
 
 
@@ -559,16 +562,21 @@ def index_rows(idx: np.ndarray) -> slice | np.ndarray:
 
 
 def errors_at(idx: np.ndarray, est: np.ndarray, est_yaw: object | None, truth_xy: np.ndarray,
-              direction: np.ndarray, truth_yaw: np.ndarray | None) -> TrackErrors:
+              direction: np.ndarray, truth_yaw: np.ndarray | None, *,
+              cos_sin: tuple[np.ndarray, np.ndarray] | None = None) -> TrackErrors:
     """:func:`track_errors` once the estimates are aligned: idx (k,) the reference sample
     of each estimate, est (k, 2) m, est_yaw (k,) rad or None; truth_xy (n, 2) m, direction
     (n,) rad (:func:`travel_direction`), truth_yaw (n,) rad or None, all of the whole
     reference (a scorer computes the direction once per reference,
-    :mod:`estimator.scoring`)."""
+    :mod:`estimator.scoring`); cos_sin : (n,) cosines and sines of ``direction`` when the
+    caller has them (the same values numpy computes for the rows)."""
     rows = index_rows(idx)
     ref = truth_xy[rows]
     d = est - ref
-    along, cross = along_cross_errors(est, ref, direction[rows])
+    if cos_sin is None:
+        along, cross = along_cross_errors(est, ref, direction[rows])
+    else:
+        along, cross = _along_cross(d, cos_sin[0][rows], cos_sin[1][rows])
     if est_yaw is None or truth_yaw is None:
         heading = np.full(idx.size, np.nan)
     else:

@@ -92,7 +92,7 @@ def score_track(df: pd.DataFrame, truth: Any, obs: np.ndarray, config: Any,
     cols = _TrackColumns.of(df)
     ref = ScoringReference.of(truth) if reference is None else reference.check(truth, obs)
     err = errors_at(nearest_samples(cols.t, ref.t, 1e-6), cols.cg, cols.yaw, ref.xy,
-                    ref.direction, ref.yaw)
+                    ref.direction, ref.yaw, cos_sin=ref.cos_sin)
     idx = err.index
     mk_all = _masks_at(ref, idx, cols.window)
     masks = list(masks)
@@ -174,8 +174,9 @@ class ScoringReference:
     direction (n,) rad of travel (:func:`estimator.metrics.travel_direction`), turning (n,)
     bool, turn_count (n + 1,) the cumulative count of turning epochs (the window mask);
     obs_ex, obs_ey (n,) m the per-epoch mean |x| / |y| error of the observations over the
-    sensors that have one (None: built without observations). ``truth`` and ``obs`` are
-    the objects it was built from (:meth:`check`)."""
+    sensors that have one and cos_sin the cosines and sines of ``direction`` (None: built
+    without observations, for one track). ``truth`` and ``obs`` are the objects it was
+    built from (:meth:`check`)."""
 
     t: np.ndarray
     xy: np.ndarray
@@ -185,6 +186,7 @@ class ScoringReference:
     turn_count: np.ndarray
     obs_ex: np.ndarray | None = None
     obs_ey: np.ndarray | None = None
+    cos_sin: tuple[np.ndarray, np.ndarray] | None = None
     truth: Any = None
     obs: Any = None
 
@@ -204,16 +206,19 @@ class ScoringReference:
             raise ValueError(f"turning: expected a 1-D bool array of shape {tt.shape}, got "
                              f"{turning.dtype} {turning.shape}")
         oe: tuple[np.ndarray | None, np.ndarray | None] = (None, None)
+        direction = travel_direction(tt, xy, yaw)
+        cos_sin = None
         if obs is not None:
+            # a reference that serves many tracks: the direction's cosines and sines once
+            cos_sin = (np.cos(direction), np.sin(direction))
             ob = np.asarray(obs)
             if ob.ndim != 3 or ob.shape[0] != tt.size or ob.shape[2] != 2:
                 raise ValueError(f"obs: expected shape ({tt.size}, m, 2) (one row per truth "
                                  f"time), got {ob.shape}")
             oe = _obs_errors(ob, truth, slice(None))
-        return cls(t=tt, xy=xy, yaw=yaw, direction=travel_direction(tt, xy, yaw),
-                   turning=turning,
+        return cls(t=tt, xy=xy, yaw=yaw, direction=direction, turning=turning,
                    turn_count=np.concatenate([[0], np.cumsum(turning, dtype=np.int64)]),
-                   obs_ex=oe[0], obs_ey=oe[1], truth=truth, obs=obs)
+                   obs_ex=oe[0], obs_ey=oe[1], cos_sin=cos_sin, truth=truth, obs=obs)
 
     def check(self, truth: Any, obs: np.ndarray) -> ScoringReference:
         """This reference, after checking it was built from ``truth`` and ``obs`` (the same
@@ -426,7 +431,11 @@ class _Band:
         ok = np.isfinite(v) & (dof > 0)
         inside = np.zeros(v.size, dtype=bool)
         if ok.any():
-            dof_u, row = np.unique(dof[ok], return_inverse=True)
+            d = dof[ok]
+            if (d == d[0]).all():         # one dof (the heading NEES): one band, no unique
+                dof_u, row = d[:1], np.zeros(d.size, dtype=np.intp)
+            else:
+                dof_u, row = np.unique(d, return_inverse=True)
             # nis_summary's band (0.95) and the same expressions of its probabilities
             lo = _chdtri(dof_u, 0.5 + 0.5 * _BAND)[row]
             hi = _chdtri(dof_u, 0.5 - 0.5 * _BAND)[row]
@@ -450,8 +459,8 @@ def _status_flags(status: Any) -> tuple[np.ndarray, np.ndarray]:
     inconsistent, as comparing its object array). An Arrow-backed column is looked up in
     one Arrow pass (``pyarrow.compute.index_in``, ~1/4 of two pandas comparisons)."""
     if hasattr(status, "__arrow_array__"):
-        import pyarrow as pa
-        import pyarrow.compute as pc
+        import pyarrow as pa  # type: ignore[import-untyped]
+        import pyarrow.compute as pc  # type: ignore[import-untyped]
 
         arr = pa.array(status)
         wanted = pa.array(["ok", "inconsistent"], type=arr.type)
