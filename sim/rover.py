@@ -83,8 +83,9 @@ from sim.controllers import (
 from sim.paths import Path, load_path, path_errors
 from sim.truth import Truth
 
-__all__ = ["COARSE_TIMESTEP_S", "MAX_TIMESTEP_S", "ROVER_XML", "SITE_PREFIX",
-           "build_rover_model", "default_control_steps", "default_timestep_s", "simulate_rover"]
+__all__ = ["COARSE_TIMESTEP_S", "MAX_SERVO_STEP_RATIO", "MAX_TIMESTEP_S", "ROVER_XML",
+           "SITE_PREFIX", "build_rover_model", "default_control_steps", "default_timestep_s",
+           "servo_step_ratio", "simulate_rover"]
 
 ROVER_XML = MODELS_DIR / "rover.xml"
 SITE_PREFIX = "gps_"
@@ -93,8 +94,11 @@ SITE_PREFIX = "gps_"
 MAX_TIMESTEP_S = 0.02
 #: Default physics step of slow routes (:func:`default_timestep_s`), s ...
 COARSE_TIMESTEP_S = 0.02
-#: ... used while the platform travels at most this far per step at cruise speed, m.
+#: ... used while the platform travels at most this far per step at cruise speed, m, ...
 _COARSE_TRAVEL_M = 0.006
+#: ... and the wheel servos are resolved (:func:`servo_step_ratio`; measured command-step
+#: undershoot 0.6, 1.5, 2.8 and 5.4 mm/s at ratios 1.2, 1.4, 1.7 and 2.2).
+MAX_SERVO_STEP_RATIO = 1.5
 _SETTLE_S = 1.0
 #: Default control period: the platform moves at most this far between controller updates
 #: at cruise speed (3 cm = 50 Hz at 1.5 m/s), ...
@@ -121,16 +125,41 @@ def default_control_steps(cruise_speed_mps: float, timestep_s: float) -> int:
     return max(1, min(by_travel, by_rate))
 
 
-def default_timestep_s(cruise_speed_mps: float) -> float | None:
+def default_timestep_s(cruise_speed_mps: float, model: mujoco.MjModel | None = None
+                       ) -> float | None:
     """Physics step when ``simulate_rover`` is not given one: :data:`COARSE_TIMESTEP_S`
     (20 ms) while the platform travels at most 6 mm per step at cruise speed (up to
-    0.3 m/s: Paths 1 and 2 drive at 0.2 m/s), else None (the XML's step, 10 ms for the
-    rover). See models/rover.xml for the measurements behind both.
+    0.3 m/s: Paths 1 and 2 drive at 0.2 m/s) and, if ``model`` is given, its wheel servos
+    are resolved at that step (:func:`servo_step_ratio` <= :data:`MAX_SERVO_STEP_RATIO`);
+    else None (the XML's step: 10 ms for the rover, 5 ms for the car, whose servos are
+    not resolved at 20 ms). See models/rover.xml for the measurements behind both.
     """
     cruise_speed_mps = check_real(cruise_speed_mps, "cruise_speed_mps", lo=0.0, lo_open=True)
-    if cruise_speed_mps * COARSE_TIMESTEP_S <= _COARSE_TRAVEL_M + 1e-12:
-        return COARSE_TIMESTEP_S
-    return None
+    if cruise_speed_mps * COARSE_TIMESTEP_S > _COARSE_TRAVEL_M + 1e-12:
+        return None
+    if model is not None and servo_step_ratio(model, COARSE_TIMESTEP_S) > MAX_SERVO_STEP_RATIO:
+        return None
+    return COARSE_TIMESTEP_S
+
+
+def servo_step_ratio(model: mujoco.MjModel, timestep_s: float) -> float:
+    """Largest ``kv h / M_jj`` of the wheel velocity servos "wheel_left"/"wheel_right":
+    servo gain (N m s/rad) times the step over the wheel joint's inertia including its
+    armature (kg m^2, the mass-matrix diagonal). Above ~1.5 a speed-command step makes the
+    chassis swing against the wheels (models/rover.xml)."""
+    data = mujoco.MjData(model)
+    mujoco.mj_forward(model, data)
+    full = np.zeros((model.nv, model.nv))
+    mujoco.mj_fullM(model, data, full)
+    ratios = []
+    for name in ("wheel_left", "wheel_right"):
+        act = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_ACTUATOR, name)
+        if act < 0:
+            raise ValueError(f"xml_path: model has no actuator {name!r}")
+        dof = model.jnt_dofadr[model.actuator_trnid[act, 0]]
+        ratios.append(float(model.actuator_gainprm[act, 0]) * timestep_s
+                      / float(full[dof, dof]))
+    return max(ratios)
 
 
 def _soften_to_two_steps(spec: mujoco.MjSpec, timestep_s: float) -> None:
@@ -259,7 +288,8 @@ def simulate_rover(
         if not FsPath(xml_path).is_file():
             raise ValueError(f"path: vehicle {path.vehicle!r} has no model {xml_path}")
     if timestep_s is None:
-        timestep_s = default_timestep_s(params.cruise_speed_mps)
+        timestep_s = default_timestep_s(params.cruise_speed_mps,
+                                        build_rover_model(config, xml_path)[0])
     model, xml = build_rover_model(config, xml_path, timestep_s=timestep_s)
     dt = float(model.opt.timestep)
     if control_rate_hz is None:

@@ -28,11 +28,13 @@ from sim.controllers import (
 from sim.paths import Path, load_path, path_errors, project_to_polyline
 from sim.rover import (
     COARSE_TIMESTEP_S,
+    MAX_SERVO_STEP_RATIO,
     MAX_TIMESTEP_S,
     ROVER_XML,
     build_rover_model,
     default_control_steps,
     default_timestep_s,
+    servo_step_ratio,
     simulate_rover,
 )
 
@@ -184,10 +186,18 @@ def test_contacts_keep_two_steps_per_solref_time_constant():
                 assert tcs.size >= 4 and np.all(tcs == tc), (xml_path.name, ts, tcs)
 
 
-def test_default_timestep_follows_the_speed():
+def test_default_timestep_follows_the_speed_and_the_servos():
     # 20 ms while the platform travels <= 6 mm per step (0.3 m/s), else the XML's 10 ms
     assert default_timestep_s(0.2) == default_timestep_s(0.3) == COARSE_TIMESTEP_S == 0.02
     assert default_timestep_s(0.31) is None and default_timestep_s(1.5) is None
+    # ... and only where the wheel servos are resolved at 20 ms: kv h / (I + armature) =
+    # 76 * 0.02 / 1.24 = 1.23 on the rover; the car's 2000 * 0.02 / 0.9 = 44 keeps its 5 ms
+    rover = build_rover_model(CONFIG)[0]
+    car = build_rover_model(CONFIG, MODELS_DIR / "car.xml")[0]
+    assert servo_step_ratio(rover, 0.02) == pytest.approx(76 * 0.02 / 1.24, rel=1e-12)
+    assert servo_step_ratio(car, 0.02) == pytest.approx(2000 * 0.02 / 0.9, rel=1e-12)
+    assert servo_step_ratio(rover, 0.02) <= MAX_SERVO_STEP_RATIO < servo_step_ratio(car, 0.02)
+    assert default_timestep_s(0.2, rover) == 0.02 and default_timestep_s(0.2, car) is None
     assert simulate_rover("square20", CONFIG, cache_dir=False).meta["params"][
         "timestep_s"] == 0.01
     with pytest.raises(ValueError, match="cruise_speed_mps"):
