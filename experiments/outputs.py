@@ -51,11 +51,12 @@ __all__ = ["STATE_FILE", "code_digest", "frame_digest", "n_steps", "write_output
 STATE_FILE = "outputs.local.json"
 #: The figure group drawn with the tables (it reads the table CSVs).
 CHART_TASK = "tables"
-#: The figure groups by typical cost (thesis preset), largest first: the order in which they
-#: are handed to the workers after the tables and the report (1-1.5 s each), so the last to
-#: finish are short.
-_FIGURE_ORDER = ("sensor1", "weighting", "oracle", "overlay", "beyond", "lc_dyn",
-                 "orientation", "lag_correction", "dynamic")
+#: The figure groups by typical cost (thesis preset, CPU-s measured in one process at load
+#: ~6: sensor1 1.6-2.0, overlay 1.4-1.7, weighting 0.95, oracle 0.4-0.7, the others 0.2-0.45),
+#: largest first: the order in which they are handed to the workers after the tables and the
+#: report (1.3-2 s each), so the last to finish are short.
+_FIGURE_ORDER = ("sensor1", "overlay", "weighting", "oracle", "lag_correction", "beyond",
+                 "orientation", "dynamic", "lc_dyn")
 
 _EXPERIMENTS = Path(__file__).resolve().parent
 
