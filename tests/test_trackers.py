@@ -143,23 +143,25 @@ def test_techniques_sharing_a_cache_share_its_rows_and_change_no_number():
     assert (len(cache.poses), len(cache.lag)) == (4, 2)
 
 
-def test_a_dynamic_elastic_track_reuses_the_fixed_windows_fits(monkeypatch):
-    """With the fixed window-s elastic fit memoised, a dynamic-window track solves only its
-    rows of other sizes (each window is solved on its own, so the others are the fixed
-    fit's rows): the same table as uncached, bit for bit, with fewer windows solved."""
+@pytest.mark.parametrize("solver, batch", [("elastic", "elastic_batch"),
+                                           ("procrustes", "procrustes_batch")])
+def test_a_dynamic_track_reuses_the_fixed_windows_fits(monkeypatch, solver, batch):
+    """With the fixed window-s fit memoised, a dynamic-window track fits only its rows of
+    other sizes (each window is fitted on its own, so the others are the fixed fit's
+    rows): the same table as uncached, bit for bit, with fewer windows fitted."""
     import estimator.trackers._windows as tw
 
     cfg, t, _yaw, turning, obs = _noisy_corner()
     solved = []
-    real = tw.elastic_batch
+    real = getattr(tw, batch)
 
     def counting(means, *a, **kw):
         solved.append(len(means))
         return real(means, *a, **kw)
 
-    monkeypatch.setattr(tw, "elastic_batch", counting)
-    fixed = WindowTracker(window=6, solver="elastic", weighting="huff")
-    dyn = WindowTracker(window=6, solver="elastic", weighting="huff", dynamic_window=1,
+    monkeypatch.setattr(tw, batch, counting)
+    fixed = WindowTracker(window=6, solver=solver, weighting="huff")
+    dyn = WindowTracker(window=6, solver=solver, weighting="huff", dynamic_window=1,
                         turning=turning)
     plain = dyn.track(t, obs, cfg)
     n_rows = solved[-1]

@@ -10,7 +10,7 @@ through the ``cache`` argument (:class:`estimator.memo.TrackCache`, None: comput
 from __future__ import annotations
 
 import itertools
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from dataclasses import dataclass
 from typing import Any
 
@@ -23,7 +23,7 @@ from estimator import weights as _weights
 from estimator._checks import check_int
 from estimator.configuration import SensorConfig
 from estimator.elastic import elastic_batch
-from estimator.memo import TrackCache, content_digest, freeze, memo_get
+from estimator.memo import ContentMemo, TrackCache, content_digest, freeze, memo_get
 from estimator.track_options import GROWTH_RULES, DynamicWindow
 from estimator.trackers._common import Rows, TrackerOptions, check_inputs
 from estimator.weights import Weighting
@@ -424,26 +424,31 @@ def elastic_fits(obs: np.ndarray, cfg: SensorConfig, ends: np.ndarray, w: int | 
         return (content_digest(obs, ends, np.asarray(size), cfg.body_positions), weighting,
                 repr(huff_threshold), float(huber_c), float(eps), repr(sorted(fit_kw.items())))
 
-    def composed() -> Fits:
-        # per-row sizes (a dynamic window): the rows of the full size s are those of the
-        # fixed window-s fit when it is memoised (its cell came first), since each window is
-        # solved on its own (the kernel's loop, the per-row start): fit only the others
-        assert isinstance(w, np.ndarray)
-        s = int(w.max()) if w.size else 0
-        full_key = key(np.full(w.shape, s, dtype=w.dtype))     # as the fixed rows' request
-        if not w.size or (w == s).all() or full_key not in cache.elastic:
-            return fits()
-        full = w == s
-        fp, fy, fs = cache.elastic.get(full_key, fits)
-        pos, yaw, status = fp.copy(), fy.copy(), fs.copy()
-        rest = np.flatnonzero(~full)
-        if rest.size:
-            pos[rest], yaw[rest], status[rest] = fits(rest)
-        return pos, yaw, status
+    def compute() -> Fits:
+        assert isinstance(w, np.ndarray) and cache is not None
+        return composed(cache.elastic, key, w, fits)
 
-    compute = composed if isinstance(w, np.ndarray) else fits
-    pos, yaw, status = memo_get(cache, "elastic", lambda: key(w), compute)
+    pos, yaw, status = memo_get(cache, "elastic", lambda: key(w),
+                                compute if isinstance(w, np.ndarray) else fits)
     return pos.copy(), yaw.copy(), status.copy()
+
+
+def composed(memo: ContentMemo, key: Callable[[Any], tuple], w: np.ndarray,
+             fits: Callable[..., Fits]) -> Fits:
+    """Fits of rows with per-row sizes ``w`` (N,) (a dynamic window): the rows of the full
+    size s are those of the fixed window-s request when ``memo`` holds it (its cell came
+    first), since each window is fitted on its own (the elastic kernel's loop, the
+    procrustes closed form and its start row by row): ``fits(rows)`` fits only the others.
+    ``key(sizes)`` is the memo key of a request with those sizes."""
+    s = int(w.max()) if w.size else 0
+    full_key = key(np.full(w.shape, s, dtype=w.dtype))         # as the fixed rows' request
+    if not w.size or (w == s).all() or full_key not in memo:
+        return fits()
+    fp, fy, fs = memo.get(full_key, fits)
+    pos, yaw, status = fp.copy(), fy.copy(), fs.copy()
+    rest = np.flatnonzero(w != s)
+    pos[rest], yaw[rest], status[rest] = fits(rest)
+    return pos, yaw, status
 
 
 def procrustes_fits(obs: np.ndarray, cfg: SensorConfig, ends: np.ndarray, w: int | np.ndarray,
@@ -455,17 +460,26 @@ def procrustes_fits(obs: np.ndarray, cfg: SensorConfig, ends: np.ndarray, w: int
     window size share the fits; in the thesis preset 470 of 840 calls were repeats). Huff
     weights are per sample (each time step on its own, Section 3.3.3 steps 1-9), so the
     stacked windows share them: one call on all epochs, then cumulative sums."""
-    def fits() -> Fits:
+    def fits(rows: np.ndarray | slice = slice(None)) -> Fits:
         sw = None if weighting == "none" else recording_huff(obs, cfg, huff_threshold, cache)
-        means, cnt = cumsum_means(obs, ends, w, sw)
+        means, cnt = cumsum_means(obs, ends[rows], w[rows] if isinstance(w, np.ndarray) else w,
+                                  sw)
         bf = procrustes_batch(means, cnt, cfg)
         return bf.positions, bf.yaw, bf.status.astype(object)
 
     if cache is None:
         return fits()
-    key = (content_digest(obs, ends, np.asarray(w), cfg.body_positions), cfg.names,
-           tuple(cfg.dead), weighting, repr(huff_threshold))
-    pos, yaw, status = memo_get(cache, "procrustes", lambda: key, fits)
+
+    def key(size: int | np.ndarray) -> tuple:
+        return (content_digest(obs, ends, np.asarray(size), cfg.body_positions), cfg.names,
+                tuple(cfg.dead), weighting, repr(huff_threshold))
+
+    def compute() -> Fits:
+        assert isinstance(w, np.ndarray) and cache is not None
+        return composed(cache.procrustes, key, w, fits)
+
+    pos, yaw, status = memo_get(cache, "procrustes", lambda: key(w),
+                                compute if isinstance(w, np.ndarray) else fits)
     return pos.copy(), yaw.copy(), status.copy()
 
 
