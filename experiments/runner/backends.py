@@ -204,6 +204,7 @@ def iter_truths(cells: list[Cell], spec: Spec, jobs: int, truth_fn, cache_dir,
             yield k, load_recording(k[1])           # its logs, once, in the parent
         keys = [k for k in keys if k[0] != "recording"]
     fn = truth_fn or simulate_truth
+    keys.sort(key=_simulated_s, reverse=True)      # the longest first: the critical path
     args = [(fn, k, *k, spec.sim_seed, cache_dir) for k in keys]
     if jobs > 1 and len(keys) > 1:
         # n_jobs = jobs (not fewer): the cells reuse the same worker processes
@@ -216,6 +217,18 @@ def iter_truths(cells: list[Cell], spec: Spec, jobs: int, truth_fn, cache_dir,
             on_queued()
         for a in args:
             yield _keyed_truth(*a)
+
+
+def _simulated_s(key: tuple) -> float:
+    """Simulated seconds of a truth key's path (length / cruise speed), what its simulation
+    costs; 0 when the path cannot be read here (its simulation reports why)."""
+    from experiments.runner.cell import _load_path
+
+    try:
+        p = _load_path(key[0], key[1])
+        return float(p.length_m / p.cruise_speed_mps)
+    except Exception:  # noqa: BLE001 - only an ordering hint
+        return 0.0
 
 
 # --------------------------------------------------------------------------- workers

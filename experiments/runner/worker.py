@@ -213,12 +213,13 @@ def started() -> int:
     on a fresh checkout the first compiles them, which holds ~100 MB more of LLVM's memory,
     and counted after the reference size that alone made a worker "leak" mid-run (thesis
     preset with an empty numba cache: a worker replaced)."""
-    import estimator.tracking  # noqa: F401
-    import sim.gps
-    import sim.rover  # noqa: F401
-    from estimator.pose_smoother import warm_kernels
+    with timeline("started"):
+        import estimator.tracking  # noqa: F401
+        import sim.gps
+        import sim.rover  # noqa: F401
+        from estimator.pose_smoother import warm_kernels
 
-    with _exclusive(KERNEL_LOCK):
-        warm_kernels()      # the compile's memory (first use of a checkout) is in the reference
+        with _exclusive(KERNEL_LOCK):
+            warm_kernels()  # the compile's memory (first use of a checkout) is in the reference
     return os.getpid()
 

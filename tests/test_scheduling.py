@@ -1,0 +1,43 @@
+"""The sweep's scheduling (issue 27): the longest simulation is queued first, and the
+timeline a run writes when CONFIGPOSE_TIMELINE names a file."""
+
+import json
+
+from experiments.runner.backends import iter_truths
+from experiments.runner.worker import TIMELINE_ENV, CellJob, run_batch
+from experiments.spec import load_spec
+
+
+def test_the_longest_simulation_is_queued_first():
+    """Path 2 (square200, 4000 s simulated) before Path 1 (square100, 2000 s), whatever the
+    spec's order: with one worker free, the critical path starts at t = 0."""
+    spec = load_spec("thesis")
+    cells = spec.expand()
+    assert "square100" in cells[0].path             # the spec lists Path 1 first
+    order = []
+
+    def fake_truth(path_file, overrides, config_file, seed, cache_dir):
+        order.append(path_file)
+        return path_file
+
+    list(iter_truths(cells, spec, 1, fake_truth, None))
+    assert [p.rsplit("/", 1)[-1] for p in order] == ["square200.toml", "square100.toml"]
+
+
+def test_a_batch_writes_its_timeline_line(tmp_path, monkeypatch):
+    """One JSON line per batch with its start, end, CPU seconds and cell count; nothing
+    without the variable."""
+    spec = load_spec("quick")
+    cells = spec.expand()[:2]
+    job = CellJob(spec_seed=spec.seed, masks=spec.masks, session_s=spec.session_s,
+                  run_id="t", cell_fn=lambda c, truth, ctx: (_ for _ in ()).throw(
+                      ValueError("no cell here")))
+    path = tmp_path / "timeline.jsonl"
+    run_batch(cells, None, [False, False], job)
+    assert not path.exists()
+    monkeypatch.setenv(TIMELINE_ENV, str(path))
+    recs = run_batch(cells, None, [False, False], job)
+    assert [r["ok"] for r in recs] == [False, False]
+    (line,) = [json.loads(s) for s in path.read_text().splitlines()]
+    assert line["what"].startswith("cells ") and line["n"] == 2
+    assert line["end"] >= line["start"] and line["cpu_s"] >= 0.0
