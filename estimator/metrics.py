@@ -356,7 +356,7 @@ def jitter_rms(error_xy: object, mask: object | None = None) -> float:
 
 def error_steps(error_xy: np.ndarray) -> np.ndarray:
     """``|e_k - e_(k-1)|`` (k - 1,) m of (k, 2) signed CG errors (:func:`jitter_rms`)."""
-    return np.hypot(*(np.diff(error_xy, axis=0).T))
+    return np.hypot(np.diff(error_xy[:, 0]), np.diff(error_xy[:, 1]))
 
 
 def jitter_of_steps(step: np.ndarray, mask: np.ndarray) -> float:
@@ -472,7 +472,12 @@ def align_to_truth(est_t: object, truth_t: object, *, tol: float = 1e-6) -> np.n
 def nearest_samples(te: np.ndarray, tt: np.ndarray, tol: float) -> np.ndarray:
     """:func:`align_to_truth` on checked times: te (k,) finite s, tt (n,) strictly
     increasing s (:func:`estimator._checks.check_increasing_times`). Estimates dated exactly
-    at truth samples (a track on the truth's own time line) take one ``searchsorted``."""
+    at truth samples take one ``searchsorted``, and those at a run of consecutive samples
+    (a track on the truth's own time line) one comparison."""
+    if te.size:
+        i0 = int(np.searchsorted(tt, te[0]))
+        if i0 + te.size <= tt.size and np.array_equal(tt[i0:i0 + te.size], te):
+            return np.arange(i0, i0 + te.size)
     j = np.searchsorted(tt, te)
     if j.size and int(j.max()) < tt.size and np.array_equal(tt[j], te):
         return j
