@@ -37,11 +37,18 @@ def _code_commit(short: bool = True) -> str | None:
     return _git("log", "-1", f"--format={'%h' if short else '%H'}", "--", *CODE_PATHS) or None
 
 
-def git_describe() -> str:
-    """Abbreviated hash of the newest commit that changed :data:`CODE_PATHS`, plus
-    ``-dirty`` when they have uncommitted changes; "unknown (not a git checkout)" without
-    git."""
-    rev = _code_commit()
+def _code_commits() -> tuple[str | None, str | None]:
+    """(abbreviated, full) hash of :func:`_code_commit`, from one git call."""
+    out = _git("log", "-1", "--format=%h%n%H", "--", *CODE_PATHS)
+    parts = out.split() if out else []
+    return (parts[0], parts[1]) if len(parts) == 2 else (None, None)
+
+
+def git_describe(rev: str | None = None) -> str:
+    """Abbreviated hash of the newest commit that changed :data:`CODE_PATHS` (``rev``: that
+    hash, known already), plus ``-dirty`` when they have uncommitted changes; "unknown (not
+    a git checkout)" without git."""
+    rev = rev or _code_commit()
     if not rev:
         return "unknown (not a git checkout)"
     dirty = _git("status", "--porcelain", "--untracked-files=no", "--", *CODE_PATHS)
@@ -57,9 +64,10 @@ def code_version() -> dict:
         info["package"] = version("configpose")
     except Exception:  # noqa: BLE001 - not installed: leave it out
         info["package"] = None
-    describe = git_describe()
+    short, full = _code_commits()          # one git process for both (a resume waits)
+    describe = git_describe(short) if short else "unknown"
     info["git_describe"] = None if describe.startswith("unknown") else describe
-    info["git_commit"] = _code_commit(short=False)
+    info["git_commit"] = full
     info["python"] = platform.python_version()
     info["numpy"] = np.__version__
     try:
