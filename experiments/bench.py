@@ -397,6 +397,7 @@ def bench_track(quick: bool = False) -> list[dict]:
         ("window", "procrustes", 100, "huff", False),
         ("window", "procrustes", 100, "none", True),
         ("window", "procrustes", 10, "huff", False),
+        ("window", "procrustes", 100, "random", False),
         ("motion_compensated", "procrustes", 100, "none", False),
         ("ekf", "procrustes", 10, "none", False),
         ("naive", "procrustes", 10, "none", False),
@@ -417,6 +418,7 @@ def bench_track(quick: bool = False) -> list[dict]:
                      "lag correction": "yes" if lag else "no",
                      "wall per track": _fmt(wall), "per epoch": _fmt(wall / (n - s + 1)),
                      "x probe": ref.ratio(wall / (n - s + 1))})
+    rows.append(_shared_cache_row(t, obs, cfg, ref, 3 if quick else 5))
     from estimator.layout_check import check_layout
 
     wall = _median_time(lambda: check_layout(t, obs, cfg, window=100), 3 if quick else 7)
@@ -432,6 +434,34 @@ def bench_track(quick: bool = False) -> list[dict]:
                        "wall per track", "per epoch", "x probe"])
     print()
     return rows
+
+
+def _shared_cache_row(t: np.ndarray, obs: np.ndarray, cfg: SensorConfig, ref: Reference,
+                      reps: int) -> dict:
+    """CPU time (best of ``reps``) of one noise key's window techniques at s = 10 as a
+    sweep's worker runs them, one TrackCache shared (fits, headings, lag inputs reused;
+    issue 27): None / LC / LC (course), none and Huff weights, and Dyn / LC + Dyn."""
+    from estimator.memo import TrackCache
+    from estimator.tracking import track
+
+    turning = np.zeros(t.size, dtype=bool)
+    turning[t.size // 2:t.size // 2 + 20] = True
+    runs = [{"weighting": w, "lag_correction": lag} for w in ("none", "huff")
+            for lag in (False, "pose", "course")]
+    runs += [{"weighting": "huff", "lag_correction": lag, "dynamic_window": 1,
+              "turning": turning} for lag in (False, "pose")]
+
+    def once() -> float:
+        cache, c0 = TrackCache(), time.process_time()
+        for kw in runs:
+            track(t, obs, cfg, window=10, cache=cache, layout_check=False, **kw)
+        return time.process_time() - c0
+
+    cpu = min(once() for _ in range(reps)) / len(runs)
+    return {"method": f"window x {len(runs)} techniques, one cache", "solver": "procrustes",
+            "window": 10, "weighting": "none/huff", "lag correction": "mixed",
+            "wall per track": f"{_fmt(cpu)} CPU", "per epoch": _fmt(cpu / (t.size - 9)),
+            "x probe": ref.ratio(cpu / (t.size - 9))}
 
 
 #: Wall-time targets of the main job on the reference 2-core machine (issue 27; issue 16's
