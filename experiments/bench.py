@@ -1157,6 +1157,59 @@ def _pose_kernel_load(ref: Reference) -> list[dict]:
     return rows
 
 
+@section("score")
+def bench_score(quick: bool = False) -> list[dict]:
+    """score_track per cell (issue 27) on every 8th cell (every 24th with ``--quick``) of the
+    thesis preset, inputs built as experiments/runner/cell.py builds them: CPU time per
+    cell, the better of 5 passes (3 with ``--quick``), without and with a ScoringReference
+    built once per (truth, observations) (its cost counted). Target: <= 1.5 ms."""
+    from collections import OrderedDict
+
+    from estimator.configuration import SensorConfig
+    from estimator.memo import TrackCache
+    from estimator.scoring import ScoringReference, score_track
+    from experiments.runner import cell as C
+    from experiments.spec import load_spec
+
+    spec, ref, reps = load_spec("thesis"), Reference(3), 3 if quick else 5
+    ctx = C.CellContext(spec_seed=spec.seed, masks=spec.masks, session_s=spec.session_s,
+                        want_epochs=False, memo=OrderedDict(), cache=TrackCache())
+    truths: dict = {}
+    inputs = []
+    for c in spec.expand()[::24 if quick else 8]:
+        truth = truths.get(c.truth_key) or truths.setdefault(
+            c.truth_key, C.simulate_truth(*c.truth_key, spec.sim_seed))
+        cfg = SensorConfig.load(c.file("config")).planar()
+        obs = C._observations(c, truth, cfg, ctx)
+        fp = C.filter_params_for(truth) if C.technique_of(c).uses_filter else None
+        df = C._track_cell(c, truth.t, obs, cfg, truth.turning.astype(bool), ctx,
+                           true_yaw=np.asarray(truth.yaw, dtype=float), filter_params=fp,
+                           layout_check=False)
+        inputs.append((df, truth, obs))
+
+    def run(with_ref: bool) -> None:
+        refs: dict = {}
+        for df, truth, obs in inputs:
+            r = None
+            if with_ref:
+                r = refs.get((id(truth), id(obs))) or refs.setdefault(
+                    (id(truth), id(obs)), ScoringReference.of(truth, obs))
+            score_track(df, truth, obs, None, spec.masks, epochs=False, reference=r)
+
+    rows = []
+    for what, flag in (("score_track", False), ("score_track, one reference per (truth, obs)",
+                                                 True)):
+        run(flag)                                         # warm
+        sec = min(_cpu_per(lambda f=flag: run(f), len(inputs), 1) for _ in range(reps))
+        rows.append({"what": what, "cells": len(inputs), "CPU per cell": _fmt(sec),
+                     "x probe": ref.ratio(sec)})
+    print("### Scoring per cell (CPU time, best of passes; issue 27 target <= 1.5 ms)\n")
+    print(ref.line() + "\n")
+    print_table(rows, ["what", "cells", "CPU per cell", "x probe"])
+    print()
+    return rows
+
+
 # ----------------------------------------------------------------------------- CLI
 def main(argv: list[str] | None = None) -> int:
     from experiments.cli import ArgumentParser
