@@ -43,14 +43,14 @@ timestep))``), and positions are logged after ``mj_kinematics`` (site positions 
 ``[t_{k-1}, t_k)`` had ``|omega_cmd| > turning_curvature_per_m * cruise_speed_mps`` (the
 controller's own "control information", Section 3.4.2.1).
 
-Speed (issue 27; CPU time, best of 3, on this shared 2-core machine at load average 7-8,
-default settings): Path 1 (square100 at 0.2 m/s, 1984 s simulated) 1.00 s, Path 2
-(square200, 3985 s) 1.90 s (before issue 27, 5 ms steps: 3.65 and 7.65 s at the same load;
-3.4 s for Path 1 at load 1.2). A step costs 6-8 us whatever its length (the Newton solver
-converges in one iteration; no solver option changed that measurably), so the time scales
-with the number of steps: hence the 20 ms step on slow routes. ``mj_step`` takes about
-65 % of the CPU time of Path 1 (0.8 of 1.27 s, timed around each call), the Python
-controller at 25 Hz and the 1 Hz logging the rest.
+Speed (issue 27; CPU time, best of 3, on this shared 2-core machine at load average 6-11,
+default settings; ``python -m experiments.bench --only sim``): Path 1 (square100 at
+0.2 m/s, 1984 s simulated) 1.06-1.28 s, Path 2 (square200, 3985 s) 1.88-2.25 s (before
+issue 27, 5 ms steps: 3.65 and 7.65 s at load 7-8; Path 1 3.4 s at load 1.2). A step costs
+6-8 us whatever its length (the Newton solver converges in one iteration; no solver option
+changed that measurably), so the time scales with the number of steps: hence the 20 ms step
+on slow routes. ``mj_step`` takes about 65 % of the CPU time of Path 1 (timed around each
+call: 0.80 of 1.27 s), the Python controller at 25 Hz and the 1 Hz logging the rest.
 
 Randomness: none. The run is deterministic (same inputs -> bit-identical arrays, tested); the
 ``seed`` is recorded and enters the cache key only, so seeded sweeps stay uniform.
