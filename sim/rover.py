@@ -50,7 +50,8 @@ issue 27, 5 ms steps: 3.65 and 7.65 s at load 7-8; Path 1 3.4 s at load 1.2). A 
 6-8 us whatever its length (the Newton solver converges in one iteration; no solver option
 changed that measurably), so the time scales with the number of steps: hence the 20 ms step
 on slow routes. ``mj_step`` takes about 65 % of the CPU time of Path 1 (timed around each
-call: 0.80 of 1.27 s), the Python controller at 25 Hz and the 1 Hz logging the rest.
+call: 0.77-0.79 of 1.20-1.23 s at load 9), the Python controller at 25 Hz and the 1 Hz
+logging the rest.
 
 Randomness: none. The run is deterministic (same inputs -> bit-identical arrays, tested); the
 ``seed`` is recorded and enters the cache key only, so seeded sweeps stay uniform.
