@@ -251,7 +251,9 @@ def test_figures_redraw_and_tum_export_from_saved_files(real_run, tmp_path):
     names = {f.name for f in files}
     assert {"fig_4_118_orientation.png", "fig_weights_square20.png",
             "fig_sensor1_lag_square20.png", "fig_4_123_lc_dyn.png"} <= names, names
-    assert len(files) >= 5 and all(f.stat().st_size > 10_000 for f in files)
+    # palette PNGs (experiments.png): empty axes of the smallest figure are ~4.3 kB, the
+    # smallest drawn figure here ~7 kB
+    assert len(files) >= 5 and all(f.stat().st_size > 6_000 for f in files)
     est, tru = export.export_tum(out, where={"window": 5, "technique": "lc", "seed": 0},
                                  out=tmp_path)
     a = np.loadtxt(est)
