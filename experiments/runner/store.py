@@ -193,12 +193,11 @@ class CellStore:
         return pd.DataFrame.from_records(recs)
 
     def read_errors(self, keys: Iterable[str]) -> list[dict]:
-        out = []
-        for k in keys:
-            p = self.errors_dir / f"{k}.json"
-            if p.exists():
-                out.append(json.loads(p.read_text()))
-        return out
+        """The error records of ``keys`` that failed, in their order (one listing of
+        errors/, not a stat per key)."""
+        failed = {p.stem for p in self.errors_dir.glob("*.json")}
+        return [json.loads((self.errors_dir / f"{k}.json").read_text())
+                for k in keys if k in failed]
 
 
 #: The lock of a results folder: one run at a time (holder's pid inside; git-ignored name).
