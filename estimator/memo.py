@@ -54,31 +54,54 @@ def content_digest(*arrays: np.ndarray) -> str:
     return h.hexdigest()
 
 
-#: id of a frozen array -> (weak reference to it, its digest); see :func:`array_digest`.
-_FROZEN_DIGESTS: dict[int, tuple[weakref.ref, bytes]] = {}
+#: id of a frozen array -> (weak reference to it, {view of it: digest}); see
+#: :func:`array_digest`.
+_FROZEN_DIGESTS: dict[int, tuple[weakref.ref, dict[tuple, bytes]]] = {}
 
 
 def array_digest(a: np.ndarray) -> bytes:
-    """16-byte BLAKE2b digest of one array's dtype, shape and bytes (C order). An array
-    :func:`freeze` made read-only that owns its data is hashed once (remembered while it
-    lives: a sweep's worker keys every fit of a noise key's observations, 0.5 MB, by them)."""
-    frozen = isinstance(a, np.ndarray) and not a.flags.writeable and a.flags.owndata
-    if frozen:
-        hit = _FROZEN_DIGESTS.get(id(a))
-        if hit is not None and hit[0]() is a:
-            return hit[1]
+    """16-byte BLAKE2b digest of one array's dtype, shape and bytes (C order). A read-only
+    array whose data belong to an array :func:`freeze` made read-only (itself or a view of
+    it: ``np.asarray(obs, dtype=float)`` of a frozen array is a view) is hashed once while
+    that array lives: a sweep's worker keys every fit of a noise key's observations
+    (0.5 MB) by them."""
+    root = _frozen_root(a)
+    if root is None:
+        return _hash(a)
+    view = (a.__array_interface__["data"][0], a.shape, a.strides, a.dtype.str)
+    hit = _FROZEN_DIGESTS.get(id(root))
+    if hit is None or hit[0]() is not root:
+        hit = (weakref.ref(root, _forget(id(root))), {})
+        _FROZEN_DIGESTS[id(root)] = hit
+    d = hit[1].get(view)
+    if d is None:
+        d = hit[1][view] = _hash(a)
+    return d
+
+
+def _hash(a: np.ndarray) -> bytes:
     c = np.ascontiguousarray(a)
     h = hashlib.blake2b(digest_size=16)
     h.update(f"{c.dtype.str}{c.shape}".encode())
     h.update(c.tobytes())
-    d = h.digest()
-    if frozen:
-        _FROZEN_DIGESTS[id(a)] = (weakref.ref(a, _forget(id(a))), d)
-    return d
+    return h.digest()
+
+
+def _frozen_root(a: Any) -> np.ndarray | None:
+    """The frozen array that owns ``a``'s data (``a`` itself or its base), if ``a`` is
+    read-only and that array is read-only and owns its data; else None."""
+    if not isinstance(a, np.ndarray) or a.flags.writeable:
+        return None
+    b = a
+    while isinstance(b.base, np.ndarray):
+        b = b.base
+    if b.base is not None or not b.flags.owndata or b.flags.writeable:
+        return None
+    return b
 
 
 def _forget(key: int) -> Callable[[weakref.ref], None]:
-    """The callback that drops the digest of a frozen array that is gone (unless its id
+    """The callback that drops the digests of a frozen array that is gone (unless its id
     was reused since)."""
     def drop(ref: weakref.ref) -> None:
         hit = _FROZEN_DIGESTS.get(key)
