@@ -12,6 +12,11 @@ With loky and several jobs the run is pipelined: the cells of a truth start on t
 the moment it is ready, beside the simulations still running, and idle workers warm up
 (imports, fonts) meanwhile. ``manifest.json`` (tracked in reference runs) holds only what
 determines the numbers; what varies per run goes to the git-ignored ``run.local.json``.
+
+A finished run records in the store's index the digest of everything its outputs depend on
+and of the files it left (:func:`settled_digest`); a resume that finds them all unchanged
+stops after checking the cell files (no cell table, no outputs phase, no pandas: 0.2-0.3 s
+inside the thesis preset's resume instead of 1.1-1.6 s, load 7; tests/test_resume.py).
 """
 
 from __future__ import annotations
@@ -226,7 +231,7 @@ class _Run:
                          "n_failed": res.n_failed, "timings_s": res.timings})
         write_json(self.out_dir / "manifest.json", manifest)
         _write_run_info(self.out_dir, run_info, required=bool(todo))
-        self._settle(json_text(manifest), out_info, res.errors)
+        self._settle(json_text(manifest), out_info)
         return res
 
     # ---------------------------------------------------------------- settled
@@ -268,7 +273,7 @@ class _Run:
         _write_run_info(self.out_dir, run_info, required=False)
         return res
 
-    def _settle(self, manifest_text: str, out_info: dict, errors: list) -> None:
+    def _settle(self, manifest_text: str, out_info: dict) -> None:
         """Record in the store's index the digest of the finished run (the next resume
         compares it, :meth:`_settled`)."""
         rec = {"digest": settled_digest(self.out_dir, self.spec, self.o, self.code,
