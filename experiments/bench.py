@@ -438,12 +438,13 @@ def bench_track(quick: bool = False) -> list[dict]:
 
 def _shared_cache_row(t: np.ndarray, obs: np.ndarray, cfg: SensorConfig, ref: Reference,
                       reps: int) -> dict:
-    """CPU time (best of ``reps``) of one noise key's window techniques at s = 10 as a
-    sweep's worker runs them, one TrackCache shared (fits, headings, lag inputs reused;
+    """CPU time (best of ``reps``) per track of one noise key's window techniques at s = 10
+    as a sweep's worker runs them, one TrackCache shared (fits, headings, lag inputs reused;
     issue 27): None / LC / LC (course), none and Huff weights, and Dyn / LC + Dyn."""
-    from estimator.memo import TrackCache
+    from estimator.memo import TrackCache, freeze
     from estimator.tracking import track
 
+    obs = freeze(obs.copy())             # read-only, as a sweep worker's observations
     turning = np.zeros(t.size, dtype=bool)
     turning[t.size // 2:t.size // 2 + 20] = True
     runs = [{"weighting": w, "lag_correction": lag} for w in ("none", "huff")
