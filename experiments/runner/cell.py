@@ -46,7 +46,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from estimator.memo import TrackCache
-from estimator.scoring import coverage_rows, score_track
+from estimator.scoring import ScoringReference, coverage_rows, score_track
 from estimator.track_options import FILTER_METHODS
 from experiments.spec import REPO, Cell
 from experiments.techniques import Technique, technique
@@ -173,10 +173,23 @@ def _observations(cell: Cell, truth, config, ctx: CellContext) -> np.ndarray:
         obs = observe(truth, config, noise, rng=rng, session_s=ctx.session_s,
                       noise_overrides=json.loads(cell.noise_overrides) or None)
     ctx.memo[key] = obs
-    while len(ctx.memo) > 6:
+    while len(ctx.memo) > 7:            # 6 + the scoring references' entry
         ctx.memo.popitem(last=False)
     return obs
 
+
+def _scoring_reference(truth, obs: np.ndarray, ctx: CellContext) -> ScoringReference:
+    """What the scoring needs of the truth and the observations, built once for the cells
+    that share them (issue 27; the same numbers): the last 6, in one entry of the memo, by
+    the identity of the objects (a reference holds both, so their ids stay theirs)."""
+    refs = ctx.memo.setdefault(("scoring",), OrderedDict())
+    ctx.memo.move_to_end(("scoring",))
+    key = (id(truth), id(obs))
+    if key not in refs:
+        refs[key] = ScoringReference.of(truth, obs)
+        while len(refs) > 6:
+            refs.popitem(last=False)
+    return refs[key]
 
 
 def evaluate_cell(cell: Cell, truth, ctx: CellContext) -> CellOutput:
@@ -199,7 +212,8 @@ def evaluate_cell(cell: Cell, truth, ctx: CellContext) -> CellOutput:
                      true_yaw=np.asarray(truth.yaw, dtype=float), filter_params=fp,
                      layout_check=False)
     t2 = time.perf_counter()
-    rows, ep = score_track(df, truth, obs, config, ctx.masks, epochs=ctx.want_epochs)
+    rows, ep = score_track(df, truth, obs, config, ctx.masks, epochs=ctx.want_epochs,
+                           reference=_scoring_reference(truth, obs, ctx))
     # the models' own names (a spec may name them by file, e.g. "rects/rect30.toml"): tables
     # and file names use these
     names = {"config_name": config.name,
