@@ -27,10 +27,20 @@ __all__ = ["canvas", "save_png"]
 
 #: Sub-pixel steps of a cached glyph's origin per pixel (4: within 1/8 pixel).
 STEPS = 4
+#: Entries a cache may hold before it is emptied (a bound for long-lived processes: the
+#: thesis preset's figures need ~3,000 glyphs and ~5,000 strings).
+MAX_ENTRIES = 100_000
 _METRICS: dict[tuple, tuple[float, float, float]] = {}
 _LAYOUTS: dict[tuple, list[tuple]] = {}
 _GLYPHS: dict[tuple, tuple] = {}
 _CLASSES: list = []
+
+
+def _bounded(cache: dict) -> dict:
+    """``cache``, emptied first if it holds :data:`MAX_ENTRIES` entries."""
+    if len(cache) >= MAX_ENTRIES:
+        cache.clear()
+    return cache
 
 
 def _prop_key(prop) -> tuple:
@@ -56,7 +66,7 @@ def _classes():
                 return super().get_text_width_height_descent(s, prop, ismath)
             key = (s, _prop_key(prop), self.dpi, agg.get_hinting_flag())
             if key not in _METRICS:
-                _METRICS[key] = super().get_text_width_height_descent(s, prop, ismath)
+                _bounded(_METRICS)[key] = super().get_text_width_height_descent(s, prop, ismath)
             return _METRICS[key]
 
         def draw_text(self, gc, x, y, s, prop, angle, ismath=False, mtext=None):
@@ -68,7 +78,7 @@ def _classes():
             key = (s, _prop_key(prop), self.dpi, flags)
             if key not in _LAYOUTS:
                 font = self._prepare_font(prop)
-                _LAYOUTS[key] = [(i.ft_object, i.glyph_index, i.x, i.y)
+                _bounded(_LAYOUTS)[key] = [(i.ft_object, i.glyph_index, i.x, i.y)
                                  for i in font._layout(s, flags=flags)]
             cos, sin = math.cos(math.radians(angle)), math.sin(math.radians(angle))
             for ft, glyph, dx, dy in _LAYOUTS[key]:
@@ -94,7 +104,7 @@ def _classes():
                     (0x10000 * np.array([[cos, -sin], [sin, cos]])).round().astype(int),
                     [64 * qx // STEPS, 64 * qy // STEPS])
                 bm = ft._render_glyph(glyph, flags, RenderMode.NORMAL)
-                _GLYPHS[key] = (np.array(bm.buffer), bm.left, bm.top)
+                _bounded(_GLYPHS)[key] = (np.array(bm.buffer), bm.left, bm.top)
             return _GLYPHS[key]
 
     class Canvas(agg.FigureCanvasAgg):
