@@ -204,7 +204,10 @@ def _run_unit(kind: str, *args: Any) -> tuple[str, dict]:
     name = args[-1] if kind == "figure" else kind
     fn = {"tables": _tables_unit, "report": _report_unit, "figure": _figure_unit,
           "replay": _replay_unit}[kind]
-    return name, fn(*args)
+    from experiments.runner.worker import timeline
+
+    with timeline(f"output {name}"):
+        return name, fn(*args)
 
 
 def n_steps(figures: bool = True) -> int:

@@ -41,3 +41,18 @@ def test_a_batch_writes_its_timeline_line(tmp_path, monkeypatch):
     (line,) = [json.loads(s) for s in path.read_text().splitlines()]
     assert line["what"].startswith("cells ") and line["n"] == 2
     assert line["end"] >= line["start"] and line["cpu_s"] >= 0.0
+
+
+def test_a_worker_start_does_not_import_the_simulator():
+    """``started`` (every loky worker's first task) imports what the cells need, not MuJoCo:
+    a one-truth run simulates in the main process (issue 27: ~0.2 CPU-s per worker)."""
+    import subprocess
+    import sys
+    from pathlib import Path
+
+    code = ("import sys; from experiments.runner.worker import started; started(); "
+            "print('mujoco' in sys.modules, 'sim.rover' in sys.modules, "
+            "'estimator.tracking' in sys.modules)")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
+                         check=True, cwd=str(Path(__file__).parents[1]))
+    assert out.stdout.split() == ["False", "False", "True"]

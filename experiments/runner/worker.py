@@ -203,20 +203,24 @@ def _warm_up_imports(outputs: bool) -> None:
 
 
 def started() -> int:
-    """A worker's first task: the imports of a simulation (its likely next task) and of the
-    cells (~150 MB). loky takes a worker's reference memory size after its first task and
-    replaces a worker that grows 300 MB beyond it as "leaking": measured after the
-    simulation's imports alone (~60 MB), the cells' imports, numba and the per-run memos
-    crossed that mid-run (thesis preset: a worker replaced, with its memos and warm-up lost,
-    and a UserWarning "A worker stopped while some jobs were given to the executor").
-    The pose filter's kernels are loaded here too, one worker at a time (:data:`KERNEL_LOCK`):
-    on a fresh checkout the first compiles them, which holds ~100 MB more of LLVM's memory,
-    and counted after the reference size that alone made a worker "leak" mid-run (thesis
-    preset with an empty numba cache: a worker replaced)."""
+    """A worker's first task: the imports of the cells (~150 MB). loky takes a worker's
+    reference memory size after its first task and replaces a worker that grows 300 MB
+    beyond it as "leaking": measured after the simulation's imports alone (~60 MB), the
+    cells' imports, numba and the per-run memos crossed that mid-run (thesis preset: a
+    worker replaced, with its memos and warm-up lost, and a UserWarning "A worker stopped
+    while some jobs were given to the executor"). The pose filter's kernels are loaded here
+    too, one worker at a time (:data:`KERNEL_LOCK`): on a fresh checkout the first compiles
+    them, which holds ~100 MB more of LLVM's memory, and counted after the reference size
+    that alone made a worker "leak" mid-run (thesis preset with an empty numba cache: a
+    worker replaced).
+
+    Not the simulator (:mod:`sim.rover`, MuJoCo: ~0.2 CPU-s, ~20 MB): a one-truth run (the
+    quick preset) simulates in the main process and its workers never need it; a worker
+    that simulates imports it with its first simulation (20 MB beyond the reference size,
+    far below loky's 300 MB)."""
     with timeline("started"):
         import estimator.tracking  # noqa: F401
-        import sim.gps
-        import sim.rover  # noqa: F401
+        import sim.gps  # noqa: F401
         from estimator.pose_smoother import warm_kernels
 
         with _exclusive(KERNEL_LOCK):
