@@ -42,7 +42,12 @@ INF = math.inf
 NAN = math.nan
 
 #: internal helpers: called from compiled code only (no CPython wrapper: less to compile)
-_jit = numba.njit(cache=True, nogil=True, no_cpython_wrapper=True)  # type: ignore[call-overload]
+#: error_model="numpy": a float division never checks for zero (x / 0 = inf as in the numpy
+#: reference; the code divides by zero only through _div anyway), so no division can raise
+#: and the call sites need fewer exception checks: bit-identical fits, ~4 % less CPU per
+#: window (measured, issue 27; tests/test_elastic_kernel.py pins today's outputs)
+_OPTS = {"cache": True, "nogil": True, "error_model": "numpy"}
+_jit = numba.njit(no_cpython_wrapper=True, **_OPTS)  # type: ignore[call-overload]
 
 
 @_jit
@@ -506,7 +511,7 @@ def _window(y, W, z, a, eps, maxiter, par, I, J, d, m, wm, wv, wn, wp):
     return iters, False
 
 
-@numba.njit(cache=True, nogil=True)
+@numba.njit(**_OPTS)  # type: ignore[call-overload]
 def _windows(Y, Wn, Z, a, eps, maxiter, par, d, m, I, J, wm, wv, wn, wp, iters, conv):
     for w in range(Y.shape[0]):
         iters[w], conv[w] = _window(Y[w], Wn[w], Z[w], a, eps, maxiter, par, I, J, d, m,
