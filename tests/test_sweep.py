@@ -672,6 +672,11 @@ def _descendants(pid: int) -> set[int]:
     return out
 
 
+def _default_sigint() -> None:
+    """In the child before exec: SIGINT back to its default disposition."""
+    signal.signal(signal.SIGINT, signal.SIG_DFL)
+
+
 def _alive(pid: int) -> bool:
     """Whether ``pid`` still runs (a zombie waiting to be reaped does not)."""
     try:
@@ -696,8 +701,12 @@ def test_interrupt_is_one_line_marks_the_manifest_and_leaves_no_worker(sig, code
     cmd = [sys.executable, "-m", "experiments.sweep", "--preset", "quick", "--seeds", "6",
            "--out", str(out), "--jobs", "2", "--quiet", "--no-figures"]
     env = {**os.environ, "OPENBLAS_NUM_THREADS": "1", "OMP_NUM_THREADS": "1"}
+    # A terminal starts the command with SIGINT at its default; a pytest-xdist worker may
+    # have it ignored (SIG_IGN is inherited across exec, and then Python installs no
+    # KeyboardInterrupt handler: the run ignores Ctrl-C and exits 0), so restore it here.
     proc = subprocess.Popen(cmd, cwd=REPO, env=env, stdout=subprocess.PIPE,
-                            stderr=subprocess.PIPE, text=True, start_new_session=True)
+                            stderr=subprocess.PIPE, text=True, start_new_session=True,
+                            preexec_fn=_default_sigint)
     deadline = time.time() + 120
     while time.time() < deadline and proc.poll() is None:
         if (out / "cells").is_dir() and any((out / "cells").glob("*.json")):
