@@ -202,19 +202,47 @@ def aggregate(cells: pd.DataFrame, by: list[str], metrics: list[str]) -> pd.Data
     vals = cells[metrics].to_numpy(dtype=float) if metrics else np.zeros((len(cells), 0))
     lower = [None if mcol.startswith(SIGNED_PREFIXES) else 0.0 for mcol in metrics]
     pos = pd.Series(np.arange(len(cells)), index=cells.index)
-    seeds = cells["seed"]
+    seeds = cells["seed"].to_numpy()
     rows = []
     for key, g in pos.groupby([cells[b] for b in by], sort=True, dropna=False):
         idx = g.to_numpy()
         key = key if isinstance(key, tuple) else (key,)
         row = dict(zip(by, key))
-        row["n_seeds"] = int(seeds.iloc[idx].nunique())
-        sub = vals[idx]
-        for j, mcol in enumerate(metrics):
-            m, lo, hi, _ = seed_ci(sub[:, j], lower=lower[j])
+        s = seeds[idx]
+        row["n_seeds"] = len(np.unique(s[~pd.isna(s)]))      # Series.nunique, faster
+        for mcol, m, lo, hi in zip(metrics, *_seed_ci_columns(vals[idx], lower)):
             row[mcol], row[f"{mcol}_lo"], row[f"{mcol}_hi"] = m, lo, hi
         rows.append(row)
     return pd.DataFrame(rows)
+
+
+def _seed_ci_columns(sub: np.ndarray, lower: list[float | None]
+                     ) -> tuple[list[float], list[float], list[float]]:
+    """:func:`seed_ci` of every column of ``sub`` (seeds x metrics; ``lower`` per column):
+    the columns without NaN at once, bit for bit the same numbers (each column reduced as
+    one contiguous row, the order of :func:`seed_ci`'s 1-D reductions), the others one by
+    one. Returns (means, los, his)."""
+    k, n_col = sub.shape
+    full = np.isfinite(sub).all(axis=0)
+    if k < 2 or not full.any():
+        res = [seed_ci(sub[:, j], lower[j])[:3] for j in range(n_col)]
+        return tuple(list(c) for c in zip(*res)) if res else ([], [], [])  # type: ignore
+    rows = np.ascontiguousarray(sub[:, full].T)
+    m = rows.mean(axis=1)
+    h = _t975(k - 1) * rows.std(axis=1, ddof=1) / math.sqrt(k)
+    fm, flo, fhi = iter(m.tolist()), iter((m - h).tolist()), iter((m + h).tolist())
+    ms, los, his = [], [], []
+    for j in range(n_col):
+        if full[j]:
+            mj, lo, hi = next(fm), next(flo), next(fhi)
+            if lower[j] is not None:
+                lo = max(lo, float(lower[j]))
+        else:
+            mj, lo, hi, _ = seed_ci(sub[:, j], lower[j])
+        ms.append(mj)
+        los.append(lo)
+        his.append(hi)
+    return ms, los, his
 
 
 #: Axes other than those the tables/claims are laid out by. Cells that differ in them are
@@ -317,9 +345,14 @@ def faithful(cells: pd.DataFrame) -> pd.DataFrame:
     the rows of the most faithful one present (:data:`GROWTH_ORDER`), so a condition on a
     technique names one cell per seed. Other rules stay visible through
     :data:`READING_ROWS`."""
-    if "dyn_growth" not in cells.columns:
-        return cells
+    return cells if "dyn_growth" not in cells.columns else cells[_faithful_mask(cells)]
+
+
+def _faithful_mask(cells: pd.DataFrame) -> np.ndarray:
+    """The rows :func:`faithful` keeps, as a bool array (n,)."""
     keep = np.ones(len(cells), dtype=bool)
+    if "dyn_growth" not in cells.columns:
+        return keep
     g = cells["dyn_growth"].to_numpy()
     tech = cells["technique"].to_numpy()
     for t in pd.unique(tech[~pd.isna(g) & (g != "-")]):
@@ -328,7 +361,7 @@ def faithful(cells: pd.DataFrame) -> pd.DataFrame:
         best = next((r for r in GROWTH_ORDER if r in present), None)
         if best is not None:
             keep &= ~sel | (g == best)
-    return cells[keep]
+    return keep
 
 
 def thesis_row(cells: pd.DataFrame, label: str) -> tuple[str, str]:
@@ -398,6 +431,17 @@ def row_kind(label: str, plugins: dict | None = None) -> str:
     return "oracle" if label in ORACLE_ROWS else "beyond"
 
 
+def _row_groups(cells: pd.DataFrame, rule: str | None) -> dict[tuple, np.ndarray]:
+    """(window, technique, mask) -> positions (table order) in ``cells`` of the rows of
+    growth rule ``rule`` (None: :func:`faithful`'s): one grouping instead of a selection
+    per table row (the same rows, so the same numbers)."""
+    pos = np.flatnonzero(_faithful_mask(cells) if rule is None
+                         else (cells["dyn_growth"] == rule).to_numpy())
+    sub = cells.iloc[pos]
+    g = sub.groupby(["window", "technique", "mask"], sort=False, dropna=False).indices
+    return {k: pos[v] for k, v in g.items()}
+
+
 def thesis_table(cells: pd.DataFrame, axis: str, path: str = "square100",
                  weighting: str | None = None, beyond: bool = True,
                  plugins: dict | None = None) -> pd.DataFrame:
@@ -423,29 +467,30 @@ def thesis_table(cells: pd.DataFrame, axis: str, path: str = "square100",
     cells = select(cells, path=path, weighting=[weighting, "-"])
     cells = cells[[c for c in (*_LAYOUT, "dyn_growth", "seed", *(f"{pref}_{s}" for s in STATS))
                    if c in cells.columns]]
-    best = faithful(cells)
     published = THESIS_TABLES[axis] if path == "square100" else {}
     windows = sorted(cells["window"].unique())
+    seed = cells["seed"].to_numpy()
+    vals = {s: cells[f"{pref}_{s}"].to_numpy(dtype=float) for s in STATS}
+    groups: dict = {}       # growth rule (None: the faithful rows) -> {(w, tech, mask): rows}
     out = []
     for w in windows:
         if w == 1 and not beyond:
             continue
         for label, (tech, mask, rule) in rows_def.items():
             # ekf / naive take no weights (weighting "-"): shown beside the weighted rows
-            src = best if rule is None else select(cells, dyn_growth=rule)
-            sub = select(src, path=path, weighting=[weighting, "-"], window=w,
-                         technique=tech, mask=mask)
-            if sub.empty:
+            if rule not in groups:
+                groups[rule] = _row_groups(cells, rule)
+            idx = groups[rule].get((w, tech, mask))
+            if idx is None:
                 continue
             row = {"path": path, "weighting": weighting, "window": int(w), "technique": label,
                    "thesis_row": label in THESIS_ROWS, "kind": row_kind(label, plugins),
-                   "mask": mask,
-                   "n_seeds": int(sub["seed"].nunique())}
+                   "mask": mask, "n_seeds": len(np.unique(seed[idx]))}
             for s in STATS:
-                m, lo, hi, _ = seed_ci(sub[f"{pref}_{s}"], lower=0.0)   # |error| >= 0
+                v = vals[s][idx]
+                m, lo, hi, _ = seed_ci(v, lower=0.0)   # |error| >= 0
                 row[s], row[f"{s}_lo"], row[f"{s}_hi"] = m, lo, hi
                 row[f"{s}_thesis"] = published.get((int(w), label), {}).get(s, np.nan)
-                v = sub[f"{pref}_{s}"].to_numpy(dtype=float)
                 v = v[np.isfinite(v)]
                 spread = label == "None" and v.size > 0
                 row[f"{s}_seed_min"] = float(v.min()) if spread else np.nan

@@ -1,0 +1,57 @@
+"""The outputs phase's fast paths (issue 27) give the numbers of the plain ones bit for bit."""
+
+import math
+
+import numpy as np
+import pandas as pd
+import pytest
+
+from experiments import tables
+
+
+def _same(a: float, b: float) -> bool:
+    return (math.isnan(a) and math.isnan(b)) or a == b
+
+
+@pytest.mark.parametrize("k", [1, 2, 3, 7, 8, 9, 10, 17, 130])
+def test_seed_ci_columns_match_seed_ci(k):
+    rng = np.random.default_rng(k)
+    sub = rng.gamma(2.0, 1.3, size=(k, 6)) * 10 ** rng.uniform(-3, 3, size=6)
+    sub[:, 4] -= 5.0                       # signed column
+    if k > 2:
+        sub[1, 2] = np.nan                  # a column with a NaN: one by one
+        sub[0, 5] = np.inf
+    lower = [0.0, 0.0, 0.0, None, None, 0.0]
+    got = tables._seed_ci_columns(sub, lower)
+    for j in range(sub.shape[1]):
+        want = tables.seed_ci(sub[:, j], lower[j])[:3]
+        assert all(_same(g[j], w) for g, w in zip(got, want)), (k, j)
+
+
+def _cells(rng) -> pd.DataFrame:
+    rows = []
+    for seed in range(4):
+        for w in (1, 5, 10):
+            for tech, growth in (("none", "-"), ("lc", "-"), ("dyn", "refill"), ("dyn", "jump")):
+                for mask in ("full", "no_turns"):
+                    rows.append({"path": "square100", "weighting": "huff", "window": w,
+                                 "technique": tech, "mask": mask, "dyn_growth": growth,
+                                 "seed": seed, "ex_mean": rng.gamma(2.0),
+                                 "ex_median": rng.gamma(2.0), "ex_std": rng.gamma(1.0)})
+    df = pd.DataFrame(rows)
+    df.loc[3, "ex_mean"] = np.nan
+    return df.sample(frac=1.0, random_state=1).reset_index(drop=True)
+
+
+def test_row_groups_are_the_selections():
+    cells = _cells(np.random.default_rng(0))
+    for rule in (None, "refill", "jump"):
+        groups = tables._row_groups(cells, rule)
+        src = tables.faithful(cells) if rule is None else tables.select(cells, dyn_growth=rule)
+        for w in (1, 5, 10):
+            for tech in ("none", "lc", "dyn"):
+                for mask in ("full", "no_turns"):
+                    sub = tables.select(src, window=w, technique=tech, mask=mask)
+                    idx = groups.get((w, tech, mask))
+                    got = [] if idx is None else list(cells.index[idx])
+                    assert got == list(sub.index), (rule, w, tech, mask)
