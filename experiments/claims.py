@@ -132,37 +132,83 @@ def _column(cells: pd.DataFrame, name: str) -> np.ndarray:
     return cols[name]
 
 
-def _per_seed(cells: pd.DataFrame, cond: dict, metric: str) -> pd.Series:
-    if metric not in cells.columns:
-        return pd.Series(dtype=float)
-    # the matching rows by numpy masks on the condition's columns only: taking whole rows
-    # of a 60-column table for each of the report's ~1000 conditions dominated its time
+def _codes(cells: pd.DataFrame, name: str) -> tuple[np.ndarray, dict]:
+    """Column ``name`` as integer codes (n,) and value -> code (NaN: -1, in no dict), made
+    once per table like :func:`_column`: a condition's mask is then an integer compare."""
+    key = f"codes:{name}"
+    cols = _COLUMNS[id(cells)][1] if id(cells) in _COLUMNS else None
+    if cols is None or key not in cols:
+        _column(cells, name)                          # registers the table's cache
+        cols = _COLUMNS[id(cells)][1]
+        codes, uniques = pd.factorize(cells[name].to_numpy(), use_na_sentinel=True)
+        cols[key] = (codes, {v: i for i, v in enumerate(uniques)})
+    return cols[key]
+
+
+def _mask(cells: pd.DataFrame, cond: dict) -> np.ndarray | None:
+    """The rows matching ``cond`` (None values ignored) as a bool array; None when a
+    condition's column is missing."""
     mk = np.ones(len(cells), dtype=bool)
     for k, v in cond.items():
         if v is None:
             continue
         if k not in cells.columns:
-            return pd.Series(dtype=float)
-        col = _column(cells, k)
-        mk &= np.isin(col, list(v)) if isinstance(v, (list, tuple, set)) else (col == v)
-    if not mk.any():
-        return pd.Series(dtype=float)
-    vals = pd.Series(_column(cells, metric)[mk], index=_column(cells, "seed")[mk])
+            return None
+        codes, code_of = _codes(cells, k)
+        if isinstance(v, (list, tuple, set)):
+            mk &= np.isin(codes, [code_of[x] for x in v if _hashable(x) and x in code_of])
+        elif not _hashable(v) or v not in code_of:
+            return np.zeros(len(cells), dtype=bool)
+        else:
+            mk &= codes == code_of[v]
+    return mk
+
+
+def _hashable(v) -> bool:
+    try:
+        hash(v)
+    except TypeError:
+        return False
+    return True
+
+
+def _seed_values(cells: pd.DataFrame, cond: dict, metric: str) -> tuple[np.ndarray, np.ndarray]:
+    """(seeds, values) of ``metric`` in the cells matching ``cond``, sorted by seed (float
+    values; empty arrays when nothing matches). Raises ValueError when a seed matches
+    several cells."""
+    empty = (np.array([], dtype=np.int64), np.array([], dtype=float))
+    if metric not in cells.columns:
+        return empty
+    # the matching rows by integer codes of the condition's columns only: taking whole rows
+    # of a 60-column table for each of the report's ~1000 conditions dominated its time
+    mk = _mask(cells, cond)
+    if mk is None or not mk.any():
+        return empty
+    seeds = _column(cells, "seed")[mk]
+    order = np.argsort(seeds, kind="stable")
+    seeds = seeds[order]
     # one value per seed; several matching cells (e.g. other solvers) would be ambiguous
-    if vals.index.has_duplicates:
+    if seeds.size > 1 and (seeds[1:] == seeds[:-1]).any():
         raise ValueError(f"condition {cond} matches several cells per seed; add axis values")
-    return vals.sort_index().astype(float)
+    return seeds, np.asarray(_column(cells, metric)[mk][order], dtype=float)
+
+
+def _per_seed(cells: pd.DataFrame, cond: dict, metric: str) -> pd.Series:
+    """``metric`` per seed (index: seed, ascending) in the cells matching ``cond``."""
+    seeds, vals = _seed_values(cells, cond, metric)
+    return pd.Series(vals, index=seeds, dtype=float) if seeds.size else pd.Series(dtype=float)
 
 
 def compare(cells: pd.DataFrame, c: Comparison) -> Outcome:
     """Evaluate one elementary comparison (see the module docstring)."""
-    a = _per_seed(cells, c.a, c.metric)
+    sa, a = _seed_values(cells, c.a, c.metric)
     if isinstance(c.b, dict):
-        b = _per_seed(cells, c.b, c.metric)
-        a, b = a.align(b, join="inner")
+        sb, b = _seed_values(cells, c.b, c.metric)
+        _, ia, ib = np.intersect1d(sa, sb, assume_unique=True, return_indices=True)
+        a, b = a[ia], b[ib]                        # the seeds of both, ascending
     else:
-        b = pd.Series(float(c.b), index=a.index)
-    ok = np.isfinite(a.to_numpy()) & np.isfinite(b.to_numpy())
+        b = np.full(a.size, float(c.b))
+    ok = np.isfinite(a) & np.isfinite(b)
     a, b = a[ok], b[ok]
     n = len(a)
     thesis_result = None
@@ -172,7 +218,7 @@ def compare(cells: pd.DataFrame, c: Comparison) -> Outcome:
     if n == 0:
         return Outcome(c, 0, math.nan, math.nan, math.nan, math.nan, math.nan, "missing",
                        thesis_result)
-    d = (a - b).to_numpy()
+    d = a - b
     m = float(d.mean())
     if n > 1:
         h = float(_t975(n - 1) * d.std(ddof=1) / math.sqrt(n))

@@ -55,3 +55,46 @@ def test_row_groups_are_the_selections():
                     idx = groups.get((w, tech, mask))
                     got = [] if idx is None else list(cells.index[idx])
                     assert got == list(sub.index), (rule, w, tech, mask)
+
+
+def _per_seed_reference(cells, cond, metric):
+    """The pandas selection the claims used before the integer codes (issue 27)."""
+    sub = cells
+    for k, v in cond.items():
+        if v is None:
+            continue
+        sub = sub[sub[k].isin(list(v))] if isinstance(v, (list, tuple, set)) else sub[sub[k] == v]
+    vals = pd.Series(sub[metric].to_numpy(), index=sub["seed"].to_numpy())
+    return vals.sort_index().astype(float)
+
+
+def test_claims_per_seed_and_compare_match_pandas():
+    from experiments import claims
+
+    cells = _cells(np.random.default_rng(3))
+    cells.loc[5, "window"] = np.nan
+    cases = [{"window": 5, "technique": "lc", "mask": "full"},
+             {"window": 5.0, "technique": ["lc", "zzz"], "mask": "no_turns", "path": None},
+             {"window": 10, "technique": "dyn", "mask": "full", "dyn_growth": "jump"},
+             {"window": 7, "technique": "lc", "mask": "full"},
+             {"window": 1, "technique": "none", "mask": ["full"], "weighting": "huff"}]
+    claims._COLUMNS.clear()
+    for cond in cases:
+        got = claims._per_seed(cells, cond, "ex_mean")
+        want = _per_seed_reference(cells, cond, "ex_mean")
+        assert list(got.index) == list(want.index) and np.array_equal(got, want, equal_nan=True)
+    with pytest.raises(ValueError, match="several cells per seed"):
+        claims._per_seed(cells, {"window": 5, "technique": "dyn", "mask": "full"}, "ex_mean")
+    assert claims._per_seed(cells, {"nope": 1}, "ex_mean").empty
+    for a, b in ((cases[0], cases[4]), (cases[2], cases[0]), (cases[3], cases[0])):
+        for rel in ("<", "~"):
+            c = claims.Comparison(a, rel, b, "ex_mean", "t")
+            o = claims.compare(cells, c)
+            pa = _per_seed_reference(cells, a, "ex_mean")
+            pa, pb = pa.align(_per_seed_reference(cells, b, "ex_mean"), join="inner")
+            ok = np.isfinite(pa.to_numpy()) & np.isfinite(pb.to_numpy())
+            pa, pb = pa[ok], pb[ok]
+            assert o.n == len(pa)
+            if o.n:
+                d = (pa - pb).to_numpy()
+                assert (o.mean_a, o.mean_b, o.diff) == (pa.mean(), pb.mean(), d.mean())
