@@ -204,8 +204,9 @@ def _run_unit(kind: str, *args: Any) -> tuple[str, dict]:
     name = args[-1] if kind == "figure" else kind
     fn = {"tables": _tables_unit, "report": _report_unit, "figure": _figure_unit,
           "replay": _replay_unit}[kind]
-    from experiments.runner.worker import timeline
+    from experiments.runner.worker import release_memos, timeline
 
+    release_memos()             # the cells are done: a worker's memos go (loky's leak check)
     with timeline(f"output {name}"):
         return name, fn(*args)
 
@@ -324,7 +325,10 @@ def write_outputs(table: pd.DataFrame, out_dir: str | Path, *, spec: Any = None,
         new["page"] = units["page"]
     else:
         t0 = time.perf_counter()
-        page.write_page(out, replay=replay)      # index.html: replay, claims, tables, figures
+        from experiments.runner.worker import timeline
+
+        with timeline("main page"):
+            page.write_page(out, replay=replay)      # index.html: replay, claims, tables, figs
         seconds["page_s"] = time.perf_counter() - t0
         new["page"] = {"inputs": page_in, "files": _stats(out, ["index.html"])}
     step("page")

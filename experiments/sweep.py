@@ -59,7 +59,7 @@ from experiments.runner.run import (
     run,
 )
 from experiments.runner.store import LOCK_FILE, CellStore, SweepError, folder_lock
-from experiments.runner.worker import CellJob, run_batch
+from experiments.runner.worker import CellJob, mark, process_started, run_batch, timeline
 from experiments.spec import SpecError, available_presets, load_spec
 
 __all__ = [
@@ -192,6 +192,7 @@ def main(argv: list[str] | None = None) -> int:
     option, 3 the run could not go on: unreachable scheduler, unwritable results folder,
     the folder in use by another run). Through :mod:`experiments.cli` (``python -m``):
     130 on Ctrl-C, 143 on SIGTERM, the manifest marked ``interrupted``, no worker left."""
+    mark("main start-up", process_started())     # the interpreter and the imports
     args = build_parser().parse_args(argv)
     if args.spec and args.preset:
         print("error: give a spec file or --preset, not both", file=sys.stderr)
@@ -211,7 +212,8 @@ def main(argv: list[str] | None = None) -> int:
         raise
     for _ in started:           # (long done)
         pass
-    _stop_workers()
+    with timeline("main stop workers"):
+        _stop_workers()
     return code
 
 

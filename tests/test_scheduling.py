@@ -56,3 +56,33 @@ def test_a_worker_start_does_not_import_the_simulator():
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
                          check=True, cwd=str(Path(__file__).parents[1]))
     assert out.stdout.split() == ["False", "False", "True"]
+
+
+def test_timeline_lines_carry_the_resident_size_and_main_phases(tmp_path, monkeypatch):
+    """Each line has ``rss_mb`` (what loky's leak check compares); :func:`mark` writes a
+    span that began before the call (the main process's start-up, from its start time)."""
+    import time
+
+    from experiments.runner.worker import mark, process_started
+
+    path = tmp_path / "timeline.jsonl"
+    monkeypatch.setenv(TIMELINE_ENV, str(path))
+    t0 = process_started()
+    assert t0 <= time.time() and time.time() - t0 < 3600     # this process, not the epoch
+    mark("main start-up", t0)
+    (line,) = [json.loads(s) for s in path.read_text().splitlines()]
+    assert line["what"] == "main start-up" and line["start"] == t0
+    assert line["rss_mb"] is None or line["rss_mb"] > 1.0
+
+
+def test_the_outputs_phase_releases_a_workers_cell_memos():
+    """The first output unit in a worker drops the run's memos (loky replaced a worker whose
+    memos and figures grew 300 MB past its reference size); a second call is a no-op."""
+    from experiments.runner import worker
+
+    state = worker.WORKER.for_run("run-1")
+    state.memo[("obs",)] = bytearray(10)
+    worker.release_memos()
+    assert not worker.WORKER.memo and worker.WORKER.run_id == ""
+    worker.release_memos()
+    assert worker.WORKER.for_run("run-2").run_id == "run-2"

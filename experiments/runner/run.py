@@ -58,7 +58,7 @@ from experiments.runner.store import (
     write_table,
     write_text,
 )
-from experiments.runner.worker import CellJob, warm_up
+from experiments.runner.worker import CellJob, timeline, warm_up
 from experiments.spec import PROJECT_DIR, REPO, RESULTS_ROOT, Cell, Spec, load_spec
 from sim.atomic import file_stat
 
@@ -206,8 +206,9 @@ class _Run:
                            run_id=self.run_id, cell_fn=opts.cell_fn, store_dir=str(out_dir))
 
     def go(self, locked: OSError | None, t_start: float) -> Results:
-        todo, done, n_stale, n_damaged = self._plan(locked)
-        manifest, run_info = self._start(todo, n_stale, n_damaged)
+        with timeline("main plan"):
+            todo, done, n_stale, n_damaged = self._plan(locked)
+            manifest, run_info = self._start(todo, n_stale, n_damaged)
         settled = None if todo else self._settled(manifest, done)
         if settled is not None:
             return self._resumed(settled, t_start, manifest, run_info)
@@ -229,9 +230,10 @@ class _Run:
         run_info.update({"finished_utc": time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime()),
                          "n_computed": res.n_computed, "n_resumed": res.n_resumed,
                          "n_failed": res.n_failed, "timings_s": res.timings})
-        write_json(self.out_dir / "manifest.json", manifest)
-        _write_run_info(self.out_dir, run_info, required=bool(todo))
-        self._settle(json_text(manifest), out_info)
+        with timeline("main settle"):
+            write_json(self.out_dir / "manifest.json", manifest)
+            _write_run_info(self.out_dir, run_info, required=bool(todo))
+            self._settle(json_text(manifest), out_info)
         return res
 
     # ---------------------------------------------------------------- settled
@@ -379,20 +381,23 @@ class _Run:
                                                      for _ in range(jobs))))
 
         try:
-            for key, tr in iter_truths(todo, spec, jobs, self.o.truth_fn, self.o.cache_dir,
-                                       on_queued=queue_warm_up):
-                truths[key] = tr
-                sbar.update()
-                bs, wants = self._tasks(by_truth[key], truths)
-                t_cells0 = t_cells0 or time.perf_counter()
-                running.append(loky.run_batches(bs, truths, wants, self.job))
+            with timeline("main simulate"):
+                for key, tr in iter_truths(todo, spec, jobs, self.o.truth_fn,
+                                           self.o.cache_dir, on_queued=queue_warm_up):
+                    truths[key] = tr
+                    sbar.update()
+                    bs, wants = self._tasks(by_truth[key], truths)
+                    t_cells0 = t_cells0 or time.perf_counter()
+                    running.append(loky.run_batches(bs, truths, wants, self.job))
         finally:
             sbar.close()
         t_sim = time.perf_counter() - t_sim0
         if self.o.outputs:
-            import_for_outputs()      # while the workers compute the cells
+            with timeline("main import for outputs"):
+                import_for_outputs()      # while the workers compute the cells
         self.bar = self._cell_bar(tqdm, len(todo))
-        n_now = sum(self._store_results(it) for it in (*warm, *running))
+        with timeline("main wait for cells"):
+            n_now = sum(self._store_results(it) for it in (*warm, *running))
         if warm:
             with suppress(OSError):
                 os.remove(lock)
@@ -431,17 +436,18 @@ class _Run:
         t_out0 = time.perf_counter()
         out_dir = self.out_dir
         keys = [c.key for c in self.cells]
-        table = self.store.read_table(keys)
-        errors = self.store.read_errors(keys)
-        final = json_text({**manifest, "status": _final_status(errors)})
-        if n_now or final != self.before or not (out_dir / "cells.parquet").exists():
-            write_table(table, out_dir / "cells.parquet")
-        self.store.write_index(keys, self.code)
-        write_json(out_dir / "errors.json", errors)
-        # the manifest of this run before the outputs (the report and the page show it):
-        # with nothing to compute it was not written yet, and the report showed the code
-        # line of the run before
-        write_text(out_dir / "manifest.json", final)
+        with timeline("main table"):
+            table = self.store.read_table(keys)
+            errors = self.store.read_errors(keys)
+            final = json_text({**manifest, "status": _final_status(errors)})
+            if n_now or final != self.before or not (out_dir / "cells.parquet").exists():
+                write_table(table, out_dir / "cells.parquet")
+            self.store.write_index(keys, self.code)
+            write_json(out_dir / "errors.json", errors)
+            # the manifest of this run before the outputs (the report and the page show
+            # it): with nothing to compute it was not written yet, and the report showed
+            # the code line of the run before
+            write_text(out_dir / "manifest.json", final)
         res = Results(spec=self.spec, out_dir=out_dir, table=table, errors=errors,
                       n_cells=len(self.cells), n_computed=n_now - len(errors),
                       n_resumed=len(done), wall_s=0.0)

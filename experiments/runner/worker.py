@@ -9,6 +9,8 @@ worker processes outlive a run, and files may change between runs.
 
 from __future__ import annotations
 
+import ctypes
+import gc
 import json
 import os
 import tempfile
@@ -16,7 +18,7 @@ import time
 import traceback
 from collections import OrderedDict
 from collections.abc import Iterator
-from contextlib import contextmanager
+from contextlib import contextmanager, suppress
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -26,8 +28,8 @@ from experiments.runner.cell import CellContext, CellFn, evaluate_cell
 from experiments.runner.store import CellStore
 from experiments.spec import Cell
 
-__all__ = ["KERNEL_LOCK", "TIMELINE_ENV", "CellJob", "run_batch", "started", "timeline",
-           "warm_up"]
+__all__ = ["KERNEL_LOCK", "TIMELINE_ENV", "CellJob", "mark", "process_started",
+           "release_memos", "run_batch", "started", "timeline", "warm_up"]
 
 #: Lock file under which a worker compiles or loads the numba kernels (one at a time).
 KERNEL_LOCK = os.path.join(tempfile.gettempdir(), "configpose-kernels.lock")
@@ -49,10 +51,41 @@ def timeline(what: str, n: int = 0) -> Iterator[None]:
     try:
         yield
     finally:
-        line = json.dumps({"what": what, "pid": os.getpid(), "start": t0, "end": time.time(),
-                           "cpu_s": time.process_time() - c0, "n": n})
-        with open(path, "a", encoding="utf-8") as fh:
-            fh.write(line + "\n")
+        mark(what, t0, c0, n)
+
+
+def mark(what: str, t0: float, c0: float = 0.0, n: int = 0) -> None:
+    """Append one line of the timeline (:func:`timeline`) for a span that began at ``t0``
+    (Unix s) with this process's CPU time ``c0``; the line's ``rss_mb`` is the process's
+    resident memory at its end (Linux; what loky's leak check compares). Nothing when
+    :data:`TIMELINE_ENV` is unset."""
+    path = os.environ.get(TIMELINE_ENV)
+    if not path:
+        return
+    line = json.dumps({"what": what, "pid": os.getpid(), "start": t0, "end": time.time(),
+                       "cpu_s": time.process_time() - c0, "n": n, "rss_mb": _rss_mb()})
+    with open(path, "a", encoding="utf-8") as fh:
+        fh.write(line + "\n")
+
+
+def process_started() -> float:
+    """When this process started (Unix s, Linux: /proc, 10 ms resolution); now elsewhere."""
+    try:
+        with open("/proc/self/stat", encoding="ascii") as fh:
+            ticks = int(fh.read().rsplit(")", 1)[1].split()[19])
+        age = time.clock_gettime(time.CLOCK_BOOTTIME) - ticks / os.sysconf("SC_CLK_TCK")
+        return time.time() - age
+    except (OSError, ValueError, IndexError, AttributeError):
+        return time.time()
+
+
+def _rss_mb() -> float | None:
+    """This process's resident set size in MB (None where /proc is absent)."""
+    try:
+        with open("/proc/self/statm", encoding="ascii") as fh:
+            return int(fh.read().split()[1]) * os.sysconf("SC_PAGE_SIZE") / 1e6
+    except (OSError, ValueError, IndexError):
+        return None
 
 
 @dataclass(frozen=True)
@@ -92,6 +125,23 @@ class _WorkerMemo:
 
 
 WORKER = _WorkerMemo()
+
+
+def release_memos() -> None:
+    """Forget this process's per-run memos and hand the freed heap back to the OS (glibc's
+    ``malloc_trim``; elsewhere only the memos go): called when the outputs phase starts
+    in a worker, whose cells are all done. loky replaces a worker whose resident size grew
+    300 MB past its size after its first task as "leaking": the cells' memos (~240 MB in
+    the thesis preset) plus a figure group crossed that (a worker replaced during the
+    outputs, its start-up on the critical path, and a UserWarning). Once per run."""
+    if not WORKER.run_id:
+        return
+    WORKER.memo.clear()
+    WORKER.cache.clear()
+    WORKER.run_id = ""
+    gc.collect()
+    with suppress(OSError, AttributeError):        # no glibc (macOS, Windows, musl)
+        ctypes.CDLL(None).malloc_trim(0)
 
 
 def run_batch(cells: list[Cell], truth: Any, want: list[bool], job: CellJob) -> list[dict]:
