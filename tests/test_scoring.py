@@ -222,3 +222,15 @@ def test_band_equals_nis_summary_bit_for_bit():
         got = band.at(mk)
         want = (s["mean_nis_per_dof"], s["share_in_band"])
         assert got == want or (np.isnan(got).all() and np.isnan(want).all())
+
+
+@pytest.mark.parametrize("dtype", [object, "str"])
+def test_status_counts_are_value_counts(dtype):
+    from estimator.scoring import status_counts
+
+    vals = ["ok"] * 5 + ["insufficient_data"] * 7 + [None] + ["inconsistent"] * 2
+    df = pd.DataFrame({"solver_status": pd.array(vals, dtype=dtype), "t": np.arange(15.0)})
+    want = {str(k): int(v) for k, v in df["solver_status"].value_counts().items()}
+    got = status_counts(df)
+    assert list(got.items()) == list(want.items())
+    assert status_counts(df[["t"]]) == {}

@@ -368,3 +368,14 @@ def test_run_tracker_checks_the_table():
                                                         np.r_[t, 0.0]))), t, obs, cfg)
     built_in = run_tracker(WindowTracker(window=3), t, obs, cfg, cache=TrackCache())
     _assert_same(built_in, track(t, obs, cfg, window=3))
+
+
+def test_status_values_make_the_column_astype_str_makes():
+    from estimator.trackers._common import status_values
+
+    st = np.where(np.arange(50) % 7 == 0, "insufficient_data", "ok").astype(object)
+    fast = pd.DataFrame({"s": status_values(st)})["s"]
+    slow = pd.DataFrame({"s": st.astype(str)})["s"]
+    assert fast.dtype == slow.dtype and fast.equals(slow)
+    odd = np.array(["ok", None, 3], dtype=object)        # not all str: astype(str)
+    assert status_values(odd).tolist() == ["ok", "None", "3"]

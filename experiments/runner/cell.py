@@ -46,7 +46,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from estimator.memo import TrackCache
-from estimator.scoring import ScoringReference, coverage_rows, score_track
+from estimator.scoring import ScoringReference, coverage_rows, score_track, status_counts
 from estimator.track_options import FILTER_METHODS
 from experiments.spec import REPO, Cell
 from experiments.techniques import Technique, technique
@@ -223,8 +223,7 @@ def evaluate_cell(cell: Cell, truth, ctx: CellContext) -> CellOutput:
     for row in rows:
         row.update(names)
     t3 = time.perf_counter()
-    counts = {str(k): int(v) for k, v in df["solver_status"].value_counts().items()} \
-        if "solver_status" in df else {}
+    counts = status_counts(df)
     epochs = None
     if ctx.want_epochs:
         epochs = pd.concat([df.reset_index(drop=True), ep], axis=1)
@@ -368,8 +367,7 @@ def evaluate_recording_cell(cell: Cell, rec, ctx: CellContext) -> CellOutput:
                         lc.get("forward_offset_rad", float("nan"))),
                     "layout_forward_verdict": lc.get("forward_verdict", "-")})
     t3 = time.perf_counter()
-    counts = {str(k): int(v) for k, v in df["solver_status"].value_counts().items()} \
-        if "solver_status" in df else {}
+    counts = status_counts(df)
     epochs = None
     if ctx.want_epochs and ep is not None:
         epochs = pd.concat([df.reset_index(drop=True), ep], axis=1)
