@@ -153,43 +153,60 @@ def filter_params_for(truth):
     return PoseFilterParams.from_limits(meta.get("params", {}).get("controller") or {}, **kw)
 
 
+#: Bounds of the worker memo's kinds (entries; least recently used out), each its own so
+#: one kind never evicts another: a batch is one noise key's cells (backends.batches), so
+#: the observations (n x m x 2 floats, 0.5 MB at 4000 epochs of 8 sensors) and the scoring
+#: references (which hold a truth and its observations) of a few keys cover a worker whose
+#: batches interleave chunks of keys (6: 3 MB); the configurations and noise names are one
+#: small entry per model file of the spec (64: any spec's files, kilobytes).
+MEMO_BOUNDS = {"obs": 6, "scoring": 6, "config": 64, "noise_name": 64}
+
+
+def _memo_kind(ctx: CellContext, kind: str) -> OrderedDict:
+    """The worker memo's entries of one kind (:data:`MEMO_BOUNDS`), an LRU dict."""
+    return ctx.memo.setdefault((kind,), OrderedDict())
+
+
+def _memoised(ctx: CellContext, kind: str, key: tuple, compute: Callable[[], Any]) -> Any:
+    """``compute()`` through the worker memo's ``kind`` entries, bounded by
+    :data:`MEMO_BOUNDS`."""
+    memo = _memo_kind(ctx, kind)
+    if key in memo:
+        memo.move_to_end(key)
+        return memo[key]
+    value = memo[key] = compute()
+    while len(memo) > MEMO_BOUNDS[kind]:
+        memo.popitem(last=False)
+    return value
+
+
 def _observations(cell: Cell, truth, config, ctx: CellContext) -> np.ndarray:
     """Noisy observations (n, m, 2) for the cell's noise key, memoised per worker."""
-    key = (ctx.spec_seed, ctx.session_s, *cell.noise_key)
-    if key in ctx.memo:
-        ctx.memo.move_to_end(key)
-        return ctx.memo[key]
+    return _memoised(ctx, "obs", (ctx.spec_seed, ctx.session_s, *cell.noise_key),
+                     lambda: _observe(cell, truth, config, ctx))
+
+
+def _observe(cell: Cell, truth, config, ctx: CellContext) -> np.ndarray:
     from sim.gps import StationarySession, observe
 
     if cell.recording != "-":      # truth is the Recording (drawn per seed for a replay)
-        obs = truth.observations(cell_rng(ctx.spec_seed, cell.seed, STREAM_NOISE),
-                                 noise_overrides=json.loads(cell.noise_overrides) or None)
-    elif cell.noise == "none":
-        obs = observe(truth, config, None)
-    else:
-        rng = cell_rng(ctx.spec_seed, cell.seed, STREAM_NOISE)
-        noise = (StationarySession.load(cell.file("noise")) if cell.noise.startswith("session:")
-                 else cell.file("noise"))
-        obs = observe(truth, config, noise, rng=rng, session_s=ctx.session_s,
-                      noise_overrides=json.loads(cell.noise_overrides) or None)
-    ctx.memo[key] = obs
-    while len(ctx.memo) > 7:            # 6 + the scoring references' entry
-        ctx.memo.popitem(last=False)
-    return obs
+        return truth.observations(cell_rng(ctx.spec_seed, cell.seed, STREAM_NOISE),
+                                  noise_overrides=json.loads(cell.noise_overrides) or None)
+    if cell.noise == "none":
+        return observe(truth, config, None)
+    rng = cell_rng(ctx.spec_seed, cell.seed, STREAM_NOISE)
+    noise = (StationarySession.load(cell.file("noise")) if cell.noise.startswith("session:")
+             else cell.file("noise"))
+    return observe(truth, config, noise, rng=rng, session_s=ctx.session_s,
+                   noise_overrides=json.loads(cell.noise_overrides) or None)
 
 
 def _scoring_reference(truth, obs: np.ndarray, ctx: CellContext) -> ScoringReference:
     """What the scoring needs of the truth and the observations, built once for the cells
-    that share them (issue 27; the same numbers): the last 6, in one entry of the memo, by
-    the identity of the objects (a reference holds both, so their ids stay theirs)."""
-    refs = ctx.memo.setdefault(("scoring",), OrderedDict())
-    ctx.memo.move_to_end(("scoring",))
-    key = (id(truth), id(obs))
-    if key not in refs:
-        refs[key] = ScoringReference.of(truth, obs)
-        while len(refs) > 6:
-            refs.popitem(last=False)
-    return refs[key]
+    that share them (issue 27; the same numbers), by the identity of the objects (a
+    reference holds both, so their ids stay theirs while it is memoised)."""
+    return _memoised(ctx, "scoring", (id(truth), id(obs)),
+                     lambda: ScoringReference.of(truth, obs))
 
 
 def evaluate_cell(cell: Cell, truth, ctx: CellContext) -> CellOutput:
@@ -201,10 +218,8 @@ def evaluate_cell(cell: Cell, truth, ctx: CellContext) -> CellOutput:
     if cell.recording != "-":
         return evaluate_recording_cell(cell, truth, ctx)
     t0 = time.perf_counter()
-    ckey = ("config", cell.file("config"))
-    if ckey not in ctx.memo:
-        ctx.memo[ckey] = SensorConfig.load(cell.file("config")).planar()
-    config = ctx.memo[ckey]
+    config = _memoised(ctx, "config", (cell.file("config"),),
+                       lambda: SensorConfig.load(cell.file("config")).planar())
     obs = _observations(cell, truth, config, ctx)
     t1 = time.perf_counter()
     fp = filter_params_for(truth) if technique_of(cell).uses_filter else None
@@ -234,10 +249,8 @@ def evaluate_cell(cell: Cell, truth, ctx: CellContext) -> CellOutput:
 def _memo_noise_name(cell: Cell, ctx: CellContext) -> str:
     """:func:`_noise_name` read once per noise file and worker memo (a TOML parse per cell
     was ~0.5 ms of its ~25 ms)."""
-    key = ("noise_name", cell.noise, cell.file("noise"))
-    if key not in ctx.memo:
-        ctx.memo[key] = _noise_name(cell)
-    return ctx.memo[key]
+    return _memoised(ctx, "noise_name", (cell.noise, cell.file("noise")),
+                     lambda: _noise_name(cell))
 
 
 def _noise_name(cell: Cell) -> str:
