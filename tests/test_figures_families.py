@@ -9,6 +9,8 @@ of every sensor must hold coloured pixels, its numbers must be the per-epoch fil
 
 from __future__ import annotations
 
+import pickle
+
 import matplotlib.image as mpimg
 import numpy as np
 import pytest
@@ -32,8 +34,10 @@ def drawn(tmp_path_factory):
             figures=False, cache_dir=tmp_path_factory.mktemp("truth"))
     assert r.n_failed == 0, r.errors
     figs, save = {}, figures._save
-    figures._save = lambda fig, path, written: (figs.__setitem__(path.name, fig),
-                                                save(fig, path, written))
+    # a copy of each figure as saved: a figure group draws its PNGs of one layout on one
+    # figure, wiped between them (figures._pooled)
+    figures._save = lambda fig, path, written: (save(fig, path, written), figs.__setitem__(
+        path.name, pickle.loads(pickle.dumps(fig))))
     try:
         for task in ("overlay", "sensor1"):
             figures.draw_task(out, task)
