@@ -110,3 +110,15 @@ def test_lag_figure_rows_and_magnified_slopes(drawn, name, lc):
         assert "positive" in rise.get_title("left") and "negative" in fall.get_title("left")
         assert np.diff(rise.lines[1].get_ydata()[[0, -1]])[0] > 0   # the truth rises
         assert np.diff(fall.lines[1].get_ydata()[[0, -1]])[0] < 0   # and falls
+
+
+def test_pooled_figures_are_the_fresh_ones_byte_for_byte(drawn, monkeypatch):
+    """A figure group's second and later PNGs of one layout, drawn on the first one's
+    figure wiped (figures._pooled), are byte for byte those of a fresh figure each."""
+    out, figs = drawn
+    pooled = {n: (out / n).read_bytes() for n in figs}
+    monkeypatch.setattr(figures, "_pooled", lambda key, make: make())
+    for task in ("overlay", "sensor1"):
+        figures.draw_task(out, task)
+    for n, data in pooled.items():
+        assert (out / n).read_bytes() == data, n
