@@ -23,13 +23,15 @@ Every CLI builds its parser with :class:`ArgumentParser` and ends with
 from __future__ import annotations
 
 import argparse
+import atexit
 import math
+import os
 import signal
 import sys
 import threading
 import traceback
 from collections.abc import Callable, Iterator, Sequence
-from contextlib import contextmanager
+from contextlib import contextmanager, suppress
 from typing import NoReturn
 
 __all__ = ["ArgumentParser", "Terminated", "call", "finite_float", "jobs_arg",
@@ -143,8 +145,28 @@ def call(main: Callable[[list[str]], int | None], argv: Sequence[str] | None = N
 
 def run(main: Callable[[list[str]], int | None], argv: Sequence[str] | None = None,
         prog: str | None = None) -> NoReturn:
-    """:func:`call`, then exit with its code (a module's ``if __name__ == "__main__"``)."""
-    sys.exit(call(main, argv, prog))
+    """:func:`call`, then exit with its code (a module's ``if __name__ == "__main__"``),
+    without the interpreter's teardown (:func:`_exit_after_atexit`)."""
+    exit_code: list[int] = []
+    atexit.register(_exit_after_atexit, exit_code)
+    exit_code.append(call(main, argv, prog))
+    sys.exit(exit_code[0])
+
+
+def _exit_after_atexit(exit_code: list[int]) -> None:
+    """The last exit handler (registered before any other: they run last in, first out):
+    once every other one ran (loky's workers stopped, joblib's temporary folders removed,
+    logging flushed), flush stdout and stderr and end the process with ``exit_code[0]``,
+    skipping the teardown of every module, which costs a sweep 0.3-0.6 s of wall time after
+    its last line (pandas, matplotlib and numba's objects freed one by one; issue 27).
+    Nothing when no code was recorded (argparse's --help, an escaped exception) or under
+    coverage or a tracer (their data is saved by exit handlers registered before this)."""
+    if not exit_code or sys.gettrace() is not None or "coverage" in sys.modules:
+        return
+    for stream in (sys.stdout, sys.stderr):
+        with suppress(Exception):
+            stream.flush()
+    os._exit(exit_code[0])
 
 
 def describe(exc: BaseException) -> str:
