@@ -616,6 +616,24 @@ def test_warm_up_lock_lets_one_worker_at_a_time(tmp_path):
     assert ran
 
 
+def test_a_worker_skips_its_warm_up_while_another_holds_the_lock(tmp_path, monkeypatch):
+    """warm_up does not wait for another worker's warm-up (it would idle with cells queued,
+    issue 27): with the lock held it returns at once and writes no warm-up line; a lock
+    asked for without waiting is not taken while held, and is once free."""
+    from experiments.runner.worker import TIMELINE_ENV, _exclusive, warm_up
+
+    lock, line = str(tmp_path / "warm.lock"), tmp_path / "timeline.jsonl"
+    monkeypatch.setenv(TIMELINE_ENV, str(line))
+    with _exclusive(lock) as mine:
+        assert mine
+        with _exclusive(lock, wait=False) as other:
+            assert other is False
+        assert warm_up(False, lock) == os.getpid()
+    assert not line.exists()
+    with _exclusive(lock, wait=False) as free:
+        assert free
+
+
 def test_cli_exit_codes_and_no_leftover_temporary_folders(tmp_path):
     """The command line ends through experiments.cli after stopping its workers
     (experiments.runner.backends.stop_workers): the exit code is main()'s, the summary line
