@@ -182,6 +182,7 @@ __all__ = [
     "INIT_MOTION_SIGMAS",
     "LOST_YAW_SD",
     "MAX_ITERATIONS",
+    "MAX_SMOOTHER_ITERATIONS",
     "FilterStart",
     "PoseFilterParams",
     "PoseFilterResult",
@@ -224,6 +225,8 @@ REINIT_EPOCHS = 3
 REINIT_MIN_YAW_RAD = math.radians(5.0)
 #: Most relinearisations of one update (iterated EKF, see the loop).
 MAX_ITERATIONS = 4
+#: Most Gauss-Newton passes of the iterated RTS smoother (``smoother_iterations``).
+MAX_SMOOTHER_ITERATIONS = 20
 #: Fewest displacement values for their robust scale (MAD of 50 values: ~15 % sd).
 MIN_NOISE_SAMPLES = 50
 #: Numerical floor of the estimated noise levels, m (noise-free data would give 0).
@@ -293,7 +296,10 @@ class PoseFilterParams:
     ``gate_prob``: chi-square gate probability (1 = no gating). ``max_rejects``: consecutive
     all-rejected epochs before the track is declared lost. ``flip_memory_s``: memory of the
     configuration's heading test (reverse mode). ``lag_s``: latency of the fixed-lag smoother
-    (:mod:`estimator.pose_smoother`), s. :meth:`resolve` fills every None from the data.
+    (:mod:`estimator.pose_smoother`), s. ``smoother_iterations``: Gauss-Newton passes of
+    the full smoother (:func:`estimator.pose_smoother.iterated_rts_smooth`), 0 to
+    :data:`MAX_SMOOTHER_ITERATIONS` (0: the RTS smoother linearised once, about the
+    filter). :meth:`resolve` fills every None from the data.
     """
 
     max_accel_mps2: float | None = None
@@ -312,8 +318,11 @@ class PoseFilterParams:
     travel_offset_rad: float | None = None
     max_jerk_mps3: float | None = None
     max_curvature_1pm: float | None = None
+    smoother_iterations: int = 0
 
     def __post_init__(self) -> None:
+        check_int(self.smoother_iterations, "smoother_iterations", lo=0,
+                  hi=MAX_SMOOTHER_ITERATIONS)
         for name in LIMIT_FIELDS:
             if getattr(self, name) is not None:
                 check_real(getattr(self, name), name, lo=LIMIT_RANGE[0], hi=LIMIT_RANGE[1])

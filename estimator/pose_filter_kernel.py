@@ -29,7 +29,7 @@ import math
 import numba
 import numpy as np
 
-__all__ = ["forward_kernel"]
+__all__ = ["forward_kernel", "relinearised_kernel", "rts_kernel"]
 
 # state layout: that of estimator.pose_filter (checked equal by the tests); the filter's
 # tuning constants (INIT_MAX_YAW_SD, ...) come with each call in ``par``, read from
@@ -1146,3 +1146,82 @@ def rts_kernel(rows, C, X, XC, PP, PC, Xs, Ps, covariances):
         for i in range(NX):
             for j in range(NX):
                 Ps[k, i, j] = 0.5 * (D[i, j] + D[j, i])
+
+
+# ----------------------------------------------------------------- iterated RTS (issue 25)
+@numba.njit(cache=True, nogil=True)
+def relinearised_kernel(tt, obs, present, r_m, fyaw, cnt, spread, par, horner, cw, huber_k,
+                        X0, P0, XC0, seg, Xb, X, PP, XC, PC, PX_):
+    """The forward pass relinearised at the trajectory Xb (n, 6) (the iterated smoother's
+    Gauss-Newton pass; reference ``estimator.pose_smoother._relinearised_pass``, same
+    steps): X0 / P0 / XC0 / seg the first pass's states, covariances, clones and segment
+    starts (travel frame), huber_k the Huber threshold (sd); fills X, PP, XC, PC, PX_
+    (NaN-initialised by the caller)."""
+    n = tt.shape[0]
+    eye = np.eye(NX)
+    dt_med, gate, k2 = par[I_DTMED], par[I_GATE], huber_k * huber_k
+    for k in range(n):
+        if not math.isfinite(X0[k, 0]):
+            continue
+        if seg[k] or k == 0 or not (math.isfinite(XC0[k, 0]) and math.isfinite(X[k - 1, 0])):
+            _put(X, PP, k, X0[k], P0[k], 0)
+            continue
+        x, P = X[k - 1].copy(), PP[k - 1].copy()
+        dt = tt[k] - tt[k - 1]
+        hold = _hold(X0[k - 1].copy(), P0[k - 1].copy(), k, present, obs, fyaw, cnt, spread,
+                     par)                         # the first pass's decision (reference)
+        if hold:
+            x[OMEGA] = 0.0
+            var0 = P[OMEGA, OMEGA]
+            for i in range(NX):
+                P[OMEGA, i] = 0.0
+                P[i, OMEGA] = 0.0
+            P[OMEGA, OMEGA] = _pmin(var0, 1e-12)
+        qy = _bound_yaw_rate(x, P, dt, par, 0.0 if hold else par[I_QY] * dt_med / dt)
+        qa = par[I_QA] * dt / dt_med
+        xb0 = Xb[k - 1].copy()
+        fb, _, F = _predict(xb0, eye, dt, qa, qy, horner, cw)
+        _, Pp, FP = _predict(xb0, P, dt, qa, qy, horner, cw)
+        d = _axpy(-1.0, xb0, x)
+        d[YAW] = _wrap_angle(d[YAW])
+        xp = fb.copy()
+        for i in range(NX):
+            for j in range(NX):
+                xp[i] += F[i, j] * d[j]
+        y, Y = _stack(xp, Pp, FP, x, P)
+        yb = np.empty(2 * NX)
+        for i in range(NX):
+            yb[i], yb[NX + i] = Xb[k, i], xb0[i]
+        rr, z, var, ik, nd = _measurements(k, present, obs, r_m, par[I_VA], par[I_VS])
+        nf = ik.shape[0]
+        if nf:
+            h, H = _measure(yb, rr, nf)
+            if hold:
+                for i in range(nf):
+                    H[2 * i, 2] = 0.0
+                    H[2 * i + 1, 2] = 0.0
+            dy = _axpy(-1.0, yb, y)
+            dy[YAW], dy[NX + YAW] = _wrap_angle(dy[YAW]), _wrap_angle(dy[NX + YAW])
+            kk = nf + nd
+            nu = np.empty((kk, 2))
+            acc = np.zeros(kk, dtype=np.bool_)
+            for i in range(kk):
+                ex, ey = z[i, 0] - h[i, 0], z[i, 1] - h[i, 1]
+                r2 = (ex * ex + ey * ey) / var[i]
+                acc[i] = r2 <= gate
+                if not r2 <= k2:
+                    var[i] = var[i] / (huber_k / math.sqrt(_pmax(r2, 1e-300)))
+                nu[i, 0] = ex - _hdot(H, 2 * i, dy)
+                nu[i, 1] = ey - _hdot(H, 2 * i + 1, dy)
+            if _count(acc, 0, kk):
+                Z, _, ok = _posterior(Y, H, nu, var, acc)
+                if ok:
+                    y, Y = _axpy(1.0, _step(Y, Z), y), _cov_full(Y, Z)
+                    y[YAW], y[NX + YAW] = _wrap_angle(y[YAW]), _wrap_angle(y[NX + YAW])
+        x = y[:NX].copy()
+        _put(XC, PC, k, y, Y, NX)
+        for i in range(NX):
+            for j in range(NX):
+                PX_[k, i, j] = Y[i, NX + j]
+        _project(x, par)
+        _put(X, PP, k, x, Y, 0)
