@@ -54,9 +54,9 @@ __all__ = [
 #: (causal EKF), the naive CG mean, the filter's fixed-lag and RTS smoothers and the GTSAM
 #: fixed-lag peer.
 METHODS = ("window", "motion_compensated", "ekf", "naive", "ekf_fixed_lag", "ekf_smoother",
-           "gtsam")
+           "gtsam", "ekf_ieks")
 #: The pose-filter family (one forward pass; smoothers and the GTSAM peer on top).
-FILTER_METHODS = ("ekf", "ekf_fixed_lag", "ekf_smoother", "gtsam")
+FILTER_METHODS = ("ekf", "ekf_fixed_lag", "ekf_smoother", "gtsam", "ekf_ieks")
 #: Methods that weigh the observations of a window (Section 3.3); the others take none.
 WEIGHTED_METHODS = ("window", "motion_compensated")
 #: How a dynamic window grows back after a turn (:func:`estimator.tracking.dynamic_window_sizes`):

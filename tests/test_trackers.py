@@ -66,6 +66,7 @@ def _families(turning, yaw):
         ("ekf", {"window": 3}),
         ("ekf_fixed_lag", {"window": 3, "filter_params": PoseFilterParams(lag_s=2.0)}),
         ("ekf_smoother", {"window": 3}),
+        ("ekf_ieks", {"window": 3}),
     ]
 
 

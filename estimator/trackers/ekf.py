@@ -9,20 +9,26 @@ the smoothers :mod:`estimator.pose_smoother`; described in :mod:`estimator.track
 from __future__ import annotations
 
 import abc
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import Any, ClassVar
 
 import numpy as np
 import pandas as pd
 
+from estimator._checks import check_int
 from estimator.configuration import SensorConfig
 from estimator.memo import TrackCache, content_digest, freeze, memo_get
-from estimator.pose_filter import PoseFilterParams, PoseFilterResult, memo_pose_filter
-from estimator.pose_smoother import memo_smoothed_states
+from estimator.pose_filter import (
+    MAX_SMOOTHER_ITERATIONS,
+    PoseFilterParams,
+    PoseFilterResult,
+    memo_pose_filter,
+)
+from estimator.pose_smoother import IEKS_ITERATIONS, memo_smoothed_states
 from estimator.trackers._common import Rows, TrackerOptions, cg_and_heading, frame, settings
 
-__all__ = ["FilterOptions", "FixedLagSmootherTracker", "PoseFilterTracker",
-           "RtsSmootherTracker"]
+__all__ = ["FilterOptions", "FixedLagSmootherTracker", "IteratedSmootherTracker",
+           "PoseFilterTracker", "RtsSmootherTracker"]
 
 
 @dataclass(frozen=True, kw_only=True, eq=False)
@@ -176,4 +182,28 @@ class RtsSmootherTracker(FilterOptions):
         p = self.params
         res = memo_pose_filter(tt, o, offsets, p, cache)
         X, P = memo_smoothed_states(tt, o, offsets, p, None, cache, covariances=True)
+        return X, _yaw_sd(P, tt.size), res
+
+
+@dataclass(frozen=True, kw_only=True, eq=False)
+class IteratedSmootherTracker(FilterOptions):
+    """The filter's iterated RTS smoother (``method="ekf_ieks"``, issue 25: Gauss-Newton on
+    the whole trajectory, :func:`estimator.pose_smoother.iterated_rts_smooth`) with
+    ``iterations`` passes (1 to MAX_SMOOTHER_ITERATIONS, default
+    :data:`estimator.pose_smoother.IEKS_ITERATIONS`); the status and counts of the forward
+    pass, which it shares with the other trackers of the family. Options:
+    :class:`FilterOptions`, ``iterations``."""
+
+    name: ClassVar[str] = "ekf_ieks"
+    iterations: int = IEKS_ITERATIONS
+
+    def __post_init__(self) -> None:
+        super().__post_init__()
+        check_int(self.iterations, "iterations", lo=1, hi=MAX_SMOOTHER_ITERATIONS)
+
+    def _states(self, tt, o, offsets, cache):
+        p = replace(self.params, smoother_iterations=0)
+        res = memo_pose_filter(tt, o, offsets, p, cache)
+        X, P = memo_smoothed_states(tt, o, offsets, replace(p, smoother_iterations=self.iterations),
+                                    None, cache, covariances=True)
         return X, _yaw_sd(P, tt.size), res

@@ -8,7 +8,12 @@ from dataclasses import fields
 from typing import Any
 
 from estimator.track_options import METHODS, LagCorrection
-from estimator.trackers.ekf import FixedLagSmootherTracker, PoseFilterTracker, RtsSmootherTracker
+from estimator.trackers.ekf import (
+    FixedLagSmootherTracker,
+    IteratedSmootherTracker,
+    PoseFilterTracker,
+    RtsSmootherTracker,
+)
 from estimator.trackers.motion_compensated import MotionCompensatedTracker
 from estimator.trackers.naive import NaiveTracker
 from estimator.trackers.peer import GtsamPeerTracker
@@ -21,7 +26,7 @@ __all__ = ["BUILTIN_TRACKERS", "option_names", "tracker_for"]
 #: Method name -> tracker class, in the order of :data:`estimator.track_options.METHODS`.
 BUILTIN_TRACKERS: dict[str, type] = {cls.name: cls for cls in (
     WindowTracker, MotionCompensatedTracker, PoseFilterTracker, NaiveTracker,
-    FixedLagSmootherTracker, RtsSmootherTracker, GtsamPeerTracker)}
+    FixedLagSmootherTracker, RtsSmootherTracker, GtsamPeerTracker, IteratedSmootherTracker)}
 assert tuple(BUILTIN_TRACKERS) == METHODS, (tuple(BUILTIN_TRACKERS), METHODS)
 
 #: ``track``'s arguments with their "not used" values: passing another value to a method
