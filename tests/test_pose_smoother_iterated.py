@@ -4,8 +4,9 @@ Gauss-Newton on the whole trajectory (Bell 1994): each iteration re-runs the for
 with the Jacobians at the previous smoothed states and smooths again. Checked here: in the
 linear limit (a straight drive with ever smaller errors) one iteration is the plain RTS
 smoother and the iteration stops there; on a nonlinear case an iteration lowers the MAP
-cost of the plain least-squares problem; both engines agree; NUMBA_DISABLE_JIT=1 runs the same; NaN rows and
-outages are bridged as by the plain smoother; bad arguments name themselves.
+cost of the plain least-squares problem; both engines agree; NUMBA_DISABLE_JIT=1 runs the
+same; NaN rows and outages are bridged as by the plain smoother; bad arguments name
+themselves.
 """
 
 from __future__ import annotations
