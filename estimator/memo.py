@@ -233,16 +233,19 @@ class TrackCache:
     poses : a track's rows before its lag correction (positions, CG, law-of-cosines
         heading, ...: the rows the techniques of one fit or filter state share), ~0.6 MB;
     lag : the lag correction's inputs that do not depend on its mode or heading (first
-        observations of each window, the velocity), (N, m) and (N, 2) floats.
+        observations of each window, the velocity), (N, m) and (N, 2) floats;
+    prefix : a recording's cumulative sums of observations and weights (the window means
+        of every window size come from them), (n, m, 2) and (n, m) floats, ~0.4 MB.
 
     Sizes: what the per-process memos they replace kept (8, 16, 16, 4, 8; poses and lag
-    16). A hit is an identical request (keys digest the input arrays' bytes plus every
+    16; prefix 8: the counts and the Huff weights of a few noise keys). A hit is an
+    identical request (keys digest the input arrays' bytes plus every
     option), so a cached and an uncached call give the same numbers.
     """
 
     def __init__(self, *, huff: int = 8, procrustes: int = 16, elastic: int = 16,
-                 filter_pass: int = 4, smoothed: int = 8, poses: int = 16, lag: int = 16
-                 ) -> None:
+                 filter_pass: int = 4, smoothed: int = 8, poses: int = 16, lag: int = 16,
+                 prefix: int = 8) -> None:
         self.huff = ContentMemo(huff)
         self.procrustes = ContentMemo(procrustes)
         self.elastic = ContentMemo(elastic)
@@ -250,12 +253,13 @@ class TrackCache:
         self.smoothed = ContentMemo(smoothed)
         self.poses = ContentMemo(poses)
         self.lag = ContentMemo(lag)
+        self.prefix = ContentMemo(prefix)
 
     def memos(self) -> dict[str, ContentMemo]:
         """The memos by name."""
         return {"huff": self.huff, "procrustes": self.procrustes, "elastic": self.elastic,
                 "filter_pass": self.filter_pass, "smoothed": self.smoothed,
-                "poses": self.poses, "lag": self.lag}
+                "poses": self.poses, "lag": self.lag, "prefix": self.prefix}
 
     def clear(self) -> None:
         """Forget every entry of every memo."""

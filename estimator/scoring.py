@@ -15,6 +15,7 @@ here: ``t`` (n,) s, ``cg`` (n, 2|3) m, ``yaw`` (n,) rad, ``turning`` (n,) bool,
 from __future__ import annotations
 
 import warnings
+from collections import Counter
 from collections.abc import Iterable
 from dataclasses import dataclass
 from typing import TYPE_CHECKING, Any
@@ -116,16 +117,22 @@ def score_track(df: pd.DataFrame, truth: Any, obs: np.ndarray, config: Any,
 def status_counts(df: pd.DataFrame) -> dict[str, int]:
     """{status: rows} of a track's ``solver_status`` column ({} without one), most frequent
     first, ties in order of first appearance, missing values left out: pandas'
-    ``value_counts`` of the column, counted in one pass over its values (pandas' own
-    costs ~0.9 ms a cell on an Arrow-backed column, this ~0.1 ms)."""
+    ``value_counts`` of the column, counted by Arrow (an Arrow-backed column) or a Counter
+    (pandas' own costs ~0.9 ms a cell on an Arrow-backed column, these ~0.05 ms)."""
     col = _columns(df, ("solver_status",)).get("solver_status")
     if col is None:
         return {}
-    counts: dict[str, int] = {}
-    for v in np.asarray(col, dtype=object).tolist():
-        if v is not None and v == v:                      # NaN / None: not counted
-            counts[str(v)] = counts.get(str(v), 0) + 1
-    return dict(sorted(counts.items(), key=lambda kv: -kv[1]))
+    if hasattr(col, "__arrow_array__"):
+        import pyarrow as pa  # type: ignore[import-untyped]
+        import pyarrow.compute as pc  # type: ignore[import-untyped]
+
+        vc = pc.value_counts(pa.array(col))
+        pairs: Iterable[tuple[Any, int]] = zip(vc.field("values").to_pylist(),
+                                               vc.field("counts").to_pylist())
+    else:
+        pairs = Counter(np.asarray(col, dtype=object).tolist()).items()
+    counts = [(str(v), int(c)) for v, c in pairs if v is not None and v == v]  # NaN: not
+    return dict(sorted(counts, key=lambda kv: -kv[1]))
 
 
 def _columns(df: pd.DataFrame, names: Iterable[str]) -> dict[str, Any]:
@@ -474,8 +481,8 @@ def _status_flags(status: Any) -> tuple[np.ndarray, np.ndarray]:
     inconsistent, as comparing its object array). An Arrow-backed column is looked up in
     one Arrow pass (``pyarrow.compute.index_in``, ~1/4 of two pandas comparisons)."""
     if hasattr(status, "__arrow_array__"):
-        import pyarrow as pa  # type: ignore[import-untyped]
-        import pyarrow.compute as pc  # type: ignore[import-untyped]
+        import pyarrow as pa
+        import pyarrow.compute as pc
 
         arr = pa.array(status)
         wanted = pa.array(["ok", "inconsistent"], type=arr.type)

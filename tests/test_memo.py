@@ -296,3 +296,22 @@ def test_digest_of_a_frozen_array_is_remembered_while_it_lives():
     del a, view
     gc.collect()
     assert key not in memo._FROZEN_DIGESTS
+
+
+def test_cumsum_means_share_a_recordings_prefix_sums():
+    """cumsum_means through cache.prefix: one set of cumulative sums per (observations,
+    weights) serves every window size and row set, with the numbers of an uncached call."""
+    from estimator.trackers._windows import cumsum_means
+
+    rng = np.random.default_rng(5)
+    obs = rng.normal(0, 3, (300, 4, 2))
+    obs[rng.random((300, 4)) < 0.1] = np.nan
+    wts = rng.uniform(0, 2, (300, 4))
+    cache = TrackCache()
+    for w in (1, 5, 40):
+        ends = np.arange(w - 1, 300)
+        for sw in (None, wts):
+            got = cumsum_means(obs, ends, w, sw, cache)
+            want = cumsum_means(obs, ends, w, sw)
+            assert all(np.array_equal(a, b, equal_nan=True) for a, b in zip(got, want))
+    assert len(cache.prefix) == 2          # counts and the weights: two sets of sums

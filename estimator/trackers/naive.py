@@ -32,10 +32,11 @@ class NaiveTracker(DynamicOptions):
     def track(self, t: Any, obs: Any, config: Any, *, cache: TrackCache | None = None
               ) -> pd.DataFrame:
         """Track a recording: t (n,) s, obs (n, m, 2) m (NaN missing), config a
-        :class:`estimator.configuration.SensorConfig`; ``cache`` unused (nothing to reuse)."""
+        :class:`estimator.configuration.SensorConfig`; ``cache``: the recording's cumulative
+        sums (``cache.prefix``, shared with the window fits of the same observations)."""
         tt, o, cfg = self._start(t, obs, config)
         rows = self._rows(tt, o, cfg)
-        means, cnt = cumsum_means(o, rows.ends, rows.wsize)
+        means, cnt = cumsum_means(o, rows.ends, rows.wsize, cache=cache)
         full = np.all(cnt[:, cfg.cg_mask] > 0, axis=1)
         pos = np.where(full[:, None, None], means, np.nan)
         status = np.where(full, "ok", "insufficient_data").astype(object)
