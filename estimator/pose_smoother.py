@@ -291,17 +291,19 @@ def smoothed_heading(t: np.ndarray, obs: np.ndarray, config: SensorConfig,
 
 
 def warm_kernels() -> None:
-    """Compile the compiled engines' kernels (forward pass and RTS recursion; first use
-    after a checkout, ~20 s CPU on the 2-core machine) or load them from numba's cache
-    (~0.5 s), on a 6-epoch recording. A sweep's workers call it while warming up one at a
-    time, so the first compiles and writes the cache and the others load it."""
+    """Compile the compiled engines' kernels (forward pass, relinearised pass and RTS
+    recursion; first use after a checkout, ~20 s CPU on the 2-core machine) or load them
+    from numba's cache (~0.5 s), on a 6-epoch recording. A sweep's workers call it while
+    warming up one at a time, so the first compiles and writes the cache and the others
+    load it."""
     off = np.array([[0.5, 0.25], [0.5, -0.25], [-0.5, 0.0]])
     t = np.arange(6.0)
     obs = np.c_[t, np.zeros(6)][:, None, :] + off[None]
-    rts_smooth(run_pose_filter(t, obs, off, PoseFilterParams(
+    res = run_pose_filter(t, obs, off, PoseFilterParams(
         sigma_abs_m=0.01, sigma_step_m=0.014, max_accel_mps2=1.0, max_yaw_accel_radps2=1.0,
         max_turn_rate_radps=1.0, max_lateral_accel_mps2=1.0, max_speed_mps=10.0,
-        no_slip_point_m=(0.0, 0.0), travel_offset_rad=0.0)))
+        no_slip_point_m=(0.0, 0.0), travel_offset_rad=0.0))
+    iterated_rts_smooth(res, t, obs, off, 1)      # the relinearised kernel and rts_kernel
 
 
 # ----------------------------------------------------------------- iterated RTS (issue 25)

@@ -871,7 +871,9 @@ def _bench_kernel_load(ref: Reference) -> list[dict]:
 # ----------------------------------------------------------------------------- car (issue 25)
 #: The car table's inputs (sim.vehicle_case noises) and rows.
 CAR_INPUTS = ("rtk", "shifted", "common_plus_model")
-CAR_ROWS = ("window 1", "EKF", "fixed-lag", "RTS", "GTSAM peer")
+CAR_ROWS = ("window 1", "EKF", "fixed-lag", "RTS", "IEKS", "GTSAM peer")
+#: The filter rows the targets judge.
+CAR_FILTERS = ("EKF", "fixed-lag", "RTS", "IEKS")
 #: Central 95 % band of chi-square with 1 dof (the heading NEES of a consistent estimate).
 CHI2_1_BAND = (0.000982069, 5.02389)
 
@@ -908,7 +910,12 @@ def car_run(noise: str, seed: int, gtsam: bool = True, platform: str | None = No
     from estimator.epoch_fit import epoch_rigid_fits
     from estimator.gtsam_peer import run_gtsam_peer
     from estimator.pose_filter import PoseFilterParams, nis_summary, run_pose_filter
-    from estimator.pose_smoother import fixed_lag_smooth, rts_smooth
+    from estimator.pose_smoother import (
+        IEKS_ITERATIONS,
+        fixed_lag_smooth,
+        iterated_rts_smooth,
+        rts_smooth,
+    )
     from sim.vehicle_case import simulate_vehicle_case, vehicle_observations
 
     case = simulate_vehicle_case(np.random.default_rng(seed))
@@ -925,6 +932,7 @@ def car_run(noise: str, seed: int, gtsam: bool = True, platform: str | None = No
     res, s_ekf = timed(lambda: run_pose_filter(t, obs, off, par))
     fl, s_fl = timed(lambda: fixed_lag_smooth(res, t, res.params.lag_s))
     rts, s_rts = timed(lambda: rts_smooth(res))
+    ie, s_ie = timed(lambda: iterated_rts_smooth(res, t, obs, off, IEKS_ITERATIONS))
     nis = nis_summary(res.nis, res.nis_dof)
     filt = {"nis": nis["mean_nis_per_dof"], "nis_band": nis["share_in_band"],
             "incons": float((res.status[two] == "inconsistent").mean())}
@@ -934,7 +942,9 @@ def car_run(noise: str, seed: int, gtsam: bool = True, platform: str | None = No
             "fixed-lag": {**_car_scores(fl.states[:, 2], None, yaw, two), **filt,
                           "s_epoch": s_ekf + s_fl},
             "RTS": {**_car_scores(rts.states[:, 2], np.sqrt(rts.covariances[:, 2, 2]), yaw,
-                                  two), **filt, "s_epoch": s_ekf + s_rts}}
+                                  two), **filt, "s_epoch": s_ekf + s_rts},
+            "IEKS": {**_car_scores(ie.states[:, 2], np.sqrt(ie.covariances[:, 2, 2]), yaw,
+                                   two), **filt, "s_epoch": s_ekf + s_ie}}
     if gtsam:
         try:
             peer = run_gtsam_peer(t, obs, off, par)
@@ -961,7 +971,7 @@ def _car_targets(runs: dict) -> list[str]:
         return float(np.mean([r.get(key, np.nan) for r in runs[i][row]]))
 
     lines = []
-    for row in ("EKF", "fixed-lag", "RTS"):
+    for row in CAR_FILTERS:
         rs = runs["rtk"][row]
         ok = (mean("rtk", row, "rms") <= 0.5 and not any(r["flip"] for r in rs)
               and min(r["out"] for r in rs) >= 0.99)
@@ -972,7 +982,7 @@ def _car_targets(runs: dict) -> list[str]:
         fails = sum("error" in r for r in runs["rtk"]["GTSAM peer"])
         lines.append(f"RTK GTSAM runs: {'met' if not fails else f'NOT met ({fails} fail)'}")
     for i in CAR_INPUTS[1:]:
-        rows = sorted(("EKF", "fixed-lag", "RTS"), key=lambda r: mean(i, r, "rms"))
+        rows = sorted(CAR_FILTERS, key=lambda r: mean(i, r, "rms"))
         best = next((r for r in rows if mean(i, r, "out") >= 0.95), None)
         if best is None:
             lines.append(f"{i}: no filter row with >= 95 % output (best {rows[0]} "
@@ -1100,10 +1110,16 @@ def bench_pose_filter(quick: bool = False) -> list[dict]:
     smoother on the compiled pass, and the GTSAM peer (``update_cpu_s``) in the same run, each
     as CPU time per epoch, x probe and GTSAM / figure; then the kernel's first-call compile
     and its cached load in fresh processes (not with ``--quick``). Targets: forward
-    <= 15 us and >= 100x below GTSAM, RTS and fixed-lag <= 2x the forward pass."""
+    <= 15 us and >= 100x below GTSAM, RTS and fixed-lag <= 2x the forward pass; the
+    iterated RTS smoother (issue 25): forward + it >= 10x below GTSAM."""
     from estimator.gtsam_peer import gtsam_available, run_gtsam_peer
     from estimator.pose_filter import run_pose_filter
-    from estimator.pose_smoother import fixed_lag_smooth, rts_smooth
+    from estimator.pose_smoother import (
+        IEKS_ITERATIONS,
+        fixed_lag_smooth,
+        iterated_rts_smooth,
+        rts_smooth,
+    )
 
     ref, reps, rows = Reference(3 if quick else 5), 3 if quick else 7, []
     for name, t, obs, off, p in _pose_scenes():
@@ -1116,6 +1132,12 @@ def bench_pose_filter(quick: bool = False) -> list[dict]:
         figs = {"forward (numba)": _cpu_per(lambda f=fwd: f("numba"), n, reps),
                 "forward (numpy reference)": _cpu_per(lambda f=fwd: f("numpy"), n, 1),
                 "RTS (numba)": _cpu_per(lambda r=res: rts_smooth(r), n, reps),
+                f"iterated RTS, {IEKS_ITERATIONS} passes (numba)": _cpu_per(
+                    lambda r=res, t=t, obs=obs, off=off: iterated_rts_smooth(
+                        r, t, obs, off, IEKS_ITERATIONS), n, reps),
+                "iterated RTS (numpy reference)": _cpu_per(
+                    lambda r=res, t=t, obs=obs, off=off: iterated_rts_smooth(
+                        r, t, obs, off, IEKS_ITERATIONS, engine="numpy"), n, 1),
                 "fixed-lag": _cpu_per(lambda r=res, t=t, lag=p.lag_s: fixed_lag_smooth(
                     r, t, lag), n, reps)}
         # CPU time, as every other figure here (update_s is wall time, which grows with the
@@ -1138,17 +1160,19 @@ def bench_pose_filter(quick: bool = False) -> list[dict]:
 
 def _pose_kernel_load(ref: Reference) -> list[dict]:
     """CPU time of a fresh process's first pose-filter call (20 epochs) with an empty numba
-    cache (compilation of the forward and RTS kernels) and with the cache it left (load)."""
+    cache (compilation of the forward, relinearised and RTS kernels: the iterated smoother)
+    and with the cache it left (load)."""
     import subprocess
     import sys
     import tempfile
 
     code = ("import time, numpy as np; from estimator.pose_filter import run_pose_filter as f, "
-            "PoseFilterParams as P; from estimator.pose_smoother import rts_smooth; "
+            "PoseFilterParams as P; from estimator.pose_smoother import iterated_rts_smooth; "
             "o = np.array([[0.75, 0.5], [0.75, 0.0], [-0.75, 0.5], [-0.75, -0.5]]); "
             "t = np.arange(20.0); z = np.c_[t, 0 * t][:, None] + o + np.random.default_rng(0)"
             ".normal(0, 0.01, (20, 4, 2)); c = time.process_time(); "
-            "rts_smooth(f(t, z, o, P(sigma_abs_m=0.01, sigma_step_m=0.014))); "
+            "r = f(t, z, o, P(sigma_abs_m=0.01, sigma_step_m=0.014)); "
+            "iterated_rts_smooth(r, t, z, o, 2); "
             "print(time.process_time() - c)")
     repo, rows = Path(__file__).resolve().parents[1], []
     with tempfile.TemporaryDirectory() as cache:
