@@ -424,6 +424,7 @@ class _Run:
             for res in results:
                 if not res.get("written"):
                     self.store.write(self.by_key[res["key"]], res)
+            self.store.prefetch(r["key"] for r in results if r["ok"])
             n += len(results)
             self.bar.update(len(results))
         return n

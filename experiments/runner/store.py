@@ -55,6 +55,7 @@ class CellStore:
         for d in (self.cells_dir, self.epochs_dir, self.errors_dir):
             d.mkdir(parents=True, exist_ok=True)
         self.matched: set[str] = set()      # keys :meth:`check` found as the index has them
+        self._rows: dict[str, tuple[list, list[dict]]] = {}   # :meth:`prefetch`'s reads
 
     _atomic = staticmethod(atomic_write)
 
@@ -175,21 +176,38 @@ class CellStore:
         if err.exists():
             err.unlink()
 
+    def prefetch(self, keys: Iterable[str]) -> None:
+        """Read the cell files of ``keys`` now (the run calls it as each batch finishes,
+        while it waits for the workers): :meth:`read_cells` then only checks that each
+        file is as read (its size and mtime), off the serial step between the last cell and
+        the outputs (thesis preset: 1160 files, ~0.1 of its 0.2 s)."""
+        for k in keys:
+            st = file_stat(self.cells_dir / f"{k}.json")
+            if st is not None:
+                self._rows[k] = (st, self._cell_rows(k))
+
+    def _cell_rows(self, key: str) -> list[dict]:
+        """The cell table's rows of one cell file (one per mask)."""
+        r = json.loads((self.cells_dir / f"{key}.json").read_text())
+        n_ok = int(r["status_counts"].get("ok", 0))
+        n_all = int(sum(r["status_counts"].values()))
+        return [{"key": key, **r["params"], **row, **r["timings"],
+                 "status_counts": json.dumps(r["status_counts"], sort_keys=True),
+                 "n_status_ok": n_ok, "n_status_other": n_all - n_ok,
+                 "has_epochs": bool(r.get("epochs"))} for row in r["rows"]]
+
     def read_cells(self, keys: Iterable[str]) -> pd.DataFrame:
+        """The cell table of the cell files of ``keys`` (absent ones left out), from
+        :meth:`prefetch`'s rows where the file is still as it read it."""
         import pandas as pd
+
         recs = []
         for k in keys:
-            p = self.cells_dir / f"{k}.json"
-            if not p.exists():
+            st = file_stat(self.cells_dir / f"{k}.json")
+            if st is None:
                 continue
-            r = json.loads(p.read_text())
-            n_ok = int(r["status_counts"].get("ok", 0))
-            n_all = int(sum(r["status_counts"].values()))
-            for row in r["rows"]:
-                recs.append({"key": k, **r["params"], **row, **r["timings"],
-                             "status_counts": json.dumps(r["status_counts"], sort_keys=True),
-                             "n_status_ok": n_ok, "n_status_other": n_all - n_ok,
-                             "has_epochs": bool(r.get("epochs"))})
+            got = self._rows.get(k)
+            recs.extend(got[1] if got is not None and got[0] == st else self._cell_rows(k))
         return pd.DataFrame.from_records(recs)
 
     def read_errors(self, keys: Iterable[str]) -> list[dict]:
