@@ -142,6 +142,7 @@ class _Epochs:
         self.out = Path(out)
         self.variant, self.index = _epoch_index(self.out / "cells.parquet")
         self._cache: dict[str, _EpochColumns] = {}
+        self._np: dict[str, np.ndarray] = {}
 
     def straights_mask(self) -> str:
         """The no-turns mask of the per-epoch files: whole window free of turns where they
@@ -152,11 +153,15 @@ class _Epochs:
         return "no_turns"
 
     def find(self, **where) -> pd.DataFrame:
+        """The index rows whose column ``k`` is ``v`` (a list or tuple: any of) for every
+        ``k=v`` of ``where``."""
         mk = np.ones(len(self.index), dtype=bool)
         for k, v in where.items():
-            col = self.index[k]
-            mk &= col.isin(v).to_numpy() if isinstance(v, (list, tuple)) else (col == v).to_numpy()
-        return self.index[mk]
+            if k not in self._np:                 # numpy columns: a figure asks ~100 times
+                self._np[k] = self.index[k].to_numpy()
+            col = self._np[k]
+            mk &= np.isin(col, list(v)) if isinstance(v, (list, tuple)) else (col == v)
+        return self.index.iloc[np.flatnonzero(mk)]
 
     def load(self, key: str) -> _EpochColumns:
         """The per-epoch table of cell ``key`` (its columns read on first use)."""
@@ -172,7 +177,7 @@ class _Epochs:
         """Concatenated |column| over the matching cells' epochs (all saved seeds)."""
         rows = self.find(**where)
         vals, seeds = [], []
-        for _, r in rows.iterrows():
+        for r in rows[["key", "seed"]].to_dict("records"):
             ep = self.load(r["key"])
             ep.prefetch([column, "truth_turning", "no_turns_window"])
             v = np.abs(ep[column])

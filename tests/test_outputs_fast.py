@@ -98,3 +98,27 @@ def test_claims_per_seed_and_compare_match_pandas():
             if o.n:
                 d = (pa - pb).to_numpy()
                 assert (o.mean_a, o.mean_b, o.diff) == (pa.mean(), pb.mean(), d.mean())
+
+
+def test_young_gc_freezes_only_for_the_unit():
+    """The outputs units freeze the objects alive before them out of the full collections
+    and unfreeze them after: a cycle made before and dropped inside is collected after."""
+    import gc
+    import weakref
+
+    from experiments.outputs import _young_gc
+
+    class Node:
+        pass
+
+    a = Node()
+    a.self = a
+    ref = weakref.ref(a)
+    with _young_gc():
+        assert gc.get_freeze_count() > 0
+        del a
+        gc.collect()
+        assert ref() is not None          # frozen: not collected during the unit
+    assert gc.get_freeze_count() == 0
+    gc.collect()
+    assert ref() is None
