@@ -33,6 +33,7 @@ MAX_ENTRIES = 100_000
 _METRICS: dict[tuple, tuple[float, float, float]] = {}
 _LAYOUTS: dict[tuple, list[tuple]] = {}
 _GLYPHS: dict[tuple, tuple] = {}
+_HEIGHTS: dict[tuple, tuple] = {}
 _CLASSES: list = []
 
 
@@ -48,6 +49,26 @@ def _prop_key(prop) -> tuple:
             prop.get_stretch(), prop.get_size_in_points(), prop.get_file())
 
 
+def _font_heights(prop, dpi: float) -> tuple:
+    """matplotlib 3.11's ``Text._get_layout`` font heights (ascent, descent, line gap) of
+    ``prop`` at ``dpi``; (None, None, None) where the font has neither table (it then
+    measures "lp")."""
+    from matplotlib.font_manager import fontManager, get_font
+
+    font = get_font(fontManager._find_fonts_by_props(prop))
+    for table_name, linegap_key, ascent_key, descent_key in (
+            ("OS/2", "sTypoLineGap", "sTypoAscender", "sTypoDescender"),
+            ("hhea", "lineGap", "ascent", "descent")):
+        table = font.get_sfnt_table(table_name)
+        if table is None:
+            continue
+        fontsize = prop.get_size_in_points()
+        units_per_em = font.get_sfnt_table("head")["unitsPerEm"]
+        scale = 1 / units_per_em * fontsize * dpi / 72
+        return table[ascent_key] * scale, -table[descent_key] * scale, table[linegap_key] * scale
+    return None, None, None
+
+
 def _classes():
     """(canvas class, renderer class) with the text cache, or the stock Agg ones."""
     if _CLASSES:
@@ -61,6 +82,16 @@ def _classes():
         return _CLASSES[0]
 
     class Renderer(agg.RendererAgg):
+        def _get_font_height_metrics(self, prop):
+            """(ascent, descent, line gap) in pixels of ``prop``'s font, as
+            ``Text._get_layout`` computes them without this method (the same operations
+            on the font's OS/2 or hhea table), once per font, size and dpi instead of at
+            every layout (each a font look-up and three table reads)."""
+            key = (_prop_key(prop), self.dpi)
+            if key not in _HEIGHTS:
+                _bounded(_HEIGHTS)[key] = _font_heights(prop, self.dpi)
+            return _HEIGHTS[key]
+
         def get_text_width_height_descent(self, s, prop, ismath):
             if ismath:
                 return super().get_text_width_height_descent(s, prop, ismath)

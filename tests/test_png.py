@@ -86,3 +86,21 @@ def test_palette_png_reads_back_as_drawn(tmp_path):
     assert d.mean() < 2.0 and d.max() <= 64, (d.mean(), d.max())
     white = (drawn == 255).all(axis=-1)
     assert (back[white] == 255).all()            # plain colours exact
+
+
+@pytest.mark.parametrize("size", [7, 9, 10.5, 12])
+def test_cached_font_heights_give_the_stock_layout(size):
+    """The renderer's font heights (experiments.png._font_heights, cached) lay text out
+    exactly as matplotlib does without them: same boxes and line positions, bit for bit."""
+    cls = png._classes()[1]
+    if not hasattr(cls, "_get_font_height_metrics"):
+        pytest.skip("stock renderer (matplotlib before 3.11)")
+    fig = plt.figure(figsize=(4, 3), dpi=100)
+    t = fig.text(0.1, 0.5, "window 10\nsensor 1 y (m)\nlp", fontsize=size, rotation=30)
+    stock = t._get_layout(FigureCanvasAgg(fig).get_renderer())
+    fig2 = plt.figure(figsize=(4, 3), dpi=100)
+    t2 = fig2.text(0.1, 0.5, t.get_text(), fontsize=size, rotation=30)
+    cached = t2._get_layout(png.canvas(fig2).get_renderer())
+    plt.close("all")
+    assert np.array_equal(stock[0].get_points(), cached[0].get_points())
+    assert stock[1] == cached[1] and np.array_equal(stock[2], cached[2])
