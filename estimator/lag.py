@@ -135,7 +135,9 @@ def lag_shift(t: np.ndarray, positions: np.ndarray, first_obs: np.ndarray,
         with np.errstate(invalid="ignore", divide="ignore"):
             u = velocity / speed[:, None]
         u = np.where(speed[:, None] > 0, u, np.nan)
-        dist = np.einsum("nmk,nk->nm", diff, u)  # signed along-track component
+        # signed along-track component (the two-term sum of einsum "nmk,nk->nm" written
+        # out, from +0 as einsum's: the same numbers, several times faster on (N, m, 2))
+        dist = (diff[..., 0] * u[:, None, 0] + 0.0) + diff[..., 1] * u[:, None, 1]
     d_i = speed[:, None] * T - dist  # step 4 per sensor, metres
     with np.errstate(invalid="ignore"):
         cnt = np.isfinite(d_i).sum(axis=1)

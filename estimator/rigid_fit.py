@@ -180,13 +180,15 @@ def rotate(R: np.ndarray, P: np.ndarray, t: np.ndarray | None = None) -> np.ndar
     """``R @ p (+ t)`` for every point: R (N, d, d), P (N or 1, m, d), t (N, d) -> (N, m, d).
     For d = 2 the two-term sums are written out: the same floating-point numbers as
     ``np.einsum("nab,nmb->nma", R, P) + t[:, None]`` (each product rounded, then one
-    addition; tests/test_rigid_fit.py) at a fifth of its time on (N, 2, 2) rotations."""
+    addition, signed zeros included; tests/test_rigid_fit.py) at a fifth of its time on
+    (N, 2, 2) rotations."""
     if R.shape[-1] != 2:
         out = np.einsum("nab,nmb->nma", R, P)
         return out if t is None else out + t[:, None, :]
     out = np.empty((R.shape[0], P.shape[1], 2))
     for a in range(2):
-        out[..., a] = R[:, None, a, 0] * P[..., 0] + R[:, None, a, 1] * P[..., 1]
+        # einsum's sum starts from +0: "+ 0.0" gives a zero its sign as einsum does
+        out[..., a] = (R[:, None, a, 0] * P[..., 0] + 0.0) + R[:, None, a, 1] * P[..., 1]
         if t is not None:
             out[..., a] += t[:, None, a]
     return out
@@ -201,7 +203,7 @@ def _cross_moments(wYc: np.ndarray, Bc: np.ndarray) -> np.ndarray:
     for a in range(d):
         for b in range(d):
             x = wYc[:, :, a] * Bc[:, :, b]
-            acc = x[:, 0].copy()
+            acc = x[:, 0] + 0.0              # einsum starts from +0 (a zero's sign)
             for i in range(1, x.shape[1]):
                 acc += x[:, i]
             M[:, a, b] = acc

@@ -130,8 +130,14 @@ def cg_and_heading(cfg: SensorConfig, pos: np.ndarray, naive: bool = False
     cg = cfg.cg_from_positions(pos)
     if naive:
         return cg, np.full(pos.shape[0], np.nan)
+    return cg, loc_heading(cfg, pos)
+
+
+def loc_heading(cfg: SensorConfig, pos: np.ndarray) -> np.ndarray:
+    """The law-of-cosines heading (N,) rad of positions (N, m, 2) (Section 3.2; the side of
+    :func:`heading_pair`, relative to the first row's)."""
     i, j, ang = heading_pair(cfg)
-    return cg, law_of_cosines_heading(pos[:, j] - pos[:, i], ang)
+    return law_of_cosines_heading(pos[:, j] - pos[:, i], ang)
 
 
 def settings(name: str, s: int, cfg: SensorConfig, *, weighting: Weighting = NO_WEIGHTS,

@@ -25,7 +25,8 @@ from estimator.pose_filter import (
     memo_pose_filter,
 )
 from estimator.pose_smoother import IEKS_ITERATIONS, memo_smoothed_states
-from estimator.trackers._common import Rows, TrackerOptions, cg_and_heading, frame, settings
+from estimator.rigid_fit import rotate
+from estimator.trackers._common import Rows, TrackerOptions, frame, loc_heading, settings
 
 __all__ = ["FilterOptions", "FixedLagSmootherTracker", "IteratedSmootherTracker",
            "PoseFilterTracker", "RtsSmootherTracker"]
@@ -98,7 +99,7 @@ class FilterOptions(TrackerOptions, abc.ABC):
         pos, cg = pos_all[k0:].copy(), cg_all[k0:].copy()
         # the law-of-cosines heading is relative to the first row's side (Section 3.2), so
         # it is not a suffix of the whole recording's: each window computes its own
-        yaw_loc = cg_and_heading(cfg, pos)[1]
+        yaw_loc = loc_heading(cfg, pos)
         X = X[k0:]
         extra = {"speed": X[:, 3].copy(), "yaw_rate": X[:, 5].copy(),
                  **{k: v[k0:].copy() for k, v in extra.items()}}
@@ -118,7 +119,7 @@ def state_poses(X: np.ndarray, r_m: np.ndarray, cfg: SensorConfig, cache: TrackC
     def compute() -> tuple[np.ndarray, np.ndarray]:
         c, sn = np.cos(X[:, 2]), np.sin(X[:, 2])
         R = np.stack([np.stack([c, -sn], -1), np.stack([sn, c], -1)], -2)  # (n, 2, 2)
-        pos = X[:, None, :2] + np.einsum("nab,mb->nma", R, r_m)
+        pos = rotate(R, r_m[None], X[:, :2])     # X[:, None, :2] + R r_m, the same bits
         return freeze(pos), freeze(cfg.cg_from_positions(pos))
 
     return memo_get(cache, "poses", lambda: ("filter", content_digest(X, r_m,
