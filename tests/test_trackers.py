@@ -380,3 +380,34 @@ def test_status_values_make_the_column_astype_str_makes():
     assert fast.dtype == slow.dtype and fast.equals(slow)
     odd = np.array(["ok", None, 3], dtype=object)        # not all str: astype(str)
     assert status_values(odd).tolist() == ["ok", "None", "3"]
+
+
+def test_table_is_the_dict_constructors_frame():
+    """_common.table builds pd.DataFrame(cols) from one block per dtype: the same columns,
+    dtypes, values and parquet bytes; odd columns take the dict constructor."""
+    import io
+
+    from estimator.trackers._common import table
+
+    rng = np.random.default_rng(4)
+    n = 60
+    cols = {"t": rng.random(n), "window": np.full(n, 5), "solver_status":
+            np.where(rng.random(n) < 0.2, "insufficient_data", "ok").astype(object),
+            "turning": rng.random(n) < 0.5, "x_a": rng.random(n), "n_used": np.arange(n),
+            "nis": np.where(rng.random(n) < 0.1, np.nan, rng.random(n)),
+            "f32": rng.random(n).astype(np.float32)}
+    for c in (cols, {**cols, "odd": np.array(["a", None] * 30, dtype=object)},
+              {**cols, "mixed": np.array(["a", 3] * 30, dtype=object)},
+              {**cols, "u": np.array(["a"] * n)}, {"t": np.arange(3.0)}):
+        want, got = pd.DataFrame(c), table(c, len(next(iter(c.values()))))
+        assert list(got.columns) == list(want.columns)
+        assert got.dtypes.equals(want.dtypes) and got.equals(want)
+        assert got.index.equals(want.index) and got.columns.dtype == want.columns.dtype
+        if "mixed" in c:                # parquet refuses mixed objects: nothing to write
+            continue
+        a, b = io.BytesIO(), io.BytesIO()
+        want.to_parquet(a)
+        got.to_parquet(b)
+        assert a.getvalue() == b.getvalue()
+    with pytest.raises(ValueError):
+        table({"t": np.arange(3.0), "u": np.arange(4.0)}, 3)
