@@ -185,7 +185,7 @@ def test_a_changed_sensitivity_study_redraws_the_report_only(folder):
 def test_each_unit_run_writes_its_timeline_line(folder, monkeypatch):
     """With CONFIGPOSE_TIMELINE set, every unit run (tables, report, each figure group, the
     replay) appends one line "output <unit>" (issue 27: where the outputs phase's time goes);
-    the page, written in this process, has none."""
+    the page, written in this process, one "main page" line."""
     from experiments.runner.worker import TIMELINE_ENV
 
     path = folder[0] / "timeline.jsonl"
@@ -193,6 +193,6 @@ def test_each_unit_run_writes_its_timeline_line(folder, monkeypatch):
     _write(folder)
     lines = [json.loads(s) for s in path.read_text().splitlines()]
     assert sorted(x["what"] for x in lines) == [
-        "output orientation", "output replay", "output report", "output tables",
-        "output weighting"]
+        "main page", "output orientation", "output replay", "output report",
+        "output tables", "output weighting"]
     assert all(x["end"] >= x["start"] and x["cpu_s"] >= 0.0 for x in lines)
