@@ -18,6 +18,9 @@ with the one-step smoothed quantities) is
 smoother; tested against FilterPy's ``rts_smoother``).
 
 - :func:`rts_smooth`: every epoch smoothed with all the data of its segment (offline).
+- :func:`iterated_rts_smooth`: the iterated extended RTS smoother (Gauss-Newton on the
+  whole trajectory, Bell 1994): the forward pass re-run with its Jacobians and robust
+  weights at the previous smoothed states, then smoothed again (technique "ekf_ieks").
 - :func:`fixed_lag_smooth`: the estimate of epoch k using the data up to ``t_k + lag_s``,
   available ``lag_s`` seconds after the fact (on-line with a latency): the same recursion
   started from the filtered state at the lag's end (exact for a linear-Gaussian model; here
