@@ -122,3 +122,17 @@ def test_young_gc_freezes_only_for_the_unit():
     assert gc.get_freeze_count() == 0
     gc.collect()
     assert ref() is None
+
+
+def test_select_matches_pandas_comparisons():
+    """tables.select's numpy comparisons pick the rows pandas' ``==`` / ``isin`` pick."""
+    df = pd.DataFrame({"s": ["a", "b", None, "a", "-"], "w": [1, 5, 10, 5, 1],
+                       "f": [1.0, np.nan, 5.0, 5.0, 1.0], "o": [0, "-", "x", 0, 1.0]})
+    df["n"] = pd.array(["a", None, "b", "a", "c"], dtype="str")   # Arrow strings: the pandas path
+    for col, vals in (("s", ["a", ("a", "-"), "zz", ["b", None]]), ("w", [5, [1, 10], 5.0]),
+                      ("f", [5.0, [np.nan, 1.0], np.nan]), ("o", [0, ["-", 1], "x"]),
+                      ("n", ["a", ["a", "c"]])):
+        for v in vals:
+            many = isinstance(v, (list, tuple, set))
+            want = df[df[col].isin(v) if many else df[col] == v]
+            assert list(tables.select(df, **{col: v}).index) == list(want.index), (col, v)
