@@ -224,11 +224,13 @@ def _run_unit(kind: str, *args: Any) -> tuple[str, dict]:
     name = args[-1] if kind == "figure" else kind
     fn = {"tables": _tables_unit, "report": _report_unit, "figure": _figure_unit,
           "replay": _replay_unit}[kind]
-    from experiments.runner.worker import release_memos, timeline
+    from experiments.runner.worker import release_memos, timeline, trim_heap
 
     release_memos()             # the cells are done: a worker's memos go (loky's leak check)
     with timeline(f"output {name}"):
-        return name, fn(*args)
+        res = fn(*args)
+        trim_heap()             # what the unit freed, back to the OS before loky measures
+    return name, res
 
 
 def n_steps(figures: bool = True) -> int:
