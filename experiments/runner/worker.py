@@ -130,9 +130,10 @@ def release_memos() -> None:
     """Forget this process's per-run memos and hand the freed heap back to the OS (glibc's
     ``malloc_trim``; elsewhere only the memos go): called when the outputs phase starts
     in a worker, whose cells are all done. loky replaces a worker whose resident size grew
-    300 MB past its size after its first task as "leaking": the cells' memos (~240 MB in
-    the thesis preset) plus a figure group crossed that (a worker replaced during the
-    outputs, its start-up on the critical path, and a UserWarning). Once per run; no
+    300 MB past its size after its first task as "leaking": what a worker grew by during
+    the thesis preset's cells (~240 MB, its memos among it) plus a figure group crossed
+    that (a worker replaced during the outputs, its start-up on the critical path, and a
+    UserWarning). Once per run; no
     ``gc.collect`` (0.08 CPU-s in a worker, on the critical path of the first output unit:
     the memos' arrays go with their last reference, and loky collects before it replaces)."""
     if not WORKER.run_id:
