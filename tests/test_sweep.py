@@ -668,6 +668,7 @@ def test_end_of_run_imports_leave_matplotlib_to_the_workers():
             "import experiments.sweep as s\n"
             "s.import_for_outputs()\n"
             "assert 'pandas' in sys.modules and 'experiments.page' in sys.modules\n"
+            "assert 'experiments.causes' in sys.modules\n"    # the report unit's inputs
             "import experiments.figures as f\n"
             "assert f.figure_tasks()\n"
             "print('matplotlib' in sys.modules)\n")

@@ -77,7 +77,7 @@ RESULTS_DIR = RESULTS_ROOT
 TOP_LEVEL_RUNS = frozenset({"thesis", "thesis-elastic", "speed", "quick"})
 #: What :func:`import_for_outputs` imports.
 OUTPUT_MODULES = ("pandas", "pyarrow.parquet", "markdown_it", "experiments.figures",
-                  "experiments.outputs", "experiments.page")
+                  "experiments.outputs", "experiments.page", "experiments.causes")
 
 
 def default_out(name: str) -> Path:
