@@ -86,3 +86,18 @@ def test_the_outputs_phase_releases_a_workers_cell_memos():
     assert not worker.WORKER.memo and worker.WORKER.run_id == ""
     worker.release_memos()
     assert worker.WORKER.for_run("run-2").run_id == "run-2"
+
+
+def test_the_kernel_lock_is_one_per_checkout():
+    """Workers of one checkout load or compile the numba kernels one at a time; workers of
+    another checkout (another numba cache) do not wait for them (issue 27: 17 s waited)."""
+    import hashlib
+    import tempfile
+    from pathlib import Path
+
+    from experiments.runner import worker
+
+    root = Path(worker.__file__).resolve().parents[2]
+    tag = hashlib.blake2b(str(root).encode(), digest_size=6).hexdigest()
+    lock = worker.KERNEL_LOCK
+    assert lock == str(Path(tempfile.gettempdir()) / f"configpose-kernels-{tag}.lock")

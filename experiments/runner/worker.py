@@ -10,6 +10,7 @@ worker processes outlive a run, and files may change between runs.
 from __future__ import annotations
 
 import ctypes
+import hashlib
 import json
 import os
 import tempfile
@@ -30,11 +31,15 @@ from experiments.spec import Cell
 __all__ = ["KERNEL_LOCK", "TIMELINE_ENV", "CellJob", "mark", "process_started",
            "release_memos", "run_batch", "started", "timeline", "trim_heap", "warm_up"]
 
-#: Lock file under which a worker compiles or loads the numba kernels (one at a time).
-KERNEL_LOCK = os.path.join(tempfile.gettempdir(), "configpose-kernels.lock")
+#: Lock file under which a worker compiles or loads the numba kernels (one at a time), one
+#: per checkout (numba's cache is the checkout's ``__pycache__``): with one name for the
+#: machine, a quick run's workers waited 17 s for another checkout's sweep compiling.
+KERNEL_LOCK = os.path.join(tempfile.gettempdir(), "configpose-kernels-" + hashlib.blake2b(
+    str(Path(__file__).resolve().parents[2]).encode(), digest_size=6).hexdigest() + ".lock")
 #: Environment variable naming a file to which every worker task (simulation, warm-up,
-#: batch of cells) appends one JSON line {what, pid, start, end (Unix s), cpu_s, n}: the
-#: sweep's timeline, for measuring the scheduling (unset: nothing is written).
+#: batch of cells, output unit) and each phase of the main process appends one JSON line
+#: {what, pid, start, end (Unix s), cpu_s, n, rss_mb}: the sweep's timeline, for measuring
+#: the scheduling (unset: nothing is written).
 TIMELINE_ENV = "CONFIGPOSE_TIMELINE"
 
 
