@@ -32,8 +32,8 @@ __all__ = ["KERNEL_LOCK", "TIMELINE_ENV", "CellJob", "mark", "process_started",
            "release_memos", "run_batch", "started", "timeline", "trim_heap", "warm_up"]
 
 #: Lock file under which a worker compiles or loads the numba kernels (one at a time), one
-#: per checkout (numba's cache is the checkout's ``__pycache__``): with one name for the
-#: machine, a quick run's workers waited 17 s for another checkout's sweep compiling.
+#: per checkout (numba's cache is the checkout's ``__pycache__``), so that sweeps of other
+#: checkouts do not wait for it (a quick run's workers once waited 17 s for a sweep's lock).
 KERNEL_LOCK = os.path.join(tempfile.gettempdir(), "configpose-kernels-" + hashlib.blake2b(
     str(Path(__file__).resolve().parents[2]).encode(), digest_size=6).hexdigest() + ".lock")
 #: Environment variable naming a file to which every worker task (simulation, warm-up,
