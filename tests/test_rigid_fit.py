@@ -86,3 +86,19 @@ def test_procrustes_batch_matches_einsum_formula() -> None:
     assert np.array_equal(bf.positions, pos, equal_nan=True)
     assert np.array_equal(bf.yaw[ok], yw[ok])
     assert (bf.status == "ok").tolist() == ok.tolist()
+
+
+def test_procrustes_poses_are_procrustes_batchs_fields() -> None:
+    from estimator.rigid_fit import procrustes_poses
+
+    rng = np.random.default_rng(8)
+    cfg = SensorConfig([f"s{i}" for i in range(5)], rng.normal(0, 0.5, (5, 2)))
+    Y = rng.normal(0, 30, (400, 5, 2))
+    w = rng.uniform(0, 2, (400, 5)) * (rng.random((400, 5)) > 0.4)
+    Y[w == 0] = np.nan
+    bf = procrustes_batch(Y, w, cfg)
+    pos, yaw, status = procrustes_poses(Y, w, cfg)
+    assert _same(pos, bf.positions) and _same(yaw, bf.yaw)
+    assert status.tolist() == bf.status.tolist() and "insufficient_data" in status
+    with pytest.raises(ValueError, match="sensor_weight"):
+        procrustes_poses(Y, -w, cfg)

@@ -145,7 +145,7 @@ def test_techniques_sharing_a_cache_share_its_rows_and_change_no_number():
 
 
 @pytest.mark.parametrize("solver, batch", [("elastic", "elastic_batch"),
-                                           ("procrustes", "procrustes_batch")])
+                                           ("procrustes", "procrustes_poses")])
 def test_a_dynamic_track_reuses_the_fixed_windows_fits(monkeypatch, solver, batch):
     """With the fixed window-s fit memoised, a dynamic-window track fits only its rows of
     other sizes (each window is fitted on its own, so the others are the fixed fit's

@@ -24,6 +24,7 @@ from estimator._checks import check_int
 from estimator.configuration import SensorConfig
 from estimator.elastic import elastic_batch
 from estimator.memo import ContentMemo, TrackCache, content_digest, freeze, memo_get
+from estimator.rigid_fit import procrustes_poses
 from estimator.track_options import GROWTH_RULES, DynamicWindow
 from estimator.trackers._common import Rows, TrackerOptions, check_inputs
 from estimator.weights import Weighting
@@ -364,8 +365,7 @@ def fit_windows(obs: np.ndarray, cfg: SensorConfig, ends: np.ndarray, w: int | n
             # the weights need no data: sum the windows without stacking them
             rw = _weights.random_weights((ch.size, w, m), rng)
             means, sw = weighted_window_means(obs, ch, w, rw)
-            bf = procrustes_batch(means, sw, cfg)
-            pos[sl], yaw[sl], status[sl] = bf.positions, bf.yaw, bf.status
+            pos[sl], yaw[sl], status[sl] = procrustes_poses(means, sw, cfg)
             a += ch.size
             continue
         st = stack_windows(obs, ch, w)
@@ -373,8 +373,7 @@ def fit_windows(obs: np.ndarray, cfg: SensorConfig, ends: np.ndarray, w: int | n
                               None if huff is None else stack_windows(huff, ch, w))
         if solver == "procrustes":
             means, sw = window_means(st, wts)
-            bf = procrustes_batch(means, sw, cfg)
-            pos[sl], yaw[sl], status[sl] = bf.positions, bf.yaw, bf.status
+            pos[sl], yaw[sl], status[sl] = procrustes_poses(means, sw, cfg)
         else:
             for r in range(ch.size):
                 fit = fit_window(st[r], cfg, None if wts is None else wts[r], eps=eps,
@@ -485,8 +484,8 @@ def procrustes_fits(obs: np.ndarray, cfg: SensorConfig, ends: np.ndarray, w: int
         sw = None if weighting == "none" else recording_huff(obs, cfg, huff_threshold, cache)
         means, cnt = cumsum_means(obs, ends[rows], w[rows] if isinstance(w, np.ndarray) else w,
                                   sw, cache)
-        bf = procrustes_batch(means, cnt, cfg)
-        return bf.positions, bf.yaw, bf.status.astype(object)
+        p, y, st = procrustes_poses(means, cnt, cfg)
+        return p, y, st.astype(object)
 
     if cache is None:
         return fits()
