@@ -74,7 +74,10 @@ For every antenna ``i`` with body offset ``r_i`` from M:
 - its fix, ``z_i = p + R(yaw) r_i + e``, ``e ~ N(0, sigma_abs^2 I)``; Jacobian
   ``[I, J R r_i, 0, 0, 0]`` (J the 90 degree rotation);
 - if it also reported at the previous epoch, its displacement, ``z_i(t_k) - z_i(t_(k-1)) =
-  (p_k + R(yaw_k) r_i) - (p_(k-1) + R(yaw_(k-1)) r_i) + e``, sd ``sigma_step``.
+  (p_k + R(yaw_k) r_i) - (p_(k-1) + R(yaw_(k-1)) r_i) + e``, sd ``sigma_step``. It contains
+  the same antenna's fix error at k, so the two are correlated (cross-covariance
+  ``min(sigma_step^2 / 2, sigma_abs^2)`` per axis, :func:`fix_step_covariance`), which the
+  update's joint noise covariance carries (issue 25).
 
 The displacement involves two epochs, so the filter keeps the previous state beside the
 current one (stochastic cloning, Roumeliotis and Burdick 2002): each epoch predicts
@@ -94,9 +97,10 @@ so one antenna's error changes little from one sample to the next even when it i
 large. Its epoch-to-epoch displacement therefore measures the platform's motion far better
 than two absolute fixes do, and with the non-holonomic constraint the direction of motion is
 the heading; differences between antennas' displacements measure the turn through the
-configuration. (The correlation of consecutive displacements through their shared fix, and
-the slow drift of the error, are left out of the model; the first is small next to the
-absolute fixes' noise, the second is what limits the heading, see the README.)
+configuration. (The correlation of a displacement with the fix at the previous epoch,
+already used there, and the slow drift of the error are left out of the model; the first is
+small next to the absolute fixes' noise, the second is what limits the heading, see the
+README.)
 
 Noise levels from the data through the configuration (no truth, no tuning)
 --------------------------------------------------------------------------
@@ -189,6 +193,7 @@ __all__ = [
     "antenna_jacobians",
     "ctra_predict",
     "estimate_noise",
+    "fix_step_covariance",
     "kalman_update",
     "memo_pose_filter",
     "motion_integrals",
@@ -797,16 +802,22 @@ def kalman_update(x: np.ndarray, P: np.ndarray, nu: np.ndarray, H: np.ndarray,
 
 def _kalman_update(x: np.ndarray, P: np.ndarray, nu: np.ndarray, H: np.ndarray,
                    var2: np.ndarray, gate: float, max_deleted: int = 3,
-                   accept: np.ndarray | None = None, nis_out: list | None = None
-                   ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+                   accept: np.ndarray | None = None, nis_out: list | None = None,
+                   cross: tuple | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """:func:`kalman_update` (k >= 1 measurements) with the noise variances per row of the
     stacked measurement vector, ``var2 = repeat(var, 2)`` (2k,). ``nis_out``: a list that
-    receives the NIS of all k measurements, ``nu^T S^-1 nu``, before any gating."""
+    receives the NIS of all k measurements, ``nu^T S^-1 nu``, before any gating. ``cross``
+    ``(rows_a, rows_b, c)``: the noise covariance c between those rows of the stacked
+    vector (:func:`fix_step_covariance`); the prior gate tests the marginal 2 x 2 blocks,
+    the deleted-residual test and the update use the joint S over the accepted ones."""
     k = nu.shape[0]
     Hf = H.reshape(2 * k, -1)
     PHt = P @ Hf.T
     S = Hf @ PHt
     S.ravel()[::2 * k + 1] += var2       # + R on the diagonal (S is a fresh C array)
+    if cross is not None and cross[0].size:
+        S[cross[0], cross[1]] += cross[2]
+        S[cross[1], cross[0]] += cross[2]
     if nis_out is not None:
         nf = nu.reshape(-1)
         nis_out.append(float(nf @ np.linalg.solve(S, nf)))
@@ -840,6 +851,35 @@ def _kalman_update(x: np.ndarray, P: np.ndarray, nu: np.ndarray, H: np.ndarray,
         Pn = P - K @ Sinv @ K.T
         return x + K @ u, 0.5 * (Pn + Pn.T), acc
     return x, P, acc
+
+
+def fix_step_covariance(va: float, vs: float) -> float:
+    """Per-axis cross-covariance (m^2) of an antenna's fix error and its displacement's
+    error within one epoch (issue 25), from the filter's own noise variances ``va =
+    sigma_abs^2`` and ``vs = sigma_step^2`` (m^2).
+
+    Derivation: the fix error e_k is stationary with variance va and lag-one covariance
+    ``g = cov(e_k, e_(k-1))``; the displacement's error ``e_k - e_(k-1)`` has variance
+    ``vs = 2 (va - g)``, so ``g = va - vs / 2`` and ``C = cov(e_k, e_k - e_(k-1)) = va - g =
+    vs / 2``. GNSS errors are positively correlated in time (``g >= 0``): ``vs > 2 va``
+    (sampling noise of :func:`estimate_noise`, or values the user gives) is taken as white
+    fix noise plus independent displacement noise, ``C = va``. So ``C = min(vs / 2, va)``;
+    the pair's 2 x 2 covariance ``[[va, C], [C, vs]]`` is positive definite (``va vs - C^2
+    >= va vs / 2``, resp. ``va (vs - va) > 0``). Different antennas' errors are independent
+    in the model, and so is the displacement from the fix at k-1 (already used there): the
+    correlation across epochs is left out (module docstring).
+
+    How the update uses it (:func:`_kalman_update`): the joint R of the epoch's fixes and
+    displacements carries C between each displacement and its own fix. The gates test each
+    measurement on its marginal block (unchanged by C); the update over the accepted ones
+    is the exact joint one, equivalent to decorrelating each accepted pair (Gram-Schmidt:
+    ``d' = d - rho z``, ``H_d' = H_d - rho H_z``, variance ``vs - C^2 / va``, ``rho = C /
+    va``; Simon 2006, *Optimal State Estimation*, Sec. 6.1) and updating with independent
+    blocks; a displacement whose fix is gated enters alone, with its marginal variance vs.
+    The NIS is ``nu^T S^-1 nu`` with the joint R: chi-square with 2 dof per fix and per
+    displacement.
+    """
+    return min(0.5 * vs, va)
 
 
 # ----------------------------------------------------------------------------- noise levels
@@ -1243,9 +1283,11 @@ class _Pattern:
     at the epoch before (``before``): the fixes ``ik`` and displacements ``js`` (antenna
     indices), their per-axis noise variances ``var`` (k,) and ``var2`` (2k,, per row of the
     stacked measurement vector), the lever arms as columns (``ax, ay`` of the fixes, ``dx,
-    dy`` of the displacements) and the Jacobian's template ``H0``."""
+    dy`` of the displacements), the Jacobian's template ``H0`` and the joint R's
+    off-diagonal entries ``cross`` (rows of the fixes, rows of their displacements, the
+    covariance :func:`fix_step_covariance`) for :func:`_kalman_update`."""
 
-    __slots__ = ("H0", "ax", "ay", "dx", "dy", "ik", "js", "var", "var2")
+    __slots__ = ("H0", "ax", "ay", "cross", "dx", "dy", "ik", "js", "var", "var2")
 
     def __init__(self, now: np.ndarray, before: np.ndarray, r: np.ndarray, va: float,
                  vs: float) -> None:
@@ -1256,6 +1298,9 @@ class _Pattern:
         ra, rd = r[self.ik], r[self.js]
         self.ax, self.ay, self.dx, self.dy = ra[:, 0], ra[:, 1], rd[:, 0], rd[:, 1]
         self.H0 = _jacobian_template(self.ik.size, self.js.size)
+        rf = 2 * np.searchsorted(self.ik, self.js)          # each displacement's fix
+        rd = 2 * (self.ik.size + np.arange(self.js.size))
+        self.cross = (np.r_[rf, rf + 1], np.r_[rd, rd + 1], fix_step_covariance(va, vs))
 
 
 def _iterated_update(y, Y, z, pat, gate, lever, tol, nis_out=None, hold=False):
@@ -1276,7 +1321,9 @@ def _iterated_update(y, Y, z, pat, gate, lever, tol, nis_out=None, hold=False):
     repeats one geometry, and the fixes' errors are correlated in time (module docstring),
     so the same biased layout heading, epoch after epoch, is one measurement, not N: taken
     as N it walked the heading by 60 deg over a 150 s stop while its sd shrank to 2 deg
-    (issue 25).
+    (issue 25). The noise is the joint one of :func:`fix_step_covariance` (``pat.cross``);
+    the re-admission test takes each rejected measurement on its own (its correlation with
+    an accepted one left out: a test, not the update, which is exact).
     """
     yl = y
     acc = y1 = Y1 = None
@@ -1294,7 +1341,8 @@ def _iterated_update(y, Y, z, pat, gate, lever, tol, nis_out=None, hold=False):
             S[:, 1, 1] += var[out]
             acc[out[_quad2(S, nu[out] - Ho @ (y1 - y)) <= gate]] = True
         y1, Y1, acc = _kalman_update(y, Y, nu, H, pat.var2, gate, accept=acc,
-                                     nis_out=nis_out if yl is y and acc is None else None)
+                                     nis_out=nis_out if yl is y and acc is None else None,
+                                     cross=pat.cross)
         if not acc.any():
             break
         turn = max(abs(_wrap(y1[YAW] - yl[YAW])), abs(_wrap(y1[NX + YAW] - yl[NX + YAW])))

@@ -12,7 +12,10 @@ space instead of the 2k-dimensional measurement space (push-through identity, ex
 arithmetic). With ``N = H^T R^-1 H``, ``b = H^T R^-1 nu`` and ``M = I + N Y``:
 ``P+ = Y M^-1``, ``x+ = y + P+ b``, ``nu^T S^-1 nu = nu^T R^-1 nu - b^T P+ b``, and the
 2 x 2 diagonal blocks of ``S^-1`` that the deleted-residual test needs are
-``(I - H_i P+ H_i^T / r_i) / r_i`` (``H^T S^-1 = M^-1 H^T R^-1``). A 12 x 12 solve replaces the
+``(R^-1)_ii - G_i P+ G_i^T`` with ``G = R^-1 H`` (``H^T S^-1 = M^-1 H^T R^-1``; for a
+measurement uncorrelated with the others ``(I - H_i P+ H_i^T / r_i) / r_i``). R is the
+reference's joint noise: diagonal, plus the covariance of a displacement and its own fix
+when both are accepted (``fix_step_covariance``; :func:`_rinv` inverts each such pair). A 12 x 12 solve replaces the
 inverse of the innovation covariance (up to 32 x 32 with eight antennas), and a deletion
 costs a new 12 x 12 solve. ``M`` is invertible exactly when ``S`` is (Sylvester's
 determinant identity); a zero pivot counts as the reference's LinAlgError.
@@ -398,32 +401,69 @@ def _solve_inplace(Mm, B):
 
 
 @_jit
-def _posterior(Y, H, nu, var, acc):
+def _rinv_row(G, g, rd, H, v, i, o, wi, wo):
+    """Row i of R^-1 applied to [H | v]: wi times measurement i's rows plus wo times
+    measurement o's (:func:`_rinv`); rd[i] = wi."""
+    rd[i] = wi
+    for a in range(2):
+        g[i, a] = wi * v[i, a] + wo * v[o, a]
+        for c in range(NC):
+            G[2 * i + a, c] = wi * H[2 * i + a, c] + wo * H[2 * o + a, c]
+
+
+@_jit
+def _rinv(H, v, var, acc, nfix, pos, cv):
+    """The joint noise's inverse over the accepted measurements applied to their Jacobian
+    rows H (2k, 6) and values v (k, 2): (G = R^-1 H (2k, 6), g = R^-1 v (k, 2), the
+    diagonal of R^-1 (k,)), 0 where not accepted. R: var (k,) per axis on the diagonal, cv
+    between displacement j (measurement nfix + j) and its fix pos[j] when both are
+    accepted (reference: ``_kalman_update``'s ``cross``; each such pair per axis inverted
+    as a 2 x 2)."""
+    k = var.shape[0]
+    G = np.zeros((2 * k, NC))
+    g = np.zeros((k, 2))
+    rd = np.zeros(k)
+    for i in range(k):
+        if acc[i]:
+            _rinv_row(G, g, rd, H, v, i, i, 1.0 / var[i], 0.0)
+    for j in range(pos.shape[0]):
+        f, d = pos[j], nfix + j
+        if acc[f] and acc[d]:
+            det = var[f] * var[d] - cv * cv
+            _rinv_row(G, g, rd, H, v, f, d, var[d] / det, -cv / det)
+            _rinv_row(G, g, rd, H, v, d, f, var[f] / det, -cv / det)
+    return G, g, rd
+
+
+@_jit
+def _posterior(Y, H, nu, var, acc, nfix, pos, cv):
     """The joint update over the accepted measurements in the measured columns (module
-    docstring), solved: with ``N = H^T R^-1 H``, ``b = H^T R^-1 nu`` (6 columns) and
-    ``M = I + N Y_cc``, returns Z = M^-1 [N Y_c: | b] (6, 13), ``b^T Y_cc M^-1 b`` (for
-    the NIS) and ok (False on a zero pivot). P+ = Y - Y_:c Z[:, :12] (:func:`_cov_full`,
-    :func:`_cov_cc`), the step dx = Y_:c Z[:, 12] (:func:`_step`)."""
+    docstring), solved: with ``N = H^T R^-1 H``, ``b = H^T R^-1 nu`` (6 columns; R^-1 from
+    :func:`_rinv`) and ``M = I + N Y_cc``, returns Z = M^-1 [N Y_c: | b] (6, 13),
+    ``b^T Y_cc M^-1 b`` and ``nu^T R^-1 nu`` (for the NIS) and ok (False on a zero pivot).
+    P+ = Y - Y_:c Z[:, :12] (:func:`_cov_full`, :func:`_cov_cc`), the step dx = Y_:c
+    Z[:, 12] (:func:`_step`)."""
     n = Y.shape[0]
     nc = H.shape[1]
     k = var.shape[0]
+    G, g, _ = _rinv(H, nu, var, acc, nfix, pos, cv)
     N = np.zeros((nc, nc))
     b = np.zeros(nc)
+    nrn = 0.0
     for i in range(k):
         if not acc[i]:
             continue
-        w = 1.0 / var[i]
         for j in range(2):
             r = 2 * i + j
-            e = nu[i, j] * w
+            e = g[i, j]
+            nrn += nu[i, j] * e
             for p in range(nc):
                 hp = H[r, p]
                 if hp == 0.0:
                     continue
                 b[p] += hp * e
-                hw = hp * w
                 for q in range(nc):
-                    N[p, q] += hw * H[r, q]
+                    N[p, q] += hp * G[r, q]
     Yr, Yc = _sub(Y)
     Mm = _matmul(N, Yc)
     Z = np.empty((nc, n + 1))
@@ -442,7 +482,7 @@ def _posterior(Y, H, nu, var, acc):
         for q in range(nc):
             s += Yc[p, q] * Z[q, n]
         byb += b[p] * s
-    return Z, byb, ok
+    return Z, byb, ok, nrn
 
 
 @_jit
@@ -494,23 +534,21 @@ def _cov_full(Y, Z):
 
 
 @_jit
-def _kalman_update(y, Y, nu, H, var, gate, acc, gated, want_nis):
+def _kalman_update(y, Y, nu, H, var, gate, acc, gated, want_nis, nfix, pos, cv):
     """Reference ``_kalman_update`` in the state space: prior gate (``gated``: acc from the
-    prior's blocks, else the caller's acc), deleted-residual test, joint update. Returns
-    (y+, Y+, acc, nis (NaN unless want_nis), ok)."""
+    prior's blocks, else the caller's acc), deleted-residual test, joint update; the joint
+    noise of :func:`_rinv` (nfix, pos, cv). Returns (y+, Y+, acc, nis (NaN unless
+    want_nis), ok)."""
     k = var.shape[0]
     nis = math.nan
     finite_gate = gate != math.inf
     have_all = False            # Z holds the update with every measurement
     if want_nis:
-        Z, byb, ok = _posterior(Y, H, nu, var, np.ones(k, dtype=np.bool_))
+        Z, byb, ok, nrn = _posterior(Y, H, nu, var, np.ones(k, dtype=np.bool_), nfix, pos, cv)
         if not ok:
             return y, Y, acc, nis, False
         have_all = True
-        s = 0.0
-        for i in range(k):
-            s += (nu[i, 0] * nu[i, 0] + nu[i, 1] * nu[i, 1]) / var[i]
-        nis = s - byb
+        nis = nrn - byb
     if gated:
         Yc = _subc(Y)
         for i in range(k):
@@ -522,12 +560,12 @@ def _kalman_update(y, Y, nu, H, var, gate, acc, gated, want_nis):
     deletions = MAX_DELETED if finite_gate else 0
     while _count(acc, 0, k):
         if not (have_all and _count(acc, 0, k) == k):   # else: the NIS pass's update
-            Z, byb, ok = _posterior(Y, H, nu, var, acc)
+            Z, byb, ok, _ = _posterior(Y, H, nu, var, acc, nfix, pos, cv)
             if not ok:
                 return y, Y, acc, nis, False
         dx = _step(Y, Z)
         if deletions and _count(acc, 0, k) >= 2:
-            worst, wstat = _worst(_cov_cc(Y, Z), dx, H, nu, var, acc)
+            worst, wstat = _worst(_cov_cc(Y, Z), dx, H, nu, var, acc, nfix, pos, cv)
             if wstat > gate:
                 acc[worst] = False
                 deletions -= 1
@@ -537,28 +575,32 @@ def _kalman_update(y, Y, nu, H, var, gate, acc, gated, want_nis):
 
 
 @_jit
-def _worst(Pc, dx, H, nu, var, acc):
+def _worst(Pc, dx, H, nu, var, acc, nfix, pos, cv):
     """The deleted-residual test (reference test 2): the accepted measurement with the
-    largest ``u_i^T ((S^-1)_ii)^-1 u_i``, with ``u_i = (nu_i - H_i dx) / r_i`` and
-    ``(S^-1)_ii = (I - H_i P+ H_i^T / r_i) / r_i`` (Pc: P+ over the measured columns);
-    returns (index, statistic)."""
+    largest ``u_i^T ((S^-1)_ii)^-1 u_i``, with ``u = S^-1 nu = R^-1 (nu - H dx)`` and
+    ``(S^-1)_ii = (R^-1)_ii - G_i P+ G_i^T``, ``G = R^-1 H`` (:func:`_rinv`; Pc: P+ over
+    the measured columns); returns (index, statistic)."""
+    k = var.shape[0]
+    res = np.empty((k, 2))
+    for i in range(k):
+        res[i, 0] = nu[i, 0] - _hdot(H, 2 * i, dx)
+        res[i, 1] = nu[i, 1] - _hdot(H, 2 * i + 1, dx)
+    G, u, rd = _rinv(H, res, var, acc, nfix, pos, cv)
     worst, wstat = -1, -math.inf
-    for i in range(var.shape[0]):
+    for i in range(k):
         if not acc[i]:
             continue
-        a, bb, c = _block(H, Pc, i)
-        r = var[i]
-        ux = (nu[i, 0] - _hdot(H, 2 * i, dx)) / r
-        uy = (nu[i, 1] - _hdot(H, 2 * i + 1, dx)) / r
-        st = _quad((1.0 - a / r) / r, -bb / r / r, (1.0 - c / r) / r, ux, uy)
+        a, bb, c = _block(G, Pc, i)
+        st = _quad(rd[i] - a, -bb, rd[i] - c, u[i, 0], u[i, 1])
         if st > wstat:
             worst, wstat = i, st
     return worst, wstat
 
 
 @_jit
-def _iterated_update(y, Y, z, rr, nfix, var, gate, lever, tol, maxit, hold):
-    """Reference ``_iterated_update``: (y+, Y+, acc, prior NIS, ok)."""
+def _iterated_update(y, Y, z, rr, nfix, var, gate, lever, tol, maxit, hold, pos, cv):
+    """Reference ``_iterated_update``: (y+, Y+, acc, prior NIS, ok); pos, cv: the joint
+    noise (:func:`_rinv`)."""
     k = var.shape[0]
     yl = y
     acc = np.zeros(k, dtype=np.bool_)
@@ -587,7 +629,8 @@ def _iterated_update(y, Y, z, rr, nfix, var, gate, lever, tol, maxit, hold):
                 ey = nu[i, 1] - _hdot(H, 2 * i + 1, dd)
                 if _quad(a + var[i], b, c + var[i], ex, ey) <= gate:
                     acc[i] = True
-        y1, Y1, acc, nis_i, ok = _kalman_update(y, Y, nu, H, var, gate, acc, it == 0, it == 0)
+        y1, Y1, acc, nis_i, ok = _kalman_update(y, Y, nu, H, var, gate, acc, it == 0, it == 0,
+                                                nfix, pos, cv)
         if it == 0:
             nis = nis_i
         if not ok:
@@ -842,18 +885,20 @@ def _hold(x, P, k, present, obs, fyaw, cnt, spread, par):
 @_jit
 def _measurements(k, present, obs, r_m, va, vs):
     """Epoch k's lever arms (fixes first, then displacements since k-1), measurements z
-    (k, 2), variances (k,), the fixes' antenna indices and the number of displacements."""
+    (k, 2), variances (k,), the fixes' antenna indices, the number of displacements and
+    each displacement's fix among the measurements (for :func:`_rinv`)."""
     m = r_m.shape[0]
     ik = np.empty(m, dtype=np.int64)
     js = np.empty(m, dtype=np.int64)
+    pos = np.empty(m, dtype=np.int64)
     nf = nd = 0
     for i in range(m):
         if present[k, i]:
+            if present[k - 1, i]:
+                js[nd], pos[nd] = i, nf
+                nd += 1
             ik[nf] = i
             nf += 1
-            if present[k - 1, i]:
-                js[nd] = i
-                nd += 1
     kk = nf + nd
     rr = np.empty((kk, 2))
     z = np.empty((kk, 2))
@@ -869,7 +914,7 @@ def _measurements(k, present, obs, r_m, va, vs):
         z[nf + j, 0] = obs[k, i, 0] - obs[k - 1, i, 0]
         z[nf + j, 1] = obs[k, i, 1] - obs[k - 1, i, 1]
         var[nf + j] = vs
-    return rr, z, var, ik[:nf], nd
+    return rr, z, var, ik[:nf], nd, pos[:nd]
 
 
 @_jit
@@ -970,6 +1015,7 @@ def forward_kernel(tt, obs, present, r_m, org, fyaw, cnt, spread, r2, fit_ok, pa
     Fills the output arrays (NaN / 0 initialised by the caller; status as codes)."""
     n = tt.shape[0]
     sa, va, vs = par[I_SA], par[I_VA], par[I_VS]
+    cv = _pmin(0.5 * vs, va)      # reference fix_step_covariance (same operations)
     amax, ommax = par[I_AMAX], par[I_OMMAX]
     reverse = par[I_REVERSE] != 0.0
     max_rejects = int(par[I_MAXREJ])
@@ -1019,12 +1065,13 @@ def forward_kernel(tt, obs, present, r_m, org, fyaw, cnt, spread, r2, fit_ok, pa
             continue
         y, Y = _stack(xp, Pp, FP, x, P)
         st = S_PREDICTED
-        rr, z, var, ik, nd = _measurements(k, present, obs, r_m, va, vs)
+        rr, z, var, ik, nd, pos = _measurements(k, present, obs, r_m, va, vs)
         nf = ik.shape[0]
         acc = np.zeros(nf + nd, dtype=np.bool_)
         if nf:
             y1, Y1, acc, nis_k, ok = _iterated_update(y, Y, z, rr, nf, var, par[I_GATE],
-                                                      par[I_LEVER], 0.1 * sa, maxit, hold)
+                                                      par[I_LEVER], 0.1 * sa, maxit, hold,
+                                                      pos, cv)
             if not ok:
                 rej_abs = rej_step = max_rejects
             if math.isfinite(nis_k):

@@ -287,8 +287,10 @@ def test_filter_loop_matches_filterpy_step_by_step(monkeypatch, engine):
     iterated update relinearised at the last estimate while it turns the heading by more
     than the documented threshold. No gating, a platform that never stops or exceeds a
     limit, so no projection acts; 1e-8 on states and covariances (rounding of two gain-form
-    implementations over 50 epochs). Both engines: the numpy reference and the compiled
-    loop (estimator.pose_filter_kernel, whose update is in the state space)."""
+    implementations over 50 epochs). FilterPy gets the joint R with each displacement's
+    cross-covariance with its own fix (``fix_step_correlation``); the filter decorrelates.
+    Both engines: the numpy reference and the compiled loop (estimator.pose_filter_kernel,
+    whose update is in the state space)."""
     from estimator.pose_filter import _predict as pred
 
     truth, cfg, _ = kinematic_truth("square20", "rover_gps4")
@@ -331,6 +333,12 @@ def test_filter_loop_matches_filterpy_step_by_step(monkeypatch, engine):
             z = np.concatenate([obs[k, ik]] + ([obs[k, js] - obs[k - 1, js]] if js else []))
             R = np.diag(np.repeat([p.sigma_abs_m ** 2] * len(ik)
                                   + [p.sigma_step_m ** 2] * len(js), 2))
+            # the joint R: a displacement's error contains its fix's, cross-covariance
+            # sigma_step^2 / 2 per axis (a stationary error; 0.0392 < sigma_abs^2 here)
+            for d, i in enumerate(js):
+                for ax in range(2):
+                    a, b = 2 * ik.index(i) + ax, 2 * (len(ik) + d) + ax
+                    R[a, b] = R[b, a] = 0.5 * p.sigma_step_m ** 2
 
             def meas(yy, ik=ik, js=js):
                 h1, H1 = antenna_jacobians(yy[:NX], off[ik])
