@@ -15,10 +15,10 @@ arithmetic). With ``N = H^T R^-1 H``, ``b = H^T R^-1 nu`` and ``M = I + N Y``:
 ``(R^-1)_ii - G_i P+ G_i^T`` with ``G = R^-1 H`` (``H^T S^-1 = M^-1 H^T R^-1``; for a
 measurement uncorrelated with the others ``(I - H_i P+ H_i^T / r_i) / r_i``). R is the
 reference's joint noise: diagonal, plus the covariance of a displacement and its own fix
-when both are accepted (``fix_step_covariance``; :func:`_rinv` inverts each such pair). A 12 x 12 solve replaces the
-inverse of the innovation covariance (up to 32 x 32 with eight antennas), and a deletion
-costs a new 12 x 12 solve. ``M`` is invertible exactly when ``S`` is (Sylvester's
-determinant identity); a zero pivot counts as the reference's LinAlgError.
+when both are accepted (``fix_step_covariance``; :func:`_rinv` inverts each such pair).
+A 12 x 12 solve replaces the inverse of the innovation covariance (up to 32 x 32 with eight
+antennas), and a deletion costs a new 12 x 12 solve. ``M`` is invertible exactly when ``S``
+is (Sylvester's determinant identity); a zero pivot counts as the reference's LinAlgError.
 
 Chi-square quantiles of the NIS window come from a table the caller fills with
 ``scipy.special.chdtri`` (the reference's function) for every even number of degrees of
