@@ -1239,7 +1239,7 @@ def relinearised_kernel(tt, obs, present, r_m, fyaw, cnt, spread, par, horner, c
         yb = np.empty(2 * NX)
         for i in range(NX):
             yb[i], yb[NX + i] = Xb[k, i], xb0[i]
-        rr, z, var, ik, nd = _measurements(k, present, obs, r_m, par[I_VA], par[I_VS])
+        rr, z, var, ik, nd, pos = _measurements(k, present, obs, r_m, par[I_VA], par[I_VS])
         nf = ik.shape[0]
         if nf:
             h, H = _measure(yb, rr, nf)
@@ -1261,7 +1261,8 @@ def relinearised_kernel(tt, obs, present, r_m, fyaw, cnt, spread, par, horner, c
                 nu[i, 0] = ex - _hdot(H, 2 * i, dy)
                 nu[i, 1] = ey - _hdot(H, 2 * i + 1, dy)
             if _count(acc, 0, kk):
-                Z, _, ok = _posterior(Y, H, nu, var, acc)
+                Z, _, ok, _ = _posterior(Y, H, nu, var, acc, nf, pos,
+                                         _pmin(0.5 * par[I_VS], par[I_VA]))
                 if ok:
                     y, Y = _axpy(1.0, _step(Y, Z), y), _cov_full(Y, Z)
                     y[YAW], y[NX + YAW] = _wrap_angle(y[YAW]), _wrap_angle(y[NX + YAW])

@@ -400,7 +400,7 @@ def _relinearised_update(su: _Setup, k: int, y: np.ndarray, Y: np.ndarray, yb: n
         return y, Y
     try:
         y1, Y1, _ = _pf_kalman_update(y, Y, e - H @ d, H, np.repeat(var, 2), math.inf,
-                                      accept=acc)
+                                      accept=acc, cross=pat.cross)
     except np.linalg.LinAlgError:       # numerically singular: the prior (as the kernel)
         return y, Y
     y1 = y1.copy()
