@@ -98,9 +98,9 @@ large. Its epoch-to-epoch displacement therefore measures the platform's motion 
 than two absolute fixes do, and with the non-holonomic constraint the direction of motion is
 the heading; differences between antennas' displacements measure the turn through the
 configuration. (The correlation of a displacement with the fix at the previous epoch,
-already used there, and the slow drift of the error are left out of the model: the first is
-what keeps the NIS above its dof with white noise and the true sigmas, the second is what
-limits the heading; see the README.)
+already used there, and the slow drift of the error are left out of the model; the second
+is what limits the heading, see the README. With white noise and the true sigmas the NIS
+stays above its dof mostly through a few manoeuvre epochs: the motion model's surprises.)
 
 Noise levels from the data through the configuration (no truth, no tuning)
 --------------------------------------------------------------------------
