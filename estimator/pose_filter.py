@@ -1258,12 +1258,32 @@ def _standstill_hold(x: np.ndarray, P: np.ndarray, starter: FilterStart, k: int)
         return False
     if _after_gap(starter, k) and _moved(starter, k):
         return False
+    _hold_state(x, P)
+    return True
+
+
+def _hold_state(x: np.ndarray, P: np.ndarray) -> None:
+    """A standstill hold's change of a state (6,) and covariance (6, 6), in place: yaw rate
+    0, its variance at most 1e-12 and uncorrelated."""
     x[OMEGA] = 0.0
     var = P[OMEGA, OMEGA]
     P[OMEGA, :] = 0.0
     P[:, OMEGA] = 0.0
     P[OMEGA, OMEGA] = min(var, 1e-12)
-    return True
+
+
+def _project_limits(su: _Setup, x: np.ndarray) -> None:
+    """The filter's limits on a state (6,), in place: no reverse unless allowed, speed,
+    yaw rate (and lateral acceleration) and acceleration clipped to the platform's."""
+    if not su.params.reverse and x[V] < 0.0:
+        x[V] = 0.0
+    if abs(x[V]) > su.v_max:
+        x[V] = math.copysign(su.v_max, x[V])
+    lim = su.om_max if x[V] == 0 else min(su.om_max, su.alat / abs(x[V]))
+    if abs(x[OMEGA]) > lim:
+        x[OMEGA] = math.copysign(lim, x[OMEGA])
+    if abs(x[A]) > su.a_max:
+        x[A] = math.copysign(su.a_max, x[A])
 
 
 def _rotate(r: np.ndarray, a: float) -> np.ndarray:
@@ -1752,15 +1772,7 @@ class _ReferencePass:
             self.status[k] = "waiting"
             self.XC[k], self.PC[k], self.PX_[k] = np.nan, np.nan, np.nan
             return
-        if not su.params.reverse and x[V] < 0.0:
-            x[V] = 0.0          # forward mode on every row: predicted ones and flips too
-        if abs(x[V]) > su.v_max:
-            x[V] = math.copysign(su.v_max, x[V])
-        lim = su.om_max if x[V] == 0 else min(su.om_max, su.alat / abs(x[V]))
-        if abs(x[OMEGA]) > lim:
-            x[OMEGA] = math.copysign(lim, x[OMEGA])
-        if abs(x[A]) > su.a_max:
-            x[A] = math.copysign(su.a_max, x[A])
+        _project_limits(su, x)  # forward mode on every row: predicted ones and flips too
         self.x, self.P = x, P
         self.X[k], self.PP[k], self.status[k] = x, P, st
         if st != "predicted":

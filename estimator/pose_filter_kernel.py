@@ -873,13 +873,20 @@ def _hold(x, P, k, present, obs, fyaw, cnt, spread, par):
         return False
     if _after_gap(k, present) and _moved(k, present, obs, par):
         return False
+    _hold_state(x, P)
+    return True
+
+
+@_jit
+def _hold_state(x, P):
+    """A standstill hold's change of x (6,) and P (6, 6), in place: yaw rate 0, its
+    variance at most 1e-12 and uncorrelated (``estimator.pose_filter._hold_state``)."""
     x[OMEGA] = 0.0
     var = P[OMEGA, OMEGA]
     for i in range(NX):
         P[OMEGA, i] = 0.0
         P[i, OMEGA] = 0.0
     P[OMEGA, OMEGA] = _pmin(var, 1e-12)
-    return True
 
 
 @_jit
@@ -1218,12 +1225,7 @@ def relinearised_kernel(tt, obs, present, r_m, fyaw, cnt, spread, par, horner, c
         hold = _hold(X0[k - 1].copy(), P0[k - 1].copy(), k, present, obs, fyaw, cnt, spread,
                      par)                         # the first pass's decision (reference)
         if hold:
-            x[OMEGA] = 0.0
-            var0 = P[OMEGA, OMEGA]
-            for i in range(NX):
-                P[OMEGA, i] = 0.0
-                P[i, OMEGA] = 0.0
-            P[OMEGA, OMEGA] = _pmin(var0, 1e-12)
+            _hold_state(x, P)
         qy = _bound_yaw_rate(x, P, dt, par, 0.0 if hold else par[I_QY] * dt_med / dt)
         qa = par[I_QA] * dt / dt_med
         xb0 = Xb[k - 1].copy()

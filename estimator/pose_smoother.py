@@ -56,18 +56,18 @@ from estimator.pose_filter import (
     ENGINES,
     MAX_SMOOTHER_ITERATIONS,
     NX,
-    OMEGA,
     YAW,
-    A,
     PoseFilterParams,
     PoseFilterResult,
     V,
     _bound_yaw_rate,
     _check_run_args,
     _fill_measurements,
+    _hold_state,
     _kernel_par,
     _outputs,
     _Pattern,
+    _project_limits,
     _Setup,
     _setup,
     _standstill_hold,
@@ -373,7 +373,7 @@ def _relinearised_pass(su: _Setup, res: PoseFilterResult, Xb: np.ndarray) -> tup
         y, Y = _relinearised_update(su, k, y, Y, np.concatenate((Xb[k], Xb[k - 1])), hold)
         x, P = y[:NX].copy(), Y[:NX, :NX].copy()
         XC[k], PC[k], PX_[k] = y[NX:], Y[NX:, NX:], Y[:NX, NX:]
-        _project(su, x)
+        _project_limits(su, x)
         X[k], PP[k] = x, P
     return X, PP, XC, PC, PX_
 
@@ -406,29 +406,6 @@ def _relinearised_update(su: _Setup, k: int, y: np.ndarray, Y: np.ndarray, yb: n
     y1 = y1.copy()
     y1[YAW], y1[NX + YAW] = _wrap1(y1[YAW]), _wrap1(y1[NX + YAW])
     return y1, Y1
-
-
-def _hold_state(x: np.ndarray, P: np.ndarray) -> None:
-    """A standstill hold's change of a state (6,) and covariance (6, 6), in place (yaw rate
-    0, as :func:`estimator.pose_filter._standstill_hold`)."""
-    x[OMEGA] = 0.0
-    var = P[OMEGA, OMEGA]
-    P[OMEGA, :] = 0.0
-    P[:, OMEGA] = 0.0
-    P[OMEGA, OMEGA] = min(var, 1e-12)
-
-
-def _project(su: _Setup, x: np.ndarray) -> None:
-    """The filter's limits on a state (6,), in place (``_ReferencePass._finish``)."""
-    if not su.params.reverse and x[V] < 0.0:
-        x[V] = 0.0
-    if abs(x[V]) > su.v_max:
-        x[V] = math.copysign(su.v_max, x[V])
-    lim = su.om_max if x[V] == 0 else min(su.om_max, su.alat / abs(x[V]))
-    if abs(x[OMEGA]) > lim:
-        x[OMEGA] = math.copysign(lim, x[OMEGA])
-    if abs(x[A]) > su.a_max:
-        x[A] = math.copysign(su.a_max, x[A])
 
 
 def iterated_rts_smooth(res: PoseFilterResult, t: np.ndarray, obs: np.ndarray,
