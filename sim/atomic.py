@@ -10,6 +10,7 @@ from __future__ import annotations
 import os
 import uuid
 from collections.abc import Callable
+from contextlib import suppress
 from pathlib import Path
 
 __all__ = ["atomic_write", "atomic_write_text", "file_stat"]
@@ -29,9 +30,10 @@ def atomic_write(path: str | os.PathLike, write: Callable[[Path], object]) -> Pa
     try:
         write(tmp)
         os.replace(tmp, final)
-    finally:
-        if tmp.exists():
-            tmp.unlink()
+    except BaseException:
+        with suppress(OSError):
+            tmp.unlink()            # absent when ``write`` failed before creating it
+        raise
     return final
 
 

@@ -28,7 +28,7 @@ if TYPE_CHECKING:
     import pandas as pd
 
 __all__ = ["LOCK_FILE", "CellStore", "SweepError", "folder_lock", "json_text", "read_text",
-           "unwritable", "write_json",
+           "unwritable", "write_epochs", "write_json",
            "write_table", "write_text"]
 
 
@@ -154,7 +154,9 @@ class CellStore:
                 if p.exists():
                     p.unlink()
 
-    def write(self, cell: Cell, res: dict) -> None:
+    def write(self, cell: Cell, res: dict, code: str = "") -> None:
+        """Persist one cell's result ``res`` (a worker's record); ``code``: the run's
+        :func:`cell_code_digest` (empty: computed here, ~0.1 ms of file reads)."""
         if not res["ok"]:
             rec = {"key": cell.key, "params": cell.params(), "error": res["error"],
                    "traceback": res["traceback"]}
@@ -163,15 +165,13 @@ class CellStore:
             return
         if res.get("epochs") is not None:
             ep = res["epochs"]
-            # no dictionary encoding: per-epoch floats rarely repeat, so it only costs
-            # (half the write time, files 18 % smaller on the thesis preset)
             self._atomic(self.epochs_dir / f"{cell.key}.parquet",
-                         lambda p: ep.to_parquet(p, index=False, use_dictionary=False))
+                         lambda p: write_epochs(ep, p))
         rec = {"key": cell.key, "params": cell.params(), "rows": res["rows"],
                "timings": res["timings"], "status_counts": res["status_counts"],
-               "epochs": res.get("epochs") is not None, "code": cell_code_digest()}
-        self._atomic(self.cells_dir / f"{cell.key}.json",
-                     lambda p: p.write_text(json.dumps(rec, allow_nan=True)))
+               "epochs": res.get("epochs") is not None, "code": code or cell_code_digest()}
+        data = json.dumps(rec, allow_nan=True).encode()
+        self._atomic(self.cells_dir / f"{cell.key}.json", lambda p: _write_bytes(p, data))
         err = self.errors_dir / f"{cell.key}.json"
         if err.exists():
             err.unlink()
@@ -342,5 +342,69 @@ def read_text(path: Path) -> str | None:
 
 def write_table(df: pd.DataFrame, path: Path) -> None:
     atomic_write(path, lambda p: df.to_parquet(p, index=False))
+
+
+def _write_bytes(path: Path, data: bytes) -> None:
+    """Create ``path`` holding ``data`` (one open, one write; no text layer)."""
+    fd = os.open(path, os.O_WRONLY | os.O_CREAT | os.O_TRUNC, 0o666)
+    try:
+        view = memoryview(data)
+        while view:
+            view = view[os.write(fd, view):]
+    finally:
+        os.close(fd)
+
+
+#: Arrow schemas (with their pandas metadata) of the per-epoch tables written so far, per
+#: (columns, dtypes): a cell's table has one of a few column sets.
+_EPOCH_SCHEMAS: dict[tuple, Any] = {}
+
+
+def write_epochs(df: pd.DataFrame, path: Path) -> None:
+    """Write a cell's per-epoch table (n rows, ~68 columns) as parquet: what
+    ``df.to_parquet(path, index=False, use_dictionary=False)`` wrote, read back by
+    ``pd.read_parquet`` as the same frame (values, dtypes, RangeIndex), in ~half the time
+    (thesis preset, 1976 x 68: conversion 1.9 ms instead of 3.3 ms, write 3.1 ms instead of
+    4.1-5.3 ms). No dictionary encoding: per-epoch floats rarely repeat, so it only costs
+    (half the write time, files 18 % smaller). No column statistics (min/max in the footer,
+    1-2 ms per file): nothing reads these files by predicate."""
+    import pyarrow.parquet as pq
+
+    pq.write_table(epoch_table(df), path, use_dictionary=False, write_statistics=False)
+
+
+def epoch_table(df: pd.DataFrame):
+    """``pyarrow.Table.from_pandas(df, preserve_index=False)`` built from each dtype's
+    columns as one numpy block (one take per dtype instead of a Series per column) with the
+    schema the first frame of these columns and dtypes gave; frames with other columns
+    (object, datetime, ...) or whose strings convert to another arrow type go through
+    ``from_pandas`` itself."""
+    import pandas as pd
+    import pyarrow as pa
+
+    dtypes = list(df.dtypes)
+    key = (tuple(df.columns), tuple(map(str, dtypes)))
+    schema = _EPOCH_SCHEMAS.get(key)
+    if schema is None:
+        table = pa.Table.from_pandas(df, preserve_index=False)
+        if len(_EPOCH_SCHEMAS) < 64 and all(d.kind in "fbiu" or isinstance(d, pd.StringDtype)
+                                            for d in dtypes):
+            _EPOCH_SCHEMAS[key] = table.schema
+        return table
+    arrays: list = [None] * len(dtypes)
+    groups: dict[Any, list[int]] = {}
+    for i, d in enumerate(dtypes):
+        groups.setdefault(d if d.kind in "fbiu" else None, []).append(i)
+    for d, idx in groups.items():
+        if d is None:
+            for i in idx:
+                arrays[i] = pa.array(df.iloc[:, i], from_pandas=True)
+                if arrays[i].type != schema.field(i).type:
+                    return pa.Table.from_pandas(df, preserve_index=False)
+            continue
+        block = df.iloc[:, idx].to_numpy().T        # (k, n), C-contiguous rows
+        for j, i in enumerate(idx):
+            arrays[i] = pa.array(block[j], from_pandas=True)   # NaN -> null, as before
+    return pa.Table.from_arrays(arrays, schema=schema)
 
 

@@ -24,7 +24,7 @@ from pathlib import Path
 from typing import Any
 
 from estimator.memo import TrackCache, ledger
-from experiments.runner.cell import CellContext, CellFn, evaluate_cell
+from experiments.runner.cell import CellContext, CellFn, cell_code_digest, evaluate_cell
 from experiments.runner.store import CellStore
 from experiments.spec import Cell
 
@@ -119,13 +119,22 @@ class _WorkerMemo:
         #: passes: in the thesis preset 470 of 840 procrustes fits are repeats)
         self.cache = TrackCache()
         self.run_id = ""
+        self._code = ""
 
     def for_run(self, run_id: str) -> _WorkerMemo:
         if self.run_id != run_id:
             self.memo.clear()
             self.cache.clear()
             self.run_id = run_id
+            self._code = ""
         return self
+
+    @property
+    def code(self) -> str:
+        """The cell code digest, read once per run (not once per cell)."""
+        if not self._code:
+            self._code = cell_code_digest()
+        return self._code
 
 
 WORKER = _WorkerMemo()
@@ -175,7 +184,7 @@ def _run_batch(cells: list[Cell], truth: Any, want: list[bool], job: CellJob) ->
                           want_epochs=w, memo=state.memo, cache=state.cache)
         out.append(_one_cell(job.cell_fn or evaluate_cell, cell, truth, ctx))
         if store is not None:
-            store.write(cell, out[-1])
+            store.write(cell, out[-1], code=state.code)
             out[-1] = {"key": cell.key, "ok": out[-1]["ok"], "written": True}
     return out
 
