@@ -47,8 +47,11 @@ INDEX_FILE = "cells.local.json"
 class CellStore:
     """One JSON file per finished cell (atomic), one parquet per cell's per-epoch table."""
 
-    def __init__(self, out: Path):
+    def __init__(self, out: Path, code: str = ""):
+        """``code``: the run's :func:`cell_code_digest`, stored with each cell (empty:
+        computed at each :meth:`write`, ~0.1 ms of file reads)."""
         self.out = Path(out)
+        self.code = code
         self.cells_dir = self.out / "cells"
         self.epochs_dir = self.out / "epochs"
         self.errors_dir = self.out / "errors"
@@ -154,9 +157,8 @@ class CellStore:
                 if p.exists():
                     p.unlink()
 
-    def write(self, cell: Cell, res: dict, code: str = "") -> None:
-        """Persist one cell's result ``res`` (a worker's record); ``code``: the run's
-        :func:`cell_code_digest` (empty: computed here, ~0.1 ms of file reads)."""
+    def write(self, cell: Cell, res: dict) -> None:
+        """Persist one cell's result ``res`` (a worker's record)."""
         if not res["ok"]:
             rec = {"key": cell.key, "params": cell.params(), "error": res["error"],
                    "traceback": res["traceback"]}
@@ -169,7 +171,7 @@ class CellStore:
                          lambda p: write_epochs(ep, p))
         rec = {"key": cell.key, "params": cell.params(), "rows": res["rows"],
                "timings": res["timings"], "status_counts": res["status_counts"],
-               "epochs": res.get("epochs") is not None, "code": code or cell_code_digest()}
+               "epochs": res.get("epochs") is not None, "code": self.code or cell_code_digest()}
         data = json.dumps(rec, allow_nan=True).encode()
         self._atomic(self.cells_dir / f"{cell.key}.json", lambda p: _write_bytes(p, data))
         err = self.errors_dir / f"{cell.key}.json"

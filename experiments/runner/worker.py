@@ -177,14 +177,14 @@ def run_batch(cells: list[Cell], truth: Any, want: list[bool], job: CellJob) -> 
 
 def _run_batch(cells: list[Cell], truth: Any, want: list[bool], job: CellJob) -> list[dict]:
     state = WORKER.for_run(job.run_id)
-    store = CellStore(Path(job.store_dir)) if job.store_dir else None
+    store = CellStore(Path(job.store_dir), state.code) if job.store_dir else None
     out = []
     for cell, w in zip(cells, want):
         ctx = CellContext(spec_seed=job.spec_seed, masks=job.masks, session_s=job.session_s,
                           want_epochs=w, memo=state.memo, cache=state.cache)
         out.append(_one_cell(job.cell_fn or evaluate_cell, cell, truth, ctx))
         if store is not None:
-            store.write(cell, out[-1], code=state.code)
+            store.write(cell, out[-1])
             out[-1] = {"key": cell.key, "ok": out[-1]["ok"], "written": True}
     return out
 
