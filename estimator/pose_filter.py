@@ -1221,46 +1221,29 @@ def _after_gap(starter: FilterStart, k: int) -> bool:
     return k < 2 or not bool((starter.present[k - 1] & starter.present[k - 2]).any())
 
 
-def _moved(starter: FilterStart, k: int, j: int | None = None) -> bool:
-    """The displacements from epoch j (default k-1) to k show the platform moving: the
-    median over the antennas reporting at both of their displacement exceeds
-    :data:`INIT_MOTION_SIGMAS` ``sigma_step sqrt(k - j)`` (the start's motion test, the
-    displacement noise growing as a random walk; the median, so one antenna's spike does
-    not count as motion). False without such an antenna (or j < 0). A speed whose sd merely
-    covers 0 is no evidence of rest (issue 25, cpm drive 7, epoch 872: 1 s after an
-    all-antenna outage the speed sd was 3.3 m/s while the car drove at 3.2 m/s, turning at
-    17 deg/s; a hold froze its yaw rate at 0 and the heading went 90 deg off)."""
-    j = k - 1 if j is None else j
-    if j < 0:
+def _moved(starter: FilterStart, k: int) -> bool:
+    """The displacements to epoch k show the platform moving: the median over the antennas
+    reporting at both k-1 and k of their displacement exceeds :data:`INIT_MOTION_SIGMAS`
+    ``sigma_step`` (the start's motion test on one displacement; the median, so one
+    antenna's spike does not count as motion). False without such an antenna. A speed
+    whose sd merely covers 0 is no evidence of rest (issue 25, cpm drive 7, epoch 872: 1 s
+    after an all-antenna outage the speed sd was 3.3 m/s while the car drove at 3.2 m/s,
+    turning at 17 deg/s; a hold froze its yaw rate at 0 and the heading went 90 deg off)."""
+    if k == 0:
         return False
-    both = starter.present[k] & starter.present[j]
+    both = starter.present[k] & starter.present[k - 1]
     if not both.any():
         return False
-    d = starter.obs[k, both] - starter.obs[j, both]
+    d = starter.obs[k, both] - starter.obs[k - 1, both]
     thr = INIT_MOTION_SIGMAS * starter.params._limit("sigma_step_m")
-    return bool(np.median((d * d).sum(1)) > thr * thr * (k - j))
-
-
-def _moving(starter: FilterStart, k: int) -> bool:
-    """Epoch k's displacements show the platform driving, so it is no standstill: the one
-    from k-1 shows motion (:func:`_moved`) and, unless right after a gap
-    (:func:`_after_gap`: that one is all there is), so do the one before (k-2 to k-1) and
-    the net one over both (k-2 to k): persistent motion, not a one-epoch jump shared by
-    every antenna (a step shows in one interval only, a spike out and back nets to about
-    0). Issue 25, `shifted` drive 5: driving at 0.5-1 m/s (0.5-1 m per 1 s step, 8-16
-    sigma_step) and turning at 6-10 deg/s, the end-of-step speed's sd (0.57 m/s: the
-    displacements measure the step's mean speed, the acceleration limit leaves the end's
-    open) covered 0, the hold froze the yaw rate, the heading went 45 deg off in 5 s, every
-    displacement failed its gate and the track was lost for 15-21 s, six times."""
-    if not _moved(starter, k):
-        return False
-    return _after_gap(starter, k) or (_moved(starter, k - 1) and _moved(starter, k, k - 2))
+    return bool(np.median((d * d).sum(1)) > thr * thr)
 
 
 def _standstill_hold(x: np.ndarray, P: np.ndarray, starter: FilterStart, k: int) -> bool:
     """Standing still where the layout cannot give the heading: epoch k has a fix, the
-    speed is within :data:`STANDSTILL_SIGMAS` sd of 0, the displacements to epoch k do not
-    show the platform driving (:func:`_moving`) and epoch k's rigid-fit heading sd is above
+    speed is within :data:`STANDSTILL_SIGMAS` sd of 0 (right after a gap, where no
+    displacement measured that speed (:func:`_after_gap`), the displacements to epoch k must
+    also not show motion, :func:`_moved`) and epoch k's rigid-fit heading sd is above
     :data:`MAX_FIT_YAW_SD` (or fewer than two fixes). Then neither the motion nor the
     layout measures the heading, and metre-level errors wandering by centimetres per second
     would turn it at will (issue 25: 65 deg off after a 150 s stop with consumer errors):
@@ -1273,7 +1256,7 @@ def _standstill_hold(x: np.ndarray, P: np.ndarray, starter: FilterStart, k: int)
         return False
     if starter.fit_heading(k)[1] <= MAX_FIT_YAW_SD:
         return False
-    if _moving(starter, k):
+    if _after_gap(starter, k) and _moved(starter, k):
         return False
     _hold_state(x, P)
     return True

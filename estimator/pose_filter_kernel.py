@@ -843,34 +843,23 @@ def _after_gap(k, present):
 
 
 @_jit
-def _moved(k, j, present, obs, par):
-    """Reference ``_moved``: the median squared displacement from epoch j to k of the
-    antennas at both beyond (INIT_MOTION_SIGMAS sigma_step)^2 (k - j) (False without one
-    or with j < 0)."""
-    if j < 0:
+def _moved(k, present, obs, par):
+    """Reference ``_moved``: the median squared displacement to epoch k of the antennas at
+    both k-1 and k beyond (INIT_MOTION_SIGMAS sigma_step)^2 (False without one)."""
+    if k == 0:
         return False
     m = present.shape[1]
     d2 = np.empty(m)
     nb = 0
     for i in range(m):
-        if present[k, i] and present[j, i]:
-            d0, d1 = obs[k, i, 0] - obs[j, i, 0], obs[k, i, 1] - obs[j, i, 1]
+        if present[k, i] and present[k - 1, i]:
+            d0, d1 = obs[k, i, 0] - obs[k - 1, i, 0], obs[k, i, 1] - obs[k - 1, i, 1]
             d2[nb] = d0 * d0 + d1 * d1
             nb += 1
     if nb == 0:
         return False
     thr = par[I_INIT_SIGMAS] * math.sqrt(par[I_VS])
-    return np.median(d2[:nb]) > thr * thr * (k - j)
-
-
-@_jit
-def _moving(k, present, obs, par):
-    """Reference ``_moving``: motion to k, and (unless right after a gap) to k-1 and net
-    from k-2."""
-    if not _moved(k, k - 1, present, obs, par):
-        return False
-    return _after_gap(k, present) or (_moved(k - 1, k - 2, present, obs, par)
-                                      and _moved(k, k - 2, present, obs, par))
+    return np.median(d2[:nb]) > thr * thr
 
 
 @_jit
@@ -882,7 +871,7 @@ def _hold(x, P, k, present, obs, fyaw, cnt, spread, par):
         return False
     if _fit_heading(k, fyaw, cnt, spread, par[I_SA])[1] <= par[I_FIT_SD]:
         return False
-    if _moving(k, present, obs, par):
+    if _after_gap(k, present) and _moved(k, present, obs, par):
         return False
     _hold_state(x, P)
     return True

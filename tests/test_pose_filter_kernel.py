@@ -243,11 +243,3 @@ def test_car_case_consumer_hold_after_gap_agrees():
     _, t, obs, off = vehicle_scene(7, "common_plus_model")
     a, _ = assert_engines_agree(t, obs, off, PoseFilterParams(), TOL_CAR)
     assert {"predicted", "ok"} <= set(a.status)
-
-
-def test_car_case_shifted_slow_turn_agrees():
-    """The `shifted` drive whose hold ended on persistent motion (issue 25, drive 5, slow
-    turns at 0.5-1 m/s): the hold's two-step motion rule as in the reference."""
-    _, t, obs, off = vehicle_scene(5, "shifted")
-    a, _ = assert_engines_agree(t, obs, off, PoseFilterParams(), TOL_CAR)
-    assert (a.status == "reset").sum() <= 3
