@@ -2,8 +2,9 @@
 timeline a run writes when CONFIGPOSE_TIMELINE names a file."""
 
 import json
+import os
 
-from experiments.runner.backends import iter_truths
+from experiments.runner.backends import Loky, iter_truths, stop_workers
 from experiments.runner.worker import TIMELINE_ENV, CellJob, run_batch
 from experiments.spec import load_spec
 
@@ -101,3 +102,23 @@ def test_the_kernel_lock_is_one_per_checkout():
     tag = hashlib.blake2b(str(root).encode(), digest_size=6).hexdigest()
     lock = worker.KERNEL_LOCK
     assert lock == str(Path(tempfile.gettempdir()) / f"configpose-kernels-{tag}.lock")
+
+
+def test_every_loky_worker_runs_started_in_its_first_task(tmp_path, monkeypatch):
+    """Workers the sweep did not start early (a rerun that must recompute a folder's cells)
+    still hold the cells' imports in their first task, whatever it is: loky's leak check
+    takes the reference size after it (a first task that loaded only a cached truth let
+    the cells grow both workers past 300 MB: replaced, with a UserWarning, twice a rerun)."""
+    tl = tmp_path / "timeline.jsonl"
+    monkeypatch.setenv(TIMELINE_ENV, str(tl))
+    stop_workers()                   # a fresh executor: its workers inherit the variable
+    try:
+        pids = set(Loky(2).map_unordered(os.getpid, [() for _ in range(6)]))
+    finally:
+        stop_workers()
+    lines = [json.loads(line) for line in tl.read_text().splitlines()]
+    first = {}
+    for line in sorted(lines, key=lambda r: r["start"]):
+        first.setdefault(line["pid"], line["what"])
+    assert pids and all(first.get(p) == "started" for p in pids), first
+    assert sum(line["what"] == "started" for line in lines) == len(pids)   # once each

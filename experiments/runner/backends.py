@@ -20,7 +20,7 @@ from typing import Any, Protocol
 
 from experiments.runner.cell import simulate_truth, technique_of
 from experiments.runner.store import SweepError
-from experiments.runner.worker import CellJob, run_batch, started, timeline
+from experiments.runner.worker import CellJob, after_started, run_batch, started, timeline
 from experiments.spec import Cell, Spec
 
 __all__ = ["PASS_COST_CELLS", "Dask", "Executor", "InProcess", "Loky", "batches",
@@ -64,7 +64,7 @@ class Loky:
         from joblib import Parallel, delayed
 
         par = Parallel(n_jobs=self.jobs, backend="loky", return_as="generator_unordered")
-        return par(delayed(fn)(*a) for a in args)
+        return par(delayed(after_started)(fn, *a) for a in args)
 
     def run_batches(self, batches, truths, wants, job) -> Iterator[list[dict]]:
         return self.map_unordered(run_batch, ((b, truths[b[0].truth_key], w, job)

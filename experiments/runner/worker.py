@@ -17,7 +17,7 @@ import tempfile
 import time
 import traceback
 from collections import OrderedDict
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from contextlib import contextmanager, suppress
 from dataclasses import dataclass
 from pathlib import Path
@@ -28,8 +28,9 @@ from experiments.runner.cell import CellContext, CellFn, cell_code_digest, evalu
 from experiments.runner.store import CellStore
 from experiments.spec import Cell
 
-__all__ = ["KERNEL_LOCK", "TIMELINE_ENV", "CellJob", "mark", "process_started",
-           "release_memos", "run_batch", "started", "timeline", "trim_heap", "warm_up"]
+__all__ = ["KERNEL_LOCK", "TIMELINE_ENV", "CellJob", "after_started", "mark",
+           "process_started", "release_memos", "run_batch", "started", "timeline",
+           "trim_heap", "warm_up"]
 
 #: Lock file under which a worker compiles or loads the numba kernels (one at a time), one
 #: per checkout (numba's cache is the checkout's ``__pycache__``), so that sweeps of other
@@ -303,13 +304,35 @@ def started() -> int:
     Not the simulator (:mod:`sim.rover`, MuJoCo: ~0.2 CPU-s, ~20 MB): a one-truth run (the
     quick preset) simulates in the main process and its workers never need it; a worker
     that simulates imports it with its first simulation (20 MB beyond the reference size,
-    far below loky's 300 MB)."""
-    with timeline("started"):
-        import estimator.tracking  # noqa: F401
-        import sim.gps  # noqa: F401
-        from estimator.pose_smoother import warm_kernels
+    far below loky's 300 MB).
 
-        with _exclusive(KERNEL_LOCK):
-            warm_kernels()  # the compile's memory (first use of a checkout) is in the reference
+    Idempotent: a worker runs it once (:func:`after_started` runs it before any loky task
+    of a worker that has not, so it is in the first task even where the sweep started no
+    workers early: a rerun over a folder whose cells the current code must recompute)."""
+    global _STARTED
+    if not _STARTED:
+        with timeline("started"):
+            import estimator.tracking  # noqa: F401
+            import sim.gps  # noqa: F401
+            from estimator.pose_smoother import warm_kernels
+
+            with _exclusive(KERNEL_LOCK):
+                warm_kernels()  # the compile's memory (first use of a checkout): in the reference
+        _STARTED = True
     return os.getpid()
+
+
+#: Whether this process ran :func:`started`.
+_STARTED = False
+
+
+def after_started(fn: Callable, *args: Any) -> Any:
+    """``fn(*args)`` in a loky worker, after :func:`started` if this worker has not run it
+    yet, so that its first task holds the cells' imports whatever that task is: loky takes
+    the reference size after a worker's first task, and a first task that only loaded a
+    cached truth (~75 MB) let the cells grow the worker past its 300 MB limit, replaced
+    twice per thesis rerun with "A worker stopped while some jobs were given to the
+    executor" (measured: a rerun after a code change, no early start)."""
+    started()
+    return fn(*args)
 
