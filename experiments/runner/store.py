@@ -173,7 +173,7 @@ class CellStore:
                "timings": res["timings"], "status_counts": res["status_counts"],
                "epochs": res.get("epochs") is not None, "code": self.code or cell_code_digest()}
         data = json.dumps(rec, allow_nan=True).encode()
-        self._atomic(self.cells_dir / f"{cell.key}.json", lambda p: _write_bytes(p, data))
+        self._atomic(self.cells_dir / f"{cell.key}.json", lambda p: p.write_bytes(data))
         err = self.errors_dir / f"{cell.key}.json"
         if err.exists():
             err.unlink()
@@ -344,17 +344,6 @@ def read_text(path: Path) -> str | None:
 
 def write_table(df: pd.DataFrame, path: Path) -> None:
     atomic_write(path, lambda p: df.to_parquet(p, index=False))
-
-
-def _write_bytes(path: Path, data: bytes) -> None:
-    """Create ``path`` holding ``data`` (one open, one write; no text layer)."""
-    fd = os.open(path, os.O_WRONLY | os.O_CREAT | os.O_TRUNC, 0o666)
-    try:
-        view = memoryview(data)
-        while view:
-            view = view[os.write(fd, view):]
-    finally:
-        os.close(fd)
 
 
 #: Arrow schemas (with their pandas metadata) of the per-epoch tables written so far, per
