@@ -1134,43 +1134,71 @@ class FilterStart:
 class _Monitor:
     """Consistency of the running filter and its guard against gate lock-out (issue 25).
 
-    NIS: the normalised innovations squared of the last ``window`` epochs with data
-    (:data:`NIS_WINDOW_S`, at least :data:`NIS_MIN_EPOCHS`) summed, against the upper
-    ``gate_prob`` quantile of chi-square with the summed degrees of freedom: above it, the
-    epoch's estimate is flagged "inconsistent". Geometry: an epoch with two or more fixes
-    whose layout gives the heading to within :data:`MAX_FIT_YAW_SD` (the rigid fit of
-    :class:`FilterStart`) tests the state's heading against it (chi-square, 1 dof,
-    ``gate_prob``, and at least :data:`REINIT_MIN_YAW_RAD` off); so does an inconsistent
-    window while fixes are gated. :data:`REINIT_EPOCHS` such epochs in a row: re-initialise
-    from the epoch's fit (:meth:`FilterStart.refit`)."""
+    NIS tests, both at the upper ``gate_prob`` quantile ``q(d)`` of chi-square with d
+    degrees of freedom (Bar-Shalom 2001, Section 5.4.2); an epoch is "inconsistent" when
+    either fails:
+
+    1. per epoch: its own NIS above ``q(dof)`` (its innovations are beyond the model there);
+    2. window: the last ``window`` epochs with data (:data:`NIS_WINDOW_S`, at least
+       :data:`NIS_MIN_EPOCHS`), each epoch's NIS winsorised at its own ``q(dof)``, summed,
+       above ``q`` of the summed dof. A consistent filter's winsorised sum is at most its
+       chi-square sum, so the window's false-alarm rate stays below ``1 - gate_prob``.
+
+    A single spike adds at most ``q(d) - d`` above its mean, so it cannot flag the window on
+    its own; s saturated epochs with the others at their mean flag W epochs of d dof when
+    ``s (q(d) - d) > q(W d) - W d``. At 0.999: 3 epochs of 10 (1 Hz) at d = 4-28 (s > 2.3 -
+    2.7); 8-9 of 100 (10 Hz) at d = 8-28 (s > 7.1 - 8.2); with the others at 0.55 of their
+    dof (the car's median epoch) 4-5 of 10. Innovations 2x too large in every epoch (NIS ~
+    2 chi2_d: winsorised mean 1.80-1.92 d at d = 8-28, so 10 epochs sum to 1.23-1.41x the
+    window's quantile) and a lock-out (every epoch saturated) flag it.
+
+    Geometry: an epoch with two or more fixes whose layout gives the heading to within
+    :data:`MAX_FIT_YAW_SD` (the rigid fit of :class:`FilterStart`) tests the state's heading
+    against it (chi-square, 1 dof, ``gate_prob``, and at least :data:`REINIT_MIN_YAW_RAD`
+    off); so does a window test (2) failing while fixes are gated: the lock-out guard counts
+    the window flag only, not the per-epoch one, since a lock-out persists (every epoch
+    saturates, so the window fails within s epochs) while a manoeuvre's spike, with its
+    fixes gated for an epoch or two, is no lock-out and must not re-initialise.
+    :data:`REINIT_EPOCHS` such epochs in a row: re-initialise from the epoch's fit
+    (:meth:`FilterStart.refit`)."""
 
     def __init__(self, starter: FilterStart, dt_med: float, gate_prob: float) -> None:
         self.starter = starter
         self.window = max(NIS_MIN_EPOCHS, round(NIS_WINDOW_S / dt_med))
         self.p = gate_prob if gate_prob < 1 else 0.999
         self.thr1 = chi2_ppf(self.p, 1)
-        self.thr: dict[int, float] = {}      # chi-square quantiles by summed dof
+        self.thr: dict[int, float] = {}      # chi-square quantiles by (summed) dof
         self.clear()
 
     def clear(self) -> None:
-        self.nis: list[tuple[float, int]] = []
+        self.nis: list[tuple[float, int]] = []   # (winsorised NIS, dof) of the window
         self.disagree = 0
         self.locked = 0
+
+    def quantile(self, df: int) -> float:
+        """Upper ``p`` quantile of chi-square with df degrees of freedom (cached)."""
+        thr = self.thr.get(df)
+        if thr is None:
+            thr = self.thr[df] = float(_chdtri(df, 1.0 - self.p))
+        return thr
+
+    def tests(self, nis: float, dof: int) -> tuple[bool, bool]:
+        """(per-epoch, window) test failed, after adding epoch (nis, dof) to the window."""
+        q = self.quantile(dof)
+        self.nis.append((min(q, nis), dof))
+        if len(self.nis) > self.window:
+            self.nis.pop(0)
+        tot = sum(v for v, _ in self.nis)
+        df = sum(d for _, d in self.nis)
+        return nis > q, tot > self.quantile(df)
 
     def check(self, k: int, nis: float, dof: int, x: np.ndarray, P: np.ndarray,
               n_gated: int) -> tuple[bool, tuple[np.ndarray, np.ndarray] | None]:
         """(inconsistent, refit (x0, P0) or None) after epoch k's update."""
         if dof == 0 or not math.isfinite(nis):
             return False, None
-        self.nis.append((nis, dof))
-        if len(self.nis) > self.window:
-            self.nis.pop(0)
-        tot = sum(v for v, _ in self.nis)
-        df = sum(d for _, d in self.nis)
-        thr = self.thr.get(df)
-        if thr is None:
-            thr = self.thr[df] = float(_chdtri(df, 1.0 - self.p))
-        bad = tot > thr
+        spike, window = self.tests(nis, dof)
+        bad = spike or window
         yaw, sd = self.starter.fit_heading(k)
         if not sd <= MAX_FIT_YAW_SD:
             self.disagree = self.locked = 0
@@ -1179,7 +1207,7 @@ class _Monitor:
         var = P[YAW, YAW] + sd * sd
         off = d * d > self.thr1 * var and abs(d) > REINIT_MIN_YAW_RAD
         self.disagree = self.disagree + 1 if off else 0
-        self.locked = self.locked + 1 if (bad and n_gated > 0) else 0
+        self.locked = self.locked + 1 if (window and n_gated > 0) else 0
         if max(self.disagree, self.locked) >= REINIT_EPOCHS:
             self.clear()
             return bad, self.starter.refit(k, x)

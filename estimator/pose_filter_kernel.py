@@ -928,11 +928,14 @@ def _measurements(k, present, obs, r_m, va, vs):
 def _monitor(buf, head, count, k, nis, dof, x, P, n_gated, counters, thr_table, par,
              fyaw, cnt, spread):
     """Reference ``_Monitor.check``: returns (bad, refit wanted, head, count); the window's
-    (nis, dof) ring buffer ``buf`` (window, 2), ``counters`` = [disagree, locked]."""
+    (winsorised nis, dof) ring buffer ``buf`` (window, 2), ``counters`` = [disagree,
+    locked]. bad = the epoch's NIS above its own quantile or the window's winsorised sum
+    above the summed dof's; the lock-out counter takes the window test only."""
     if dof == 0 or not math.isfinite(nis):
         return False, False, head, count
     window = buf.shape[0]
-    buf[head, 0], buf[head, 1] = nis, dof
+    q = thr_table[dof // 2]
+    buf[head, 0], buf[head, 1] = min(q, nis), dof
     head = (head + 1) % window
     count = min(count + 1, window)
     tot = 0.0
@@ -941,7 +944,8 @@ def _monitor(buf, head, count, k, nis, dof, x, P, n_gated, counters, thr_table, 
         e = (head - count + j) % window
         tot += buf[e, 0]
         df += int(buf[e, 1])
-    bad = tot > thr_table[df // 2]
+    win = tot > thr_table[df // 2]
+    bad = nis > q or win
     yaw, sd = _fit_heading(k, fyaw, cnt, spread, par[I_SA])
     if not sd <= par[I_FIT_SD]:
         counters[0] = counters[1] = 0
@@ -950,7 +954,7 @@ def _monitor(buf, head, count, k, nis, dof, x, P, n_gated, counters, thr_table, 
     var = P[YAW, YAW] + sd * sd
     off = d * d > par[I_THR1] * var and abs(d) > par[I_REINIT_YAW]
     counters[0] = counters[0] + 1 if off else 0
-    counters[1] = counters[1] + 1 if (bad and n_gated > 0) else 0
+    counters[1] = counters[1] + 1 if (win and n_gated > 0) else 0
     if max(counters[0], counters[1]) >= par[I_REINIT_N]:
         return bad, True, 0, 0
     return bad, False, head, count

@@ -46,8 +46,11 @@ class FilterOptions(TrackerOptions, abc.ABC):
     nis_dof dof when the filter is consistent; :func:`estimator.pose_filter.nis_summary`
     gives the mean NIS / dof and the share inside the 95 % band). Heading NEES at scoring:
     ``(yaw error / yaw_sd)^2``, chi-square with 1 dof (:func:`estimator.pose_filter.nees`).
-    Status "inconsistent": the innovations of the last 10 s are outside the chi-square band
-    (not "ok"); "reinit": re-initialised from the epoch's rigid fit."""
+    Status "inconsistent" (not "ok"): the epoch's NIS is above the ``gate_prob`` quantile of
+    chi-square with its dof, or the last 10 s's NIS, each epoch's winsorised at that quantile,
+    sum above the quantile with the summed dof (one spike cannot flag the window; a few
+    saturated epochs or a persistent excess do: ``estimator.pose_filter._Monitor``);
+    "reinit": re-initialised from the epoch's rigid fit."""
 
     filter_params: PoseFilterParams | None = None
 
