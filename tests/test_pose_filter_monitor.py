@@ -132,6 +132,72 @@ def test_three_saturated_epochs_of_ten_flag_a_window_two_do_not(d):
         assert got[-1] == flagged                     # the last epoch is no spike itself
 
 
+class _AgreeingFit:
+    """A FilterStart stand-in whose epochs give the state's own heading to 0.01 rad (the
+    heading check passes, so only the lock-out counter can re-initialise)."""
+
+    def fit_heading(self, k: int) -> tuple[float, float]:
+        return 0.0, 0.01
+
+    def refit(self, k: int, x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        return x, np.eye(pf.NX)
+
+
+@numba.njit
+def _kernel_lockout_loop(nis, dof, n_gated, window, thr_table, par):
+    buf = np.zeros((window, 2))
+    head = count = 0
+    counters = np.zeros(2, dtype=np.int64)
+    x, P = np.zeros(6), 1e-6 * np.eye(6)
+    fyaw, cnt, spread = np.zeros(nis.size), np.full(nis.size, 4.0), np.ones(nis.size)
+    out = np.zeros(nis.size, dtype=np.bool_)
+    for k in range(nis.size):
+        _, want, head, count = kn._monitor(buf, head, count, k, nis[k], dof[k], x, P,
+                                           n_gated[k], counters, thr_table, par, fyaw, cnt,
+                                           spread)
+        if want:                                   # as forward_kernel does
+            counters[0] = counters[1] = 0
+        out[k] = want
+    return out
+
+
+def refits(nis: np.ndarray, dof: np.ndarray, n_gated: np.ndarray) -> dict[str, list[int]]:
+    """Epochs where each engine's monitor asks for a re-initialisation."""
+    mon = pf._Monitor(_AgreeingFit(), 1.0, P_GATE)          # type: ignore[arg-type]
+    x, P = np.zeros(pf.NX), 1e-6 * np.eye(pf.NX)
+    ref = [k for k in range(nis.size)
+           if mon.check(k, float(nis[k]), int(dof[k]), x, P, int(n_gated[k]))[1] is not None]
+    thr = chdtri(2.0 * np.arange(pf._thr_table_size(nis.size, 5, WINDOW)), 1.0 - P_GATE)
+    par = np.zeros(kn.N_PAR)
+    par[kn.I_FIT_SD], par[kn.I_SA], par[kn.I_REINIT_N] = (pf.MAX_FIT_YAW_SD, 0.01,
+                                                          pf.REINIT_EPOCHS)
+    par[kn.I_THR1], par[kn.I_REINIT_YAW] = chi2.ppf(P_GATE, 1), pf.REINIT_MIN_YAW_RAD
+    got = _kernel_lockout_loop(nis.astype(float), dof.astype(np.int64),
+                               n_gated.astype(np.int64), WINDOW, thr, par)
+    return {"numpy": ref, "numba": np.flatnonzero(got).tolist()}
+
+
+def test_lock_out_guard_counts_the_window_test_only():
+    """After 20 consistent epochs (NIS = dof = 16): a lock-out (from epoch 20 every epoch
+    saturated, a fix gated) fails the window from its 3rd epoch (22) on, and the guard
+    re-initialises REINIT_EPOCHS (3) window failures later, at epoch 24 (before the
+    winsorised window: at 22); a manoeuvre's spike at 20 with a fix gated at 20-22 and the
+    NIS back at its mean is no lock-out: no re-initialisation (before: at 22)."""
+    dof = np.full(40, 16)
+    nis = np.full(40, 16.0)
+    gated = np.zeros(40, dtype=int)
+    lock = np.where(np.arange(40) >= 20, 1e3, nis)
+    gated_lock = np.where(np.arange(40) >= 20, 1, gated)
+    for eng, ks in refits(lock, dof, gated_lock).items():
+        assert ks[:1] == [20 + 2 + pf.REINIT_EPOCHS - 1], eng
+    spike = nis.copy()
+    spike[20] = 1e3
+    gated_spike = gated.copy()
+    gated_spike[20:23] = 1
+    for eng, ks in refits(spike, dof, gated_spike).items():
+        assert ks == [], eng
+
+
 def cruise(sd_m: float = 0.01, seed: int = 0, spike: int | None = None, n: int = 80):
     """A car at 5 m/s on a gentle arc (curvature 0.01 1/m), four antennas on a 0.8 m
     square, 1 Hz, white noise ``sd_m``; ``spike``: antenna 2 off by 0.5 m at that epoch
