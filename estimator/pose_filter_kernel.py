@@ -22,7 +22,8 @@ is (Sylvester's determinant identity); a zero pivot counts as the reference's Li
 
 Chi-square quantiles of the NIS window come from a table the caller fills with
 ``scipy.special.chdtri`` (the reference's function) for every even number of degrees of
-freedom the window can sum to. Runs unchanged, only slower, with ``NUMBA_DISABLE_JIT=1``.
+freedom the window can sum to (an epoch's own dof among them: the per-epoch test and the
+winsorising read the same table). Runs unchanged, only slower, with ``NUMBA_DISABLE_JIT=1``.
 """
 
 from __future__ import annotations
