@@ -15,7 +15,6 @@ Units: times s, positions m, yaw rad (yaw errors are reported in degrees where n
 from __future__ import annotations
 
 import numpy as np
-from scipy.optimize import minimize_scalar
 
 from estimator.metrics import summarize
 from estimator.orientation import wrap_angle
@@ -194,6 +193,8 @@ def score_trajectory(times: np.ndarray, pose: np.ndarray, ref_t: np.ndarray,
     rows inside the reference (more than half of them must be). Returns the summary fields
     of :func:`score_static` (clock_offset_s the offset) and the 2-D error (n,) m; raises
     ValueError naming the reference when no offset overlaps enough rows."""
+    from scipy.optimize import minimize_scalar
+
     def rmse(off):
         r, inside = _reference_at(ref_t, ref_xy, ref_yaw, times + off)
         e, _ = pose_errors(pose, r)

@@ -63,7 +63,6 @@ from typing import Any
 import numpy as np
 
 from estimator.configuration import SensorConfig
-from estimator.elastic import elastic_batch
 from estimator.window import (
     CcpProblems,
     fit_window,
@@ -180,6 +179,8 @@ def print_table(rows: list[dict], columns: list[str]) -> None:
 @section("solvers")
 def bench_solvers(quick: bool = False) -> list[dict]:
     """Median time per window of each solver (single call) and of batched procrustes."""
+    from estimator.elastic import elastic_batch
+
     ref = Reference(3 if quick else 5)
     cfg = live_config()
     rng = np.random.default_rng(20130501)

@@ -24,11 +24,21 @@ import argparse
 import json
 import sys
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
-import pandas as pd
 
+from experiments.deferred import deferred_attributes
 from experiments.selection import find_cell, parse_where
+
+if TYPE_CHECKING:
+    import pandas as pd
+
+#: imported where used, not here, so that --help and argument errors answer before
+#: pandas / numba / scipy / matplotlib load; still importable from this module
+__getattr__ = deferred_attributes(__name__, {
+    "pd": ("pandas", None),
+})
 
 __all__ = ["export_tum", "find_cell", "main", "parse_where", "write_tum"]
 
@@ -73,6 +83,8 @@ def recorded_cell(results: Path, key: str):
 
 
 def _epochs(results: Path, cell: pd.Series) -> pd.DataFrame:
+    import pandas as pd
+
     path = results / "epochs" / f"{cell['key']}.parquet"
     if path.exists():
         return pd.read_parquet(path)

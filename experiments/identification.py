@@ -72,27 +72,38 @@ import time
 from collections.abc import Callable, Mapping
 from itertools import product
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
-import pandas as pd
 
 from estimator._checks import check_int, check_real
-from estimator.sysid import (  # AxisIdentification: re-exported
-    FORMS,
-    AxisIdentification,
-    TransferFit,
-    check_responses,
-    equivalent_lag,
-    fit_transfer_function,
-    identify_axes,
-    is_identifiable,
-    simulate,
-    step_response,
-    total_lag,
-)
+from experiments.deferred import deferred_attributes
 from experiments.identification_chain import ChainFits, ChainSpec
 from experiments.markdown import md_row, md_separator
 from experiments.provenance import git_describe
+
+if TYPE_CHECKING:
+    from estimator.sysid import AxisIdentification, TransferFit
+
+if TYPE_CHECKING:
+    import pandas as pd
+
+#: imported where used, not here, so that --help and argument errors answer before
+#: pandas / numba / scipy / matplotlib load; still importable from this module
+__getattr__ = deferred_attributes(__name__, {
+    "pd": ("pandas", None),
+    "FORMS": ("estimator.sysid", "FORMS"),
+    "AxisIdentification": ("estimator.sysid", "AxisIdentification"),
+    "TransferFit": ("estimator.sysid", "TransferFit"),
+    "check_responses": ("estimator.sysid", "check_responses"),
+    "equivalent_lag": ("estimator.sysid", "equivalent_lag"),
+    "fit_transfer_function": ("estimator.sysid", "fit_transfer_function"),
+    "identify_axes": ("estimator.sysid", "identify_axes"),
+    "is_identifiable": ("estimator.sysid", "is_identifiable"),
+    "simulate": ("estimator.sysid", "simulate"),
+    "step_response": ("estimator.sysid", "step_response"),
+    "total_lag": ("estimator.sysid", "total_lag"),
+})
 
 __all__ = ["AXIS_FORMS", "THESIS", "AxisIdentification", "identification_series",
            "identification_table", "identify", "main", "pitch_evidence",
@@ -180,6 +191,8 @@ def identify(data: Responses, *, seed: int = 0, noise_m: float = 0.01, n_mc: int
     """Fit the three axes' impulse responses (:func:`estimator.sysid.identify_axes` with
     AXIS_FORMS, the per-axis noise sigma of ``noise_m`` and REL_TOL; arguments as checked by
     :func:`run_identification`)."""
+    from estimator.sysid import identify_axes
+
     sigmas = {axis: _noise_sigma(axis, noise_m) for axis in AXIS_FORMS}
     return identify_axes(data, AXIS_FORMS, sigmas, seed=seed, n_mc=n_mc, n_starts=n_starts,
                          rel_tol=REL_TOL)
@@ -188,6 +201,8 @@ def identify(data: Responses, *, seed: int = 0, noise_m: float = 0.01, n_mc: int
 # ----------------------------------------------------------------------------- tabulate
 def _cell(fit: TransferFit | None, key: str) -> dict:
     """Value, interval and flag of a parameter (or of the total lag, ``key="lag"``)."""
+    from estimator.sysid import equivalent_lag, is_identifiable
+
     if fit is None:
         return {"value": float("nan"), "lo": float("nan"), "hi": float("nan"),
                 "identifiable": None}
@@ -213,6 +228,10 @@ def identification_table(results: Mapping[str, AxisIdentification], *,
     :func:`_chain_columns` (NaN without it); with ``chain_window`` (the same chain, fitted
     in the thesis's own window, :data:`THESIS_WINDOW`) ``chain_win_nf`` / ``chain_win``
     and their flags."""
+    import pandas as pd
+
+    from estimator.sysid import FORMS, equivalent_lag, total_lag
+
     rows: list[dict] = []
     for axis, r in results.items():
         form = r.form
@@ -268,6 +287,8 @@ def _chain_columns(cf: ChainFits | None, key: str, thesis: float, truth: float) 
     realisations, fit percentages, ``chain_shift`` = chain_nf - truth-fed clean fit and
     ``gap_closed_pct`` = how much of the truth-fed fit's distance to the thesis the
     noise-free chain removes (100 = all, negative = it moves away; not for K)."""
+    from estimator.sysid import equivalent_lag
+
     nf, n = _cell(cf.noise_free if cf else None, key), _cell(cf.noisy if cf else None, key)
     mc = ([equivalent_lag(f)[0] if key == "lag" else f.params[key] for f in cf.mc]
           if cf else [])
@@ -297,6 +318,10 @@ def identification_series(results: Mapping[str, AxisIdentification],
     thesis's and the identified model (Figs 3.15, 3.18, 3.21) and, with ``chain``, the
     chain-fed records (kind ``chain``: ``y`` = noise-free ranges, ``y_noisy`` = with faults)
     and their fits."""
+    import pandas as pd
+
+    from estimator.sysid import step_response
+
     series: list[pd.DataFrame] = []
     for axis, cf in (chain or {}).items():
         series.append(pd.DataFrame({
@@ -336,6 +361,8 @@ def thesis_window_study(*, seed: int = 0, noise_m: float = 0.01, n_runs: int = 1
     response's end value ``y_end_m`` at ``t_end_s``. Noise from
     ``SeedSequence([seed, 99, run])``.
     """
+    from estimator.sysid import fit_transfer_function, simulate
+
     check_real(noise_m, "noise_m", lo=0.0, lo_open=True)
     check_int(n_runs, "n_runs", lo=1)
     w = THESIS_WINDOW
@@ -378,6 +405,9 @@ def pitch_evidence(*, seed: int = 0, noise_m: float = 0.01, n_runs: int = 10,
     The second return value is :func:`thesis_window_study` (``n_runs`` noise realisations
     of ``noise_m``), None when ``noise_m`` or ``n_runs`` is 0.
     """
+    import pandas as pd
+
+    from estimator.sysid import equivalent_lag, fit_transfer_function
     from sim.quadcopter import (
         F450_RANGES,
         STICK_CHANNELS,
@@ -489,6 +519,8 @@ def run_identification(
     Every argument is checked before anything is simulated or fitted. Returns one row per
     (axis, parameter), as :func:`identification_table`.
     """
+    from estimator.sysid import check_responses
+
     check_int(seed, "seed", lo=0)
     check_real(noise_m, "noise_m", lo=0.0)
     if not isinstance(quick, (bool, np.bool_)):
@@ -962,6 +994,7 @@ def plot_identification(out_dir: str | Path) -> list[Path]:
     thesis's and the identified model.
     """
     import matplotlib
+    import pandas as pd
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt

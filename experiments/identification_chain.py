@@ -31,15 +31,30 @@ from __future__ import annotations
 import math
 from collections.abc import Mapping
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from estimator._checks import check_real
-from estimator.kalman import kalman_steady_state  # re-exported: the closed form lives there
 from estimator.orientation import unwrap_angle
-from estimator.ranging import RangeStreams, RangingConfig, localize
-from estimator.sysid import TransferFit, fit_transfer_function
+from experiments.deferred import deferred_attributes
 from sim.ultrasonic import UltrasonicNoiseModel, load_receivers, simulate_ranges
+
+if TYPE_CHECKING:
+    from estimator.kalman import kalman_steady_state  # re-exported: the closed form lives there
+    from estimator.ranging import RangingConfig
+    from estimator.sysid import TransferFit
+
+#: imported where used, not here, so that --help and argument errors answer before
+#: pandas / numba / scipy / matplotlib load; still importable from this module
+__getattr__ = deferred_attributes(__name__, {
+    "kalman_steady_state": ("estimator.kalman", "kalman_steady_state"),
+    "RangeStreams": ("estimator.ranging", "RangeStreams"),
+    "RangingConfig": ("estimator.ranging", "RangingConfig"),
+    "localize": ("estimator.ranging", "localize"),
+    "TransferFit": ("estimator.sysid", "TransferFit"),
+    "fit_transfer_function": ("estimator.sysid", "fit_transfer_function"),
+})
 
 __all__ = ["CHAIN_AXES", "CHAIN_TRIPLE", "ChainFits", "ChainSpec", "chain_config",
            "chain_flights", "chain_response", "identify_chain", "kalman_steady_state",
@@ -93,6 +108,8 @@ def chain_config(receiver_names: tuple[str, ...], spec: ChainSpec = ChainSpec(),
                  **changes) -> RangingConfig:
     """:meth:`RangingConfig.appendix_c` on the Appendix C triple with ``spec.gate_mode``;
     ``changes`` override fields (tests widen the Kalman with them)."""
+    from estimator.ranging import RangingConfig
+
     idx = tuple(receiver_names.index(n) for n in CHAIN_TRIPLE)
     return RangingConfig.appendix_c(gate_mode=spec.gate_mode, receivers_used=idx, **changes)
 
@@ -135,6 +152,8 @@ def chain_response(flight, axis: str, model: UltrasonicNoiseModel, rng: np.rando
     """Ranges of ``flight`` (fields ``t, sensor_positions, pre_s, pulse_s, amplitude``)
     through the chain; returns ``(t, u, y)`` on the fitted grid, ``t`` from 0, ``y`` minus
     its median over the ``before_s`` before the pulse."""
+    from estimator.ranging import RangeStreams, localize
+
     names, rec = load_receivers(spec.receivers)
     config = config if config is not None else chain_config(names, spec)
     ranges = simulate_ranges(flight.t, flight.sensor_positions, rec, model, rng)
@@ -174,6 +193,8 @@ def identify_chain(flights: Mapping, *, seed: int = 0, n_runs: int = 3, n_starts
     ranges, one realisation of the range model and ``n_runs`` further ones. Randomness:
     ``SeedSequence([seed, axis index, 100 + run])``: run 0 = the tabulated realisation,
     1..n_runs the Monte Carlo; the fits' starts use runs 90 (noise-free) and 91."""
+    from estimator.sysid import fit_transfer_function
+
     model = UltrasonicNoiseModel.load(spec.noise_model)
     clean_model = noise_free(model)
     out = {}

@@ -10,9 +10,12 @@ line); :func:`md_row` and :func:`markdown_table` apply it to every header and ce
 from __future__ import annotations
 
 from collections.abc import Callable, Iterable, Sequence
+from typing import TYPE_CHECKING
 
 import numpy as np
-import pandas as pd
+
+if TYPE_CHECKING:  # pandas only in annotations: importing this module stays light (a CLI's --help)
+    import pandas as pd
 
 __all__ = ["escape_cell", "markdown_table", "md_row", "md_separator", "split_row"]
 

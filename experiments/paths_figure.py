@@ -16,17 +16,18 @@ from __future__ import annotations
 
 import argparse
 from pathlib import Path as FsPath
+from typing import TYPE_CHECKING
 
 import numpy as np
-from matplotlib.axes import Axes
-from matplotlib.figure import Figure
-from matplotlib.patches import Circle
 
 from estimator.configuration import SensorConfig
 from experiments.spec import RESULTS_ROOT
 from sim.cache import DEFAULT_CACHE_DIR
 from sim.paths import Path, load_path, path_errors
 from sim.truth import Truth
+
+if TYPE_CHECKING:
+    from matplotlib.axes import Axes
 
 __all__ = ["draw_panel", "main", "plot_paths"]
 
@@ -50,6 +51,8 @@ def draw_panel(ax: Axes, truth: Truth, path: Path, title: str, *,
 
     ``inset_corner`` (index into ``path.corners``) adds a zoomed inset around that corner.
     """
+    from matplotlib.patches import Circle
+
     def draw(a: Axes, label: bool) -> None:
         V = path.polyline[:, :2]
         a.plot(V[:, 0], V[:, 1], "--", color="0.55", lw=1,
@@ -94,6 +97,8 @@ def draw_panel(ax: Axes, truth: Truth, path: Path, title: str, *,
 
 def plot_paths(panels: list[tuple[Truth, Path, str, int | None]], out: str | FsPath) -> FsPath:
     """Write a row of panels ``(truth, path, title, inset_corner)`` to ``out`` (PNG)."""
+    from matplotlib.figure import Figure
+
     out = FsPath(out)
     fig = Figure(figsize=(6.2 * len(panels), 6.2))   # no pyplot: no GUI backend needed
     axes = fig.subplots(1, len(panels), squeeze=False)

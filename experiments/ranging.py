@@ -39,9 +39,9 @@ import sys
 import time
 from dataclasses import asdict, dataclass
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
-import pandas as pd
 
 from estimator import range_scoring
 from estimator.range_scoring import (  # re-exported: the authors' metric lives in the core
@@ -50,9 +50,24 @@ from estimator.range_scoring import (  # re-exported: the authors' metric lives 
     epoch_coverage,
     scoring_window,
 )
-from estimator.ranging import RangeStreams, RangingConfig, RangingResult, localize
+from experiments.deferred import deferred_attributes
 from experiments.markdown import markdown_table
 from experiments.provenance import git_describe
+
+if TYPE_CHECKING:
+    import pandas as pd
+
+    from estimator.ranging import RangeStreams, RangingConfig, RangingResult
+
+#: imported where used, not here, so that --help and argument errors answer before
+#: pandas / numba / scipy / matplotlib load; still importable from this module
+__getattr__ = deferred_attributes(__name__, {
+    "pd": ("pandas", None),
+    "RangeStreams": ("estimator.ranging", "RangeStreams"),
+    "RangingConfig": ("estimator.ranging", "RangingConfig"),
+    "RangingResult": ("estimator.ranging", "RangingResult"),
+    "localize": ("estimator.ranging", "localize"),
+})
 
 __all__ = [
     "METHODS",
@@ -104,6 +119,8 @@ _STAMP_COLS = ("field.stamp", "timestamp")
 
 def _read_csv(path: Path, columns: tuple[str, ...]) -> pd.DataFrame:
     """A CSV with the given numeric columns; errors name the file, the column and the row."""
+    import pandas as pd
+
     if not path.is_file():
         raise FileNotFoundError(f"{path}: file not found")
     try:
@@ -154,6 +171,8 @@ def _ns(values: pd.Series, path: Path, column: str) -> np.ndarray:
 def load_recording(directory: str | Path) -> RangeRecording:
     """Read one run (see the module docstring). Raises FileNotFoundError / ValueError naming
     the file (and column and row) for anything missing or malformed."""
+    from estimator.ranging import RangeStreams
+
     d = Path(directory)
     if not d.is_dir():
         raise FileNotFoundError(f"{d}: not a directory")
@@ -260,6 +279,10 @@ def evaluate(rec: RangeRecording, *, trajectory: str = "A", tag_height_m: float 
     :func:`_stages`), "results": {"2d": RangingResult, "3d": RangingResult}, "series":
     DataFrame of every method's estimates at the epochs, "timings": dict}.
     """
+    import pandas as pd
+
+    from estimator.ranging import RangingConfig, localize
+
     base = config or RangingConfig.uwb_ground_tag()
     results, timings = {}, {}
     for mode, h in (("2d", tag_height_m), ("3d", None)):
@@ -291,6 +314,8 @@ def _stages(rec: RangeRecording, results: dict, trajectory: str, tag_height_m: f
     samples, Filter 1 and the tightly coupled filter's gate, with the spikes judged against
     the reference (|range - reference range| > 10 sigma after shifting the reference by the
     measured lag; no estimator sees the reference)."""
+    import pandas as pd
+
     lag = range_lag(rec, tag_height_m)
     resid = rec.streams.r - reference_ranges(rec, lag, tag_height_m)
     spike = np.abs(resid) > 10.0 * results["2d"].config.sigma_range_m
@@ -474,6 +499,10 @@ def run(directories, out: str | Path = DEFAULT_OUT, *, trajectory: str | None = 
         tag_height_m: float = TAG_HEIGHT_M, figures: bool = True) -> dict:
     """Evaluate each recording directory; write ``out/<label>/`` per recording and a combined
     ``out/summary.md``. Returns {label: evaluate(...) result}."""
+    import pandas as pd
+
+    from estimator.ranging import RangingConfig
+
     out = Path(out)
     dirs = [Path(d) for d in directories]
     if not dirs:
@@ -573,6 +602,8 @@ def main(argv: list[str] | None = None) -> int:
     except (FileNotFoundError, ValueError) as exc:
         print(f"{ap.prog}: error: {exc}", file=sys.stderr)
         return 2
+    import pandas as pd
+
     pd.set_option("display.width", 200)
     for label, ev in res.items():
         print(f"{label}\n{ev['summary'].to_string(index=False, float_format='%.3f')}\n")

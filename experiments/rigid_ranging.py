@@ -33,19 +33,30 @@ from __future__ import annotations
 import argparse
 import sys
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
-import pandas as pd
 
 from estimator import range_scoring
-from estimator import rigid_ranging as rr
+from experiments.deferred import deferred_attributes
 from experiments.markdown import markdown_table
-from sim.range_recording import (
-    RangeRecording,
-    StaticReference,
-    TrajectoryReference,
-    load_range_recording,
-)
+
+if TYPE_CHECKING:
+    import pandas as pd
+
+    from estimator import rigid_ranging as rr
+    from sim.range_recording import RangeRecording, StaticReference, TrajectoryReference
+
+#: imported where used, not here, so that --help and argument errors answer before
+#: pandas / numba / scipy / matplotlib load; still importable from this module
+__getattr__ = deferred_attributes(__name__, {
+    "pd": ("pandas", None),
+    "rr": ("estimator.rigid_ranging", None),
+    "RangeRecording": ("sim.range_recording", "RangeRecording"),
+    "StaticReference": ("sim.range_recording", "StaticReference"),
+    "TrajectoryReference": ("sim.range_recording", "TrajectoryReference"),
+    "load_range_recording": ("sim.range_recording", "load_range_recording"),
+})
 
 __all__ = ["COLUMNS", "METHODS", "estimate", "main", "run", "score", "score_static",
            "score_trajectory"]
@@ -61,12 +72,16 @@ DEFAULT_OUT = REPO / "results" / "local" / "rigid_ranging"
 
 
 def _fit(rec: RangeRecording, D: np.ndarray, **kw) -> rr.RigidPoseFit:
+    from estimator import rigid_ranging as rr
+
     return rr.fit_pose(rec.anchors, rec.body, D, origin_z_m=rec.origin_z_m, sigma_m=SIGMA_M,
                        **kw)
 
 
 def estimate(rec: RangeRecording, calibrated: RangeRecording | None = None) -> dict:
     """{method: (pose (n, 3) x, y, yaw, flagged (n,) bool)} at the rows of ``rec``."""
+    from estimator import rigid_ranging as rr
+
     out = {}
     base = _fit(rec, rec.ranges, robust="none", mirror_check=False)
     out["baseline"] = (base.pose, base.status != "ok")
@@ -113,6 +128,8 @@ def score_trajectory(times: np.ndarray, pose: np.ndarray, ref: TrajectoryReferen
 
 
 def score(rec: RangeRecording, pose: np.ndarray) -> tuple[dict, np.ndarray]:
+    from sim.range_recording import StaticReference
+
     if isinstance(rec.reference, StaticReference):
         return score_static(pose, rec.reference)
     return score_trajectory(rec.times, pose, rec.reference)
@@ -128,6 +145,8 @@ def _plots(rec: RangeRecording, label: str, est: dict, errors: dict, out: Path) 
     import matplotlib
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
+
+    from sim.range_recording import TrajectoryReference
 
     t = rec.times - rec.times[0]
     fig, ax = plt.subplots(figsize=(9, 4))
@@ -164,6 +183,8 @@ def _plots(rec: RangeRecording, label: str, est: dict, errors: dict, out: Path) 
 
 def evaluate(folder: Path) -> tuple[list[dict], dict]:
     """Rows of the summary for one run folder, and the estimates."""
+    from sim.range_recording import load_range_recording
+
     rec = load_range_recording(folder)
     cal = load_range_recording(folder, calibrate=True) if rec.calibration is not None else None
     est = estimate(rec, cal)
@@ -181,6 +202,8 @@ def evaluate(folder: Path) -> tuple[list[dict], dict]:
 def run(folders, out: str | Path = DEFAULT_OUT, *, figures: bool = True) -> pd.DataFrame:
     """Score each run folder; write ``out/summary.csv`` / ``summary.md`` (one table, a
     ``run`` column) and the figures. Returns the table."""
+    import pandas as pd
+
     dirs = [Path(f) for f in folders]
     if not dirs:
         raise ValueError("folders: give at least one run folder")

@@ -16,9 +16,12 @@ import json
 import shlex
 from collections.abc import Sequence
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
-import pandas as pd
+
+if TYPE_CHECKING:
+    import pandas as pd
 
 __all__ = ["AmbiguousSelection", "axis_columns", "find_cell", "parse_where", "select_cell"]
 
@@ -182,6 +185,9 @@ def find_cell(results: str | Path, key: str | None = None, where: dict | None = 
               ) -> pd.Series:
     """The one cell of the results folder ``results`` (its ``cells.parquet``) matching
     ``key`` or every ``where`` term (:func:`select_cell`)."""
+
+    import pandas as pd
+
     f = Path(results) / "cells.parquet"
     if not f.exists():
         raise ValueError(f"results: {f} not found (run the sweep into {results} first)")

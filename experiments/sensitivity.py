@@ -31,16 +31,31 @@ import sys
 import time
 from dataclasses import dataclass
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
-import pandas as pd
-from scipy.optimize import brentq
 
-from experiments.claims import CLAIMS, COURSE_CLAIMS, P1, _derived, _per_seed, evaluate_claims
+from experiments.deferred import deferred_attributes
 from experiments.markdown import md_row, md_separator
 from experiments.spec import PRESETS_DIR, RESULTS_ROOT, Spec, load_spec
-from experiments.tables import THESIS_TABLES, faithful, numpy_strings
 from sim.atomic import atomic_write, atomic_write_text
+
+if TYPE_CHECKING:
+    import pandas as pd
+
+#: imported where used, not here, so that --help and argument errors answer before
+#: pandas / numba / scipy / matplotlib load; still importable from this module
+__getattr__ = deferred_attributes(__name__, {
+    "pd": ("pandas", None),
+    "brentq": ("scipy.optimize", "brentq"),
+    "CLAIMS": ("experiments.claims", "CLAIMS"),
+    "COURSE_CLAIMS": ("experiments.claims", "COURSE_CLAIMS"),
+    "P1": ("experiments.claims", "P1"),
+    "evaluate_claims": ("experiments.claims", "evaluate_claims"),
+    "THESIS_TABLES": ("experiments.tables", "THESIS_TABLES"),
+    "faithful": ("experiments.tables", "faithful"),
+    "numpy_strings": ("experiments.tables", "numpy_strings"),
+})
 
 __all__ = ["CAUSE_CLAIMS", "DILATE_S", "GRIDS", "QUANTITIES", "Quantity", "evaluate_mask",
            "evaluate_variants", "main", "mask_cells", "mask_spec", "wide_mask",
@@ -146,6 +161,8 @@ def _key(outs, base_outs) -> tuple[str, float, float, float]:
 
 def _turn_shares(main: pd.DataFrame) -> dict[int, float]:
     """{window: share of the LC estimates on Path 1 whose window holds a turning epoch}."""
+    from experiments.claims import P1, _per_seed
+
     out = {}
     for w in (5, 10, 100):
         n = [_per_seed(main, {"path": P1, "window": w, "weighting": "huff", "technique": "lc",
@@ -158,6 +175,11 @@ def _turn_shares(main: pd.DataFrame) -> dict[int, float]:
 def evaluate_variants(cells: pd.DataFrame, quantities=QUANTITIES
                       ) -> tuple[pd.DataFrame, pd.DataFrame, pd.DataFrame]:
     """(sensitivity, comparisons, turns) tables of a sensitivity sweep's cells."""
+    import pandas as pd
+
+    from experiments.claims import CLAIMS, COURSE_CLAIMS, _derived, evaluate_claims
+    from experiments.tables import faithful, numpy_strings
+
     cells = numpy_strings(cells)
     rows, comps, turns, base = [], [], [], None
     for q, v, axis, ov in variants(quantities):
@@ -193,6 +215,8 @@ DILATE_S = (0.0, 10.0, 30.0, 60.0)
 
 def mask_spec(seeds: int) -> Spec:
     """LC on Path 1 (Huff, windows 5/10/100) with every seed's per-epoch errors kept."""
+    from experiments.claims import P1
+
     raw = load_spec("thesis").raw
     grid = [{"name": "lc", "path": P1, "window": [5, 10, 100], "weighting": "huff",
              "technique": "lc"}]
@@ -213,6 +237,10 @@ def wide_mask(turning: np.ndarray, window: np.ndarray, d: int) -> np.ndarray:
 def mask_cells(cells: pd.DataFrame, out: Path, rate_hz: float = 1.0) -> pd.DataFrame:
     """Per seed and widening: std of |x|, |y| of LC on the full path and under the widened
     no-turns mask (ddof 1, as estimator.metrics), as claim-table rows with ``dilate_s``."""
+    import pandas as pd
+
+    from experiments.claims import P1
+
     rows = []
     for r in cells[cells["mask"] == "full"].itertuples():
         e = pd.read_parquet(out / "epochs" / f"{r.key}.parquet")
@@ -232,6 +260,10 @@ def mask_cells(cells: pd.DataFrame, out: Path, rate_hz: float = 1.0) -> pd.DataF
 def evaluate_mask(rows: pd.DataFrame) -> pd.DataFrame:
     """C14 (LC full path std > LC no turns std) per widening: verdict, supports below
     window 100, and the share of the w=5 estimates the widened mask drops."""
+    import pandas as pd
+
+    from experiments.claims import CLAIMS, evaluate_claims
+
     c14 = next(c for c in CLAIMS if c.cid == "C14")
     out = []
     for d, g in rows.groupby("dilate_s"):
@@ -253,6 +285,8 @@ def speed_bound(rate_hz: float = 1.0, window: int = 100) -> tuple[float, float]:
     a window of s samples trails by (s - 1) v / (2 rate), along x on half of the path, so
     mean |x| ~ (s - 1) v / (4 rate) + noise; the noise adds at most the window-10 value
     (low: published w=100 minus w=10, high: all of w=100; both axes)."""
+    from experiments.tables import THESIS_TABLES
+
     k = (window - 1) / (4 * rate_hz)
     pub = {ax: (THESIS_TABLES[ax][(window, "None")]["mean"],
                 THESIS_TABLES[ax][(10, "None")]["mean"]) for ax in ("x", "y")}
@@ -272,6 +306,8 @@ def tau_bounds(n: int, order: int, s: int = 10, shrink: float = 0.10) -> tuple[f
     Section 4.7, a "definite decrease in the spread" from window 1 to ``s`` (read, as in
     experiments.stationary_claims, as at least ``shrink``): the std of an s-sample mean is
     sqrt((1 + 2 sum_k (1 - k/s) r(k)) / s) times the one-sample std."""
+    from scipy.optimize import brentq
+
     lag = int(10 * math.log10(n))
     lo = brentq(lambda t: _acf(lag, t, order) - 1.96 / math.sqrt(n), 1e-2, 1e5)
     k = np.arange(1, s)
@@ -286,6 +322,9 @@ def sigma_bound(main: pd.DataFrame, sigma: float) -> tuple[float, float]:
     """(low, high) sigma_m (m) that would bring our Path 1 "None" mean |x|, |y| at windows 5
     and 10 onto the published ones, if the CG error scaled with sigma (the Gauss-Markov
     part dominates it): sigma times the smallest and largest published / ours ratio."""
+    from experiments.claims import P1, _per_seed
+    from experiments.tables import THESIS_TABLES
+
     r = [THESIS_TABLES[ax][(w, "None")]["mean"] / _per_seed(main, {
         "path": P1, "window": w, "weighting": "huff", "technique": "none", "mask": "full"},
         f"e{ax}_mean").mean() for w in (5, 10) for ax in ("x", "y")]
@@ -294,6 +333,7 @@ def sigma_bound(main: pd.DataFrame, sigma: float) -> tuple[float, float]:
 
 def shipped() -> dict[str, float]:
     """The shipped value of every quantity, read from its model / path file."""
+    from experiments.claims import P1
     from sim.gps import GpsNoiseModel
     from sim.paths import load_path
 
@@ -305,6 +345,8 @@ def shipped() -> dict[str, float]:
 def shipped_table(ship: dict[str, float]) -> pd.DataFrame:
     """``shipped.csv``: one row per :data:`QUANTITIES` entry (quantity, field, axis, unit,
     value: the shipped value in SI units ``unit``, from :func:`shipped`)."""
+    import pandas as pd
+
     return pd.DataFrame([{"quantity": q.name, "field": q.field, "axis": q.axis, "unit": q.unit,
                           "value": ship[q.name]} for q in QUANTITIES])
 
@@ -399,6 +441,8 @@ def _label(r) -> str:
 def _seed_check(sens: pd.DataFrame, seeds: int) -> list[str]:
     """The shipped setting at ``seeds`` seeds against the committed thesis run (10 seeds):
     the claims whose verdict differs, i.e. those the reduced seed count alone decides."""
+    import pandas as pd
+
     f = RESULTS_ROOT / "thesis" / "claims.csv"
     if not f.exists():
         return []
@@ -507,7 +551,10 @@ def _run_cells(spec: Spec, folder: Path, jobs: int | None):
 
 def main(argv: list[str] | None = None) -> int:
     """Run the variants through the runner, evaluate, write the outputs (module docstring)."""
-    a = _parse(argv)
+    a = _parse(argv)   # first: --help and usage errors need none of the imports below
+    from experiments.claims import _derived
+    from experiments.tables import faithful, numpy_strings
+
     qs = a.quantities
     out = REFERENCE if a.reference else (a.out or LOCAL)
     t0 = time.perf_counter()

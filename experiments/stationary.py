@@ -48,13 +48,13 @@ import math
 import sys
 import time
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
-import pandas as pd
 
 from estimator.configuration import SensorConfig
 from estimator.noise_stats import acf, ar1_fit, noise_summary, tau_from_phi
-from experiments import stationary_figures as figs
+from experiments.deferred import deferred_attributes
 from experiments.markdown import markdown_table
 from experiments.provenance import code_version
 from experiments.stationary_analysis import (
@@ -65,6 +65,16 @@ from experiments.stationary_analysis import (
     window_spreads,
 )
 from sim.gps import GpsNoiseModel, StationarySession, synthesize_session
+
+if TYPE_CHECKING:
+    import pandas as pd
+
+#: imported where used, not here, so that --help and argument errors answer before
+#: pandas / numba / scipy / matplotlib load; still importable from this module
+__getattr__ = deferred_attributes(__name__, {
+    "pd": ("pandas", None),
+    "figs": ("experiments.stationary_figures", None),
+})
 
 __all__ = ["REFERENCE_OUT", "WINDOW_SCHEMES", "analyse", "main", "real_log_tables", "sensor_table",
            "split_sensitivity", "weighting_estimates", "window_estimates", "window_spreads",
@@ -107,6 +117,8 @@ def split_sensitivity(model: GpsNoiseModel, config: SensorConfig, duration_s: fl
     yaw_rmse_deg, cg_rmse_m, rmse_m. This is the parameter that decides whether heading is
     observable (../shared/notes/window-solvers.md).
     """
+    import pandas as pd
+
     rows = []
     for f in fractions:
         m = model.with_overrides(common_fraction=f)
@@ -144,6 +156,7 @@ def sensor_table(session: StationarySession, nlags: int = 50) -> pd.DataFrame:
     NPP r, excess kurtosis, lag-1 ACF, AR(1) phi, sigma and correlation time, share of ACF
     lags 1..nlags outside +-1.96/sqrt(n) for the series and for its AR(1) residuals
     (Section 4.3), missing fraction."""
+    import pandas as pd
     from scipy import stats
 
     dt = float(np.median(np.diff(session.t))) if session.n > 1 else 1.0
@@ -175,6 +188,8 @@ def sensor_table(session: StationarySession, nlags: int = 50) -> pd.DataFrame:
 
 def pair_table(session: StationarySession, config: SensorConfig | None) -> pd.DataFrame:
     """Per pair of alive receivers: configured distance and observed distance statistics."""
+    import pandas as pd
+
     alive = session.present.any(axis=0)
     D = config.distances() if config is not None else None
     rows = []
@@ -192,6 +207,10 @@ def pair_table(session: StationarySession, config: SensorConfig | None) -> pd.Da
 def analyse(session: StationarySession, config: SensorConfig | None, out: Path,
             rng: np.random.Generator, *, nlags: int = 100) -> dict:
     """Run every section, write CSV tables, figures and summary.md/json to ``out``."""
+    import pandas as pd
+
+    from experiments import stationary_figures as figs
+
     out.mkdir(parents=True, exist_ok=True)
     session.save(out / "session.npz")
     s_tab = sensor_table(session, nlags=50)
@@ -225,6 +244,8 @@ def _md(df: pd.DataFrame, floatfmt: str = ".3f") -> str:
 def _write_summary(out: Path, session: StationarySession, config: SensorConfig | None,
                    s_tab: pd.DataFrame, p_tab: pd.DataFrame, w_est: list[Scored] | None,
                    win_tab: pd.DataFrame | None) -> dict:
+    import pandas as pd
+
     meta = session.meta
     lines = [f"# Stationary analysis ({meta.get('source', 'session')})", ""]
     span_s = session.t[-1] - session.t[0] + (session.t[1] - session.t[0] if session.n > 1 else 0)
@@ -412,6 +433,8 @@ def real_log_tables(root: Path) -> tuple[pd.DataFrame, pd.DataFrame, list[str]]:
     and the AR(1) correlation times; ``other`` the files under root that are not logs
     (relative paths).
     """
+    import pandas as pd
+
     from sim.nmea import SKIP_CLASSES, find_logs, read_log, session_from_fixes
 
     logs, other = find_logs(root)
@@ -450,6 +473,8 @@ def real_log_tables(root: Path) -> tuple[pd.DataFrame, pd.DataFrame, list[str]]:
 
 def _real_logs_md(label: str, imp: pd.DataFrame, st: pd.DataFrame, other: list[str]) -> str:
     """real_logs.md from the tables of :func:`real_log_tables`."""
+    import pandas as pd
+
     from sim.nmea import SKIP_CLASSES
 
     def skips(r: pd.Series) -> str:
@@ -495,6 +520,8 @@ def write_claims(out: Path, model: GpsNoiseModel, config: SensorConfig, duration
                  real_logs: Path | None) -> list:
     """claims.md, claims_seeds.csv and claims_variants.csv (:mod:`experiments.stationary_claims`)
     and a verdict table appended to summary.md. Returns the claim results."""
+    import pandas as pd
+
     from experiments import stationary_claims as sc
 
     cells = sc.seed_table(model, config, duration_s)

@@ -10,15 +10,18 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
 import numpy as np
-import pandas as pd
 
 from estimator.configuration import SensorConfig
 from estimator.metrics import cg_errors, heading_error, summarize
 from estimator.weights import Weighting, deleted_residual_mask, huber_weights, weights_for
 from estimator.window import fit_stationary, procrustes_batch, sliding_window_means
 from sim.gps import StationarySession
+
+if TYPE_CHECKING:
+    import pandas as pd
 
 __all__ = ["WINDOW_SCHEMES", "Scored", "weighting_estimates", "window_estimates",
            "window_spreads"]
@@ -133,6 +136,8 @@ def window_spreads(session: StationarySession, config: SensorConfig,
     ``yaw_rmse_deg`` (wrapped), ``insufficient`` = fraction of windows without a fit.
     Also returns the estimates {(scheme, s): positions} for the figures.
     """
+    import pandas as pd
+
     alive = session.present.any(axis=0)
     truth = session.truth_positions
     rows, est = [], {}

@@ -39,26 +39,36 @@ import sys
 import time
 from dataclasses import asdict, dataclass
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
-import pandas as pd
 
-from estimator import trilateration as tri
 from estimator.metrics import heading_error, summarize
 from estimator.orientation import heading_from_points, unwrap_angle
-from estimator.ranging import (
-    RangeStreams,
-    RangingConfig,
-    RangingResult,
-    best_triple,
-    filter_fixes,
-    localize,
-)
-from estimator.rigid_ranging import fit_pose
-from experiments import ultrasonic_figures as ufig
+from experiments.deferred import deferred_attributes
 from experiments.markdown import markdown_table
 from experiments.provenance import git_describe
 from sim.ultrasonic import UltrasonicNoiseModel, load_receivers, simulate_ranges, true_ranges
+
+if TYPE_CHECKING:
+    import pandas as pd
+
+    from estimator.ranging import RangingConfig, RangingResult
+
+#: imported where used, not here, so that --help and argument errors answer before
+#: pandas / numba / scipy / matplotlib load; still importable from this module
+__getattr__ = deferred_attributes(__name__, {
+    "pd": ("pandas", None),
+    "tri": ("estimator.trilateration", None),
+    "RangeStreams": ("estimator.ranging", "RangeStreams"),
+    "RangingConfig": ("estimator.ranging", "RangingConfig"),
+    "RangingResult": ("estimator.ranging", "RangingResult"),
+    "best_triple": ("estimator.ranging", "best_triple"),
+    "filter_fixes": ("estimator.ranging", "filter_fixes"),
+    "localize": ("estimator.ranging", "localize"),
+    "fit_pose": ("estimator.rigid_ranging", "fit_pose"),
+    "ufig": ("experiments.ultrasonic_figures", None),
+})
 
 REPO = Path(__file__).resolve().parents[1]
 #: the committed reference run (written only by ``--reference``)
@@ -124,6 +134,11 @@ class StudySpec:
 
 def run_monte_carlo(spec: StudySpec, rng: np.random.Generator) -> dict:
     """Appendix B. Returns {"table": DataFrame, "pixels": DataFrame, "extra": dict}."""
+    import pandas as pd
+
+    from estimator import trilateration as tri
+    from experiments import ultrasonic_figures as ufig
+
     names, rec = load_receivers("montecarlo")
     idx3 = [names.index(n) for n in MC_TRIPLE]
     n = spec.n_mc
@@ -202,6 +217,8 @@ def run_monte_carlo(spec: StudySpec, rng: np.random.Generator) -> dict:
 def flight_config(spec: StudySpec, triple: tuple[int, ...], mode: str = "robust",
                   max_speed: float | None = None) -> RangingConfig:
     """The Appendix C settings of :meth:`RangingConfig.appendix_c` with this study's values."""
+    from estimator.ranging import RangingConfig
+
     return RangingConfig.appendix_c(
         gate_mode=mode, max_speed_mps=spec.max_speed_mps if max_speed is None else max_speed,
         tx_separation_m=spec.tx_separation_m, lead_in=spec.lead_in,
@@ -246,6 +263,8 @@ def joint_pose(res: RangingResult, receivers: np.ndarray) -> tuple[np.ndarray, n
     group's mean height). receivers (k, 3) m. Returns position (n, 3) m and yaw (n,) rad, NaN
     where a Kalman z is missing or the fit has no usable pose (status not ``ok``,
     ``mirror_ambiguous`` or ``ambiguous``)."""
+    from estimator.rigid_ranging import fit_pose
+
     n = res.epochs.size
     body = np.asarray(res.config.levers(2), dtype=float)[:, :2]
     z = res.kalman[:, :, 2].mean(axis=1)
@@ -264,6 +283,9 @@ def joint_pose(res: RangingResult, receivers: np.ndarray) -> tuple[np.ndarray, n
 
 def run_flight(spec: StudySpec, rng: np.random.Generator) -> dict:
     """Appendix C pipeline on the simulated flight. Returns {"table", "series", "extra"}."""
+    import pandas as pd
+
+    from estimator.ranging import RangeStreams, best_triple, filter_fixes, localize
     from sim.quadcopter import simulate_quadcopter
 
     truth = simulate_quadcopter(spec.path, seed=spec.seed, yaw_mode=spec.yaw_mode,
@@ -508,6 +530,10 @@ def run(out_dir: str | Path = DEFAULT_OUT, spec: StudySpec | None = None, *,
         identification: bool = True, figures: bool = True) -> dict:
     """Run parts 1-3, write tables/figures/README to ``out_dir``; returns the DataFrames and
     timings."""
+    import pandas as pd
+
+    from experiments import ultrasonic_figures as ufig
+
     spec = spec or StudySpec()
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
@@ -776,6 +802,8 @@ def main(argv: list[str] | None = None) -> int:
     else:
         out = Path(args.out) if args.out is not None else DEFAULT_OUT
     res = run(out, spec, identification=not (args.quick or args.no_identification))
+    import pandas as pd
+
     pd.set_option("display.width", 200)
     print(res["mc"].to_string(index=False))
     print(res["flight"].to_string(index=False))
