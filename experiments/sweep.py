@@ -33,6 +33,7 @@ from experiments.runner.backends import (
     prestart,
     stop_workers,
     uses_pose_filter,
+    wait_workers_stopped,
 )
 from experiments.runner.cell import (
     CELL_SOURCES,
@@ -57,6 +58,7 @@ from experiments.runner.run import (
     default_out,
     import_for_outputs,
     run,
+    start_code_version,
 )
 from experiments.runner.store import LOCK_FILE, CellStore, SweepError, folder_lock
 from experiments.runner.worker import CellJob, mark, process_started, run_batch, timeline
@@ -194,6 +196,7 @@ def main(argv: list[str] | None = None) -> int:
     130 on Ctrl-C, 143 on SIGTERM, the manifest marked ``interrupted``, no worker left."""
     mark("main start-up", process_started())     # the interpreter and the imports
     args = build_parser().parse_args(argv)
+    start_code_version()        # git's processes beside the workers' start and the plan
     if args.spec and args.preset:
         print("error: give a spec file or --preset, not both", file=sys.stderr)
         return 2
@@ -219,7 +222,11 @@ def main(argv: list[str] | None = None) -> int:
 
 def _stop_workers() -> None:
     """:func:`stop_workers` when this process may have started loky workers (it imported
-    loky's executor); else nothing (creating one to stop it cost a resumed run 0.3 s)."""
+    loky's executor); else nothing (creating one to stop it cost a resumed run 0.3 s).
+    Where the run already ended them beside the page (``run(release_workers=True)``),
+    only waits for that."""
+    if wait_workers_stopped():
+        return
     if "joblib.externals.loky.reusable_executor" in sys.modules:
         stop_workers()
 
@@ -238,7 +245,8 @@ def _main(args: argparse.Namespace) -> int:
     try:
         res = run(spec, out=args.out, jobs=args.jobs, backend=args.backend,
                   scheduler=args.scheduler, force=args.force, progress=not args.quiet,
-                  figures=not args.no_figures, cache_dir=args.cache_dir)
+                  figures=not args.no_figures, cache_dir=args.cache_dir,
+                  release_workers=True)
     except SweepError as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 3
