@@ -206,8 +206,9 @@ def main(argv: list[str] | None = None) -> int:
                                               r"successfully)",
                             category=UserWarning)
     jobs = args.jobs or (os.cpu_count() or 1)
-    started = (prestart(jobs) if args.backend == "loky" and jobs > 1 and _likely_work(args)
-               else iter(()))
+    with timeline("main prestart"):
+        started = (prestart(jobs) if args.backend == "loky" and jobs > 1 and _likely_work(args)
+                   else iter(()))
     try:
         code = _main(args)
     except BaseException:
@@ -234,7 +235,8 @@ def _stop_workers() -> None:
 
 def _main(args: argparse.Namespace) -> int:
     try:
-        spec = load_spec(args.spec or args.preset or DEFAULT_PRESET)
+        with timeline("main spec"):
+            spec = load_spec(args.spec or args.preset or DEFAULT_PRESET)
         if args.solver:
             spec = spec.with_solver(args.solver)
         if args.seeds is not None:

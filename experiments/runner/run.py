@@ -179,7 +179,9 @@ def run(spec: Spec | str | Path, *, out: str | Path | None = None, jobs: int | N
                     cache_dir=str(cache_dir) if cache_dir else None, cell_fn=cell_fn,
                     truth_fn=truth_fn, release_workers=release_workers)
     with folder_lock(out_dir) as locked:
-        return _Run(spec, out_dir, opts, version).go(locked, t_start)
+        with timeline("main open"):
+            r = _Run(spec, out_dir, opts, version)
+        return r.go(locked, t_start)
 
 
 #: The code version being read in the background (:func:`start_code_version`), if any.
