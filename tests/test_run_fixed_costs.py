@@ -8,7 +8,7 @@ import time
 
 import pytest
 
-from experiments import figures, outputs, page
+from experiments import outputs
 from experiments.runner import backends
 from experiments.runner import run as run_mod
 from tests.test_outputs import TASKS, folder  # noqa: F401 - the fixture
