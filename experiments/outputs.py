@@ -243,8 +243,7 @@ def n_steps(figures: bool = True) -> int:
 
 def write_outputs(table: pd.DataFrame, out_dir: str | Path, *, spec: Any = None,
                   jobs: int = 1, figures: bool = True,
-                  on_step: Callable[[str], object] | None = None,
-                  on_units_done: Callable[[], object] | None = None) -> dict:
+                  on_step: Callable[[str], object] | None = None) -> dict:
     """Write the outputs of a sweep's results folder whose inputs changed (module docstring).
 
     table : the cell table (``cells.parquet``, which must already be written: the figures
@@ -253,9 +252,6 @@ def write_outputs(table: pd.DataFrame, out_dir: str | Path, *, spec: Any = None,
         report and the figure groups (1: all in this process). figures : draw the PNG
         figures.
     on_step : called with each unit's name as it finishes or is skipped (progress).
-    on_units_done : called once the tables, the report and the figure groups are done (or
-        skipped), before the page: the worker processes are idle from then on (the sweep's
-        CLI ends them there, beside the page).
 
     Returns ``{"written": [...], "skipped": [...], "seconds": {unit: s}, "wall_s": s}``.
     """
@@ -338,9 +334,6 @@ def write_outputs(table: pd.DataFrame, out_dir: str | Path, *, spec: Any = None,
                              "epochs": _epoch_stats(out, res["loaded"])}
                 seconds[name] = res["seconds"]
             step(name)
-
-    if on_units_done is not None:
-        on_units_done()
 
     # the page, last: it shows the report and lists the figures
     from experiments import page

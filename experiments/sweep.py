@@ -33,7 +33,6 @@ from experiments.runner.backends import (
     prestart,
     stop_workers,
     uses_pose_filter,
-    wait_workers_stopped,
 )
 from experiments.runner.cell import (
     CELL_SOURCES,
@@ -56,6 +55,7 @@ from experiments.runner.run import (
     TOP_LEVEL_RUNS,
     Results,
     default_out,
+    discard_code_version,
     import_for_outputs,
     run,
     start_code_version,
@@ -196,10 +196,10 @@ def main(argv: list[str] | None = None) -> int:
     130 on Ctrl-C, 143 on SIGTERM, the manifest marked ``interrupted``, no worker left."""
     mark("main start-up", process_started())     # the interpreter and the imports
     args = build_parser().parse_args(argv)
-    start_code_version()        # git's processes beside the workers' start and the plan
     if args.spec and args.preset:
         print("error: give a spec file or --preset, not both", file=sys.stderr)
         return 2
+    start_code_version()        # git's processes beside the workers' start and the plan
     # joblib warns on an interrupt that it cancelled the workers' tasks: the CLI reports the
     # interrupt in one line (experiments.cli)
     warnings.filterwarnings("ignore", message=r"\d+ tasks (which were still|have been "
@@ -214,6 +214,8 @@ def main(argv: list[str] | None = None) -> int:
     except BaseException:
         _stop_workers()        # interrupted: the workers' tasks are not waited for
         raise
+    finally:
+        discard_code_version()  # not taken when the spec was bad: no later run takes it
     for _ in started:           # (long done)
         pass
     with timeline("main stop workers"):
@@ -223,11 +225,7 @@ def main(argv: list[str] | None = None) -> int:
 
 def _stop_workers() -> None:
     """:func:`stop_workers` when this process may have started loky workers (it imported
-    loky's executor); else nothing (creating one to stop it cost a resumed run 0.3 s).
-    Where the run already ended them beside the page (``run(release_workers=True)``),
-    only waits for that."""
-    if wait_workers_stopped():
-        return
+    loky's executor); else nothing (creating one to stop it cost a resumed run 0.3 s)."""
     if "joblib.externals.loky.reusable_executor" in sys.modules:
         stop_workers()
 
@@ -247,8 +245,7 @@ def _main(args: argparse.Namespace) -> int:
     try:
         res = run(spec, out=args.out, jobs=args.jobs, backend=args.backend,
                   scheduler=args.scheduler, force=args.force, progress=not args.quiet,
-                  figures=not args.no_figures, cache_dir=args.cache_dir,
-                  release_workers=True)
+                  figures=not args.no_figures, cache_dir=args.cache_dir)
     except SweepError as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 3

@@ -1,17 +1,12 @@
 """The main job's fixed costs off its critical path (issue 27): the code version (git's
-processes) is read in a background thread beside the plan, and the CLI ends the loky
-workers once the last output unit is done, beside the page."""
+processes) is read in a background thread beside the workers' start and the plan."""
 
-import os
 import threading
 import time
 
 import pytest
 
-from experiments import outputs
-from experiments.runner import backends
 from experiments.runner import run as run_mod
-from tests.test_outputs import TASKS, folder  # noqa: F401 - the fixture
 
 pytestmark = pytest.mark.filterwarnings("ignore::DeprecationWarning")
 
@@ -48,35 +43,13 @@ def test_a_failed_read_raises_where_the_value_is_used(monkeypatch):
         get()
 
 
-def test_on_units_done_runs_after_the_units_and_before_the_page(folder):  # noqa: F811
-    out, table, calls = folder
-    seen: list[list[str]] = []
-    outputs.write_outputs(table, out, jobs=1, on_units_done=lambda: seen.append(sorted(calls)))
-    assert seen == [sorted(["report", "tables", "weighting", "orientation"])]
-    assert calls[-1] == "page"
-    calls.clear()
-    seen.clear()
-    outputs.write_outputs(table, out, jobs=1, on_units_done=lambda: seen.append(list(calls)))
-    assert seen == [[]] and calls == []          # nothing rewritten: still called once
+def test_the_cli_leaves_no_code_version_behind_a_bad_spec(monkeypatch, capsys):
+    """A CLI call that stops before run() (an unknown preset) does not leave its code
+    version for a later run of the process, which reads its own."""
+    from experiments import sweep
 
-
-def _alive(pid: int) -> bool:
-    try:
-        with open(f"/proc/{pid}/stat") as fh:
-            return fh.read().rsplit(")", 1)[1].split()[0] != "Z"
-    except OSError:
-        return False
-
-
-@pytest.mark.skipif(not os.path.isdir("/proc"), reason="reads /proc")
-def test_stop_workers_soon_ends_the_workers_in_the_background():
-    backends.one_blas_thread()
-    pids = set(backends.Loky(2).map_unordered(os.getpid, [()] * 4))
-    assert pids and all(_alive(p) for p in pids)
-    backends.stop_workers_soon()
-    assert backends.wait_workers_stopped()
-    assert not backends.wait_workers_stopped()   # waited once
-    deadline = time.time() + 10
-    while any(_alive(p) for p in pids) and time.time() < deadline:
-        time.sleep(0.05)
-    assert not any(_alive(p) for p in pids)
+    monkeypatch.setattr(run_mod, "code_version", lambda: {"git_describe": "old"})
+    assert sweep.main(["--preset", "no-such-preset"]) == 2
+    assert not run_mod._PENDING_VERSION
+    monkeypatch.setattr(run_mod, "code_version", lambda: {"git_describe": "new"})
+    assert run_mod._take_code_version()() == {"git_describe": "new"}

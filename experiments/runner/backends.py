@@ -14,8 +14,6 @@ from __future__ import annotations
 
 import math
 import os
-import sys
-import threading
 from collections import OrderedDict
 from collections.abc import Callable, Iterable, Iterator
 from typing import Any, Protocol
@@ -27,7 +25,7 @@ from experiments.spec import Cell, Spec
 
 __all__ = ["PASS_COST_CELLS", "Dask", "Executor", "InProcess", "Loky", "batches",
            "check_scheduler", "executor", "iter_truths", "prestart", "simulate_all",
-           "stop_workers", "stop_workers_soon", "uses_pose_filter", "wait_workers_stopped"]
+           "stop_workers", "uses_pose_filter"]
 
 #: Seconds to wait for a Dask scheduler before giving up with a clear message.
 CONNECT_TIMEOUT_S = 5
@@ -259,31 +257,6 @@ def stop_workers() -> None:
 
     get_reusable_executor(reuse=False, kill_workers=True).shutdown(wait=True,
                                                                    kill_workers=True)
-
-
-#: The background thread of :func:`stop_workers_soon`, while one runs or is not waited for.
-_STOPPING: list[threading.Thread] = []
-
-
-def stop_workers_soon() -> None:
-    """:func:`stop_workers` in a background thread, for a caller that is done with the
-    workers (they are idle) and has work of its own left: the sweep's CLI after the last
-    output unit, which writes the page (0.15-0.3 CPU-s) while the workers exit (0.1-0.3 s
-    of waiting). :func:`wait_workers_stopped` waits for it. Nothing when this process has
-    no loky executor (creating one to stop it costs ~0.3 s)."""
-    if _STOPPING or "joblib.externals.loky.reusable_executor" not in sys.modules:
-        return
-    th = threading.Thread(target=stop_workers, name="stop-workers", daemon=True)
-    th.start()
-    _STOPPING.append(th)
-
-
-def wait_workers_stopped() -> bool:
-    """Wait for the thread of :func:`stop_workers_soon`; whether there was one."""
-    if not _STOPPING:
-        return False
-    _STOPPING.pop().join()
-    return True
 
 
 # --------------------------------------------------------------------------- Dask

@@ -46,7 +46,6 @@ from experiments.runner.backends import (
     one_blas_thread,
     simulate_all,
     stop_workers,
-    stop_workers_soon,
 )
 from experiments.runner.cell import CellFn, cell_code_digest
 from experiments.runner.store import (
@@ -70,7 +69,7 @@ if TYPE_CHECKING:
     import pandas as pd
 
 __all__ = ["RESULTS_DIR", "TOP_LEVEL_RUNS", "Results", "default_out", "import_for_outputs",
-           "run", "start_code_version"]
+           "discard_code_version", "run", "start_code_version"]
 
 RESULTS_DIR = RESULTS_ROOT
 #: Runs whose default folder is results/<name>/: the committed reference runs and the quick
@@ -142,7 +141,7 @@ def run(spec: Spec | str | Path, *, out: str | Path | None = None, jobs: int | N
         backend: str = "loky", scheduler: str | None = None, force: bool = False,
         progress: bool = True, outputs: bool = True, figures: bool = True,
         cache_dir: str | Path | None = None, cell_fn: CellFn | None = None,
-        truth_fn: Callable | None = None, release_workers: bool = False) -> Results:
+        truth_fn: Callable | None = None) -> Results:
     """Run a spec; returns :class:`Results` and writes ``out`` (default :func:`default_out`).
 
     spec : a :class:`Spec`, a spec file, or a preset name.
@@ -154,9 +153,6 @@ def run(spec: Spec | str | Path, *, out: str | Path | None = None, jobs: int | N
     cache_dir : truth cache folder (default results/cache/truth).
     cell_fn, truth_fn : replace :func:`experiments.runner.cell.evaluate_cell` /
         :func:`experiments.runner.cell.simulate_truth` (tests).
-    release_workers : end the loky workers once the outputs' last unit is done, while this
-        process writes the page (the CLI, which is done with them: their exit, 0.1-0.3 s,
-        then waits beside the page instead of after it).
     """
     t_start = time.perf_counter()
     version = _take_code_version()       # git's processes run beside the plan
@@ -177,7 +173,7 @@ def run(spec: Spec | str | Path, *, out: str | Path | None = None, jobs: int | N
     opts = _Options(jobs=jobs, backend=backend, scheduler=scheduler, force=force,
                     progress=progress, outputs=outputs, figures=figures,
                     cache_dir=str(cache_dir) if cache_dir else None, cell_fn=cell_fn,
-                    truth_fn=truth_fn, release_workers=release_workers)
+                    truth_fn=truth_fn)
     with folder_lock(out_dir) as locked:
         with timeline("main open"):
             r = _Run(spec, out_dir, opts, version)
@@ -216,6 +212,12 @@ def start_code_version() -> None:
     _PENDING_VERSION.append(result)
 
 
+def discard_code_version() -> None:
+    """Forget a code version started by :func:`start_code_version` that no run took (the
+    CLI, when it stops before :func:`run`: a later run of this process reads its own)."""
+    _PENDING_VERSION.clear()
+
+
 def _take_code_version() -> Callable[[], dict]:
     """The pending code version (started now if none is), removed from the module: each
     run reads its own."""
@@ -237,7 +239,6 @@ class _Options:
     cache_dir: str | None
     cell_fn: CellFn | None
     truth_fn: Callable | None
-    release_workers: bool = False
 
 
 class _Run:
@@ -520,9 +521,7 @@ class _Run:
         try:
             out_info = write_outputs(table, self.out_dir, spec=spec,
                                      jobs=self.o.jobs if self.o.backend == "loky" else 1,
-                                     figures=figures, on_step=lambda _name: obar.update(),
-                                     on_units_done=stop_workers_soon
-                                     if self.o.release_workers else None)
+                                     figures=figures, on_step=lambda _name: obar.update())
         finally:
             obar.close()
         if figures and ("has_epochs" not in table or not table["has_epochs"].any()):
