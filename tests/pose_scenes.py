@@ -70,3 +70,16 @@ def vehicle_scene(seed: int, noise: str = "rtk", **kw):
     obs = vehicle_observations(case, noise, np.random.default_rng(1000 + seed))
     off = case.config.body_positions - case.config.cg_body
     return case, case.truth.t, obs, off
+
+
+def square_layout(pos: np.ndarray, yaw: np.ndarray, half_m: float = 0.4
+                  ) -> tuple[np.ndarray, np.ndarray]:
+    """Four antennas on a square of half-side ``half_m`` (m) about the CG, body frame
+    (forward, left): (offsets (4, 2), noise-free observations (n, 4, 2)) of a CG at ``pos``
+    (n, 2) m with heading ``yaw`` (n,) rad."""
+    h = half_m
+    off = np.array([[h, h], [h, -h], [-h, h], [-h, -h]])
+    c, s = np.cos(yaw)[:, None], np.sin(yaw)[:, None]
+    obs = np.stack((pos[:, None, 0] + c * off[:, 0] - s * off[:, 1],
+                    pos[:, None, 1] + s * off[:, 0] + c * off[:, 1]), axis=-1)
+    return off, obs

@@ -18,7 +18,7 @@ import pytest
 from filterpy.kalman import ExtendedKalmanFilter
 from hypothesis import example, given, settings
 from hypothesis import strategies as st
-from pose_scenes import kinematic_truth, noisy
+from pose_scenes import kinematic_truth, noisy, square_layout
 from scipy.integrate import quad, solve_ivp
 
 from estimator.metrics import heading_error
@@ -989,11 +989,7 @@ def _drive_stop_gap(gap=(120, 124), bias_m=1.0, seed=11, brake=1.0):
     yaw = 0.4 + np.concatenate(([0.0], np.cumsum(0.01 * v[:-1])))
     step = np.c_[v * np.cos(yaw), v * np.sin(yaw)]
     pos = np.vstack((np.zeros(2), np.cumsum(step[:-1], axis=0))) + [300.0, -200.0]
-    h = 0.4
-    off = np.array([[h, h], [h, -h], [-h, h], [-h, -h]])
-    c, s = np.cos(yaw)[:, None], np.sin(yaw)[:, None]
-    obs = np.stack((pos[:, None, 0] + c * off[:, 0] - s * off[:, 1],
-                    pos[:, None, 1] + s * off[:, 0] + c * off[:, 1]), axis=-1)
+    off, obs = square_layout(pos, yaw)
     obs = obs + rng.normal(0.0, bias_m, (1, 4, 2)) + rng.normal(0.0, 0.01, obs.shape)
     obs[gap[0]:gap[1]] = np.nan
     return t, obs, off, yaw
@@ -1057,11 +1053,7 @@ def _rtk_brake_then_turn(seed=4):
     mid = yaw[:-1] + 0.5 * w[:-1]
     vm = 0.5 * (v[:-1] + v[1:])
     pos = np.vstack((np.zeros(2), np.cumsum(np.c_[vm * np.cos(mid), vm * np.sin(mid)], 0)))
-    h = 0.4
-    off = np.array([[h, h], [h, -h], [-h, h], [-h, -h]])
-    c, s = np.cos(yaw)[:, None], np.sin(yaw)[:, None]
-    obs = np.stack((pos[:, None, 0] + c * off[:, 0] - s * off[:, 1],
-                    pos[:, None, 1] + s * off[:, 0] + c * off[:, 1]), axis=-1)
+    off, obs = square_layout(pos, yaw)
     return t, obs + rng.normal(0.0, 0.002, obs.shape) + [100.0, 50.0], off, yaw
 
 

@@ -15,6 +15,7 @@ import math
 import numba
 import numpy as np
 import pytest
+from pose_scenes import square_layout
 from scipy.special import chdtri
 from scipy.stats import chi2
 
@@ -207,11 +208,7 @@ def cruise(sd_m: float = 0.01, seed: int = 0, spike: int | None = None, n: int =
     yaw = 0.4 + 0.05 * t
     step = 5.0 * np.c_[np.cos(yaw), np.sin(yaw)]
     pos = np.vstack((np.zeros(2), np.cumsum(step[:-1], axis=0))) + [300.0, -200.0]
-    h = 0.4
-    off = np.array([[h, h], [h, -h], [-h, h], [-h, -h]])
-    c, s = np.cos(yaw)[:, None], np.sin(yaw)[:, None]
-    obs = np.stack((pos[:, None, 0] + c * off[:, 0] - s * off[:, 1],
-                    pos[:, None, 1] + s * off[:, 0] + c * off[:, 1]), axis=-1)
+    off, obs = square_layout(pos, yaw)
     obs = obs + rng.normal(0.0, sd_m, obs.shape)
     if spike is not None:
         obs[spike, 1] += 0.5
