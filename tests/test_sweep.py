@@ -181,10 +181,9 @@ def test_dask_local_cluster_backend(real_run, tmp_path, truth_cache):
     pd.testing.assert_frame_equal(_numbers(ref), _numbers(r.cells))
 
 
-def test_sigkill_mid_run_loses_and_duplicates_nothing(real_run, tmp_path, truth_cache):
-    spec_file = tmp_path / "tiny.toml"
-    spec_file.write_text(_toml(TINY))
-    out = tmp_path / "killed"
+def _sweep_killed_mid_run(spec_file: Path, out: Path, truth_cache) -> tuple[int, int]:
+    """Start the sweep on ``spec_file`` in its own session, SIGKILL the whole group once a
+    first cell is on disk; returns (cells seen before the kill, cells on disk after it)."""
     cmd = [sys.executable, "-m", "experiments.sweep", str(spec_file), "--out", str(out),
            "--jobs", "2", "--quiet", "--no-figures", "--cache-dir", str(truth_cache)]
     env = {**os.environ, "OPENBLAS_NUM_THREADS": "1", "OMP_NUM_THREADS": "1"}
@@ -194,14 +193,32 @@ def test_sigkill_mid_run_loses_and_duplicates_nothing(real_run, tmp_path, truth_
     n_before = 0
     while time.time() < deadline and proc.poll() is None:
         n_before = len(list((out / "cells").glob("*.json"))) if (out / "cells").exists() else 0
-        if n_before >= 3:
+        if n_before >= 1:
             break
         time.sleep(0.01)
     os.killpg(proc.pid, signal.SIGKILL)
     proc.wait()
+    n_after = len(list((out / "cells").glob("*.json"))) if (out / "cells").exists() else 0
+    return n_before, n_after
+
+
+def test_sigkill_mid_run_loses_and_duplicates_nothing(real_run, tmp_path, truth_cache):
+    spec_file = tmp_path / "tiny.toml"
+    spec_file.write_text(_toml(TINY))
     n_total = len(real_run.spec.expand())
-    n_after_kill = len(list((out / "cells").glob("*.json")))
-    assert n_before <= n_after_kill < n_total, "the kill did not land mid-run"
+    # Landing the kill mid-run is a precondition, not the property under test: on a loaded
+    # machine the last batch can finish between the poll and the kill (seen once at load
+    # ~10), so a kill that came too late is retried in a fresh folder.
+    tries = []
+    for attempt in range(4):
+        out = tmp_path / f"killed{attempt}"
+        n_before, n_after_kill = _sweep_killed_mid_run(spec_file, out, truth_cache)
+        tries.append((n_before, n_after_kill))
+        if 0 < n_after_kill < n_total and n_before <= n_after_kill:
+            break
+    else:
+        pytest.fail(f"no kill landed mid-run in 4 tries (cells before/after, of {n_total}): "
+                    f"{tries}")
     # a torn write leaves at most a temp file whose name never matches the store's '*.json'
     for p in (out / "cells").iterdir():
         assert p.suffix in (".json", ".tmp"), p.name
