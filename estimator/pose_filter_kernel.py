@@ -1243,10 +1243,11 @@ def _moving_off(k, present, obs, yaw, yaw_var, par):
             return False
         if a * a + lat * lat <= thr * thr or a * sign < 0.0:
             return False
-        ang = (_pmin(sd3 + kap * (arc + 0.5 * abs(a)), 0.5 * math.pi)
-               if math.isfinite(kap) else 0.5 * math.pi)
-        if abs(lat) > thr + abs(a) * math.sin(ang):
-            return False
+        if math.isfinite(kap):
+            ang = _pmin(sd3 + kap * (arc + 0.5 * abs(a)), 0.5 * math.pi)
+            turn = _pmin(kap * abs(a), 0.5 * math.pi)
+            if abs(lat) > thr + abs(a) * math.sin(ang) + par[I_LEVER] * turn:
+                return False
         arc, sign = arc + abs(a), a
     return True
 

@@ -411,9 +411,13 @@ def _moving_off(su: _Setup, k: int, yaw: float, yaw_var: float) -> bool:
     direction: per epoch j the median displacement over the antennas at j-1 and j, ``a``
     along the heading and ``l`` across it, moves (``a^2 + l^2`` beyond
     :data:`INIT_MOTION_SIGMAS` ``sigma_step``, the start's motion test) with ``|l| <= thr +
-    |a| sin(3 sd_yaw + kappa s)``: the heading's 3 sd plus the chord's turn on an arc of the
-    platform's curvature limit kappa (``s`` the arc length to the chord's middle, ``|a_k| /
-    2`` and ``|a_k| + |a_(k+1)| / 2``; without a curvature limit any direction counts).
+    |a| sin(3 sd_yaw + kappa s) + lever kappa |a|``: the heading's 3 sd plus the chord's
+    turn on an arc of the platform's curvature limit kappa (``s`` the arc length to the
+    chord's middle, ``|a_k| / 2`` and ``|a_k| + |a_(k+1)| / 2``), and the antennas' own
+    sideways motion as the platform turns by at most ``kappa |a|`` in the step (``lever``
+    the longest antenna lever arm from the no-slip point; antennas 1.3 m ahead of the rear
+    axle move 0.4 m sideways in a 17 deg turn); without a curvature limit any direction
+    counts.
     The first pass's state, not the iterate: the decision is the same in every pass."""
     if k + 1 >= su.tt.size:
         return False
@@ -428,10 +432,11 @@ def _moving_off(su: _Setup, k: int, yaw: float, yaw_var: float) -> bool:
         a, lat = st
         if a * a + lat * lat <= thr * thr or a * sign < 0.0:
             return False
-        ang = (min(sd3 + su.kappa * (arc + 0.5 * abs(a)), 0.5 * math.pi)
-               if math.isfinite(su.kappa) else 0.5 * math.pi)
-        if abs(lat) > thr + abs(a) * math.sin(ang):
-            return False
+        if math.isfinite(su.kappa):
+            ang = min(sd3 + su.kappa * (arc + 0.5 * abs(a)), 0.5 * math.pi)
+            turn = min(su.kappa * abs(a), 0.5 * math.pi)
+            if abs(lat) > thr + abs(a) * math.sin(ang) + su.lever * turn:
+                return False
         arc, sign = arc + abs(a), a
     return True
 
