@@ -1208,6 +1208,50 @@ def rts_kernel(rows, C, X, XC, PP, PC, Xs, Ps, covariances):
 
 
 # ----------------------------------------------------------------- iterated RTS (issue 25)
+@_jit
+def _median_step(j, present, obs, c, s):
+    """Reference ``estimator.pose_smoother._median_step``: (found, along, across)."""
+    m = present.shape[1]
+    al = np.empty(m)
+    ac = np.empty(m)
+    nb = 0
+    for i in range(m):
+        if present[j, i] and present[j - 1, i]:
+            d0, d1 = obs[j, i, 0] - obs[j - 1, i, 0], obs[j, i, 1] - obs[j - 1, i, 1]
+            al[nb] = d0 * c + d1 * s
+            ac[nb] = d1 * c - d0 * s
+            nb += 1
+    if nb == 0:
+        return False, 0.0, 0.0
+    return True, np.median(al[:nb]), np.median(ac[:nb])
+
+
+@_jit
+def _moving_off(k, present, obs, yaw, yaw_var, par):
+    """Reference ``estimator.pose_smoother._moving_off``: the displacements to k and k+1
+    both move along the heading, in the same direction."""
+    if k + 1 >= present.shape[0]:
+        return False
+    c, s = math.cos(yaw), math.sin(yaw)
+    thr = par[I_INIT_SIGMAS] * math.sqrt(par[I_VS])
+    sd3 = 3.0 * math.sqrt(_pmax(yaw_var, 0.0))
+    kap = par[I_KAPPA]
+    arc, sign = 0.0, 0.0
+    for j in range(k, k + 2):
+        found, a, lat = _median_step(j, present, obs, c, s)
+        if not found:
+            return False
+        if a * a + lat * lat <= thr * thr or a * sign < 0.0:
+            return False
+        if math.isfinite(kap):
+            ang = _pmin(sd3 + kap * (arc + 0.5 * abs(a)), 0.5 * math.pi)
+            turn = _pmin(kap * abs(a), 0.5 * math.pi)
+            if abs(lat) > thr + abs(a) * math.sin(ang) + par[I_LEVER] * turn:
+                return False
+        arc, sign = arc + abs(a), a
+    return True
+
+
 @numba.njit(cache=True, nogil=True)
 def relinearised_kernel(tt, obs, present, r_m, fyaw, cnt, spread, par, horner, cw, huber_k,
                         X0, P0, XC0, seg, Xb, X, PP, XC, PC, PX_):
@@ -1229,6 +1273,8 @@ def relinearised_kernel(tt, obs, present, r_m, fyaw, cnt, spread, par, horner, c
         dt = tt[k] - tt[k - 1]
         hold = _hold(X0[k - 1].copy(), P0[k - 1].copy(), k, present, obs, fyaw, cnt, spread,
                      par)                         # the first pass's decision (reference)
+        if hold and _moving_off(k, present, obs, X0[k - 1, YAW], P0[k - 1, YAW, YAW], par):
+            hold = False
         if hold:
             _hold_state(x, P)
         qy = _bound_yaw_rate(x, P, dt, par, 0.0 if hold else par[I_QY] * dt_med / dt)

@@ -54,6 +54,7 @@ from estimator.pose_filter import _CW as _PF_CW
 from estimator.pose_filter import _HORNER_ARRAY as _PF_HORNER
 from estimator.pose_filter import (
     ENGINES,
+    INIT_MOTION_SIGMAS,
     MAX_SMOOTHER_ITERATIONS,
     NX,
     YAW,
@@ -359,6 +360,8 @@ def _relinearised_pass(su: _Setup, res: PoseFilterResult, Xb: np.ndarray) -> tup
         # the first pass's standstill decision (on its own row k-1, as it took it): part
         # of the model the iterations minimise, not re-decided on the iterate
         hold = _standstill_hold(X0[k - 1].copy(), res.covariances[k - 1].copy(), su.starter, k)
+        if hold and _moving_off(su, k, X0[k - 1, YAW], res.covariances[k - 1][YAW, YAW]):
+            hold = False       # hindsight: the platform pulled away here (_moving_off)
         if hold:
             _hold_state(x, P)
         qy = _bound_yaw_rate(x, P, dt, su.kappa, su.om_max,
@@ -376,6 +379,66 @@ def _relinearised_pass(su: _Setup, res: PoseFilterResult, Xb: np.ndarray) -> tup
         _project_limits(su, x)
         X[k], PP[k] = x, P
     return X, PP, XC, PC, PX_
+
+
+def _median_step(su: _Setup, j: int, c: float, s: float) -> tuple[float, float] | None:
+    """Median over the antennas reporting at j-1 and j of their displacement to epoch j,
+    along the heading ``(c, s) = (cos, sin)`` and across it (m); None without such an
+    antenna."""
+    pr = su.present
+    both = pr[j] & pr[j - 1]
+    if not both.any():
+        return None
+    d = su.obs[j, both] - su.obs[j - 1, both]
+    return (float(np.median(d[:, 0] * c + d[:, 1] * s)),
+            float(np.median(d[:, 1] * c - d[:, 0] * s)))
+
+
+def _moving_off(su: _Setup, k: int, yaw: float, yaw_var: float) -> bool:
+    """The iterated smoother's hindsight on a standstill hold of the interval (k-1, k): the
+    platform pulled away there. The first pass decides the hold causally, on the state at
+    k-1; a car that starts off while turning is then held at a yaw rate of 0 for an epoch
+    or two, and the smoother, whose hold links the whole stop to those epochs with no yaw
+    noise, carries that conflict back over the stop (issue 25, `common_plus_model` drive
+    18: causal filter 1.1 deg through the 150 s stop, iterated RTS 8.6 deg there). A
+    causal test cannot tell a start from a metre-level jump that every antenna shares
+    (ending the hold on a moving displacement gave more flips, README). One epoch of
+    hindsight can: a start is motion that goes on, along the heading (no-slip), while a
+    shared jump is one step in any direction (a spike returns, a step stays).
+
+    True when the displacements to k and to k+1 both show motion along the heading
+    ``yaw`` (travel frame, the first pass's state at k-1, variance ``yaw_var``), in the same
+    direction: per epoch j the median displacement over the antennas at j-1 and j, ``a``
+    along the heading and ``l`` across it, moves (``a^2 + l^2`` beyond
+    :data:`INIT_MOTION_SIGMAS` ``sigma_step``, the start's motion test) with ``|l| <= thr +
+    |a| sin(3 sd_yaw + kappa s) + lever kappa |a|``: the heading's 3 sd plus the chord's
+    turn on an arc of the platform's curvature limit kappa (``s`` the arc length to the
+    chord's middle, ``|a_k| / 2`` and ``|a_k| + |a_(k+1)| / 2``), and the antennas' own
+    sideways motion as the platform turns by at most ``kappa |a|`` in the step (``lever``
+    the longest antenna lever arm from the no-slip point; antennas 1.3 m ahead of the rear
+    axle move 0.4 m sideways in a 17 deg turn); without a curvature limit any direction
+    counts.
+    The first pass's state, not the iterate: the decision is the same in every pass."""
+    if k + 1 >= su.tt.size:
+        return False
+    c, s = math.cos(yaw), math.sin(yaw)
+    thr = INIT_MOTION_SIGMAS * math.sqrt(su.vs)
+    sd3 = 3.0 * math.sqrt(max(yaw_var, 0.0))
+    arc, sign = 0.0, 0.0
+    for j in (k, k + 1):
+        st = _median_step(su, j, c, s)
+        if st is None:
+            return False
+        a, lat = st
+        if a * a + lat * lat <= thr * thr or a * sign < 0.0:
+            return False
+        if math.isfinite(su.kappa):
+            ang = min(sd3 + su.kappa * (arc + 0.5 * abs(a)), 0.5 * math.pi)
+            turn = min(su.kappa * abs(a), 0.5 * math.pi)
+            if abs(lat) > thr + abs(a) * math.sin(ang) + su.lever * turn:
+                return False
+        arc, sign = arc + abs(a), a
+    return True
 
 
 def _relinearised_update(su: _Setup, k: int, y: np.ndarray, Y: np.ndarray, yb: np.ndarray,
