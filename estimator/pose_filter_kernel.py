@@ -24,6 +24,11 @@ Chi-square quantiles of the NIS window come from a table the caller fills with
 ``scipy.special.chdtri`` (the reference's function) for every even number of degrees of
 freedom the window can sum to (an epoch's own dof among them: the per-epoch test and the
 winsorising read the same table). Runs unchanged, only slower, with ``NUMBA_DISABLE_JIT=1``.
+
+Every per-epoch array is allocated once per pass (the kernels' buffers and :func:`_work`) and
+written in place by the helpers, which are compiled without reference counting (``_jit``):
+no allocation and no atomic refcount per epoch (tests/test_pose_filter_kernel.py checks the
+first).
 """
 
 from __future__ import annotations
