@@ -517,7 +517,8 @@ def _work(kmax):
     Yc (6, 6), Mm (6, 6), Z (6, 13) (:func:`_posterior`), the gate's Yc (6, 6), dx (12,),
     Pc (6, 6), residuals (kmax, 2) (:func:`_kalman_update`, :func:`_worst`), an all-True
     acc (kmax,); yl (12,), h (kmax, 2), H (2 kmax, 6), nu (kmax, 2), d (12,), dd (12,) and
-    Y1c (6, 6) (:func:`_iterated_update`). Every value is written before it is read."""
+    Y1c (6, 6) (:func:`_iterated_update`). Every value but the all-True acc's is written
+    before it is read."""
     n = 2 * NX
     return (np.zeros((2 * kmax, NC)), np.zeros((kmax, 2)), np.zeros(kmax),
             np.zeros((NC, NC)), np.zeros(NC), np.zeros((NC, n)), np.zeros((NC, NC)),
