@@ -24,6 +24,11 @@ Chi-square quantiles of the NIS window come from a table the caller fills with
 ``scipy.special.chdtri`` (the reference's function) for every even number of degrees of
 freedom the window can sum to (an epoch's own dof among them: the per-epoch test and the
 winsorising read the same table). Runs unchanged, only slower, with ``NUMBA_DISABLE_JIT=1``.
+
+Every per-epoch array is allocated once per pass (the kernels' buffers and :func:`_work`) and
+written in place by the helpers, which are compiled without reference counting (``_jit``):
+no allocation and no atomic refcount per epoch (tests/test_pose_filter_kernel.py checks the
+first).
 """
 
 from __future__ import annotations
@@ -53,8 +58,14 @@ S_NO_DATA, S_WAITING, S_INIT, S_RESET, S_OK, S_PREDICTED, S_FLIP, S_REINIT, S_IN
  I_REINIT_YAW, I_MAXIT, I_PRIOR_RATIO, I_KAPPA, I_YACC) = range(31)
 N_PAR = 31
 
-#: internal helpers: called from compiled code only (no CPython wrapper: less to compile)
-_jit = numba.njit(cache=True, nogil=True, no_cpython_wrapper=True)  # type: ignore[call-overload]
+#: internal helpers: called from compiled code only (no CPython wrapper: less to compile).
+#: They allocate no arrays (the work arrays come from the caller), so they are compiled
+#: without the runtime's reference counting (``_nrt=False``, as numba's own array helpers,
+#: numba.misc.mergesort): an array argument costs no atomic incref / decref per call (they
+#: were ~30 % of the forward pass on the car). The callers, which own the arrays, keep
+#: them alive. The few helpers that allocate take :data:`_jit_nrt`.
+_jit = numba.njit(cache=True, nogil=True, no_cpython_wrapper=True, _nrt=False)  # type: ignore[call-overload]
+_jit_nrt = numba.njit(cache=True, nogil=True, no_cpython_wrapper=True)  # type: ignore[call-overload]
 
 
 @_jit
@@ -78,20 +89,40 @@ def _pmin(a, b):
 
 
 @_jit
-def _vec(a0, a1, a2, a3, a4, a5):
-    """A state vector (6,) (no list literal: array expressions and lists compile slowly)."""
-    v = np.empty(NX)
+def _vec(v, a0, a1, a2, a3, a4, a5):
+    """v (6,) = (a0, ..., a5) in place (no list literal: array expressions and lists
+    compile slowly)."""
     v[0], v[1], v[2], v[3], v[4], v[5] = a0, a1, a2, a3, a4, a5
-    return v
 
 
 @_jit
-def _axpy(a, x, y):
-    """a x + y for vectors (plain loop)."""
-    out = np.empty(y.shape[0])
+def _axpy(a, x, y, out):
+    """out = a x + y for vectors (plain loop; out may be x or y)."""
     for i in range(y.shape[0]):
         out[i] = a * x[i] + y[i]
-    return out
+
+
+@_jit
+def _zero(out, n, m):
+    """out[:n, :m] = 0 (plain loops)."""
+    for i in range(n):
+        for j in range(m):
+            out[i, j] = 0.0
+
+
+@_jit
+def _copy(a, out):
+    """out[:] = a for vectors of a's length (plain loop)."""
+    for i in range(a.shape[0]):
+        out[i] = a[i]
+
+
+@_jit
+def _copy2(A, out):
+    """out[:] = A for matrices of A's shape (plain loops)."""
+    for i in range(A.shape[0]):
+        for j in range(A.shape[1]):
+            out[i, j] = A[i, j]
 
 
 @_jit
@@ -210,39 +241,39 @@ def _add_noise(Pn, c, s, v, dt, qa, qy, cw):
 
 
 @_jit
-def _matmul(Aa, Bb):
-    """Aa @ Bb for small dense matrices (plain loops: no BLAS call overhead)."""
+def _matmul(Aa, Bb, out):
+    """out = Aa @ Bb for small dense matrices (plain loops: no BLAS call overhead; out
+    (n, m), not Aa or Bb)."""
     n, k = Aa.shape
     m = Bb.shape[1]
-    out = np.zeros((n, m))
+    _zero(out, n, m)
     for i in range(n):
         for p in range(k):
             a = Aa[i, p]
             if a != 0.0:
                 for j in range(m):
                     out[i, j] += a * Bb[p, j]
-    return out
 
 
 @_jit
-def _matmul_bt(Aa, Bb):
-    """Aa @ Bb.T (the same sums in the same order as :func:`_matmul` of Aa and a transposed
-    copy of Bb, without the copy)."""
+def _matmul_bt(Aa, Bb, out):
+    """out = Aa @ Bb.T (the same sums in the same order as :func:`_matmul` of Aa and a
+    transposed copy of Bb, without the copy; out not Aa or Bb)."""
     n, k = Aa.shape
     m = Bb.shape[0]
-    out = np.zeros((n, m))
+    _zero(out, n, m)
     for i in range(n):
         for p in range(k):
             a = Aa[i, p]
             if a != 0.0:
                 for j in range(m):
                     out[i, j] += a * Bb[j, p]
-    return out
 
 
 @_jit
-def _predict(x, P, dt, qa, qy, horner, cw):
-    """CTRA prediction (reference ``_predict``): (x' (6,), P' (6, 6), F P (6, 6))."""
+def _predict(x, P, dt, qa, qy, horner, cw, xn, Pn, FP, F):
+    """CTRA prediction (reference ``_predict``) into xn (6,), Pn (6, 6) (P') and FP (6, 6)
+    (F P); F (6, 6) receives the transition matrix (none of them x or P)."""
     px, py, yaw, v, acc, om = x[0], x[1], x[2], x[3], x[4], x[5]
     f1, f2, f3 = _integrals(om * dt, horner)
     rot = complex(math.cos(yaw), math.sin(yaw))
@@ -250,18 +281,19 @@ def _predict(x, P, dt, qa, qy, horner, cw):
     dv = rot * dt * f1
     da = rot * dt * dt * f2
     dq = rot * 1j * (v * dt * f2 + acc * dt * dt * f3) * dt
-    F = np.eye(NX)
+    _zero(F, NX, NX)
+    for i in range(NX):
+        F[i, i] = 1.0
     F[PX, YAW], F[PY, YAW] = -d.imag, d.real
     F[PX, V], F[PY, V] = dv.real, dv.imag
     F[PX, A], F[PY, A] = da.real, da.imag
     F[PX, OMEGA], F[PY, OMEGA] = dq.real, dq.imag
     F[YAW, OMEGA] = dt
     F[V, A] = dt
-    FP = _matmul(F, P)
-    Pn = _matmul_bt(FP, F)
+    _matmul(F, P, FP)
+    _matmul_bt(FP, F, Pn)
     _add_noise(Pn, rot.real, rot.imag, v, dt, qa, qy, cw)
-    xn = _vec(px + d.real, py + d.imag, _wrap(yaw + om * dt), v + acc * dt, acc, om)
-    return xn, Pn, FP
+    _vec(xn, px + d.real, py + d.imag, _wrap(yaw + om * dt), v + acc * dt, acc, om)
 
 
 #: The stacked state's components a measurement involves (position and heading of x_k and
@@ -271,15 +303,13 @@ NC = 6
 
 
 @_jit
-def _measure(yl, rr, nfix):
-    """Predicted measurements h (k, 2) and Jacobian H (2k, 6) over :data:`COLS` at the
-    stacked state yl (12,) for the lever arms rr (k, 2): the first ``nfix`` are fixes, the
-    rest displacements (reference ``_fill_measurements``, same operations)."""
-    k = rr.shape[0]
+def _measure(yl, rr, nfix, k, h, H):
+    """Predicted measurements h[:k] (k, 2) and Jacobian H[:2k] (2k, 6) over :data:`COLS`
+    at the stacked state yl (12,) for the lever arms rr[:k] (k, 2): the first ``nfix`` are
+    fixes, the rest displacements (reference ``_fill_measurements``, same operations)."""
     c, s = math.cos(yl[YAW]), math.sin(yl[YAW])
     cp, sp = math.cos(yl[NX + YAW]), math.sin(yl[NX + YAW])
-    h = np.empty((k, 2))
-    H = np.zeros((2 * k, NC))
+    _zero(H, 2 * k, NC)
     for i in range(k):
         ax, ay = rr[i, 0], rr[i, 1]
         rx = c * ax - s * ay
@@ -300,7 +330,6 @@ def _measure(yl, rr, nfix):
             H[2 * i + 1, 4] = -1.0
             H[2 * i, 5] = qy
             H[2 * i + 1, 5] = -qx
-    return h, H
 
 
 @_jit
@@ -310,26 +339,21 @@ def _col(j):
 
 
 @_jit
-def _sub(Y):
-    """Y's rows :data:`COLS` (6, 12) and their (6, 6) block."""
-    Yr = np.empty((NC, Y.shape[1]))
-    Yc = np.empty((NC, NC))
+def _sub(Y, Yr, Yc):
+    """Y's rows :data:`COLS` into Yr (6, 12) and their (6, 6) block into Yc."""
     for i in range(NC):
         for j in range(Y.shape[1]):
             Yr[i, j] = Y[_col(i), j]
         for j in range(NC):
             Yc[i, j] = Y[_col(i), _col(j)]
-    return Yr, Yc
 
 
 @_jit
-def _subc(Y):
-    """Y's (6, 6) block at :data:`COLS` (:func:`_sub`'s second array alone)."""
-    Yc = np.empty((NC, NC))
+def _subc(Y, Yc):
+    """Y's (6, 6) block at :data:`COLS` into Yc (:func:`_sub`'s second array alone)."""
     for i in range(NC):
         for j in range(NC):
             Yc[i, j] = Y[_col(i), _col(j)]
-    return Yc
 
 
 @_jit
@@ -413,43 +437,44 @@ def _rinv_row(G, g, rd, H, v, i, o, wi, wo):
 
 
 @_jit
-def _rinv(H, v, var, acc, nfix, pos, cv):
-    """The joint noise's inverse over the accepted measurements applied to their Jacobian
-    rows H (2k, 6) and values v (k, 2): (G = R^-1 H (2k, 6), g = R^-1 v (k, 2), the
-    diagonal of R^-1 (k,)), 0 where not accepted. R: var (k,) per axis on the diagonal, cv
-    between displacement j (measurement nfix + j) and its fix pos[j] when both are
-    accepted (reference: ``_kalman_update``'s ``cross``; each such pair per axis inverted
-    as a 2 x 2)."""
-    k = var.shape[0]
-    G = np.zeros((2 * k, NC))
-    g = np.zeros((k, 2))
-    rd = np.zeros(k)
+def _rinv(H, v, var, acc, nfix, pos, nd, cv, k, G, g, rd):
+    """The joint noise's inverse over the accepted measurements of the first k applied to
+    their Jacobian rows H (2k, 6) and values v (k, 2), into G = R^-1 H (2k, 6),
+    g = R^-1 v (k, 2) and rd, the diagonal of R^-1 (k,), 0 where not accepted. R: var (k,)
+    per axis on the diagonal, cv between displacement j < nd (measurement nfix + j) and
+    its fix pos[j] when both are accepted (reference: ``_kalman_update``'s ``cross``; each
+    such pair per axis inverted as a 2 x 2)."""
+    _zero(G, 2 * k, NC)
+    _zero(g, k, 2)
+    for i in range(k):
+        rd[i] = 0.0
     for i in range(k):
         if acc[i]:
             _rinv_row(G, g, rd, H, v, i, i, 1.0 / var[i], 0.0)
-    for j in range(pos.shape[0]):
+    for j in range(nd):
         f, d = pos[j], nfix + j
         if acc[f] and acc[d]:
             det = var[f] * var[d] - cv * cv
             _rinv_row(G, g, rd, H, v, f, d, var[d] / det, -cv / det)
             _rinv_row(G, g, rd, H, v, d, f, var[f] / det, -cv / det)
-    return G, g, rd
 
 
 @_jit
-def _posterior(Y, H, nu, var, acc, nfix, pos, cv):
-    """The joint update over the accepted measurements in the measured columns (module
-    docstring), solved: with ``N = H^T R^-1 H``, ``b = H^T R^-1 nu`` (6 columns; R^-1 from
-    :func:`_rinv`) and ``M = I + N Y_cc``, returns Z = M^-1 [N Y_c: | b] (6, 13),
-    ``b^T Y_cc M^-1 b`` and ``nu^T R^-1 nu`` (for the NIS) and ok (False on a zero pivot).
+def _posterior(Y, H, nu, var, acc, nfix, pos, nd, cv, k, w):
+    """The joint update over the accepted measurements of the first k in the measured
+    columns (module docstring), solved: with ``N = H^T R^-1 H``, ``b = H^T R^-1 nu``
+    (6 columns; R^-1 from :func:`_rinv`) and ``M = I + N Y_cc``, Z = M^-1 [N Y_c: | b]
+    (6, 13) into the work arrays ``w`` (:func:`_work`; Z is ``w[8]``); returns
+    ``b^T Y_cc M^-1 b``, ok (False on a zero pivot) and ``nu^T R^-1 nu`` (for the NIS).
     P+ = Y - Y_:c Z[:, :12] (:func:`_cov_full`, :func:`_cov_cc`), the step dx = Y_:c
     Z[:, 12] (:func:`_step`)."""
+    G, g, rd, N, b, Yr, Yc, Mm, Z = w[0], w[1], w[2], w[3], w[4], w[5], w[6], w[7], w[8]
     n = Y.shape[0]
     nc = H.shape[1]
-    k = var.shape[0]
-    G, g, _ = _rinv(H, nu, var, acc, nfix, pos, cv)
-    N = np.zeros((nc, nc))
-    b = np.zeros(nc)
+    _rinv(H, nu, var, acc, nfix, pos, nd, cv, k, G, g, rd)
+    _zero(N, nc, nc)
+    for p in range(nc):
+        b[p] = 0.0
     nrn = 0.0
     for i in range(k):
         if not acc[i]:
@@ -465,9 +490,8 @@ def _posterior(Y, H, nu, var, acc, nfix, pos, cv):
                 b[p] += hp * e
                 for q in range(nc):
                     N[p, q] += hp * G[r, q]
-    Yr, Yc = _sub(Y)
-    Mm = _matmul(N, Yc)
-    Z = np.empty((nc, n + 1))
+    _sub(Y, Yr, Yc)
+    _matmul(N, Yc, Mm)
     for p in range(nc):
         Mm[p, p] += 1.0
         for j in range(n):
@@ -483,26 +507,43 @@ def _posterior(Y, H, nu, var, acc, nfix, pos, cv):
         for q in range(nc):
             s += Yc[p, q] * Z[q, n]
         byb += b[p] * s
-    return Z, byb, ok, nrn
+    return byb, ok, nrn
+
+
+@_jit_nrt
+def _work(kmax):
+    """The update's work arrays for up to kmax measurements (allocated once per pass):
+    G (2 kmax, 6), g (kmax, 2), rd (kmax,) (:func:`_rinv`), N (6, 6), b (6,), Yr (6, 12),
+    Yc (6, 6), Mm (6, 6), Z (6, 13) (:func:`_posterior`), the gate's Yc (6, 6), dx (12,),
+    Pc (6, 6), residuals (kmax, 2) (:func:`_kalman_update`, :func:`_worst`), an all-True
+    acc (kmax,); yl (12,), h (kmax, 2), H (2 kmax, 6), nu (kmax, 2), d (12,), dd (12,) and
+    Y1c (6, 6) (:func:`_iterated_update`). Every value but the all-True acc's is written
+    before it is read."""
+    n = 2 * NX
+    return (np.zeros((2 * kmax, NC)), np.zeros((kmax, 2)), np.zeros(kmax),
+            np.zeros((NC, NC)), np.zeros(NC), np.zeros((NC, n)), np.zeros((NC, NC)),
+            np.zeros((NC, NC)), np.zeros((NC, n + 1)), np.zeros((NC, NC)), np.zeros(n),
+            np.zeros((NC, NC)), np.zeros((kmax, 2)), np.ones(kmax, dtype=np.bool_),
+            np.zeros(n), np.zeros((kmax, 2)), np.zeros((2 * kmax, NC)), np.zeros((kmax, 2)),
+            np.zeros(n), np.zeros(n), np.zeros((NC, NC)))
 
 
 @_jit
-def _step(Y, Z):
-    """dx = Y_:c Z[:, -1] (12,): the update's step of the stacked state."""
+def _step(Y, Z, dx):
+    """dx (12,) = Y_:c Z[:, -1]: the update's step of the stacked state."""
     n = Y.shape[0]
-    dx = np.zeros(n)
+    for i in range(n):
+        dx[i] = 0.0
     for i in range(n):
         for p in range(NC):
             yip = Y[i, _col(p)]
             if yip != 0.0:
                 dx[i] += yip * Z[p, n]
-    return dx
 
 
 @_jit
-def _cov_cc(Y, Z):
-    """P+ over the measured columns (6, 6): Y_cc - Y_cc Z[:, c]."""
-    Pc = np.empty((NC, NC))
+def _cov_cc(Y, Z, Pc):
+    """P+ over the measured columns into Pc (6, 6): Y_cc - Y_cc Z[:, c]."""
     for a in range(NC):
         for b in range(NC):
             s = Y[_col(a), _col(b)]
@@ -511,14 +552,13 @@ def _cov_cc(Y, Z):
                 if yip != 0.0:
                     s -= yip * Z[p, _col(b)]
             Pc[a, b] = s
-    return Pc
 
 
 @_jit
-def _cov_full(Y, Z):
-    """P+ = Y - Y_:c Z[:, :12] (12, 12), symmetrised."""
+def _cov_full(Y, Z, Pa):
+    """P+ = Y - Y_:c Z[:, :12] into Pa (12, 12, not Y), symmetrised."""
     n = Y.shape[0]
-    Pa = Y.copy()
+    _copy2(Y, Pa)
     for i in range(n):
         for p in range(NC):
             yip = Y[i, _col(p)]
@@ -531,62 +571,67 @@ def _cov_full(Y, Z):
             Pa[i, j] = v
             Pa[j, i] = v
         Pa[i, i] = 0.5 * (Pa[i, i] + Pa[i, i])
-    return Pa
 
 
 @_jit
-def _kalman_update(y, Y, nu, H, var, gate, acc, gated, want_nis, nfix, pos, cv):
-    """Reference ``_kalman_update`` in the state space: prior gate (``gated``: acc from the
-    prior's blocks, else the caller's acc), deleted-residual test, joint update; the joint
-    noise of :func:`_rinv` (nfix, pos, cv). Returns (y+, Y+, acc, nis (NaN unless
-    want_nis), ok)."""
-    k = var.shape[0]
+def _kalman_update(y, Y, nu, H, var, gate, acc, gated, want_nis, nfix, pos, nd, cv, k, yo,
+                   Yo, w):
+    """Reference ``_kalman_update`` in the state space over the first k measurements: prior
+    gate (``gated``: acc from the prior's blocks, else the caller's acc), deleted-residual
+    test, joint update; the joint noise of :func:`_rinv` (nfix, pos, nd, cv); w the work
+    arrays (:func:`_work`). Returns (nis (NaN unless want_nis), ok); the posterior goes to
+    yo (12,), Yo (12, 12) (not y, Y) when ok and any measurement is accepted (else the
+    reference's posterior is the prior y, Y, and yo, Yo are untouched)."""
+    Z, Yg, dx, Pc, ones = w[8], w[9], w[10], w[11], w[13]
     nis = math.nan
     finite_gate = gate != math.inf
     have_all = False            # Z holds the update with every measurement
     if want_nis:
-        Z, byb, ok, nrn = _posterior(Y, H, nu, var, np.ones(k, dtype=np.bool_), nfix, pos, cv)
+        byb, ok, nrn = _posterior(Y, H, nu, var, ones, nfix, pos, nd, cv, k, w)
         if not ok:
-            return y, Y, acc, nis, False
+            return nis, False
         have_all = True
         nis = nrn - byb
     if gated:
-        Yc = _subc(Y)
+        _subc(Y, Yg)
         for i in range(k):
             if finite_gate:
-                a, bb, c = _block(H, Yc, i)
+                a, bb, c = _block(H, Yg, i)
                 acc[i] = _quad(a + var[i], bb, c + var[i], nu[i, 0], nu[i, 1]) <= gate
             else:
                 acc[i] = True
     deletions = MAX_DELETED if finite_gate else 0
     while _count(acc, 0, k):
         if not (have_all and _count(acc, 0, k) == k):   # else: the NIS pass's update
-            Z, byb, ok, _ = _posterior(Y, H, nu, var, acc, nfix, pos, cv)
+            _, ok, _ = _posterior(Y, H, nu, var, acc, nfix, pos, nd, cv, k, w)
             if not ok:
-                return y, Y, acc, nis, False
-        dx = _step(Y, Z)
+                return nis, False
+        _step(Y, Z, dx)
         if deletions and _count(acc, 0, k) >= 2:
-            worst, wstat = _worst(_cov_cc(Y, Z), dx, H, nu, var, acc, nfix, pos, cv)
+            _cov_cc(Y, Z, Pc)
+            worst, wstat = _worst(Pc, dx, H, nu, var, acc, nfix, pos, nd, cv, k, w)
             if wstat > gate:
                 acc[worst] = False
                 deletions -= 1
                 continue
-        return _axpy(1.0, dx, y), _cov_full(Y, Z), acc, nis, True
-    return y, Y, acc, nis, True
+        _axpy(1.0, dx, y, yo)
+        _cov_full(Y, Z, Yo)
+        return nis, True
+    return nis, True
 
 
 @_jit
-def _worst(Pc, dx, H, nu, var, acc, nfix, pos, cv):
-    """The deleted-residual test (reference test 2): the accepted measurement with the
-    largest ``u_i^T ((S^-1)_ii)^-1 u_i``, with ``u = S^-1 nu = R^-1 (nu - H dx)`` and
-    ``(S^-1)_ii = (R^-1)_ii - G_i P+ G_i^T``, ``G = R^-1 H`` (:func:`_rinv`; Pc: P+ over
-    the measured columns); returns (index, statistic)."""
-    k = var.shape[0]
-    res = np.empty((k, 2))
+def _worst(Pc, dx, H, nu, var, acc, nfix, pos, nd, cv, k, w):
+    """The deleted-residual test (reference test 2) over the first k measurements: the
+    accepted measurement with the largest ``u_i^T ((S^-1)_ii)^-1 u_i``, with
+    ``u = S^-1 nu = R^-1 (nu - H dx)`` and ``(S^-1)_ii = (R^-1)_ii - G_i P+ G_i^T``,
+    ``G = R^-1 H`` (:func:`_rinv`, into the work arrays w; Pc: P+ over the measured
+    columns); returns (index, statistic)."""
+    G, u, rd, res = w[0], w[1], w[2], w[12]
     for i in range(k):
         res[i, 0] = nu[i, 0] - _hdot(H, 2 * i, dx)
         res[i, 1] = nu[i, 1] - _hdot(H, 2 * i + 1, dx)
-    G, u, rd = _rinv(H, res, var, acc, nfix, pos, cv)
+    _rinv(H, res, var, acc, nfix, pos, nd, cv, k, G, u, rd)
     worst, wstat = -1, -math.inf
     for i in range(k):
         if not acc[i]:
@@ -599,27 +644,30 @@ def _worst(Pc, dx, H, nu, var, acc, nfix, pos, cv):
 
 
 @_jit
-def _iterated_update(y, Y, z, rr, nfix, var, gate, lever, tol, maxit, hold, pos, cv):
-    """Reference ``_iterated_update``: (y+, Y+, acc, prior NIS, ok); pos, cv: the joint
-    noise (:func:`_rinv`)."""
-    k = var.shape[0]
-    yl = y
-    acc = np.zeros(k, dtype=np.bool_)
-    y1, Y1 = y, Y
+def _iterated_update(y, Y, z, rr, nfix, var, gate, lever, tol, maxit, hold, pos, nd, cv, k,
+                     acc, y1, Y1, w):
+    """Reference ``_iterated_update`` over the first k measurements: returns (prior NIS,
+    ok); acc (k,) receives the accepted ones and y1 (12,), Y1 (12, 12) the posterior when
+    any is (otherwise the reference's result is the prior y, Y and y1, Y1 hold no
+    result); pos, nd, cv: the joint noise (:func:`_rinv`); w the work arrays
+    (:func:`_work`)."""
+    yl, h, H, nu, d, dd, Y1c = w[14], w[15], w[16], w[17], w[18], w[19], w[20]
+    _copy(y, yl)
+    for i in range(k):
+        acc[i] = False
     nis = math.nan
     for it in range(maxit):
-        h, H = _measure(yl, rr, nfix)
+        _measure(yl, rr, nfix, k, h, H)
         if hold:
             for i in range(nfix):
                 H[2 * i, 2] = 0.0
                 H[2 * i + 1, 2] = 0.0
-        nu = np.empty((k, 2))
         for i in range(k):
             nu[i, 0], nu[i, 1] = z[i, 0] - h[i, 0], z[i, 1] - h[i, 1]
         if it > 0:
-            d = _axpy(-1.0, yl, y)
-            dd = _axpy(-1.0, y, y1)
-            Y1c = _subc(Y1)
+            _axpy(-1.0, yl, y, d)
+            _axpy(-1.0, y, y1, dd)
+            _subc(Y1, Y1c)
             for i in range(k):
                 nu[i, 0] -= _hdot(H, 2 * i, d)
                 nu[i, 1] -= _hdot(H, 2 * i + 1, d)
@@ -630,31 +678,32 @@ def _iterated_update(y, Y, z, rr, nfix, var, gate, lever, tol, maxit, hold, pos,
                 ey = nu[i, 1] - _hdot(H, 2 * i + 1, dd)
                 if _quad(a + var[i], b, c + var[i], ex, ey) <= gate:
                     acc[i] = True
-        y1, Y1, acc, nis_i, ok = _kalman_update(y, Y, nu, H, var, gate, acc, it == 0, it == 0,
-                                                nfix, pos, cv)
+        nis_i, ok = _kalman_update(y, Y, nu, H, var, gate, acc, it == 0, it == 0, nfix, pos,
+                                   nd, cv, k, y1, Y1, w)
         if it == 0:
             nis = nis_i
         if not ok:
-            return y, Y, np.zeros(k, dtype=np.bool_), nis, False
+            for i in range(k):
+                acc[i] = False
+            return nis, False
         if not _count(acc, 0, k):
             break
         turn = _pmax(abs(_wrap(y1[YAW] - yl[YAW])), abs(_wrap(y1[NX + YAW] - yl[NX + YAW])))
         if 0.5 * turn * turn * lever < tol:
             break
-        yl = y1
-    return y1, Y1, acc, nis, True
+        _copy(y1, yl)
+    return nis, True
 
 
 @_jit
-def _start_state(k, org, yaw0, v0, ysd, vsd, om0, sa, cnt, amax, omsd):
-    """Start / re-initialisation state (6,) and diagonal covariance (reference
-    ``FilterStart.offer`` / ``refit``)."""
+def _start_state(k, org, yaw0, v0, ysd, vsd, om0, sa, cnt, amax, omsd, x, P):
+    """Start / re-initialisation state into x (6,) and its diagonal covariance into P
+    (6, 6) (reference ``FilterStart.offer`` / ``refit``)."""
     pvar = sa * sa / cnt[k]
-    x = _vec(org[k, 0], org[k, 1], _wrap(yaw0), v0, 0.0, om0)
-    P = np.zeros((NX, NX))
+    _vec(x, org[k, 0], org[k, 1], _wrap(yaw0), v0, 0.0, om0)
+    _zero(P, NX, NX)
     P[0, 0], P[1, 1], P[2, 2] = pvar, pvar, ysd ** 2
     P[3, 3], P[4, 4], P[5, 5] = vsd ** 2, amax ** 2, omsd ** 2
-    return x, P
 
 
 @_jit
@@ -700,19 +749,20 @@ def _standstill_start(k, mem, tt, obs, present, par):
 
 @_jit
 def _offer(k, anchor, tt, org, fyaw, cnt, r2, sa, amax, ommax, reverse, par, mem, obs,
-           present):
-    """Reference ``FilterStart.offer``: (started, x0, P0, new anchor)."""
-    x0 = np.zeros(NX)
-    P0 = np.zeros((NX, NX))
+           present, x0, P0):
+    """Reference ``FilterStart.offer``: (started, new anchor); the start state into x0 (6,),
+    P0 (6, 6) (zeros when not started)."""
+    _vec(x0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0)
+    _zero(P0, NX, NX)
     if cnt[k] < 2:
-        return False, x0, P0, anchor
+        return False, anchor
     yaw_sd = sa / math.sqrt(r2[k]) if r2[k] > 0 else math.inf
     fixed = yaw_sd < par[I_INIT_YAW_SD]
     still = False
     yaw0 = ysd = v0 = vsd = 0.0
     if fixed:
         if k == 0 or cnt[k - 1] < 2:
-            return False, x0, P0, anchor
+            return False, anchor
         yaw0, ysd = fyaw[k], yaw_sd
         v0, vsd = _fit_speed(k, yaw0, tt, org, cnt, sa, amax, reverse)
     else:
@@ -720,14 +770,14 @@ def _offer(k, anchor, tt, org, fyaw, cnt, r2, sa, amax, ommax, reverse, par, mem
     if fixed or still:
         pass
     elif anchor < 0:
-        return False, x0, P0, k
+        return False, k
     else:
         a = anchor
         d0, d1 = org[k, 0] - org[a, 0], org[k, 1] - org[a, 1]
         dist = math.hypot(d0, d1)
         sd = sa * math.sqrt(1.0 / cnt[k] + 1.0 / cnt[a])
         if dist <= par[I_INIT_SIGMAS] * sd:
-            return False, x0, P0, anchor
+            return False, anchor
         course = math.atan2(d1, d0)
         sp = dist / (tt[k] - tt[a])
         ysd, vsd = sd / dist, _pmax(sp, amax)
@@ -735,8 +785,8 @@ def _offer(k, anchor, tt, org, fyaw, cnt, r2, sa, amax, ommax, reverse, par, mem
             yaw0, v0 = course + math.pi, -sp
         else:
             yaw0, v0 = course, sp
-    x0, P0 = _start_state(k, org, yaw0, v0, ysd, vsd, 0.0, sa, cnt, amax, 0.5 * ommax)
-    return True, x0, P0, -1
+    _start_state(k, org, yaw0, v0, ysd, vsd, 0.0, sa, cnt, amax, 0.5 * ommax, x0, P0)
+    return True, -1
 
 
 @_jit
@@ -759,29 +809,27 @@ def _fit_rate(k, om, v0, vsd, tt, fyaw, cnt, spread, par):
 
 
 @_jit
-def _refit(k, x, tt, org, fyaw, cnt, spread, sa, amax, reverse, par):
-    """Reference ``FilterStart.refit``."""
+def _refit(k, x, P, tt, org, fyaw, cnt, spread, sa, amax, reverse, par):
+    """Reference ``FilterStart.refit`` of the state x (6,), in place (P (6, 6) replaced)."""
     yaw0, ysd = _fit_heading(k, fyaw, cnt, spread, sa)
     v0, vsd = x[V], _pmax(abs(x[V]), amax)
     if k > 0 and cnt[k - 1] >= 2:
         v0, vsd = _fit_speed(k, yaw0, tt, org, cnt, sa, amax, reverse)
     om0, omsd = _fit_rate(k, x[OMEGA], v0, vsd, tt, fyaw, cnt, spread, par)
-    return _start_state(k, org, yaw0, v0, ysd, vsd, om0, sa, cnt, amax, omsd)
+    _start_state(k, org, yaw0, v0, ysd, vsd, om0, sa, cnt, amax, omsd, x, P)
 
 
 @_jit
 def _flip(x, P):
-    """Reference ``_flip``: heading + pi, -v, -a; P mapped by diag(1, 1, 1, -1, -1, 1)."""
-    xn = x.copy()
-    xn[YAW] = _wrap(x[YAW] + math.pi)
-    xn[V] = -x[V]
-    xn[A] = -x[A]
-    J = _vec(1.0, 1.0, 1.0, -1.0, -1.0, 1.0)
-    Pn = np.empty((NX, NX))
+    """Reference ``_flip``, in place: heading + pi, -v, -a; P mapped by
+    diag(1, 1, 1, -1, -1, 1)."""
+    x[YAW] = _wrap(x[YAW] + math.pi)
+    x[V] = -x[V]
+    x[A] = -x[A]
+    J = (1.0, 1.0, 1.0, -1.0, -1.0, 1.0)
     for i in range(NX):
         for j in range(NX):
-            Pn[i, j] = P[i, j] * J[i] * J[j]
-    return xn, Pn
+            P[i, j] = P[i, j] * J[i] * J[j]
 
 
 @_jit
@@ -843,7 +891,7 @@ def _after_gap(k, present):
     return True
 
 
-@_jit
+@_jit_nrt
 def _moved(k, present, obs, par):
     """Reference ``_moved``: the median squared displacement to epoch k of the antennas at
     both k-1 and k beyond (INIT_MOTION_SIGMAS sigma_step)^2 (False without one)."""
@@ -863,7 +911,7 @@ def _moved(k, present, obs, par):
     return np.median(d2[:nb]) > thr * thr
 
 
-@_jit
+@_jit_nrt
 def _hold(x, P, k, present, obs, fyaw, cnt, spread, par):
     """Reference ``_standstill_hold`` (x, P changed in place when it holds)."""
     if not _anyrow(present, k):
@@ -891,14 +939,13 @@ def _hold_state(x, P):
 
 
 @_jit
-def _measurements(k, present, obs, r_m, va, vs):
-    """Epoch k's lever arms (fixes first, then displacements since k-1), measurements z
-    (k, 2), variances (k,), the fixes' antenna indices, the number of displacements and
-    each displacement's fix among the measurements (for :func:`_rinv`)."""
+def _measurements(k, present, obs, r_m, va, vs, rr, z, var, ik, js, pos):
+    """Epoch k's lever arms rr (fixes first, then displacements since k-1), measurements z
+    (k, 2), variances var (k,), the fixes' antenna indices ik, each displacement's antenna
+    js and its fix among the measurements pos (for :func:`_rinv`), into the first rows of
+    those arrays (2m rows, m for ik, js, pos); returns the numbers of fixes and of
+    displacements."""
     m = r_m.shape[0]
-    ik = np.empty(m, dtype=np.int64)
-    js = np.empty(m, dtype=np.int64)
-    pos = np.empty(m, dtype=np.int64)
     nf = nd = 0
     for i in range(m):
         if present[k, i]:
@@ -907,10 +954,6 @@ def _measurements(k, present, obs, r_m, va, vs):
                 nd += 1
             ik[nf] = i
             nf += 1
-    kk = nf + nd
-    rr = np.empty((kk, 2))
-    z = np.empty((kk, 2))
-    var = np.empty(kk)
     for j in range(nf):
         i = ik[j]
         rr[j, 0], rr[j, 1] = r_m[i, 0], r_m[i, 1]
@@ -922,7 +965,7 @@ def _measurements(k, present, obs, r_m, va, vs):
         z[nf + j, 0] = obs[k, i, 0] - obs[k - 1, i, 0]
         z[nf + j, 1] = obs[k, i, 1] - obs[k - 1, i, 1]
         var[nf + j] = vs
-    return rr, z, var, ik[:nf], nd, pos[:nd]
+    return nf, nd
 
 
 @_jit
@@ -962,26 +1005,27 @@ def _monitor(buf, head, count, k, nis, dof, x, P, n_gated, counters, thr_table, 
 
 
 @_jit
-def _direction(x, P, y, k, ik, acc, obs, r_m, dt, par, back, llr):
-    """Direction of travel after epoch k's update (reference): (x, P, flipped, back, llr)."""
+def _direction(x, P, y, k, ik, nf, acc, obs, r_m, dt, par, back, llr):
+    """Direction of travel after epoch k's update (reference; x (6,), P (6, 6) changed in
+    place; the fixes' antennas ik[:nf]): (flipped, back, llr)."""
     flipped = False
     if par[I_REVERSE] == 0.0:
         mh = y[YAW] + 0.5 * _wrap(y[NX + YAW] - y[YAW])
         step = ((y[PX] - y[NX + PX]) * math.cos(mh) + (y[PY] - y[NX + PY]) * math.sin(mh))
         back = back - step if step < 0.0 else 0.0
         if back > par[I_FLIPDIST]:
-            x, P = _flip(x, P)
+            _flip(x, P)
             flipped, back = True, 0.0
         elif x[V] < 0.0:
             x[V] = 0.0
-        return x, P, flipped, back, llr
+        return flipped, back, llr
     ngood = 0
-    for j in range(ik.shape[0]):
+    for j in range(nf):
         ngood += acc[j]
     if ngood >= 2:
         c, s = math.cos(x[YAW]), math.sin(x[YAW])
         sp = sm = 0.0
-        for j in range(ik.shape[0]):
+        for j in range(nf):
             if not acc[j]:
                 continue
             i = ik[j]
@@ -993,16 +1037,14 @@ def _direction(x, P, y, k, ik, acc, obs, r_m, dt, par, back, llr):
             sm += mx * mx + my * my
         llr = llr * math.exp(-dt / par[I_FLIPMEM]) + (sp - sm) / (2.0 * par[I_VA])
         if llr > par[I_FLIPTHR]:
-            x, P = _flip(x, P)
+            _flip(x, P)
             flipped, llr = True, 0.0
-    return x, P, flipped, back, llr
+    return flipped, back, llr
 
 
 @_jit
-def _stack(xp, Pp, FP, x, P):
-    """The stacked state (x_k, x_{k-1}) (12,) and its covariance (12, 12)."""
-    y = np.empty(2 * NX)
-    Y = np.empty((2 * NX, 2 * NX))
+def _stack(xp, Pp, FP, x, P, y, Y):
+    """The stacked state (x_k, x_{k-1}) into y (12,) and its covariance into Y (12, 12)."""
     for i in range(NX):
         y[i], y[NX + i] = xp[i], x[i]
         for j in range(NX):
@@ -1010,7 +1052,6 @@ def _stack(xp, Pp, FP, x, P):
             Y[i, NX + j] = FP[i, j]
             Y[NX + i, j] = FP[j, i]
             Y[NX + i, NX + j] = P[i, j]
-    return y, Y
 
 
 @numba.njit(cache=True, nogil=True)
@@ -1037,8 +1078,20 @@ def forward_kernel(tt, obs, present, r_m, org, fyaw, cnt, spread, r2, fit_ok, pa
     buf = np.zeros((int(par[I_WINDOW]), 2))
     head = count = 0
     counters = np.zeros(2, dtype=np.int64)
+    # every per-epoch array, allocated once: the state x, P; the prediction xp, Pp, FP (and
+    # F); the stacked prior y, Y and posterior y1, Y1; the measurements; the update's work
+    m = present.shape[1]
     x = np.zeros(NX)
     P = np.zeros((NX, NX))
+    xp, Pp, FP, F = np.zeros(NX), np.zeros((NX, NX)), np.zeros((NX, NX)), np.zeros((NX, NX))
+    y, Y = np.zeros(2 * NX), np.zeros((2 * NX, 2 * NX))
+    y1, Y1 = np.zeros(2 * NX), np.zeros((2 * NX, 2 * NX))
+    rr, z, var = np.zeros((2 * m, 2)), np.zeros((2 * m, 2)), np.zeros(2 * m)
+    ik = np.zeros(m, dtype=np.int64)
+    js = np.zeros(m, dtype=np.int64)
+    pos = np.zeros(m, dtype=np.int64)
+    acc = np.zeros(2 * m, dtype=np.bool_)
+    w = _work(2 * m)
     running = lost = False
     anchor = -1
     mem = np.array([-1.0, 0.0, 0.0])     # the last update's (epoch, heading, variance)
@@ -1046,13 +1099,12 @@ def forward_kernel(tt, obs, present, r_m, org, fyaw, cnt, spread, r2, fit_ok, pa
     llr = back = 0.0
     dt = 0.0
     hold = False
-    xp, Pp, FP = x, P, P
     for k in range(n):
         if running:
             dt = tt[k] - tt[k - 1]
             hold = _hold(x, P, k, present, obs, fyaw, cnt, spread, par)
             qy_k = _bound_yaw_rate(x, P, dt, par, 0.0 if hold else par[I_QY] * dt_med / dt)
-            xp, Pp, FP = _predict(x, P, dt, par[I_QA] * dt / dt_med, qy_k, horner, cw)
+            _predict(x, P, dt, par[I_QA] * dt / dt_med, qy_k, horner, cw, xp, Pp, FP, F)
             if _anyrow(present, k):
                 spr = _pmax(Pp[PX, PX], Pp[PY, PY]) + par[I_LEVER] * par[I_LEVER] * Pp[YAW, YAW]
                 if not spr <= par[I_PRIOR_RATIO] * par[I_VARMIN]:
@@ -1062,8 +1114,8 @@ def forward_kernel(tt, obs, present, r_m, org, fyaw, cnt, spread, r2, fit_ok, pa
                 status[k] = S_NO_DATA
                 continue
             status[k] = S_WAITING
-            got, x, P, anchor = _offer(k, anchor, tt, org, fyaw, cnt, r2, sa, amax, ommax,
-                                       reverse, par, mem, obs, present)
+            got, anchor = _offer(k, anchor, tt, org, fyaw, cnt, r2, sa, amax, ommax, reverse,
+                                 par, mem, obs, present, x, P)
             if not got:
                 continue
             running = True
@@ -1075,15 +1127,14 @@ def forward_kernel(tt, obs, present, r_m, org, fyaw, cnt, spread, r2, fit_ok, pa
             head = count = 0
             counters[0] = counters[1] = 0
             continue
-        y, Y = _stack(xp, Pp, FP, x, P)
+        _stack(xp, Pp, FP, x, P, y, Y)
+        ys, Ys = y, Y                 # the epoch's result: the prior, or y1, Y1 when updated
         st = S_PREDICTED
-        rr, z, var, ik, nd, pos = _measurements(k, present, obs, r_m, va, vs)
-        nf = ik.shape[0]
-        acc = np.zeros(nf + nd, dtype=np.bool_)
+        nf, nd = _measurements(k, present, obs, r_m, va, vs, rr, z, var, ik, js, pos)
         if nf:
-            y1, Y1, acc, nis_k, ok = _iterated_update(y, Y, z, rr, nf, var, par[I_GATE],
-                                                      par[I_LEVER], 0.1 * sa, maxit, hold,
-                                                      pos, cv)
+            nis_k, ok = _iterated_update(y, Y, z, rr, nf, var, par[I_GATE], par[I_LEVER],
+                                         0.1 * sa, maxit, hold, pos, nd, cv, nf + nd, acc, y1,
+                                         Y1, w)
             if not ok:
                 rej_abs = rej_step = max_rejects
             if math.isfinite(nis_k):
@@ -1094,7 +1145,7 @@ def forward_kernel(tt, obs, present, r_m, org, fyaw, cnt, spread, r2, fit_ok, pa
             if (nf >= 2 and n_used[k] == 0 and fit_ok[k] and cnt[k - 1] >= 2
                     and _fit_heading(k, fyaw, cnt, spread, sa)[1] <= par[I_FIT_SD]):
                 # reference: FilterStart.motion_miss, then a re-initialisation
-                x, P = _refit(k, x, tt, org, fyaw, cnt, spread, sa, amax, reverse, par)
+                _refit(k, x, P, tt, org, fyaw, cnt, spread, sa, amax, reverse, par)
                 _put(X, PP, k, x, P, 0)
                 seg[k], status[k] = True, S_REINIT
                 head = count = 0
@@ -1109,24 +1160,22 @@ def forward_kernel(tt, obs, present, r_m, org, fyaw, cnt, spread, r2, fit_ok, pa
                 status[k] = S_WAITING
                 continue
             if _count(acc, 0, nf + nd):
-                y, Y, st = y1, Y1, S_OK
-                y[YAW] = _wrap(y[YAW])
-                y[NX + YAW] = _wrap(y[NX + YAW])
-        x = np.empty(NX)
-        P = np.empty((NX, NX))
+                ys, Ys, st = y1, Y1, S_OK
+                ys[YAW] = _wrap(ys[YAW])
+                ys[NX + YAW] = _wrap(ys[NX + YAW])
         for i in range(NX):
-            x[i] = y[i]
-            XC[k, i] = y[NX + i]
+            x[i] = ys[i]
+            XC[k, i] = ys[NX + i]
             for j in range(NX):
-                P[i, j] = Y[i, j]
-                PC[k, i, j] = Y[NX + i, NX + j]
-                PX_[k, i, j] = Y[i, NX + j]
+                P[i, j] = Ys[i, j]
+                PC[k, i, j] = Ys[NX + i, NX + j]
+                PX_[k, i, j] = Ys[i, NX + j]
         bad, want, head, count = _monitor(buf, head, count, k, nis[k], nis_dof[k], x, P,
                                           n_gated[k], counters, thr_table, par, fyaw, cnt,
                                           spread)
         if want:
             counters[0] = counters[1] = 0
-            x, P = _refit(k, x, tt, org, fyaw, cnt, spread, sa, amax, reverse, par)
+            _refit(k, x, P, tt, org, fyaw, cnt, spread, sa, amax, reverse, par)
             _put(X, PP, k, x, P, 0)
             seg[k], status[k] = True, S_REINIT
             _nan_rows(XC, PC, PX_, k)
@@ -1135,8 +1184,8 @@ def forward_kernel(tt, obs, present, r_m, org, fyaw, cnt, spread, r2, fit_ok, pa
         if bad and st == S_OK:
             st = S_INCONS
         if nf:
-            x, P, flipped, back, llr = _direction(x, P, y, k, ik, acc, obs, r_m, dt, par,
-                                                  back, llr)
+            flipped, back, llr = _direction(x, P, ys, k, ik, nf, acc, obs, r_m, dt, par, back,
+                                            llr)
             if flipped:
                 st = S_FLIP
         if not (P[YAW, YAW] <= lost_var and _finite(x, P)):
@@ -1263,15 +1312,34 @@ def relinearised_kernel(tt, obs, present, r_m, fyaw, cnt, spread, par, horner, c
     n = tt.shape[0]
     eye = np.eye(NX)
     dt_med, gate, k2 = par[I_DTMED], par[I_GATE], huber_k * huber_k
+    # every per-epoch array, allocated once (as in forward_kernel)
+    m = present.shape[1]
+    x, P, xh, Ph = np.zeros(NX), np.zeros((NX, NX)), np.zeros(NX), np.zeros((NX, NX))
+    xb0, fb, F, xs, Ps = (np.zeros(NX), np.zeros(NX), np.zeros((NX, NX)), np.zeros(NX),
+                          np.zeros((NX, NX)))
+    xp, Pp, FP, Fs, d = (np.zeros(NX), np.zeros((NX, NX)), np.zeros((NX, NX)),
+                         np.zeros((NX, NX)), np.zeros(NX))
+    y, Y, yb, dy = np.zeros(2 * NX), np.zeros((2 * NX, 2 * NX)), np.zeros(2 * NX), np.zeros(2 * NX)
+    y1, Y1 = np.zeros(2 * NX), np.zeros((2 * NX, 2 * NX))
+    rr, z, var = np.zeros((2 * m, 2)), np.zeros((2 * m, 2)), np.zeros(2 * m)
+    ik = np.zeros(m, dtype=np.int64)
+    js = np.zeros(m, dtype=np.int64)
+    pos = np.zeros(m, dtype=np.int64)
+    acc = np.zeros(2 * m, dtype=np.bool_)
+    w = _work(2 * m)
+    h, H, nu = w[15], w[16], w[17]
     for k in range(n):
         if not math.isfinite(X0[k, 0]):
             continue
         if seg[k] or k == 0 or not (math.isfinite(XC0[k, 0]) and math.isfinite(X[k - 1, 0])):
             _put(X, PP, k, X0[k], P0[k], 0)
             continue
-        x, P = X[k - 1].copy(), PP[k - 1].copy()
+        for i in range(NX):
+            x[i], xh[i], xb0[i] = X[k - 1, i], X0[k - 1, i], Xb[k - 1, i]
+            for j in range(NX):
+                P[i, j], Ph[i, j] = PP[k - 1, i, j], P0[k - 1, i, j]
         dt = tt[k] - tt[k - 1]
-        hold = _hold(X0[k - 1].copy(), P0[k - 1].copy(), k, present, obs, fyaw, cnt, spread,
+        hold = _hold(xh, Ph, k, present, obs, fyaw, cnt, spread,
                      par)                         # the first pass's decision (reference)
         if hold and _moving_off(k, present, obs, X0[k - 1, YAW], P0[k - 1, YAW, YAW], par):
             hold = False
@@ -1279,32 +1347,29 @@ def relinearised_kernel(tt, obs, present, r_m, fyaw, cnt, spread, par, horner, c
             _hold_state(x, P)
         qy = _bound_yaw_rate(x, P, dt, par, 0.0 if hold else par[I_QY] * dt_med / dt)
         qa = par[I_QA] * dt / dt_med
-        xb0 = Xb[k - 1].copy()
-        fb, _, F = _predict(xb0, eye, dt, qa, qy, horner, cw)
-        _, Pp, FP = _predict(xb0, P, dt, qa, qy, horner, cw)
-        d = _axpy(-1.0, xb0, x)
+        _predict(xb0, eye, dt, qa, qy, horner, cw, fb, Ps, F, Fs)
+        _predict(xb0, P, dt, qa, qy, horner, cw, xs, Pp, FP, Fs)
+        _axpy(-1.0, xb0, x, d)
         d[YAW] = _wrap_angle(d[YAW])
-        xp = fb.copy()
+        _copy(fb, xp)
         for i in range(NX):
             for j in range(NX):
                 xp[i] += F[i, j] * d[j]
-        y, Y = _stack(xp, Pp, FP, x, P)
-        yb = np.empty(2 * NX)
+        _stack(xp, Pp, FP, x, P, y, Y)
+        ys, Ys = y, Y                 # the epoch's result: the prior, or y1, Y1 when updated
         for i in range(NX):
             yb[i], yb[NX + i] = Xb[k, i], xb0[i]
-        rr, z, var, ik, nd, pos = _measurements(k, present, obs, r_m, par[I_VA], par[I_VS])
-        nf = ik.shape[0]
+        nf, nd = _measurements(k, present, obs, r_m, par[I_VA], par[I_VS], rr, z, var, ik, js,
+                               pos)
         if nf:
-            h, H = _measure(yb, rr, nf)
+            kk = nf + nd
+            _measure(yb, rr, nf, kk, h, H)
             if hold:
                 for i in range(nf):
                     H[2 * i, 2] = 0.0
                     H[2 * i + 1, 2] = 0.0
-            dy = _axpy(-1.0, yb, y)
+            _axpy(-1.0, yb, y, dy)
             dy[YAW], dy[NX + YAW] = _wrap_angle(dy[YAW]), _wrap_angle(dy[NX + YAW])
-            kk = nf + nd
-            nu = np.empty((kk, 2))
-            acc = np.zeros(kk, dtype=np.bool_)
             for i in range(kk):
                 ex, ey = z[i, 0] - h[i, 0], z[i, 1] - h[i, 1]
                 r2 = (ex * ex + ey * ey) / var[i]
@@ -1314,15 +1379,20 @@ def relinearised_kernel(tt, obs, present, r_m, fyaw, cnt, spread, par, horner, c
                 nu[i, 0] = ex - _hdot(H, 2 * i, dy)
                 nu[i, 1] = ey - _hdot(H, 2 * i + 1, dy)
             if _count(acc, 0, kk):
-                Z, _, ok, _ = _posterior(Y, H, nu, var, acc, nf, pos,
-                                         _pmin(0.5 * par[I_VS], par[I_VA]))
+                _, ok, _ = _posterior(Y, H, nu, var, acc, nf, pos, nd,
+                                      _pmin(0.5 * par[I_VS], par[I_VA]), kk, w)
                 if ok:
-                    y, Y = _axpy(1.0, _step(Y, Z), y), _cov_full(Y, Z)
-                    y[YAW], y[NX + YAW] = _wrap_angle(y[YAW]), _wrap_angle(y[NX + YAW])
-        x = y[:NX].copy()
-        _put(XC, PC, k, y, Y, NX)
+                    Z, dx = w[8], w[10]
+                    _step(Y, Z, dx)
+                    _axpy(1.0, dx, y, y1)
+                    _cov_full(Y, Z, Y1)
+                    ys, Ys = y1, Y1
+                    ys[YAW], ys[NX + YAW] = _wrap_angle(ys[YAW]), _wrap_angle(ys[NX + YAW])
+        for i in range(NX):
+            x[i] = ys[i]
+        _put(XC, PC, k, ys, Ys, NX)
         for i in range(NX):
             for j in range(NX):
-                PX_[k, i, j] = Y[i, NX + j]
+                PX_[k, i, j] = Ys[i, NX + j]
         _project(x, par)
-        _put(X, PP, k, x, Y, 0)
+        _put(X, PP, k, x, Ys, 0)
