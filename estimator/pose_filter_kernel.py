@@ -1257,7 +1257,7 @@ def rts_kernel(rows, C, X, XC, PP, PC, Xs, Ps, covariances):
 
 
 # ----------------------------------------------------------------- iterated RTS (issue 25)
-@_jit
+@_jit_nrt
 def _median_step(j, present, obs, c, s):
     """Reference ``estimator.pose_smoother._median_step``: (found, along, across)."""
     m = present.shape[1]
@@ -1275,7 +1275,7 @@ def _median_step(j, present, obs, c, s):
     return True, np.median(al[:nb]), np.median(ac[:nb])
 
 
-@_jit
+@_jit_nrt
 def _moving_off(k, present, obs, yaw, yaw_var, par):
     """Reference ``estimator.pose_smoother._moving_off``: the displacements to k and k+1
     both move along the heading, in the same direction."""
