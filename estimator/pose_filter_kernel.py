@@ -528,6 +528,19 @@ def _work(kmax):
             np.zeros(n), np.zeros(n), np.zeros((NC, NC)))
 
 
+@_jit_nrt
+def _pass_buffers(m):
+    """A pass's per-epoch buffers for m antennas, allocated once (forward and relinearised
+    kernels): the stacked prior y (12,), Y (12, 12) and posterior y1, Y1; the measurements
+    rr, z (2 m, 2), var (2 m,), the index arrays ik, js, pos (m,) and acc (2 m,); the
+    update's work arrays :func:`_work` (2 m)."""
+    n = 2 * NX
+    return (np.zeros(n), np.zeros((n, n)), np.zeros(n), np.zeros((n, n)),
+            np.zeros((2 * m, 2)), np.zeros((2 * m, 2)), np.zeros(2 * m),
+            np.zeros(m, dtype=np.int64), np.zeros(m, dtype=np.int64),
+            np.zeros(m, dtype=np.int64), np.zeros(2 * m, dtype=np.bool_), _work(2 * m))
+
+
 @_jit
 def _step(Y, Z, dx):
     """dx (12,) = Y_:c Z[:, -1]: the update's step of the stacked state."""
@@ -1084,14 +1097,7 @@ def forward_kernel(tt, obs, present, r_m, org, fyaw, cnt, spread, r2, fit_ok, pa
     x = np.zeros(NX)
     P = np.zeros((NX, NX))
     xp, Pp, FP, F = np.zeros(NX), np.zeros((NX, NX)), np.zeros((NX, NX)), np.zeros((NX, NX))
-    y, Y = np.zeros(2 * NX), np.zeros((2 * NX, 2 * NX))
-    y1, Y1 = np.zeros(2 * NX), np.zeros((2 * NX, 2 * NX))
-    rr, z, var = np.zeros((2 * m, 2)), np.zeros((2 * m, 2)), np.zeros(2 * m)
-    ik = np.zeros(m, dtype=np.int64)
-    js = np.zeros(m, dtype=np.int64)
-    pos = np.zeros(m, dtype=np.int64)
-    acc = np.zeros(2 * m, dtype=np.bool_)
-    w = _work(2 * m)
+    y, Y, y1, Y1, rr, z, var, ik, js, pos, acc, w = _pass_buffers(m)
     running = lost = False
     anchor = -1
     mem = np.array([-1.0, 0.0, 0.0])     # the last update's (epoch, heading, variance)
@@ -1319,14 +1325,8 @@ def relinearised_kernel(tt, obs, present, r_m, fyaw, cnt, spread, par, horner, c
                           np.zeros((NX, NX)))
     xp, Pp, FP, Fs, d = (np.zeros(NX), np.zeros((NX, NX)), np.zeros((NX, NX)),
                          np.zeros((NX, NX)), np.zeros(NX))
-    y, Y, yb, dy = np.zeros(2 * NX), np.zeros((2 * NX, 2 * NX)), np.zeros(2 * NX), np.zeros(2 * NX)
-    y1, Y1 = np.zeros(2 * NX), np.zeros((2 * NX, 2 * NX))
-    rr, z, var = np.zeros((2 * m, 2)), np.zeros((2 * m, 2)), np.zeros(2 * m)
-    ik = np.zeros(m, dtype=np.int64)
-    js = np.zeros(m, dtype=np.int64)
-    pos = np.zeros(m, dtype=np.int64)
-    acc = np.zeros(2 * m, dtype=np.bool_)
-    w = _work(2 * m)
+    yb, dy = np.zeros(2 * NX), np.zeros(2 * NX)
+    y, Y, y1, Y1, rr, z, var, ik, js, pos, acc, w = _pass_buffers(m)
     h, H, nu = w[15], w[16], w[17]
     for k in range(n):
         if not math.isfinite(X0[k, 0]):
