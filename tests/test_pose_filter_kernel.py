@@ -91,8 +91,14 @@ def assert_engines_agree(t, obs, off, params, tols):
     assert worst <= ctol, f"cross_covariances: {worst:.3g}"
     nis = np.isfinite(a.nis)
     assert (nis == np.isfinite(b.nis)).all()
-    # the NIS is a sum of squares in sd units: tol of its dof
-    assert np.all(np.abs(a.nis[nis] - b.nis[nis]) <= ctol * a.nis_dof[nis])
+    # the NIS is a sum of squares of dof whitened innovations w: states tol sd apart move w
+    # by up to tol sqrt(dof) in norm, so the NIS by 2 |w| tol sqrt(dof) (+ rounding, ctol of
+    # its dof). An inconsistent epoch's NIS is large (seed 3's restart: 1283 for 16 dof) and
+    # rounds in proportion: the engines were 1.61 apart there on an AMD EPYC host (0.13 %)
+    dof, ref = a.nis_dof[nis], a.nis[nis]
+    bound = ctol * dof + 2.0 * tol * np.sqrt(dof * np.abs(ref))
+    worst = np.max(np.abs(ref - b.nis[nis]) - bound) if nis.any() else -1.0
+    assert worst <= 0.0, f"nis: {worst:.3g} beyond the bound"
     return a, b
 
 
