@@ -156,6 +156,13 @@ return, show the platform where it stood at the last update (every common antenn
 :data:`INIT_MOTION_SIGMAS` sd of its displacement noise) restarts from its last heading, its
 variance grown by ``(kappa x that travel)^2`` (:meth:`FilterStart._standstill_start`): a car
 at rest cannot turn, so a short all-antenna gap at a stop no longer costs the stop's output.
+The same bound holds when the track survives such a gap (:func:`_bound_after_standstill_gap`):
+predicted through it unheld, with the speed's sd growing by the acceleration limit, the
+heading's sd grows by the yaw rate the platform could reach at that speed (cpm drive 14: 4 deg
+to 42 deg in a 2 s gap at the stop), and the returning fixes, metre-level errors drifting,
+then turn that heading freely (50 deg off before the car moved off); when the fixes show the
+platform where it stood at the gap's start, the heading's variance is at most the one it had
+there plus ``(kappa x that travel)^2``.
 So is a prediction too wide for an update in double precision (after an hour's gap in
 ``t``: its spread at the antennas beyond :data:`MAX_PRIOR_RATIO` times the fixes'
 variance); the epoch's own data then restart it. A lost row is NaN and carries no clone,
@@ -974,6 +981,7 @@ class FilterStart:
         self.anchor = -1
         self.r = r
         self._spread: np.ndarray | None = None
+        self.last_fix: np.ndarray | None = None   # per epoch: the last epoch <= it with a fix
         self.memory = (-1, 0.0, 0.0)      # (epoch, heading, its variance) of the last update
 
     def remember(self, k: int, x: np.ndarray, P: np.ndarray) -> None:
@@ -1288,6 +1296,53 @@ def _standstill_hold(x: np.ndarray, P: np.ndarray, starter: FilterStart, k: int)
         return False
     _hold_state(x, P)
     return True
+
+
+def _standstill_gap(starter: FilterStart, k: int) -> tuple[int, float] | None:
+    """(j, thr) when epoch k has a fix, epoch k-1 none (an all-antenna gap) and the platform
+    stood since j, the last epoch before k with a fix: every antenna present at both moved
+    by at most ``thr = INIT_MOTION_SIGMAS sigma_step sqrt(k - j)`` (m; the test of
+    :meth:`FilterStart._standstill_start`, the displacement noise growing as a random walk).
+    None otherwise (no such antenna, or one moved farther)."""
+    pr = starter.present
+    if k < 2 or pr[k - 1].any() or not pr[k].any():
+        return None
+    if starter.last_fix is None:
+        idx = np.where(pr.any(1), np.arange(pr.shape[0]), -1)
+        starter.last_fix = np.maximum.accumulate(idx)
+    j = int(starter.last_fix[k - 1])
+    if j < 0:
+        return None
+    both = pr[k] & pr[j]
+    if not both.any():
+        return None
+    d = starter.obs[k, both] - starter.obs[j, both]
+    thr = INIT_MOTION_SIGMAS * starter.params._limit("sigma_step_m") * math.sqrt(k - j)
+    if not float(np.sqrt((d * d).sum(1)).max()) <= thr:
+        return None
+    return j, thr
+
+
+def _bound_after_standstill_gap(P: np.ndarray, PP: np.ndarray, starter: FilterStart, k: int,
+                                kappa: float) -> None:
+    """A car that did not move cannot have turned (issue 25): before epoch k's prediction,
+    when the platform stood through the all-antenna gap before k (:func:`_standstill_gap`,
+    since epoch j, travel at most thr), the heading's variance of P (6, 6, the state at k-1,
+    changed in place) is at most ``PP[j]``'s (the pass's covariances (n, 6, 6)) plus
+    ``(kappa thr)^2`` (kappa the curvature limit, 1/m: its yaw changed by at most kappa times
+    the distance travelled); beyond it the heading's row and column are scaled by ``sqrt(bound
+    / var)`` (a congruence: P stays PSD, the heading's correlations kept), which also shrinks
+    the position-heading covariance the unheld prediction built on a speed clipped at 0.
+    Without a curvature limit nothing changes."""
+    g = _standstill_gap(starter, k) if kappa < math.inf else None
+    if g is None:
+        return
+    bound = PP[g[0]][YAW, YAW] + (kappa * g[1]) ** 2
+    var = P[YAW, YAW]
+    if var > bound:
+        s = math.sqrt(bound / var)
+        P[YAW, :] *= s
+        P[:, YAW] *= s
 
 
 def _hold_state(x: np.ndarray, P: np.ndarray) -> None:
@@ -1642,6 +1697,7 @@ class _ReferencePass:
         su, x, P = self.su, self.x, self.P
         assert x is not None and P is not None
         dt = self.dts[k - 1]
+        _bound_after_standstill_gap(P, self.PP, su.starter, k, su.kappa)
         # continuous noise of constant density: the variances of the rates' changes
         # given per median step, scaled to this step (longer gaps: larger)
         hold = _standstill_hold(x, P, su.starter, k)

@@ -940,6 +940,37 @@ def _hold(x, P, k, present, obs, fyaw, cnt, spread, par):
 
 
 @_jit
+def _bound_after_standstill_gap(P, PP, k, present, obs, par):
+    """Reference ``_bound_after_standstill_gap`` (P changed in place): after an all-antenna
+    gap at which the platform stood since j, the last epoch with a fix, the heading's
+    variance at most PP[j]'s plus (kappa thr)^2."""
+    kappa = par[I_KAPPA]
+    if k < 2 or not kappa < math.inf or _anyrow(present, k - 1) or not _anyrow(present, k):
+        return
+    j = k - 2
+    while j >= 0 and not _anyrow(present, j):
+        j -= 1
+    if j < 0:
+        return
+    thr = par[I_INIT_SIGMAS] * math.sqrt(par[I_VS]) * math.sqrt(k - j)
+    dmax = -1.0
+    for i in range(present.shape[1]):
+        if present[k, i] and present[j, i]:
+            d0, d1 = obs[k, i, 0] - obs[j, i, 0], obs[k, i, 1] - obs[j, i, 1]
+            dmax = _pmax(dmax, math.sqrt(d0 * d0 + d1 * d1))
+    if dmax < 0.0 or not dmax <= thr:
+        return
+    bound = PP[j, YAW, YAW] + (kappa * thr) ** 2
+    var = P[YAW, YAW]
+    if var > bound:
+        s = math.sqrt(bound / var)
+        for i in range(NX):
+            P[YAW, i] *= s
+        for i in range(NX):
+            P[i, YAW] *= s
+
+
+@_jit
 def _hold_state(x, P):
     """A standstill hold's change of x (6,) and P (6, 6), in place: yaw rate 0, its
     variance at most 1e-12 and uncorrelated (``estimator.pose_filter._hold_state``)."""
@@ -1108,6 +1139,7 @@ def forward_kernel(tt, obs, present, r_m, org, fyaw, cnt, spread, r2, fit_ok, pa
     for k in range(n):
         if running:
             dt = tt[k] - tt[k - 1]
+            _bound_after_standstill_gap(P, PP, k, present, obs, par)
             hold = _hold(x, P, k, present, obs, fyaw, cnt, spread, par)
             qy_k = _bound_yaw_rate(x, P, dt, par, 0.0 if hold else par[I_QY] * dt_med / dt)
             _predict(x, P, dt, par[I_QA] * dt / dt_med, qy_k, horner, cw, xp, Pp, FP, F)
@@ -1339,6 +1371,7 @@ def relinearised_kernel(tt, obs, present, r_m, fyaw, cnt, spread, par, horner, c
             for j in range(NX):
                 P[i, j], Ph[i, j] = PP[k - 1, i, j], P0[k - 1, i, j]
         dt = tt[k] - tt[k - 1]
+        _bound_after_standstill_gap(P, PP, k, present, obs, par)
         hold = _hold(xh, Ph, k, present, obs, fyaw, cnt, spread,
                      par)                         # the first pass's decision (reference)
         if hold and _moving_off(k, present, obs, X0[k - 1, YAW], P0[k - 1, YAW, YAW], par):

@@ -61,6 +61,7 @@ from estimator.pose_filter import (
     PoseFilterParams,
     PoseFilterResult,
     V,
+    _bound_after_standstill_gap,
     _bound_yaw_rate,
     _check_run_args,
     _fill_measurements,
@@ -357,6 +358,7 @@ def _relinearised_pass(su: _Setup, res: PoseFilterResult, Xb: np.ndarray) -> tup
             continue
         x, P = X[k - 1].copy(), PP[k - 1].copy()
         dt = float(su.tt[k] - su.tt[k - 1])
+        _bound_after_standstill_gap(P, PP, su.starter, k, su.kappa)   # as the first pass
         # the first pass's standstill decision (on its own row k-1, as it took it): part
         # of the model the iterations minimise, not re-decided on the iterate
         hold = _standstill_hold(X0[k - 1].copy(), res.covariances[k - 1].copy(), su.starter, k)

@@ -29,7 +29,7 @@ import numpy as np
 import pytest
 from pose_scenes import kinematic_truth, noisy, vehicle_scene
 from test_pose_filter import OFFSETS, _back_and_forth, _braking_car, _roll_back_then_drive
-from test_vehicle_case import _standstill_scene
+from test_vehicle_case import _standstill_gap_scene, _standstill_scene
 
 import estimator.pose_filter as pf
 import estimator.pose_filter_kernel as kn
@@ -240,7 +240,7 @@ def test_compiled_passes_allocate_nothing_per_epoch():
 _SCRIPT = """
 import sys, numpy as np
 sys.path.insert(0, {tests!r})
-from test_vehicle_case import _standstill_scene
+from test_vehicle_case import _standstill_gap_scene, _standstill_scene
 from estimator.pose_filter import run_pose_filter
 t, obs, off, _, _ = _standstill_scene()
 r = run_pose_filter(t, obs, off)
@@ -296,3 +296,19 @@ def test_car_case_consumer_hold_after_gap_agrees():
     _, t, obs, off = vehicle_scene(7, "common_plus_model")
     a, _ = assert_engines_agree(t, obs, off, PoseFilterParams(), TOL_CAR)
     assert {"predicted", "ok"} <= set(a.status)
+
+
+def test_standstill_gap_bound_agrees():
+    """The heading bound after a gap the car stood through (issue 25,
+    ``_bound_after_standstill_gap``) as in the reference: forward pass and the iterated
+    smoother's relinearised pass, on tests/test_vehicle_case.py's scene (the bound acts at
+    epoch 52) and with the fixes moved in the gap (it does not)."""
+    from estimator.pose_smoother import iterated_rts_smooth
+
+    for jump in (0.0, 1.0):
+        t, obs, off, _, p = _standstill_gap_scene(jump_m=jump)
+        a, b = assert_engines_agree(t, obs, off, p, TOL_WELL)
+        ia = iterated_rts_smooth(a, t, obs, off, 2, engine="numpy")
+        ib = iterated_rts_smooth(a, t, obs, off, 2)
+        _close(ia.states, ib.states, ia.covariances, TOL_WELL[0], "iterated states")
+        _cov_close(ia.covariances, ib.covariances, TOL_WELL[1], "iterated covariances")

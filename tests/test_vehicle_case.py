@@ -9,7 +9,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from pose_scenes import vehicle_scene
+from pose_scenes import square_layout, vehicle_scene
 from scipy.stats import binom, chi2
 from test_pose_filter_monitor import P_GATE, WINDOW, status_follows_the_rule
 
@@ -193,6 +193,65 @@ def test_standstill_start_takes_the_layouts_heading_and_a_lock_out_is_recovered(
     miss = np.flatnonzero(locked.status == "reinit")
     assert miss.size and locked.n_used[miss[0]] == 0 and miss[0] <= kj + 2
     assert err[miss[0]:].max() < 1.0
+
+
+def _standstill_gap_scene(jump_m: float = 0.0, seed: int = 3):
+    """A car on the 0.8 m square (1 Hz, heading 0.3 rad) driving at 3 m/s, braking at 1
+    m/s^2 from t = 25 s to rest at 28 s, standing to 80 s, with consumer-like errors (a
+    common random walk of 3 cm per epoch, one of 1.5 cm per antenna, constant 0.4 m biases:
+    metre-level, the frame cannot give the heading) and an all-antenna gap at epochs 50-51;
+    ``jump_m``: every fix from epoch 52 on moved by that much along x (the car moved in the
+    gap). Returns (t, obs, offsets, true heading, params): sigma 0.5 m, step 5 cm, curvature
+    limit 0.2 1/m, acceleration limit 4 m/s^2 (the car's: the speed's sd grows by it in the
+    gap)."""
+    n = 80
+    t = np.arange(float(n))
+    v = np.where(t < 25, 3.0, np.maximum(3.0 - (t - 25), 0.0))
+    s = np.r_[0.0, np.cumsum(0.5 * (v[1:] + v[:-1]))]
+    yaw = np.full(n, 0.3)
+    off, obs = square_layout(np.c_[s * math.cos(0.3), s * math.sin(0.3)], yaw)
+    rng = np.random.default_rng(seed)
+    obs = obs + (np.cumsum(rng.normal(0, 0.03, (n, 1, 2)), axis=0)
+                 + np.cumsum(rng.normal(0, 0.015, (n, 4, 2)), axis=0)
+                 + rng.normal(0, 0.4, (1, 4, 2))) + np.array([300.0, -200.0])
+    obs[50:52] = np.nan
+    obs[52:, :, 0] += jump_m
+    p = PoseFilterParams(sigma_abs_m=0.5, sigma_step_m=0.05, max_curvature_1pm=0.2,
+                         max_accel_mps2=4.0)
+    return t, obs, off, yaw, p
+
+
+def test_a_car_that_stood_through_a_gap_keeps_its_heading(monkeypatch):
+    """A car that did not move cannot have turned (issue 25, cpm drive 14: a 2 s gap at the
+    stop grew the heading sd from 4 to 42 deg, and the returning drifting fixes turned the
+    heading 50 deg before the car moved off). Predicted through the gap the heading's sd
+    grows (here 1.7 -> 34 deg); when the fixes return where they were (``_standstill_gap``:
+    every antenna within INIT_MOTION_SIGMAS sigma_step sqrt(k - j) of its fix at j, the last
+    epoch with one), the heading's variance at the return is at most that at j plus
+    (kappa x that travel)^2, and the heading then stays within 3 of its sd of the truth
+    (consistent). Without the bound (patched out) the sd is 32 deg at the return and the
+    heading drifts to 20 deg off at 4 sd (measured). A gap after which the fixes moved by 1
+    m is not bounded."""
+    t, obs, off, yaw, p = _standstill_gap_scene()
+    res = run_pose_filter(t, obs, off, p, engine="numpy")
+    assert list(res.status[50:52]) == ["predicted", "predicted"]
+    su = pf._setup(*pf._check_run_args(t, obs, off, res.params), res.params)
+    j, thr = pf._standstill_gap(su.starter, 52)
+    assert j == 49 and thr == pytest.approx(5 * 0.05 * math.sqrt(3))
+    assert pf._standstill_gap(su.starter, 51) is None        # no fix at 51
+    assert pf._standstill_gap(su.starter, 53) is None        # no gap before 53
+    var = res.covariances[:, 2, 2]
+    assert math.degrees(math.sqrt(var[51])) > 20.0           # the gap grew it
+    assert var[52] <= (var[49] + (0.2 * thr) ** 2) * (1 + 1e-9)
+    e = heading_error(res.states[52:, 2], yaw[52:])
+    assert (np.abs(e) <= 3.0 * np.sqrt(var[52:])).all()
+    monkeypatch.setattr(pf, "_bound_after_standstill_gap", lambda *args: None)
+    old = run_pose_filter(t, obs, off, p, engine="numpy")
+    e_old = heading_error(old.states[52:, 2], yaw[52:])
+    assert np.abs(e_old).max() > 3.0 * np.abs(e).max()
+    t, moved, off, _, p = _standstill_gap_scene(jump_m=1.0)
+    su = pf._setup(*pf._check_run_args(t, moved, off, res.params), res.params)
+    assert pf._standstill_gap(su.starter, 52) is None
 
 
 def test_consumer_errors_replayed_onto_the_car():
