@@ -20,28 +20,45 @@ def epoch_rigid_fits(obs: np.ndarray, offsets: np.ndarray
     estimated from (unweighted, one epoch at a time; :func:`procrustes_batch` is the
     weighted window form).
 
-    Returns origin (n, 2) (the world position of offset (0, 0)), yaw (n,), number of fixes
-    (n,) and residuals (n, m, 2) (NaN where absent); epochs with < 2 fixes are NaN.
+    obs (n, m, 2) m (NaN = absent), offsets (m, 2) m. Returns origin (n, 2) (the world
+    position of offset (0, 0)), yaw (n,), number of fixes (n,) and residuals (n, m, 2) (NaN
+    where absent); epochs with < 2 fixes are NaN.
+
+    The sums over the antennas run antenna by antenna on (n, 2) columns, in the order numpy's
+    ``sum(axis=1)`` of the (n, m, 2) products takes (``0.0 + a_0 + a_1 + ...``): the same
+    bits as the plain array expressions (tests/test_epoch_fit.py holds them as the
+    reference), in a third of the time (issue 27: the filter's set-up).
     """
+    n, m = obs.shape[:2]
     present = np.isfinite(obs[..., 0])
     cnt = present.sum(axis=1)
     w = present.astype(float)
     z = np.where(present[..., None], obs, 0.0)
+    # centroids: sum_i z_i w_i = sum_i z_i (z is 0 where w is), sum_i r_i w_i
+    zs = np.zeros((n, 2))
+    rs = np.zeros((n, 2))
+    for i in range(m):
+        zs += z[:, i]
+        rs += offsets[i] * w[:, i, None]
     with np.errstate(invalid="ignore", divide="ignore"):
-        zc = (z * w[..., None]).sum(1) / cnt[:, None]
-        rc = (offsets[None] * w[..., None]).sum(1) / cnt[:, None]
-    dz = (z - zc[:, None]) * w[..., None]
-    dr = (offsets[None] - rc[:, None]) * w[..., None]
-    yaw = np.arctan2((dr[..., 0] * dz[..., 1] - dr[..., 1] * dz[..., 0]).sum(1),
-                     (dr * dz).sum(-1).sum(1))
+        zc = zs / cnt[:, None]
+        rc = rs / cnt[:, None]
+    dz = z - zc[:, None]
+    dz *= w[..., None]
+    dr = offsets[None] - rc[:, None]
+    dr *= w[..., None]
+    dr0, dr1, dz0, dz1 = dr[..., 0], dr[..., 1], dz[..., 0], dz[..., 1]
+    yaw = np.arctan2((dr0 * dz1 - dr1 * dz0).sum(1), (dr0 * dz0 + dr1 * dz1).sum(1))
     c, s = np.cos(yaw), np.sin(yaw)
-    origin = zc - np.c_[c * rc[:, 0] - s * rc[:, 1], s * rc[:, 0] + c * rc[:, 1]]
-    fit = origin[:, None] + np.stack([c[:, None] * offsets[None, :, 0]
-                                      - s[:, None] * offsets[None, :, 1],
-                                      s[:, None] * offsets[None, :, 0]
-                                      + c[:, None] * offsets[None, :, 1]], -1)
+    origin = np.empty((n, 2))
+    origin[:, 0] = zc[:, 0] - (c * rc[:, 0] - s * rc[:, 1])
+    origin[:, 1] = zc[:, 1] - (s * rc[:, 0] + c * rc[:, 1])
+    c, s = c[:, None], s[:, None]
+    res = np.empty((n, m, 2))
+    res[..., 0] = obs[..., 0] - (origin[:, :1] + (c * offsets[:, 0] - s * offsets[:, 1]))
+    res[..., 1] = obs[..., 1] - (origin[:, 1:] + (s * offsets[:, 0] + c * offsets[:, 1]))
     bad = cnt < 2
     origin[bad] = np.nan
     yaw[bad] = np.nan
-    res = np.where(present[..., None] & ~bad[:, None, None], obs - fit, np.nan)
+    np.copyto(res, np.nan, where=~(present & ~bad[:, None])[..., None])
     return origin, yaw, cnt, res
