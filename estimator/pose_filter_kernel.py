@@ -242,31 +242,28 @@ def _add_noise(Pn, c, s, v, dt, qa, qy, cw):
 
 @_jit
 def _matmul(Aa, Bb, out):
-    """out = Aa @ Bb for small dense matrices (plain loops: no BLAS call overhead; out
-    (n, m), not Aa or Bb)."""
-    n, k = Aa.shape
-    m = Bb.shape[1]
-    _zero(out, n, m)
-    for i in range(n):
-        for p in range(k):
+    """out = Aa @ Bb for 6 x 6 matrices (plain loops of constant length, which the compiler
+    unrolls: no BLAS call overhead; out not Aa or Bb)."""
+    _zero(out, NX, NX)
+    for i in range(NX):
+        for p in range(NX):
             a = Aa[i, p]
             if a != 0.0:
-                for j in range(m):
+                for j in range(NX):
                     out[i, j] += a * Bb[p, j]
 
 
 @_jit
 def _matmul_bt(Aa, Bb, out):
-    """out = Aa @ Bb.T (the same sums in the same order as :func:`_matmul` of Aa and a
-    transposed copy of Bb, without the copy; out not Aa or Bb)."""
-    n, k = Aa.shape
-    m = Bb.shape[0]
-    _zero(out, n, m)
-    for i in range(n):
-        for p in range(k):
+    """out = Aa @ Bb.T for 6 x 6 matrices (the same sums in the same order as
+    :func:`_matmul` of Aa and a transposed copy of Bb, without the copy; out not Aa or
+    Bb)."""
+    _zero(out, NX, NX)
+    for i in range(NX):
+        for p in range(NX):
             a = Aa[i, p]
             if a != 0.0:
-                for j in range(m):
+                for j in range(NX):
                     out[i, j] += a * Bb[j, p]
 
 
@@ -342,7 +339,7 @@ def _col(j):
 def _sub(Y, Yr, Yc):
     """Y's rows :data:`COLS` into Yr (6, 12) and their (6, 6) block into Yc."""
     for i in range(NC):
-        for j in range(Y.shape[1]):
+        for j in range(2 * NX):
             Yr[i, j] = Y[_col(i), j]
         for j in range(NC):
             Yc[i, j] = Y[_col(i), _col(j)]
@@ -390,9 +387,12 @@ def _quad(a, b, c, ex, ey):
 @_jit
 def _solve_inplace(Mm, B):
     """Solve Mm X = B (n, n), (n, r) in place by Gaussian elimination with partial pivoting;
-    B receives X. False on a zero or non-finite pivot (the reference's LinAlgError)."""
-    n = Mm.shape[0]
-    r = B.shape[1]
+    B receives X. False on a zero or non-finite pivot (the reference's LinAlgError). Sizes
+    NC x NC and NC x (2 NX + 1) (:func:`_posterior`'s), constants the compiler unrolls; the
+    back substitution subtracts row by row, each element's terms in the order of the dot
+    product ``B[col] - sum_p Mm[col, p] B[p]`` (the same bits)."""
+    n = NC
+    r = 2 * NX + 1
     for col in range(n):
         piv = col
         best = abs(Mm[col, col])
@@ -417,11 +417,12 @@ def _solve_inplace(Mm, B):
                     B[i, j] -= f * B[col, j]
     for col in range(n - 1, -1, -1):
         d = Mm[col, col]
+        for p in range(col + 1, n):
+            mp = Mm[col, p]
+            for j in range(r):
+                B[col, j] -= mp * B[p, j]
         for j in range(r):
-            s = B[col, j]
-            for p in range(col + 1, n):
-                s -= Mm[col, p] * B[p, j]
-            B[col, j] = s / d
+            B[col, j] = B[col, j] / d
     return True
 
 
@@ -469,8 +470,8 @@ def _posterior(Y, H, nu, var, acc, nfix, pos, nd, cv, k, w):
     P+ = Y - Y_:c Z[:, :12] (:func:`_cov_full`, :func:`_cov_cc`), the step dx = Y_:c
     Z[:, 12] (:func:`_step`)."""
     G, g, rd, N, b, Yr, Yc, Mm, Z = w[0], w[1], w[2], w[3], w[4], w[5], w[6], w[7], w[8]
-    n = Y.shape[0]
-    nc = H.shape[1]
+    n = 2 * NX
+    nc = NC
     _rinv(H, nu, var, acc, nfix, pos, nd, cv, k, G, g, rd)
     _zero(N, nc, nc)
     for p in range(nc):
@@ -494,11 +495,14 @@ def _posterior(Y, H, nu, var, acc, nfix, pos, nd, cv, k, w):
     _matmul(N, Yc, Mm)
     for p in range(nc):
         Mm[p, p] += 1.0
+        # Z[p, :n] = N[p] Yr: each element's sum 0.0 + N[p, 0] Yr[0, j] + ... in order,
+        # accumulated row by row (independent elements: the compiler vectorises)
         for j in range(n):
-            s = 0.0
-            for q in range(nc):
-                s += N[p, q] * Yr[q, j]
-            Z[p, j] = s
+            Z[p, j] = 0.0
+        for q in range(nc):
+            npq = N[p, q]
+            for j in range(n):
+                Z[p, j] += npq * Yr[q, j]
         Z[p, n] = b[p]
     ok = _solve_inplace(Mm, Z)
     byb = 0.0
@@ -544,7 +548,7 @@ def _pass_buffers(m):
 @_jit
 def _step(Y, Z, dx):
     """dx (12,) = Y_:c Z[:, -1]: the update's step of the stacked state."""
-    n = Y.shape[0]
+    n = 2 * NX
     for i in range(n):
         dx[i] = 0.0
     for i in range(n):
@@ -570,7 +574,7 @@ def _cov_cc(Y, Z, Pc):
 @_jit
 def _cov_full(Y, Z, Pa):
     """P+ = Y - Y_:c Z[:, :12] into Pa (12, 12, not Y), symmetrised."""
-    n = Y.shape[0]
+    n = 2 * NX
     _copy2(Y, Pa)
     for i in range(n):
         for p in range(NC):
@@ -924,19 +928,18 @@ def _moved(k, present, obs, par):
     return np.median(d2[:nb]) > thr * thr
 
 
-@_jit_nrt
-def _hold(x, P, k, present, obs, fyaw, cnt, spread, par):
-    """Reference ``_standstill_hold`` (x, P changed in place when it holds)."""
+@_jit
+def _hold_test(x, P, k, present, fyaw, cnt, spread, par):
+    """Reference ``_standstill_hold``'s tests but the motion test: 0 no hold, 1 hold, 2 hold
+    unless :func:`_moved` (after a gap). Compiled without reference counting (it runs every
+    epoch); the allocating :func:`_moved` is left to the caller (the kernels' loops)."""
     if not _anyrow(present, k):
-        return False
+        return 0
     if not x[V] <= par[I_STAND_SIGMAS] * math.sqrt(_pmax(P[V, V], 0.0)):
-        return False
+        return 0
     if _fit_heading(k, fyaw, cnt, spread, par[I_SA])[1] <= par[I_FIT_SD]:
-        return False
-    if _after_gap(k, present) and _moved(k, present, obs, par):
-        return False
-    _hold_state(x, P)
-    return True
+        return 0
+    return 2 if _after_gap(k, present) else 1
 
 
 @_jit
@@ -1108,7 +1111,10 @@ def forward_kernel(tt, obs, present, r_m, org, fyaw, cnt, spread, r2, fit_ok, pa
     for k in range(n):
         if running:
             dt = tt[k] - tt[k - 1]
-            hold = _hold(x, P, k, present, obs, fyaw, cnt, spread, par)
+            hc = _hold_test(x, P, k, present, fyaw, cnt, spread, par)   # the standstill hold
+            hold = hc == 1 or (hc == 2 and not _moved(k, present, obs, par))
+            if hold:
+                _hold_state(x, P)
             qy_k = _bound_yaw_rate(x, P, dt, par, 0.0 if hold else par[I_QY] * dt_med / dt)
             _predict(x, P, dt, par[I_QA] * dt / dt_med, qy_k, horner, cw, xp, Pp, FP, F)
             if _anyrow(present, k):
@@ -1339,8 +1345,10 @@ def relinearised_kernel(tt, obs, present, r_m, fyaw, cnt, spread, par, horner, c
             for j in range(NX):
                 P[i, j], Ph[i, j] = PP[k - 1, i, j], P0[k - 1, i, j]
         dt = tt[k] - tt[k - 1]
-        hold = _hold(xh, Ph, k, present, obs, fyaw, cnt, spread,
-                     par)                         # the first pass's decision (reference)
+        hc = _hold_test(xh, Ph, k, present, fyaw, cnt, spread, par)   # the standstill hold:
+        hold = hc == 1 or (hc == 2 and not _moved(k, present, obs, par))  # the first pass's
+        if hold:                                                     # decision (reference)
+            _hold_state(xh, Ph)
         if hold and _moving_off(k, present, obs, X0[k - 1, YAW], P0[k - 1, YAW, YAW], par):
             hold = False
         if hold:
