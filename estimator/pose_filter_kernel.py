@@ -1070,6 +1070,19 @@ def _stack(xp, Pp, FP, x, P, y, Y):
             Y[NX + i, NX + j] = P[i, j]
 
 
+@_jit
+def _take(ys, Ys, x, P, XC, PC, PX_, k):
+    """The epoch's stacked result ys (12,), Ys (12, 12) into the state x, P and the clone
+    rows XC[k], PC[k], PX_[k]."""
+    for i in range(NX):
+        x[i] = ys[i]
+        XC[k, i] = ys[NX + i]
+        for j in range(NX):
+            P[i, j] = Ys[i, j]
+            PC[k, i, j] = Ys[NX + i, NX + j]
+            PX_[k, i, j] = Ys[i, NX + j]
+
+
 @numba.njit(cache=True, nogil=True)
 def forward_kernel(tt, obs, present, r_m, org, fyaw, cnt, spread, r2, fit_ok, par, thr_table,
                    horner, cw, X, PP, XC, PC, PX_, seg, status, n_used, n_gated, n_steps,
@@ -1111,11 +1124,18 @@ def forward_kernel(tt, obs, present, r_m, org, fyaw, cnt, spread, r2, fit_ok, pa
     for k in range(n):
         if running:
             dt = tt[k] - tt[k - 1]
-            hc = _hold_test(x, P, k, present, fyaw, cnt, spread, par)   # the standstill hold
-            hold = hc == 1 or (hc == 2 and not _moved(k, present, obs, par))
+            # the standstill hold; the arguments below are plain variables: an expression
+            # with a branch in a call costs reference counting of the call's arrays
+            hc = _hold_test(x, P, k, present, fyaw, cnt, spread, par)
+            hold = hc == 1
+            if hc == 2:
+                hold = not _moved(k, present, obs, par)
+            qy_in = 0.0
             if hold:
                 _hold_state(x, P)
-            qy_k = _bound_yaw_rate(x, P, dt, par, 0.0 if hold else par[I_QY] * dt_med / dt)
+            else:
+                qy_in = par[I_QY] * dt_med / dt
+            qy_k = _bound_yaw_rate(x, P, dt, par, qy_in)
             _predict(x, P, dt, par[I_QA] * dt / dt_med, qy_k, horner, cw, xp, Pp, FP, F)
             if _anyrow(present, k):
                 spr = _pmax(Pp[PX, PX], Pp[PY, PY]) + par[I_LEVER] * par[I_LEVER] * Pp[YAW, YAW]
@@ -1140,7 +1160,9 @@ def forward_kernel(tt, obs, present, r_m, org, fyaw, cnt, spread, r2, fit_ok, pa
             counters[0] = counters[1] = 0
             continue
         _stack(xp, Pp, FP, x, P, y, Y)
-        ys, Ys = y, Y                 # the epoch's result: the prior, or y1, Y1 when updated
+        # the epoch's result: the prior y, Y, or y1, Y1 when updated (a flag, not a rebound
+        # array name: that would cost reference counting every epoch)
+        upd = False
         st = S_PREDICTED
         nf, nd = _measurements(k, present, obs, r_m, va, vs, rr, z, var, ik, js, pos)
         if nf:
@@ -1172,16 +1194,13 @@ def forward_kernel(tt, obs, present, r_m, org, fyaw, cnt, spread, r2, fit_ok, pa
                 status[k] = S_WAITING
                 continue
             if _count(acc, 0, nf + nd):
-                ys, Ys, st = y1, Y1, S_OK
-                ys[YAW] = _wrap(ys[YAW])
-                ys[NX + YAW] = _wrap(ys[NX + YAW])
-        for i in range(NX):
-            x[i] = ys[i]
-            XC[k, i] = ys[NX + i]
-            for j in range(NX):
-                P[i, j] = Ys[i, j]
-                PC[k, i, j] = Ys[NX + i, NX + j]
-                PX_[k, i, j] = Ys[i, NX + j]
+                upd, st = True, S_OK
+                y1[YAW] = _wrap(y1[YAW])
+                y1[NX + YAW] = _wrap(y1[NX + YAW])
+        if upd:
+            _take(y1, Y1, x, P, XC, PC, PX_, k)
+        else:
+            _take(y, Y, x, P, XC, PC, PX_, k)
         bad, want, head, count = _monitor(buf, head, count, k, nis[k], nis_dof[k], x, P,
                                           n_gated[k], counters, thr_table, par, fyaw, cnt,
                                           spread)
@@ -1196,8 +1215,12 @@ def forward_kernel(tt, obs, present, r_m, org, fyaw, cnt, spread, r2, fit_ok, pa
         if bad and st == S_OK:
             st = S_INCONS
         if nf:
-            flipped, back, llr = _direction(x, P, ys, k, ik, nf, acc, obs, r_m, dt, par, back,
-                                            llr)
+            if upd:
+                flipped, back, llr = _direction(x, P, y1, k, ik, nf, acc, obs, r_m, dt, par,
+                                                back, llr)
+            else:
+                flipped, back, llr = _direction(x, P, y, k, ik, nf, acc, obs, r_m, dt, par,
+                                                back, llr)
             if flipped:
                 st = S_FLIP
         if not (P[YAW, YAW] <= lost_var and _finite(x, P)):
