@@ -364,17 +364,25 @@ def _hdot(H, r, d):
 
 @_jit
 def _block(H, Yc, i):
-    """The 2 x 2 block H_i Yc H_i^T (a, b, c) of measurement i (Yc over :data:`COLS`)."""
+    """The 2 x 2 block H_i Yc H_i^T (a, b, c) of measurement i (Yc over :data:`COLS`).
+    Columns where both of the measurement's rows are zero are skipped, as rows p are: their
+    terms are zeros, and adding a zero to a sum begun at 0.0 leaves every bit of it (finite
+    Yc); the chains of dependent additions, which bound this loop, shrink from 36 terms to
+    the 4 (a fix) to 16 (a displacement) that are not zero."""
     a = b = c = 0.0
+    r0, r1 = 2 * i, 2 * i + 1
     for p in range(NC):
-        h0, h1 = H[2 * i, p], H[2 * i + 1, p]
+        h0, h1 = H[r0, p], H[r1, p]
         if h0 == 0.0 and h1 == 0.0:
             continue
         for q in range(NC):
+            g0, g1 = H[r0, q], H[r1, q]
+            if g0 == 0.0 and g1 == 0.0:
+                continue
             yq = Yc[p, q]
-            a += h0 * yq * H[2 * i, q]
-            b += h0 * yq * H[2 * i + 1, q]
-            c += h1 * yq * H[2 * i + 1, q]
+            a += h0 * yq * g0
+            b += h0 * yq * g1
+            c += h1 * yq * g1
     return a, b, c
 
 
@@ -591,14 +599,27 @@ def _cov_full(Y, Z, Pa):
 
 
 @_jit
+def _sym_cc(Pc, Yc):
+    """Yc (6, 6) = the symmetrised Pc, as :func:`_cov_full` symmetrises P+ (the mean of the
+    two unsymmetrised entries; the diagonal ``0.5 (p + p)``): P+ over the measured columns
+    without forming all of it."""
+    for a in range(NC):
+        for b in range(NC):
+            Yc[a, b] = 0.5 * (Pc[a, b] + Pc[b, a])
+
+
+@_jit
 def _kalman_update(y, Y, nu, H, var, gate, acc, gated, want_nis, nfix, pos, nd, cv, k, yo,
-                   Yo, w):
+                   w):
     """Reference ``_kalman_update`` in the state space over the first k measurements: prior
     gate (``gated``: acc from the prior's blocks, else the caller's acc), deleted-residual
     test, joint update; the joint noise of :func:`_rinv` (nfix, pos, nd, cv); w the work
-    arrays (:func:`_work`). Returns (nis (NaN unless want_nis), ok); the posterior goes to
-    yo (12,), Yo (12, 12) (not y, Y) when ok and any measurement is accepted (else the
-    reference's posterior is the prior y, Y, and yo, Yo are untouched)."""
+    arrays (:func:`_work`). Returns (nis (NaN unless want_nis), ok, pc): when ok and any
+    measurement is accepted the posterior state goes to yo (12,) (not y) and its covariance
+    is left as Z (``w[8]``, :func:`_posterior`) for the caller to form (:func:`_cov_full`,
+    only for the iteration it keeps); pc: the work array Pc (``w[11]``) holds that
+    covariance's measured block before symmetrising (:func:`_cov_cc`, the deletion test's).
+    Otherwise the reference's posterior is the prior y, Y and yo is untouched."""
     Z, Yg, dx, Pc, ones = w[8], w[9], w[10], w[11], w[13]
     nis = math.nan
     finite_gate = gate != math.inf
@@ -606,7 +627,7 @@ def _kalman_update(y, Y, nu, H, var, gate, acc, gated, want_nis, nfix, pos, nd, 
     if want_nis:
         byb, ok, nrn = _posterior(Y, H, nu, var, ones, nfix, pos, nd, cv, k, w)
         if not ok:
-            return nis, False
+            return nis, False, False
         have_all = True
         nis = nrn - byb
     if gated:
@@ -622,19 +643,20 @@ def _kalman_update(y, Y, nu, H, var, gate, acc, gated, want_nis, nfix, pos, nd, 
         if not (have_all and _count(acc, 0, k) == k):   # else: the NIS pass's update
             _, ok, _ = _posterior(Y, H, nu, var, acc, nfix, pos, nd, cv, k, w)
             if not ok:
-                return nis, False
+                return nis, False, False
         _step(Y, Z, dx)
+        pc = False
         if deletions and _count(acc, 0, k) >= 2:
             _cov_cc(Y, Z, Pc)
+            pc = True
             worst, wstat = _worst(Pc, dx, H, nu, var, acc, nfix, pos, nd, cv, k, w)
             if wstat > gate:
                 acc[worst] = False
                 deletions -= 1
                 continue
         _axpy(1.0, dx, y, yo)
-        _cov_full(Y, Z, Yo)
-        return nis, True
-    return nis, True
+        return nis, True, pc
+    return nis, True, False
 
 
 @_jit
@@ -669,6 +691,8 @@ def _iterated_update(y, Y, z, rr, nfix, var, gate, lever, tol, maxit, hold, pos,
     result); pos, nd, cv: the joint noise (:func:`_rinv`); w the work arrays
     (:func:`_work`)."""
     yl, h, H, nu, d, dd, Y1c = w[14], w[15], w[16], w[17], w[18], w[19], w[20]
+    Z, Pc = w[8], w[11]
+    pc = False
     _copy(y, yl)
     for i in range(k):
         acc[i] = False
@@ -684,7 +708,11 @@ def _iterated_update(y, Y, z, rr, nfix, var, gate, lever, tol, maxit, hold, pos,
         if it > 0:
             _axpy(-1.0, yl, y, d)
             _axpy(-1.0, y, y1, dd)
-            _subc(Y1, Y1c)
+            # the previous iteration's posterior covariance over the measured columns, as
+            # _cov_full would leave it there (from Z, still the previous update's)
+            if not pc:
+                _cov_cc(Y, Z, Pc)
+            _sym_cc(Pc, Y1c)
             for i in range(k):
                 nu[i, 0] -= _hdot(H, 2 * i, d)
                 nu[i, 1] -= _hdot(H, 2 * i + 1, d)
@@ -695,8 +723,8 @@ def _iterated_update(y, Y, z, rr, nfix, var, gate, lever, tol, maxit, hold, pos,
                 ey = nu[i, 1] - _hdot(H, 2 * i + 1, dd)
                 if _quad(a + var[i], b, c + var[i], ex, ey) <= gate:
                     acc[i] = True
-        nis_i, ok = _kalman_update(y, Y, nu, H, var, gate, acc, it == 0, it == 0, nfix, pos,
-                                   nd, cv, k, y1, Y1, w)
+        nis_i, ok, pc = _kalman_update(y, Y, nu, H, var, gate, acc, it == 0, it == 0, nfix,
+                                       pos, nd, cv, k, y1, w)
         if it == 0:
             nis = nis_i
         if not ok:
@@ -709,6 +737,8 @@ def _iterated_update(y, Y, z, rr, nfix, var, gate, lever, tol, maxit, hold, pos,
         if 0.5 * turn * turn * lever < tol:
             break
         _copy(y1, yl)
+    if _count(acc, 0, k):
+        _cov_full(Y, Z, Y1)      # the kept iteration's covariance (Z: its update)
     return nis, True
 
 
