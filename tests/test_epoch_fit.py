@@ -44,7 +44,7 @@ def _bits(a: np.ndarray) -> np.ndarray:
     return b.view(np.int64)
 
 
-@pytest.mark.parametrize("m", [1, 2, 3, 4, 5, 7, 8, 9, 12, 16])
+@pytest.mark.parametrize("m", [1, 2, 3, 4, 5, 7, 8, 9, 12, 16, 17, 25, 64, 65])
 @pytest.mark.parametrize("n", [0, 1, 3, 50, 1500])
 def test_bit_identical_to_the_array_expressions(n, m):
     """Random layouts and fixes (a third absent), values from a small set (exact zeros of
