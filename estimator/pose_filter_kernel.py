@@ -495,6 +495,28 @@ def _rinv(H, v, var, acc, nfix, pos, nd, cv, k, G, g, rd):
 
 
 @_jit
+def _rinv_vec(v, var, acc, nfix, pos, nd, cv, k, g):
+    """g = R^-1 v (k, 2) alone, the operations of :func:`_rinv`'s g (each row
+    ``wi v_i + wo v_o``, a lone measurement's with wo = 0.0), for a G = R^-1 H already
+    formed for the same accepted set."""
+    _zero(g, k, 2)
+    for i in range(k):
+        if acc[i]:
+            wi = 1.0 / var[i]
+            for a in range(2):
+                g[i, a] = wi * v[i, a] + 0.0 * v[i, a]
+    for j in range(nd):
+        f, d = pos[j], nfix + j
+        if acc[f] and acc[d]:
+            det = var[f] * var[d] - cv * cv
+            wf, wd, wo = var[d] / det, var[f] / det, -cv / det
+            for a in range(2):
+                g[f, a] = wf * v[f, a] + wo * v[d, a]
+            for a in range(2):
+                g[d, a] = wd * v[d, a] + wo * v[f, a]
+
+
+@_jit
 def _posterior(Y, H, nu, var, acc, nfix, pos, nd, cv, k, w):
     """The joint update over the accepted measurements of the first k in the measured
     columns (module docstring), solved: with ``N = H^T R^-1 H``, ``b = H^T R^-1 nu``
@@ -690,13 +712,15 @@ def _worst(Pc, dx, H, nu, var, acc, nfix, pos, nd, cv, k, w):
     """The deleted-residual test (reference test 2) over the first k measurements: the
     accepted measurement with the largest ``u_i^T ((S^-1)_ii)^-1 u_i``, with
     ``u = S^-1 nu = R^-1 (nu - H dx)`` and ``(S^-1)_ii = (R^-1)_ii - G_i P+ G_i^T``,
-    ``G = R^-1 H`` (:func:`_rinv`, into the work arrays w; Pc: P+ over the measured
-    columns); returns (index, statistic)."""
+    ``G = R^-1 H`` (Pc: P+ over the measured columns); returns (index, statistic). G and
+    rd, the diagonal of R^-1, are the work arrays' (``w[0]``, ``w[2]``) as the update's
+    :func:`_posterior` left them for the same accepted set (:func:`_kalman_update` calls
+    this right after it); u is :func:`_rinv_vec`'s."""
     G, u, rd, res = w[0], w[1], w[2], w[12]
     for i in range(k):
         res[i, 0] = nu[i, 0] - _hdot(H, 2 * i, dx)
         res[i, 1] = nu[i, 1] - _hdot(H, 2 * i + 1, dx)
-    _rinv(H, res, var, acc, nfix, pos, nd, cv, k, G, u, rd)
+    _rinv_vec(res, var, acc, nfix, pos, nd, cv, k, u)
     worst, wstat = -1, -math.inf
     for i in range(k):
         if not acc[i]:
