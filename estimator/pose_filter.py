@@ -1023,8 +1023,10 @@ class FilterStart:
             w = pr.astype(float)
             with np.errstate(invalid="ignore", divide="ignore"):
                 rbar = (w @ self.r) / w.sum(1)[:, None]
-            d = self.r[None] - rbar[:, None]
-            self._spread = ((d * d).sum(-1) * w).sum(1)
+            # |r_i - rbar|^2 as d_x^2 + d_y^2 (the bits of (d * d).sum(-1), whose 0.0 + d_x^2
+            # cannot differ: a square is never -0.0), without the slow length-2 reduction
+            dx, dy = self.r[:, 0] - rbar[:, :1], self.r[:, 1] - rbar[:, 1:]
+            self._spread = ((dx * dx + dy * dy) * w).sum(1)
         sp = self._spread[k]
         return float(self.yaw[k]), (self.sigma_abs / math.sqrt(sp) if sp > 0 else math.inf)
 
@@ -1902,7 +1904,16 @@ def _run_kernel(tt: np.ndarray, obs: np.ndarray, present: np.ndarray, r_m: np.nd
                         thr,
                         _HORNER_ARRAY, _CW, X, PP, XC, PC, PX_, seg, code, n_used, n_gated,
                         n_steps, nis, nis_dof)
-    return np.asarray(STATUSES, dtype=object)[code]
+    return _status_strings(code)
+
+
+def _status_strings(code: np.ndarray) -> np.ndarray:
+    """The status codes (n,) as strings: the array ``np.asarray(STATUSES, dtype=object)[code]
+    .astype(str)`` (dtype as wide as the longest status present, at least 1), without n
+    Python objects."""
+    used = np.flatnonzero(np.bincount(code, minlength=len(STATUSES)))
+    width = max([1] + [len(STATUSES[c]) for c in used])
+    return np.asarray(STATUSES).astype(f"<U{width}")[code]
 
 
 def _result(out: tuple, status: np.ndarray, delta: float, params: PoseFilterParams,
@@ -1914,7 +1925,7 @@ def _result(out: tuple, status: np.ndarray, delta: float, params: PoseFilterPara
         S_[:, YAW] = _wrap_array(S_[:, YAW] - delta)
     return PoseFilterResult(states=X, covariances=PP, prev_states=XC, prev_covariances=PC,
                             cross_covariances=PX_, segment_start=seg,
-                            status=status.astype(str), n_used=n_used, n_gated=n_gated,
+                            status=status.astype(str, copy=False), n_used=n_used, n_gated=n_gated,
                             n_steps=n_steps, sigma_abs_m=float(params._limit("sigma_abs_m")),
                             sigma_step_m=float(params._limit("sigma_step_m")), cg_offset=cg_offset,
                             nis=nis, nis_dof=nis_dof, params=params)

@@ -242,31 +242,28 @@ def _add_noise(Pn, c, s, v, dt, qa, qy, cw):
 
 @_jit
 def _matmul(Aa, Bb, out):
-    """out = Aa @ Bb for small dense matrices (plain loops: no BLAS call overhead; out
-    (n, m), not Aa or Bb)."""
-    n, k = Aa.shape
-    m = Bb.shape[1]
-    _zero(out, n, m)
-    for i in range(n):
-        for p in range(k):
+    """out = Aa @ Bb for 6 x 6 matrices (plain loops of constant length, which the compiler
+    unrolls: no BLAS call overhead; out not Aa or Bb)."""
+    _zero(out, NX, NX)
+    for i in range(NX):
+        for p in range(NX):
             a = Aa[i, p]
             if a != 0.0:
-                for j in range(m):
+                for j in range(NX):
                     out[i, j] += a * Bb[p, j]
 
 
 @_jit
 def _matmul_bt(Aa, Bb, out):
-    """out = Aa @ Bb.T (the same sums in the same order as :func:`_matmul` of Aa and a
-    transposed copy of Bb, without the copy; out not Aa or Bb)."""
-    n, k = Aa.shape
-    m = Bb.shape[0]
-    _zero(out, n, m)
-    for i in range(n):
-        for p in range(k):
+    """out = Aa @ Bb.T for 6 x 6 matrices (the same sums in the same order as
+    :func:`_matmul` of Aa and a transposed copy of Bb, without the copy; out not Aa or
+    Bb)."""
+    _zero(out, NX, NX)
+    for i in range(NX):
+        for p in range(NX):
             a = Aa[i, p]
             if a != 0.0:
-                for j in range(m):
+                for j in range(NX):
                     out[i, j] += a * Bb[j, p]
 
 
@@ -342,7 +339,7 @@ def _col(j):
 def _sub(Y, Yr, Yc):
     """Y's rows :data:`COLS` into Yr (6, 12) and their (6, 6) block into Yc."""
     for i in range(NC):
-        for j in range(Y.shape[1]):
+        for j in range(2 * NX):
             Yr[i, j] = Y[_col(i), j]
         for j in range(NC):
             Yc[i, j] = Y[_col(i), _col(j)]
@@ -366,19 +363,53 @@ def _hdot(H, r, d):
 
 
 @_jit
-def _block(H, Yc, i):
-    """The 2 x 2 block H_i Yc H_i^T (a, b, c) of measurement i (Yc over :data:`COLS`)."""
+def _xcol(j, wide):
+    """Column of the j-th possibly non-zero entry of a measurement's x row (:func:`_measure`):
+    a fix's (0, 2), a displacement's (0, 2, 3, 5)."""
+    return j + (j + 1) // 2 if wide else 2 * j
+
+
+@_jit
+def _ycol(j, wide):
+    """Column of the j-th possibly non-zero entry of a measurement's y row: a fix's (1, 2),
+    a displacement's (1, 2, 4, 5)."""
+    return j + 1 + j // 2 if wide else j + 1
+
+
+@_jit
+def _block_n(H, Yc, r0, r1, n, wide):
+    """:func:`_block` over the rows' first n possibly non-zero columns."""
     a = b = c = 0.0
-    for p in range(NC):
-        h0, h1 = H[2 * i, p], H[2 * i + 1, p]
-        if h0 == 0.0 and h1 == 0.0:
-            continue
-        for q in range(NC):
-            yq = Yc[p, q]
-            a += h0 * yq * H[2 * i, q]
-            b += h0 * yq * H[2 * i + 1, q]
-            c += h1 * yq * H[2 * i + 1, q]
+    for jp in range(n):
+        p = _xcol(jp, wide)
+        h0 = H[r0, p]
+        for jq in range(n):
+            q = _xcol(jq, wide)
+            a += h0 * Yc[p, q] * H[r0, q]
+        for jq in range(n):
+            q = _ycol(jq, wide)
+            b += h0 * Yc[p, q] * H[r1, q]
+    for jp in range(n):
+        p = _ycol(jp, wide)
+        h1 = H[r1, p]
+        for jq in range(n):
+            q = _ycol(jq, wide)
+            c += h1 * Yc[p, q] * H[r1, q]
     return a, b, c
+
+
+@_jit
+def _block(H, Yc, i, wide):
+    """The 2 x 2 block H_i Yc H_i^T (a, b, c) of measurement i (Yc over :data:`COLS`): a
+    fix's (``wide`` False) or a displacement's (True; also any row of ``G = R^-1 H``, a fix's
+    mixed with its displacement's) Jacobian rows, zero outside the columns of :func:`_xcol`
+    and :func:`_ycol`. Each sum takes its terms in the order of the full double loop over
+    (p, q) and leaves out only the terms that are zero by that structure: adding a zero to a
+    sum begun at 0.0 changes no bit (finite Yc), and the chains of dependent additions,
+    which bound this loop, shrink from 36 terms to 4 (a fix) or 16 (a displacement)."""
+    if wide:
+        return _block_n(H, Yc, 2 * i, 2 * i + 1, 4, True)
+    return _block_n(H, Yc, 2 * i, 2 * i + 1, 2, False)
 
 
 @_jit
@@ -390,9 +421,12 @@ def _quad(a, b, c, ex, ey):
 @_jit
 def _solve_inplace(Mm, B):
     """Solve Mm X = B (n, n), (n, r) in place by Gaussian elimination with partial pivoting;
-    B receives X. False on a zero or non-finite pivot (the reference's LinAlgError)."""
-    n = Mm.shape[0]
-    r = B.shape[1]
+    B receives X. False on a zero or non-finite pivot (the reference's LinAlgError). Sizes
+    NC x NC and NC x (2 NX + 1) (:func:`_posterior`'s), constants the compiler unrolls; the
+    back substitution subtracts row by row, each element's terms in the order of the dot
+    product ``B[col] - sum_p Mm[col, p] B[p]`` (the same bits)."""
+    n = NC
+    r = 2 * NX + 1
     for col in range(n):
         piv = col
         best = abs(Mm[col, col])
@@ -417,11 +451,12 @@ def _solve_inplace(Mm, B):
                     B[i, j] -= f * B[col, j]
     for col in range(n - 1, -1, -1):
         d = Mm[col, col]
+        for p in range(col + 1, n):
+            mp = Mm[col, p]
+            for j in range(r):
+                B[col, j] -= mp * B[p, j]
         for j in range(r):
-            s = B[col, j]
-            for p in range(col + 1, n):
-                s -= Mm[col, p] * B[p, j]
-            B[col, j] = s / d
+            B[col, j] = B[col, j] / d
     return True
 
 
@@ -460,6 +495,28 @@ def _rinv(H, v, var, acc, nfix, pos, nd, cv, k, G, g, rd):
 
 
 @_jit
+def _rinv_vec(v, var, acc, nfix, pos, nd, cv, k, g):
+    """g = R^-1 v (k, 2) alone, the operations of :func:`_rinv`'s g (each row
+    ``wi v_i + wo v_o``, a lone measurement's with wo = 0.0), for a G = R^-1 H already
+    formed for the same accepted set."""
+    _zero(g, k, 2)
+    for i in range(k):
+        if acc[i]:
+            wi = 1.0 / var[i]
+            for a in range(2):
+                g[i, a] = wi * v[i, a] + 0.0 * v[i, a]
+    for j in range(nd):
+        f, d = pos[j], nfix + j
+        if acc[f] and acc[d]:
+            det = var[f] * var[d] - cv * cv
+            wf, wd, wo = var[d] / det, var[f] / det, -cv / det
+            for a in range(2):
+                g[f, a] = wf * v[f, a] + wo * v[d, a]
+            for a in range(2):
+                g[d, a] = wd * v[d, a] + wo * v[f, a]
+
+
+@_jit
 def _posterior(Y, H, nu, var, acc, nfix, pos, nd, cv, k, w):
     """The joint update over the accepted measurements of the first k in the measured
     columns (module docstring), solved: with ``N = H^T R^-1 H``, ``b = H^T R^-1 nu``
@@ -469,8 +526,8 @@ def _posterior(Y, H, nu, var, acc, nfix, pos, nd, cv, k, w):
     P+ = Y - Y_:c Z[:, :12] (:func:`_cov_full`, :func:`_cov_cc`), the step dx = Y_:c
     Z[:, 12] (:func:`_step`)."""
     G, g, rd, N, b, Yr, Yc, Mm, Z = w[0], w[1], w[2], w[3], w[4], w[5], w[6], w[7], w[8]
-    n = Y.shape[0]
-    nc = H.shape[1]
+    n = 2 * NX
+    nc = NC
     _rinv(H, nu, var, acc, nfix, pos, nd, cv, k, G, g, rd)
     _zero(N, nc, nc)
     for p in range(nc):
@@ -494,11 +551,14 @@ def _posterior(Y, H, nu, var, acc, nfix, pos, nd, cv, k, w):
     _matmul(N, Yc, Mm)
     for p in range(nc):
         Mm[p, p] += 1.0
+        # Z[p, :n] = N[p] Yr: each element's sum 0.0 + N[p, 0] Yr[0, j] + ... in order,
+        # accumulated row by row (independent elements: the compiler vectorises)
         for j in range(n):
-            s = 0.0
-            for q in range(nc):
-                s += N[p, q] * Yr[q, j]
-            Z[p, j] = s
+            Z[p, j] = 0.0
+        for q in range(nc):
+            npq = N[p, q]
+            for j in range(n):
+                Z[p, j] += npq * Yr[q, j]
         Z[p, n] = b[p]
     ok = _solve_inplace(Mm, Z)
     byb = 0.0
@@ -544,7 +604,7 @@ def _pass_buffers(m):
 @_jit
 def _step(Y, Z, dx):
     """dx (12,) = Y_:c Z[:, -1]: the update's step of the stacked state."""
-    n = Y.shape[0]
+    n = 2 * NX
     for i in range(n):
         dx[i] = 0.0
     for i in range(n):
@@ -570,7 +630,7 @@ def _cov_cc(Y, Z, Pc):
 @_jit
 def _cov_full(Y, Z, Pa):
     """P+ = Y - Y_:c Z[:, :12] into Pa (12, 12, not Y), symmetrised."""
-    n = Y.shape[0]
+    n = 2 * NX
     _copy2(Y, Pa)
     for i in range(n):
         for p in range(NC):
@@ -587,14 +647,27 @@ def _cov_full(Y, Z, Pa):
 
 
 @_jit
+def _sym_cc(Pc, Yc):
+    """Yc (6, 6) = the symmetrised Pc, as :func:`_cov_full` symmetrises P+ (the mean of the
+    two unsymmetrised entries; the diagonal ``0.5 (p + p)``): P+ over the measured columns
+    without forming all of it."""
+    for a in range(NC):
+        for b in range(NC):
+            Yc[a, b] = 0.5 * (Pc[a, b] + Pc[b, a])
+
+
+@_jit
 def _kalman_update(y, Y, nu, H, var, gate, acc, gated, want_nis, nfix, pos, nd, cv, k, yo,
-                   Yo, w):
+                   w):
     """Reference ``_kalman_update`` in the state space over the first k measurements: prior
     gate (``gated``: acc from the prior's blocks, else the caller's acc), deleted-residual
     test, joint update; the joint noise of :func:`_rinv` (nfix, pos, nd, cv); w the work
-    arrays (:func:`_work`). Returns (nis (NaN unless want_nis), ok); the posterior goes to
-    yo (12,), Yo (12, 12) (not y, Y) when ok and any measurement is accepted (else the
-    reference's posterior is the prior y, Y, and yo, Yo are untouched)."""
+    arrays (:func:`_work`). Returns (nis (NaN unless want_nis), ok, pc): when ok and any
+    measurement is accepted the posterior state goes to yo (12,) (not y) and its covariance
+    is left as Z (``w[8]``, :func:`_posterior`) for the caller to form (:func:`_cov_full`,
+    only for the iteration it keeps); pc: the work array Pc (``w[11]``) holds that
+    covariance's measured block before symmetrising (:func:`_cov_cc`, the deletion test's).
+    Otherwise the reference's posterior is the prior y, Y and yo is untouched."""
     Z, Yg, dx, Pc, ones = w[8], w[9], w[10], w[11], w[13]
     nis = math.nan
     finite_gate = gate != math.inf
@@ -602,14 +675,14 @@ def _kalman_update(y, Y, nu, H, var, gate, acc, gated, want_nis, nfix, pos, nd, 
     if want_nis:
         byb, ok, nrn = _posterior(Y, H, nu, var, ones, nfix, pos, nd, cv, k, w)
         if not ok:
-            return nis, False
+            return nis, False, False
         have_all = True
         nis = nrn - byb
     if gated:
         _subc(Y, Yg)
         for i in range(k):
             if finite_gate:
-                a, bb, c = _block(H, Yg, i)
+                a, bb, c = _block(H, Yg, i, i >= nfix)
                 acc[i] = _quad(a + var[i], bb, c + var[i], nu[i, 0], nu[i, 1]) <= gate
             else:
                 acc[i] = True
@@ -618,19 +691,20 @@ def _kalman_update(y, Y, nu, H, var, gate, acc, gated, want_nis, nfix, pos, nd, 
         if not (have_all and _count(acc, 0, k) == k):   # else: the NIS pass's update
             _, ok, _ = _posterior(Y, H, nu, var, acc, nfix, pos, nd, cv, k, w)
             if not ok:
-                return nis, False
+                return nis, False, False
         _step(Y, Z, dx)
+        pc = False
         if deletions and _count(acc, 0, k) >= 2:
             _cov_cc(Y, Z, Pc)
+            pc = True
             worst, wstat = _worst(Pc, dx, H, nu, var, acc, nfix, pos, nd, cv, k, w)
             if wstat > gate:
                 acc[worst] = False
                 deletions -= 1
                 continue
         _axpy(1.0, dx, y, yo)
-        _cov_full(Y, Z, Yo)
-        return nis, True
-    return nis, True
+        return nis, True, pc
+    return nis, True, False
 
 
 @_jit
@@ -638,18 +712,20 @@ def _worst(Pc, dx, H, nu, var, acc, nfix, pos, nd, cv, k, w):
     """The deleted-residual test (reference test 2) over the first k measurements: the
     accepted measurement with the largest ``u_i^T ((S^-1)_ii)^-1 u_i``, with
     ``u = S^-1 nu = R^-1 (nu - H dx)`` and ``(S^-1)_ii = (R^-1)_ii - G_i P+ G_i^T``,
-    ``G = R^-1 H`` (:func:`_rinv`, into the work arrays w; Pc: P+ over the measured
-    columns); returns (index, statistic)."""
+    ``G = R^-1 H`` (Pc: P+ over the measured columns); returns (index, statistic). G and
+    rd, the diagonal of R^-1, are the work arrays' (``w[0]``, ``w[2]``) as the update's
+    :func:`_posterior` left them for the same accepted set (:func:`_kalman_update` calls
+    this right after it); u is :func:`_rinv_vec`'s."""
     G, u, rd, res = w[0], w[1], w[2], w[12]
     for i in range(k):
         res[i, 0] = nu[i, 0] - _hdot(H, 2 * i, dx)
         res[i, 1] = nu[i, 1] - _hdot(H, 2 * i + 1, dx)
-    _rinv(H, res, var, acc, nfix, pos, nd, cv, k, G, u, rd)
+    _rinv_vec(res, var, acc, nfix, pos, nd, cv, k, u)
     worst, wstat = -1, -math.inf
     for i in range(k):
         if not acc[i]:
             continue
-        a, bb, c = _block(G, Pc, i)
+        a, bb, c = _block(G, Pc, i, True)
         st = _quad(rd[i] - a, -bb, rd[i] - c, u[i, 0], u[i, 1])
         if st > wstat:
             worst, wstat = i, st
@@ -665,6 +741,8 @@ def _iterated_update(y, Y, z, rr, nfix, var, gate, lever, tol, maxit, hold, pos,
     result); pos, nd, cv: the joint noise (:func:`_rinv`); w the work arrays
     (:func:`_work`)."""
     yl, h, H, nu, d, dd, Y1c = w[14], w[15], w[16], w[17], w[18], w[19], w[20]
+    Z, Pc = w[8], w[11]
+    pc = False
     _copy(y, yl)
     for i in range(k):
         acc[i] = False
@@ -680,19 +758,23 @@ def _iterated_update(y, Y, z, rr, nfix, var, gate, lever, tol, maxit, hold, pos,
         if it > 0:
             _axpy(-1.0, yl, y, d)
             _axpy(-1.0, y, y1, dd)
-            _subc(Y1, Y1c)
+            # the previous iteration's posterior covariance over the measured columns, as
+            # _cov_full would leave it there (from Z, still the previous update's)
+            if not pc:
+                _cov_cc(Y, Z, Pc)
+            _sym_cc(Pc, Y1c)
             for i in range(k):
                 nu[i, 0] -= _hdot(H, 2 * i, d)
                 nu[i, 1] -= _hdot(H, 2 * i + 1, d)
                 if acc[i]:
                     continue
-                a, b, c = _block(H, Y1c, i)
+                a, b, c = _block(H, Y1c, i, i >= nfix)
                 ex = nu[i, 0] - _hdot(H, 2 * i, dd)
                 ey = nu[i, 1] - _hdot(H, 2 * i + 1, dd)
                 if _quad(a + var[i], b, c + var[i], ex, ey) <= gate:
                     acc[i] = True
-        nis_i, ok = _kalman_update(y, Y, nu, H, var, gate, acc, it == 0, it == 0, nfix, pos,
-                                   nd, cv, k, y1, Y1, w)
+        nis_i, ok, pc = _kalman_update(y, Y, nu, H, var, gate, acc, it == 0, it == 0, nfix,
+                                       pos, nd, cv, k, y1, w)
         if it == 0:
             nis = nis_i
         if not ok:
@@ -705,6 +787,8 @@ def _iterated_update(y, Y, z, rr, nfix, var, gate, lever, tol, maxit, hold, pos,
         if 0.5 * turn * turn * lever < tol:
             break
         _copy(y1, yl)
+    if _count(acc, 0, k):
+        _cov_full(Y, Z, Y1)      # the kept iteration's covariance (Z: its update)
     return nis, True
 
 
@@ -924,19 +1008,18 @@ def _moved(k, present, obs, par):
     return np.median(d2[:nb]) > thr * thr
 
 
-@_jit_nrt
-def _hold(x, P, k, present, obs, fyaw, cnt, spread, par):
-    """Reference ``_standstill_hold`` (x, P changed in place when it holds)."""
+@_jit
+def _hold_test(x, P, k, present, fyaw, cnt, spread, par):
+    """Reference ``_standstill_hold``'s tests but the motion test: 0 no hold, 1 hold, 2 hold
+    unless :func:`_moved` (after a gap). Compiled without reference counting (it runs every
+    epoch); the allocating :func:`_moved` is left to the caller (the kernels' loops)."""
     if not _anyrow(present, k):
-        return False
+        return 0
     if not x[V] <= par[I_STAND_SIGMAS] * math.sqrt(_pmax(P[V, V], 0.0)):
-        return False
+        return 0
     if _fit_heading(k, fyaw, cnt, spread, par[I_SA])[1] <= par[I_FIT_SD]:
-        return False
-    if _after_gap(k, present) and _moved(k, present, obs, par):
-        return False
-    _hold_state(x, P)
-    return True
+        return 0
+    return 2 if _after_gap(k, present) else 1
 
 
 @_jit
@@ -1098,6 +1181,19 @@ def _stack(xp, Pp, FP, x, P, y, Y):
             Y[NX + i, NX + j] = P[i, j]
 
 
+@_jit
+def _take(ys, Ys, x, P, XC, PC, PX_, k):
+    """The epoch's stacked result ys (12,), Ys (12, 12) into the state x, P and the clone
+    rows XC[k], PC[k], PX_[k]."""
+    for i in range(NX):
+        x[i] = ys[i]
+        XC[k, i] = ys[NX + i]
+        for j in range(NX):
+            P[i, j] = Ys[i, j]
+            PC[k, i, j] = Ys[NX + i, NX + j]
+            PX_[k, i, j] = Ys[i, NX + j]
+
+
 @numba.njit(cache=True, nogil=True)
 def forward_kernel(tt, obs, present, r_m, org, fyaw, cnt, spread, r2, fit_ok, par, thr_table,
                    horner, cw, X, PP, XC, PC, PX_, seg, status, n_used, n_gated, n_steps,
@@ -1140,8 +1236,18 @@ def forward_kernel(tt, obs, present, r_m, org, fyaw, cnt, spread, r2, fit_ok, pa
         if running:
             dt = tt[k] - tt[k - 1]
             _bound_after_standstill_gap(P, PP, k, present, obs, par)
-            hold = _hold(x, P, k, present, obs, fyaw, cnt, spread, par)
-            qy_k = _bound_yaw_rate(x, P, dt, par, 0.0 if hold else par[I_QY] * dt_med / dt)
+            # the standstill hold; the arguments below are plain variables: an expression
+            # with a branch in a call costs reference counting of the call's arrays
+            hc = _hold_test(x, P, k, present, fyaw, cnt, spread, par)
+            hold = hc == 1
+            if hc == 2:
+                hold = not _moved(k, present, obs, par)
+            qy_in = 0.0
+            if hold:
+                _hold_state(x, P)
+            else:
+                qy_in = par[I_QY] * dt_med / dt
+            qy_k = _bound_yaw_rate(x, P, dt, par, qy_in)
             _predict(x, P, dt, par[I_QA] * dt / dt_med, qy_k, horner, cw, xp, Pp, FP, F)
             if _anyrow(present, k):
                 spr = _pmax(Pp[PX, PX], Pp[PY, PY]) + par[I_LEVER] * par[I_LEVER] * Pp[YAW, YAW]
@@ -1166,7 +1272,9 @@ def forward_kernel(tt, obs, present, r_m, org, fyaw, cnt, spread, r2, fit_ok, pa
             counters[0] = counters[1] = 0
             continue
         _stack(xp, Pp, FP, x, P, y, Y)
-        ys, Ys = y, Y                 # the epoch's result: the prior, or y1, Y1 when updated
+        # the epoch's result: the prior y, Y, or y1, Y1 when updated (a flag, not a rebound
+        # array name: that would cost reference counting every epoch)
+        upd = False
         st = S_PREDICTED
         nf, nd = _measurements(k, present, obs, r_m, va, vs, rr, z, var, ik, js, pos)
         if nf:
@@ -1198,16 +1306,13 @@ def forward_kernel(tt, obs, present, r_m, org, fyaw, cnt, spread, r2, fit_ok, pa
                 status[k] = S_WAITING
                 continue
             if _count(acc, 0, nf + nd):
-                ys, Ys, st = y1, Y1, S_OK
-                ys[YAW] = _wrap(ys[YAW])
-                ys[NX + YAW] = _wrap(ys[NX + YAW])
-        for i in range(NX):
-            x[i] = ys[i]
-            XC[k, i] = ys[NX + i]
-            for j in range(NX):
-                P[i, j] = Ys[i, j]
-                PC[k, i, j] = Ys[NX + i, NX + j]
-                PX_[k, i, j] = Ys[i, NX + j]
+                upd, st = True, S_OK
+                y1[YAW] = _wrap(y1[YAW])
+                y1[NX + YAW] = _wrap(y1[NX + YAW])
+        if upd:
+            _take(y1, Y1, x, P, XC, PC, PX_, k)
+        else:
+            _take(y, Y, x, P, XC, PC, PX_, k)
         bad, want, head, count = _monitor(buf, head, count, k, nis[k], nis_dof[k], x, P,
                                           n_gated[k], counters, thr_table, par, fyaw, cnt,
                                           spread)
@@ -1222,8 +1327,12 @@ def forward_kernel(tt, obs, present, r_m, org, fyaw, cnt, spread, r2, fit_ok, pa
         if bad and st == S_OK:
             st = S_INCONS
         if nf:
-            flipped, back, llr = _direction(x, P, ys, k, ik, nf, acc, obs, r_m, dt, par, back,
-                                            llr)
+            if upd:
+                flipped, back, llr = _direction(x, P, y1, k, ik, nf, acc, obs, r_m, dt, par,
+                                                back, llr)
+            else:
+                flipped, back, llr = _direction(x, P, y, k, ik, nf, acc, obs, r_m, dt, par,
+                                                back, llr)
             if flipped:
                 st = S_FLIP
         if not (P[YAW, YAW] <= lost_var and _finite(x, P)):
@@ -1372,8 +1481,10 @@ def relinearised_kernel(tt, obs, present, r_m, fyaw, cnt, spread, par, horner, c
                 P[i, j], Ph[i, j] = PP[k - 1, i, j], P0[k - 1, i, j]
         dt = tt[k] - tt[k - 1]
         _bound_after_standstill_gap(P, PP, k, present, obs, par)
-        hold = _hold(xh, Ph, k, present, obs, fyaw, cnt, spread,
-                     par)                         # the first pass's decision (reference)
+        hc = _hold_test(xh, Ph, k, present, fyaw, cnt, spread, par)   # the standstill hold:
+        hold = hc == 1 or (hc == 2 and not _moved(k, present, obs, par))  # the first pass's
+        if hold:                                                     # decision (reference)
+            _hold_state(xh, Ph)
         if hold and _moving_off(k, present, obs, X0[k - 1, YAW], P0[k - 1, YAW, YAW], par):
             hold = False
         if hold:
