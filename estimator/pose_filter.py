@@ -1224,6 +1224,19 @@ class _Monitor:
         return bad, None
 
 
+def _cap_variance(P: np.ndarray, j: int, bound: float) -> float:
+    """P (6, 6)'s variance j at most ``bound`` by a congruence (row and column j scaled by
+    ``sqrt(bound / P[j, j])``, in place: P stays PSD, the correlations kept); returns the
+    variance after."""
+    var = float(P[j, j])
+    if var > bound:
+        s = math.sqrt(bound / var)
+        P[j, :] *= s
+        P[:, j] *= s
+        var = bound
+    return var
+
+
 def _bound_yaw_rate(x: np.ndarray, P: np.ndarray, dt: float, kappa: float, om_max: float,
                     qy: float) -> float:
     """Keep the yaw rate within the no-slip kinematics over the next step (issue 25): it is
@@ -1243,12 +1256,7 @@ def _bound_yaw_rate(x: np.ndarray, P: np.ndarray, dt: float, kappa: float, om_ma
         return qy
     if x[OMEGA] * x[OMEGA] > b2:
         x[OMEGA] = math.copysign(math.sqrt(b2), x[OMEGA])
-    var = P[OMEGA, OMEGA]
-    if var > b2:
-        s = math.sqrt(b2 / var)
-        P[OMEGA, :] *= s
-        P[:, OMEGA] *= s
-        var = b2
+    var = _cap_variance(P, OMEGA, b2)
     return min(qy, max(b2 - var, 0.0) / (dt * dt))
 
 
@@ -1339,12 +1347,7 @@ def _bound_after_standstill_gap(P: np.ndarray, PP: np.ndarray, starter: FilterSt
     g = _standstill_gap(starter, k) if kappa < math.inf else None
     if g is None:
         return
-    bound = PP[g[0]][YAW, YAW] + (kappa * g[1]) ** 2
-    var = P[YAW, YAW]
-    if var > bound:
-        s = math.sqrt(bound / var)
-        P[YAW, :] *= s
-        P[:, YAW] *= s
+    _cap_variance(P, YAW, PP[g[0]][YAW, YAW] + (kappa * g[1]) ** 2)
 
 
 def _hold_state(x: np.ndarray, P: np.ndarray) -> None:

@@ -957,6 +957,21 @@ def _project(x, par):
 
 
 @_jit
+def _cap_variance(P, j, bound):
+    """Reference ``_cap_variance``: P[j, j] at most ``bound`` (row and column j scaled, in
+    place); returns the variance after."""
+    var = P[j, j]
+    if var > bound:
+        s = math.sqrt(bound / var)
+        for i in range(NX):
+            P[j, i] *= s
+        for i in range(NX):
+            P[i, j] *= s
+        var = bound
+    return var
+
+
+@_jit
 def _bound_yaw_rate(x, P, dt, par, qy):
     """Reference ``_bound_yaw_rate`` (x, P changed in place); returns the yaw-rate noise."""
     kappa, om_max = par[I_KAPPA], par[I_OMMAX]
@@ -966,14 +981,7 @@ def _bound_yaw_rate(x, P, dt, par, qy):
         return qy
     if x[OMEGA] * x[OMEGA] > b2:
         x[OMEGA] = math.copysign(math.sqrt(b2), x[OMEGA])
-    var = P[OMEGA, OMEGA]
-    if var > b2:
-        s = math.sqrt(b2 / var)
-        for i in range(NX):
-            P[OMEGA, i] *= s
-        for i in range(NX):
-            P[i, OMEGA] *= s
-        var = b2
+    var = _cap_variance(P, OMEGA, b2)
     return _pmin(qy, _pmax(b2 - var, 0.0) / (dt * dt))
 
 
@@ -1043,14 +1051,7 @@ def _bound_after_standstill_gap(P, PP, k, present, obs, par):
             dmax = _pmax(dmax, math.sqrt(d0 * d0 + d1 * d1))
     if dmax < 0.0 or not dmax <= thr:
         return
-    bound = PP[j, YAW, YAW] + (kappa * thr) ** 2
-    var = P[YAW, YAW]
-    if var > bound:
-        s = math.sqrt(bound / var)
-        for i in range(NX):
-            P[YAW, i] *= s
-        for i in range(NX):
-            P[i, YAW] *= s
+    _cap_variance(P, YAW, PP[j, YAW, YAW] + (kappa * thr) ** 2)
 
 
 @_jit
