@@ -998,16 +998,26 @@ class FilterStart:
         limit, or when that bound leaves the heading sd above :data:`LOST_YAW_SD`."""
         j, yaw, var = self.memory
         kappa = self.params.max_curvature_1pm
-        both = self.present[k] & self.present[j] if j >= 0 else None
-        if both is None or kappa is None or not both.any():
+        moved = self.travel(j, k) if j >= 0 else None
+        if moved is None or kappa is None:
             return None
-        d = self.obs[k, both] - self.obs[j, both]
-        thr = INIT_MOTION_SIGMAS * self.params._limit("sigma_step_m") * math.sqrt(k - j)
+        thr, dmax = moved
         ysd = math.sqrt(var + (kappa * thr) ** 2)
-        if not (float(np.sqrt((d * d).sum(1)).max()) <= thr and ysd <= LOST_YAW_SD):
+        if not (dmax <= thr and ysd <= LOST_YAW_SD):
             return None
         dt = self.t[k] - self.t[j]
         return yaw, ysd, 0.0, math.hypot(self.params._limit("max_accel_mps2") * dt, thr / dt)
+
+    def travel(self, j: int, k: int) -> tuple[float, float] | None:
+        """(thr, dmax) from epoch j to k: the motion bound ``INIT_MOTION_SIGMAS sigma_step
+        sqrt(k - j)`` (m; the displacement noise growing as a random walk) and the largest
+        move of an antenna present at both (m); None without such an antenna."""
+        both = self.present[k] & self.present[j]
+        if not both.any():
+            return None
+        d = self.obs[k, both] - self.obs[j, both]
+        thr = INIT_MOTION_SIGMAS * self.params._limit("sigma_step_m") * math.sqrt(k - j)
+        return thr, float(np.sqrt((d * d).sum(1)).max())
 
     def reset(self) -> None:
         """Forget the anchor (after a lost track)."""
@@ -1323,14 +1333,10 @@ def _standstill_gap(starter: FilterStart, k: int) -> tuple[int, float] | None:
     j = int(starter.last_fix[k - 1])
     if j < 0:
         return None
-    both = pr[k] & pr[j]
-    if not both.any():
+    moved = starter.travel(j, k)
+    if moved is None or not moved[1] <= moved[0]:
         return None
-    d = starter.obs[k, both] - starter.obs[j, both]
-    thr = INIT_MOTION_SIGMAS * starter.params._limit("sigma_step_m") * math.sqrt(k - j)
-    if not float(np.sqrt((d * d).sum(1)).max()) <= thr:
-        return None
-    return j, thr
+    return j, moved[0]
 
 
 def _bound_after_standstill_gap(P: np.ndarray, PP: np.ndarray, starter: FilterStart, k: int,

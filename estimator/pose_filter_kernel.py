@@ -825,19 +825,28 @@ def _fit_heading(k, fyaw, cnt, spread, sa):
 
 
 @_jit
+def _travel(j, k, present, obs, par):
+    """Reference ``FilterStart.travel``: (thr, dmax), the motion bound
+    INIT_MOTION_SIGMAS sigma_step sqrt(k - j) (m) and the largest move from epoch j to k of
+    an antenna present at both (m; -1 without one)."""
+    thr = par[I_INIT_SIGMAS] * math.sqrt(par[I_VS]) * math.sqrt(k - j)
+    dmax = -1.0
+    for i in range(present.shape[1]):
+        if present[k, i] and present[j, i]:
+            d0, d1 = obs[k, i, 0] - obs[j, i, 0], obs[k, i, 1] - obs[j, i, 1]
+            dmax = _pmax(dmax, math.sqrt(d0 * d0 + d1 * d1))
+    return thr, dmax
+
+
+@_jit
 def _standstill_start(k, mem, tt, obs, present, par):
     """Reference ``FilterStart._standstill_start``: (ok, yaw0, ysd, v0, vsd)."""
     j = int(mem[0])
     kappa = par[I_KAPPA]
     if j < 0 or not kappa < math.inf:
         return False, 0.0, 0.0, 0.0, 0.0
-    thr = par[I_INIT_SIGMAS] * math.sqrt(par[I_VS]) * math.sqrt(k - j)
+    thr, dmax = _travel(j, k, present, obs, par)
     ysd = math.sqrt(mem[2] + (kappa * thr) ** 2)
-    dmax = -1.0
-    for i in range(present.shape[1]):
-        if present[k, i] and present[j, i]:
-            d0, d1 = obs[k, i, 0] - obs[j, i, 0], obs[k, i, 1] - obs[j, i, 1]
-            dmax = _pmax(dmax, math.sqrt(d0 * d0 + d1 * d1))
     if dmax < 0.0 or not (dmax <= thr and ysd <= par[I_LOST_SD]):
         return False, 0.0, 0.0, 0.0, 0.0
     dt = tt[k] - tt[j]
@@ -1043,12 +1052,7 @@ def _bound_after_standstill_gap(P, PP, k, present, obs, par):
         j -= 1
     if j < 0:
         return
-    thr = par[I_INIT_SIGMAS] * math.sqrt(par[I_VS]) * math.sqrt(k - j)
-    dmax = -1.0
-    for i in range(present.shape[1]):
-        if present[k, i] and present[j, i]:
-            d0, d1 = obs[k, i, 0] - obs[j, i, 0], obs[k, i, 1] - obs[j, i, 1]
-            dmax = _pmax(dmax, math.sqrt(d0 * d0 + d1 * d1))
+    thr, dmax = _travel(j, k, present, obs, par)
     if dmax < 0.0 or not dmax <= thr:
         return
     _cap_variance(P, YAW, PP[j, YAW, YAW] + (kappa * thr) ** 2)
