@@ -63,9 +63,28 @@ N_PAR = 31
 #: without the runtime's reference counting (``_nrt=False``, as numba's own array helpers,
 #: numba.misc.mergesort): an array argument costs no atomic incref / decref per call (they
 #: were ~30 % of the forward pass on the car). The callers, which own the arrays, keep
-#: them alive. The few helpers that allocate take :data:`_jit_nrt`.
-_jit = numba.njit(cache=True, nogil=True, no_cpython_wrapper=True, _nrt=False)  # type: ignore[call-overload]
-_jit_nrt = numba.njit(cache=True, nogil=True, no_cpython_wrapper=True)  # type: ignore[call-overload]
+#: them alive. The few helpers that allocate take :data:`_jit_nrt`. ``_nrt`` is a numba
+#: internal (a CPU target option since 0.49, through 0.68 at least): a numba without it gets
+#: the plain options, the same results with reference counting (:func:`jit_options`).
+_JIT_OPTIONS = {"cache": True, "nogil": True, "no_cpython_wrapper": True}
+
+
+def jit_options(target_options: type | None = None) -> dict[str, bool]:
+    """The options of the helpers' ``numba.njit``: :data:`_JIT_OPTIONS` plus ``_nrt=False``
+    when ``target_options`` (default numba's ``CPUTargetOptions``; a class, for the tests)
+    declares ``_nrt``, else :data:`_JIT_OPTIONS` alone (numba may drop an internal)."""
+    if target_options is None:
+        try:
+            from numba.core.cpu import CPUTargetOptions as target_options
+        except ImportError:
+            return dict(_JIT_OPTIONS)
+    if hasattr(target_options, "_nrt"):
+        return {**_JIT_OPTIONS, "_nrt": False}
+    return dict(_JIT_OPTIONS)
+
+
+_jit = numba.njit(**jit_options())  # type: ignore[call-overload]
+_jit_nrt = numba.njit(**_JIT_OPTIONS)  # type: ignore[call-overload]
 
 
 @_jit

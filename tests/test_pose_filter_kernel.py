@@ -312,3 +312,22 @@ def test_standstill_gap_bound_agrees():
         ib = iterated_rts_smooth(a, t, obs, off, 2)
         _close(ia.states, ib.states, ia.covariances, TOL_WELL[0], "iterated states")
         _cov_close(ia.covariances, ib.covariances, TOL_WELL[1], "iterated covariances")
+
+
+def test_jit_options_fall_back_when_numba_drops_its_internal():
+    """``_nrt=False`` is a numba internal: the helpers take it only when the target options
+    declare it, else numba's plain options (the same results, with reference counting), so
+    a numba release without it still imports the kernel."""
+    from estimator.pose_filter_kernel import _JIT_OPTIONS, jit_options
+
+    class WithNrt:
+        _nrt = None
+
+    class WithoutNrt:
+        pass
+
+    assert jit_options(WithNrt) == {**_JIT_OPTIONS, "_nrt": False}
+    assert jit_options(WithoutNrt) == _JIT_OPTIONS
+    assert "_nrt" not in _JIT_OPTIONS
+    numba_core_cpu = pytest.importorskip("numba.core.cpu")
+    assert jit_options() == jit_options(numba_core_cpu.CPUTargetOptions)
